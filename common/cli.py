@@ -1,0 +1,99 @@
+"""The ``bipedtele`` command line.
+
+Sub-commands are plugins registered in the ``bipedtele.commands`` entry-point group: each
+entry point is a function ``add_parser(subparsers)`` that adds one sub-parser and sets its
+``func`` default to ``func(args) -> int``. The core thereby runs the leader and follower
+programs without importing them.
+
+Every bad argument or config value ends the program with one line on stderr naming what is
+wrong and what is allowed, and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from importlib import metadata
+from typing import Any, NoReturn
+
+from bipedtele import __version__
+from bipedtele.config import Config, ConfigError, load_config
+
+__all__ = ["OneLineParser", "add_config_args", "config_from_args", "main"]
+
+LOG = logging.getLogger("bipedtele")
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line (no usage dump) and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def add_config_args(parser: argparse.ArgumentParser, default: str = "default") -> None:
+    """Add ``--config`` and ``--set`` to a sub-command parser."""
+    parser.add_argument(
+        "--config",
+        default=default,
+        metavar="PROFILE|FILE",
+        help=f"profile name from configs/ or a TOML file (default: {default})",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one config value (repeatable; TOML syntax)",
+    )
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    """Load the profile named by ``--config`` with ``--set`` overrides."""
+    return load_config(args.config, args.overrides)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(
+        prog="bipedtele",
+        description="Bilateral teleoperation of a biped (NAO) robot under time-varying delays.",
+    )
+    parser.add_argument("--version", action="version", version=f"bipedtele {__version__}")
+    parser.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        help="logging level (default: INFO)",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
+    sub.required = True
+    eps = sorted(metadata.entry_points(group="bipedtele.commands"), key=lambda e: e.name)
+    for ep in eps:
+        ep.load()(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``bipedtele`` console script."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, args.log_level),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    func: Any = args.func
+    try:
+        return int(func(args) or 0)
+    except ConfigError as exc:
+        sys.stderr.write(f"bipedtele {args.command}: config error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,381 @@
+"""Typed, validated configuration loaded from TOML profiles.
+
+A profile is a TOML file with one table per *section*. Each section is a frozen
+dataclass whose fields carry their allowed range in metadata (see :func:`param`).
+Sections are registered by the part of the product that owns them through the
+``bipedtele.config`` entry-point group, so the core never imports the leader or the
+follower, yet every section of a profile is validated by every process that loads it
+(a typo in ``[leader]`` is caught by the follower too).
+
+Errors are :class:`ConfigError`; their message is one line naming the file, the key,
+the value and what is allowed. The CLI turns them into exit code 2.
+
+Examples
+--------
+>>> cfg = load_config("default")            # a profile shipped in configs/
+>>> cfg = load_config("my.toml", ["leader.cmd_rate_hz=50"])
+>>> cfg.section("network").mode
+'peer'
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import metadata, resources
+from pathlib import Path
+from typing import Any, Literal, TypeVar, get_args, get_origin, get_type_hints
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "load_config",
+    "param",
+    "parse_section",
+    "profile_names",
+    "register_section",
+    "section_classes",
+]
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration file or override is invalid. The message is one line."""
+
+
+def param(
+    default: Any = dataclasses.MISSING,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    unit: str = "",
+    doc: str = "",
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
+    """Declare a config field with its allowed range.
+
+    Parameters
+    ----------
+    default : object
+        Default value.
+    lo, hi : float, optional
+        Inclusive bounds for numbers (and for every element of a list of numbers).
+    lo_open : bool
+        If true the lower bound is exclusive (``value > lo``).
+    unit : str
+        Physical unit, shown in error messages and in docs.
+    doc : str
+        One-line description.
+    """
+    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit, "doc": doc}
+    if default_factory is not dataclasses.MISSING:
+        return field(default_factory=default_factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# --------------------------------------------------------------------------- registry
+
+_REGISTRY: dict[str, type] = {}
+_ENTRY_POINTS_LOADED = False
+
+
+def register_section(name: str, cls: type) -> None:
+    """Register a section dataclass under ``name`` (for sections outside entry points)."""
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"config section {name!r} must be a dataclass, got {cls!r}")
+    _REGISTRY[name] = cls
+
+
+def section_classes() -> dict[str, type]:
+    """All known section classes: the core's plus those registered by entry points."""
+    global _ENTRY_POINTS_LOADED
+    if not _ENTRY_POINTS_LOADED:
+        from bipedtele import sections  # the core's own sections
+
+        for name, cls in sections.CORE_SECTIONS.items():
+            _REGISTRY.setdefault(name, cls)
+        for ep in metadata.entry_points(group="bipedtele.config"):
+            _REGISTRY.setdefault(ep.name, ep.load())
+        _ENTRY_POINTS_LOADED = True
+    return dict(_REGISTRY)
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+def _fmt(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _allowed_range(meta: Mapping[str, Any]) -> str:
+    lo, hi, unit = meta.get("lo"), meta.get("hi"), meta.get("unit") or ""
+    unit = f" {unit}" if unit else ""
+    if lo is not None and hi is not None:
+        left = "(" if meta.get("lo_open") else "["
+        return f"a number in {left}{lo}, {hi}]{unit}"
+    if lo is not None:
+        return f"a number {'>' if meta.get('lo_open') else '>='} {lo}{unit}"
+    if hi is not None:
+        return f"a number <= {hi}{unit}"
+    return f"a number{unit}"
+
+
+def _type_name(tp: Any) -> str:
+    origin = get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in get_args(tp))
+    if origin in (list, tuple, Sequence):
+        args = [a for a in get_args(tp) if a is not Ellipsis]
+        inner = _type_name(args[0]) if args else "value"
+        return f"a list of {inner}"
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in get_args(tp))
+    if tp is type(None):
+        return "absent"
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
+        tp, getattr(tp, "__name__", str(tp))
+    )
+
+
+def _coerce(tp: Any, value: Any, meta: Mapping[str, Any], where: str) -> Any:
+    """Check ``value`` against type ``tp`` and the range in ``meta``; return it converted."""
+    origin = get_origin(tp)
+
+    def fail(allowed: str) -> typing.NoReturn:
+        raise ConfigError(f"{where} = {_fmt(value)}: allowed: {allowed}")
+
+    if origin is Literal:
+        if value not in get_args(tp):
+            fail(_type_name(tp))
+        return value
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for arg in get_args(tp):
+            if arg is type(None):
+                if value is None:
+                    return None
+                continue
+            try:
+                return _coerce(arg, value, meta, where)
+            except ConfigError as exc:
+                errors.append(exc)
+        fail(_type_name(tp))
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        if not isinstance(value, Mapping):
+            fail(f"a table of {tp.__name__} fields")
+        return parse_section(tp, value, where)
+    if origin in (list, tuple, Sequence):
+        if not isinstance(value, list | tuple):
+            fail(_type_name(tp))
+        args = [a for a in get_args(tp) if a is not Ellipsis]
+        elem = args[0] if args else Any
+        items = [_coerce(elem, v, meta, f"{where}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if tp is Any:
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            fail("true or false")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            fail("a string")
+        return value
+    if tp in (int, float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            fail(_allowed_range(meta) if tp is float else "an integer")
+        if tp is int and not isinstance(value, int):
+            if float(value).is_integer():
+                value = int(value)
+            else:
+                fail("an integer")
+        if not math.isfinite(value):
+            fail(_allowed_range(meta))
+        lo, hi = meta.get("lo"), meta.get("hi")
+        if lo is not None and (value <= lo if meta.get("lo_open") else value < lo):
+            fail(_allowed_range(meta))
+        if hi is not None and value > hi:
+            fail(_allowed_range(meta))
+        return tp(value)
+    raise TypeError(f"unsupported config field type {tp!r} at {where}")
+
+
+def parse_section(cls: type[T], data: Mapping[str, Any], where: str) -> T:
+    """Build the dataclass ``cls`` from a mapping, validating every key.
+
+    Unknown keys are errors (they are usually typos). ``where`` prefixes error messages,
+    e.g. ``"configs/default.toml: leader"``.
+    """
+    hints = get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        if key not in fields:
+            allowed = ", ".join(sorted(fields)) or "(none)"
+            raise ConfigError(f"{where}.{key}: unknown key; allowed keys: {allowed}")
+        kwargs[key] = _coerce(hints[key], value, fields[key].metadata, f"{where}.{key}")
+    try:
+        obj = cls(**kwargs)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as exc:  # __post_init__ cross-field checks
+        raise ConfigError(f"{where}: {exc}") from None
+    # Defaults are validated too, so a bad default cannot hide.
+    return obj
+
+
+# --------------------------------------------------------------------------- overrides
+
+
+def _parse_override_value(text: str) -> Any:
+    """Parse the right-hand side of ``--set key=value`` as a TOML value (bare words are strings)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """Apply ``section.key=value`` (dotted, any depth) overrides to raw profile data."""
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set {item!r}: expected section.key=value")
+        path, _, raw = item.partition("=")
+        keys = [k for k in path.strip().split(".") if k]
+        if len(keys) < 2:
+            raise ConfigError(f"--set {item!r}: expected section.key=value")
+        node = data
+        for k in keys[:-1]:
+            node = node.setdefault(k, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item!r}: {k} is not a table")
+        node[keys[-1]] = _parse_override_value(raw.strip())
+    return data
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def profile_names() -> list[str]:
+    """Names of the profiles shipped in ``configs/`` (e.g. ``default``)."""
+    root = resources.files("bipedtele.configs")
+    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
+
+
+def _read_profile(name_or_path: str | Path) -> tuple[str, dict[str, Any]]:
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        label = str(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"{label}: cannot read config file ({exc.strerror})") from None
+    else:
+        name = str(name_or_path)
+        res = resources.files("bipedtele.configs").joinpath(f"{name}.toml")
+        if not res.is_file():
+            allowed = ", ".join(profile_names())
+            raise ConfigError(
+                f"config {name!r}: no such file or profile; profiles: {allowed}, or a path to a .toml file"
+            )
+        label = f"configs/{name}.toml"
+        text = res.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{label}: invalid TOML: {exc}") from None
+    return label, data
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated profile: one dataclass instance per section.
+
+    Attributes
+    ----------
+    source : str
+        File the profile came from (for messages).
+    sections : dict
+        Section name -> dataclass instance. Every registered section is present,
+        filled with defaults where the file does not mention it.
+    """
+
+    source: str
+    sections: Mapping[str, Any]
+
+    def section(self, name: str) -> Any:
+        """The section ``name`` (a dataclass instance)."""
+        try:
+            return self.sections[name]
+        except KeyError:
+            raise ConfigError(
+                f"{self.source}: no section {name!r}; known: {', '.join(sorted(self.sections))}"
+            ) from None
+
+    def __getattr__(self, name: str) -> Any:
+        sections = object.__getattribute__(self, "sections")
+        if name in sections:
+            return sections[name]
+        raise AttributeError(name)
+
+    def replace(self, name: str, **changes: Any) -> Config:
+        """A copy with fields of one section changed (validated like the file)."""
+        current = dataclasses.asdict(self.section(name))
+        current.update(changes)
+        new = parse_section(type(self.section(name)), current, f"{self.source}: {name}")
+        return Config(self.source, {**self.sections, name: new})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict (for recordings and the cockpit)."""
+        return {k: dataclasses.asdict(v) for k, v in self.sections.items()}
+
+
+def load_config(
+    profile: str | Path = "default",
+    overrides: Sequence[str] = (),
+    *,
+    extra_sections: Mapping[str, type] | None = None,
+) -> Config:
+    """Load, override and validate a profile.
+
+    Parameters
+    ----------
+    profile : str or Path
+        A profile name shipped in ``configs/`` (``default``, ``localhost-delay``, ...)
+        or a path to a TOML file.
+    overrides : sequence of str
+        ``section.key=value`` items, applied after the file (values in TOML syntax;
+        bare words are strings).
+    extra_sections : mapping, optional
+        Additional section classes (for tests and embedding).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file, the key, the value and what is allowed.
+    """
+    label, data = _read_profile(profile)
+    data = apply_overrides(data, overrides)
+    classes = section_classes()
+    if extra_sections:
+        classes.update(extra_sections)
+    unknown = sorted(set(data) - set(classes))
+    if unknown:
+        raise ConfigError(
+            f"{label}: unknown section [{unknown[0]}]; known sections: {', '.join(sorted(classes))}"
+        )
+    sections = {}
+    for name, cls in classes.items():
+        raw = data.get(name, {})
+        if not isinstance(raw, Mapping):
+            raise ConfigError(f"{label}: {name} = {_fmt(raw)}: allowed: a table [{name}]")
+        sections[name] = parse_section(cls, raw, f"{label}: {name}")
+    return Config(label, sections)

@@ -1,0 +1,2 @@
+"""The operator's side: leader devices (simulated Falcon, Falcon, joystick), operator
+models, the 1 kHz haptic loop with the force law (31), the browser cockpit."""

@@ -1,0 +1,162 @@
+"""The leader-device contract: one abstract class every haptic/input device implements.
+
+A :class:`LeaderDevice` is the operator's handle: the simulated Falcon
+(``bipedtele.leader.devices.sim_falcon``), a real Novint Falcon through libnifalcon, a
+force-feedback joystick through evdev. Two handle axes are used: axis 0 maps to the
+forward speed, axis 1 to the turn speed (through ``k_g``, eq. 7 and 11).
+
+Contract (checked by :func:`bipedtele.leader.check.check_device`):
+
+- ``connect()`` then ``read()``/``apply_force()``/``advance()``; calling them before
+  ``connect()`` raises :class:`DeviceNotConnectedError`.
+- ``read()`` returns positions within :attr:`DeviceLimits.workspace_m` and finite values.
+- ``apply_force(f)`` clamps each axis to ``force_max_n`` (non-finite -> 0) and returns
+  the force actually applied.
+- ``advance(dt)`` lets ``dt`` seconds of device time pass: a simulated device integrates
+  its dynamics (eq. 1) under the applied force and the operator's force; a real device
+  services its I/O and returns (the loop paces).
+- ``disconnect()`` zeroes the force, is idempotent and runs on leaving a ``with`` block.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+
+__all__ = [
+    "DEVICES",
+    "DeviceError",
+    "DeviceLimits",
+    "DeviceNotConnectedError",
+    "HandleState",
+    "LeaderDevice",
+    "make_device",
+    "register_device",
+]
+
+
+class DeviceError(RuntimeError):
+    """The device is missing or failed. The message says what is missing and how to get it."""
+
+
+class DeviceNotConnectedError(DeviceError):
+    """A method was called before ``connect()`` or after ``disconnect()``."""
+
+
+@dataclass(frozen=True)
+class DeviceLimits:
+    """Physical limits of the handle (Novint Falcon defaults, DESIGN section 5).
+
+    Attributes
+    ----------
+    workspace_m : float
+        Half-width of the usable workspace on each axis [m] (handle in [-w, w]).
+    force_max_n : float
+        Largest force per axis [N].
+    servo_rate_hz : float
+        Rate of the device's servo loop [Hz].
+    """
+
+    workspace_m: float = 0.05
+    force_max_n: float = 8.0
+    servo_rate_hz: float = 1000.0
+
+
+@dataclass(frozen=True)
+class HandleState:
+    """The handle at device time ``t``.
+
+    Attributes
+    ----------
+    t : float
+        Device time [s].
+    x_m : numpy.ndarray
+        Position of the two axes [m], shape (2,).
+    dx_m : numpy.ndarray
+        Velocity of the two axes [m/s], shape (2,).
+    buttons : tuple of bool
+        Button states (button 0 is the dead-man/enable button where the device has one).
+    """
+
+    t: float
+    x_m: np.ndarray
+    dx_m: np.ndarray
+    buttons: tuple[bool, ...] = ()
+
+
+class LeaderDevice(abc.ABC):
+    """Base class of every leader device. See the module docstring for the contract."""
+
+    name: ClassVar[str] = ""
+    limits: DeviceLimits = DeviceLimits()
+
+    @property
+    @abc.abstractmethod
+    def is_connected(self) -> bool:
+        """True between ``connect()`` and ``disconnect()``."""
+
+    @abc.abstractmethod
+    def connect(self) -> None:
+        """Open the device (and home it where needed)."""
+
+    @abc.abstractmethod
+    def disconnect(self) -> None:
+        """Zero the force and release the device. Idempotent."""
+
+    @abc.abstractmethod
+    def read(self) -> HandleState:
+        """Read the handle now."""
+
+    @abc.abstractmethod
+    def apply_force(self, force_n: np.ndarray) -> np.ndarray:
+        """Command a force [N] per axis; return the force actually applied (clamped)."""
+
+    @abc.abstractmethod
+    def advance(self, dt: float) -> None:
+        """Let ``dt`` seconds of device time pass (simulated devices integrate eq. 1)."""
+
+    def clamp_force(self, force_n: np.ndarray) -> np.ndarray:
+        """``force_n`` clamped to the device limit, non-finite entries set to 0."""
+        f = np.asarray(force_n, dtype=float).reshape(2)
+        f = np.where(np.isfinite(f), f, 0.0)
+        lim = self.limits.force_max_n
+        return np.clip(f, -lim, lim)
+
+    def __enter__(self: D) -> D:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
+
+D = TypeVar("D", bound=LeaderDevice)
+
+DEVICES: dict[str, Callable[..., LeaderDevice]] = {}
+
+
+def register_device(name: str) -> Callable[[type[D]], type[D]]:
+    """Class decorator: make a device available as ``--device NAME``."""
+
+    def deco(cls: type[D]) -> type[D]:
+        cls.name = name
+        DEVICES[name] = cls
+        return cls
+
+    return deco
+
+
+def make_device(name: str, **kwargs: Any) -> LeaderDevice:
+    """Instantiate a registered device by name (``sim-falcon``, ``falcon``, ``joystick``)."""
+    from bipedtele.leader import devices  # noqa: F401  (imports register the built-ins)
+
+    try:
+        factory = DEVICES[name]
+    except KeyError:
+        raise ValueError(f"device {name!r}: allowed: {', '.join(sorted(DEVICES))}") from None
+    return factory(**kwargs)
+

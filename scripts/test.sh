@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# The README's test command: installs what the tests need, then runs the whole suite
+# (unit, integration, slow and e2e tests), then ruff and mypy.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+scripts/bootstrap.sh --test || exit $?
+.venv/bin/python -m pytest "$@"
+rc=$?
+if [[ $rc -eq 5 ]]; then
+    echo "test.sh: pytest collected no tests: that is a failure" >&2
+    exit 1
+fi
+[[ $rc -ne 0 ]] && exit $rc
+.venv/bin/ruff check common leader follower tests bench || exit 1
+.venv/bin/mypy common leader follower || exit 1
