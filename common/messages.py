@@ -397,7 +397,6 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None
             bytes(payload),
             raw=False,
             strict_map_key=True,
-            max_buffer_size=MAX_MESSAGE_BYTES,
             max_str_len=MAX_TEXT * 4,
             max_bin_len=MAX_JPEG_BYTES,
             max_array_len=64,

@@ -1,0 +1,246 @@
+"""One-way delay estimation and clock-offset synchronisation.
+
+Two clock modes (``[clock] mode``):
+
+``synced``
+    Leader and follower share one clock (same host, docker, or hosts disciplined by
+    chrony/PTP). The one-way delay of a message is ``t_recv - t_sent`` directly.
+``ntp``
+    The clocks differ by an unknown offset. A 4-timestamp ping exchange
+    (:class:`ClockSync`) estimates the offset (remote minus local) from the exchanges
+    with the smallest round trip; the receiver converts the sender's send time to its
+    own clock with :meth:`ClockSync.to_local` before feeding the
+    :class:`DelayEstimator`.
+
+    Caveat: the offset estimate assumes a symmetric path. If the forward and backward
+    delays differ by ``a = h_fwd - h_bwd``, the estimated offset is wrong by ``a / 2``,
+    so each measured one-way delay is wrong by ``±a / 2``. The *sum* h1 + h2 (the round
+    trip) is exact; the *split* between h1 and h2 is only known up to the asymmetry.
+    For the stability conditions (paper eq. 40) use :func:`conservative_delays`, the
+    bound h1 = h2 = round trip, which holds whatever the asymmetry.
+
+All times are in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+__all__ = ["ClockSync", "DelayEstimator", "SyncSample", "conservative_delays"]
+
+
+class DelayEstimator:
+    """Time-windowed moving average of one-way delays.
+
+    The estimate at time ``now`` is the mean delay of the messages *received* in the
+    window ``(now - window_s, now]`` (the paper's 1 s moving average, a time window, not
+    a message count). ``None`` if no message arrived in the window.
+
+    Parameters
+    ----------
+    window_s : float
+        Window length [s], > 0.
+    max_samples : int
+        Bound on the samples kept; beyond it the oldest are discarded (memory stays
+        bounded whatever the message rate).
+
+    Notes
+    -----
+    ``update`` and ``value`` are O(1) amortised. Receive times are assumed to be
+    non-decreasing (a sample received earlier than the previous one is treated as
+    received at the same time as it) and ``value`` is assumed to be queried with a
+    non-decreasing ``now``: samples that left the window are forgotten. Thread-safe.
+    """
+
+    def __init__(self, window_s: float = 1.0, max_samples: int = 65536) -> None:
+        if not (window_s > 0 and math.isfinite(window_s)):
+            raise ValueError(f"window_s = {window_s!r}: allowed: a finite number > 0 s")
+        if max_samples < 1:
+            raise ValueError("max_samples must be >= 1")
+        self.window_s = float(window_s)
+        self._max = max_samples
+        self._samples: deque[tuple[float, float]] = deque()
+        self._sum = 0.0
+        self._last_recv = -math.inf
+        self._lock = threading.Lock()
+        self._updates = 0
+
+    def update(self, t_sent: float, t_recv: float) -> None:
+        """Add one message.
+
+        Parameters
+        ----------
+        t_sent : float
+            Send time on the *local* clock [s] (in ntp mode: converted with
+            :meth:`ClockSync.to_local`).
+        t_recv : float
+            Local receive time [s].
+        """
+        if not (math.isfinite(t_sent) and math.isfinite(t_recv)):
+            return
+        with self._lock:
+            t_recv = max(t_recv, self._last_recv)
+            self._last_recv = t_recv
+            delay = t_recv - t_sent
+            self._samples.append((t_recv, delay))
+            self._sum += delay
+            if len(self._samples) > self._max:
+                self._sum -= self._samples.popleft()[1]
+            self._updates += 1
+            if self._updates % 100_000 == 0:  # bound floating-point drift of the running sum
+                self._sum = math.fsum(d for _, d in self._samples)
+
+    def value(self, now: float) -> float | None:
+        """Mean one-way delay [s] of the samples received in ``(now - window_s, now]``."""
+        with self._lock:
+            samples = self._samples
+            start = now - self.window_s
+            while samples and samples[0][0] <= start:
+                self._sum -= samples.popleft()[1]
+            if not samples:
+                self._sum = 0.0
+                return None
+            total, n = self._sum, len(samples)
+            # Samples stamped after ``now`` (rare: a query with an older time) are excluded.
+            i = n - 1
+            while i >= 0 and samples[i][0] > now:
+                total -= samples[i][1]
+                n -= 1
+                i -= 1
+            return total / n if n else None
+
+    def count(self, now: float) -> int:
+        """Number of samples in the window ending at ``now``."""
+        self.value(now)
+        with self._lock:
+            return sum(1 for t, _ in self._samples if t <= now)
+
+    def clear(self) -> None:
+        """Forget every sample (e.g. after the peer restarted)."""
+        with self._lock:
+            self._samples.clear()
+            self._sum = 0.0
+            self._last_recv = -math.inf
+
+
+@dataclass(frozen=True)
+class SyncSample:
+    """One NTP-style exchange.
+
+    Attributes
+    ----------
+    offset : float
+        Remote clock minus local clock [s], assuming a symmetric path.
+    rtt : float
+        Round trip without the responder's processing time [s].
+    t4 : float
+        Local time the answer arrived [s].
+    """
+
+    offset: float
+    rtt: float
+    t4: float
+
+
+class ClockSync:
+    """Clock offset from 4-timestamp ping exchanges with min-RTT filtering.
+
+    The requester sends a ping at ``t1`` (local clock); the responder receives it at
+    ``t2`` and answers at ``t3`` (remote clock); the answer arrives at ``t4`` (local)::
+
+        offset = ((t2 - t1) + (t3 - t4)) / 2      # remote - local
+        rtt    = (t4 - t1) - (t3 - t2)
+
+    Of the last ``window`` exchanges, the one with the smallest round trip (the least
+    queueing, hence the least error) gives the estimate.
+
+    The offset is exact only for a symmetric path: with forward/backward delays
+    ``h_f``, ``h_b`` it is off by ``(h_f - h_b) / 2``. One-way delays computed with it
+    are therefore only known up to the path asymmetry; only their sum is exact. See
+    :func:`conservative_delays` for a bound that does not depend on the split.
+
+    Parameters
+    ----------
+    window : int
+        Number of recent exchanges kept (>= 1).
+    """
+
+    def __init__(self, window: int = 16) -> None:
+        if window < 1:
+            raise ValueError(f"window = {window!r}: allowed: an integer >= 1")
+        self._hist: deque[SyncSample] = deque(maxlen=window)
+        self._best: SyncSample | None = None
+        self._lock = threading.Lock()
+        self.rejected = 0
+
+    def on_pong(self, t1: float, t2: float, t3: float, t4: float) -> SyncSample | None:
+        """Add one exchange (times in seconds: t1, t4 local; t2, t3 remote).
+
+        Returns
+        -------
+        SyncSample or None
+            The exchange, or None if it is inconsistent (non-finite times, negative
+            round trip or responder time) and was rejected.
+        """
+        vals = (t1, t2, t3, t4)
+        if not all(math.isfinite(v) for v in vals) or t4 < t1 or t3 < t2:
+            self.rejected += 1
+            return None
+        rtt = (t4 - t1) - (t3 - t2)
+        if rtt < 0:
+            self.rejected += 1
+            return None
+        s = SyncSample(offset=((t2 - t1) + (t3 - t4)) / 2.0, rtt=rtt, t4=t4)
+        with self._lock:
+            self._hist.append(s)
+            self._best = min(self._hist, key=lambda x: x.rtt)
+        return s
+
+    @property
+    def ready(self) -> bool:
+        """True once at least one valid exchange is known."""
+        with self._lock:
+            return self._best is not None
+
+    @property
+    def offset(self) -> float:
+        """Remote clock minus local clock [s] (0.0 before any exchange)."""
+        with self._lock:
+            return self._best.offset if self._best else 0.0
+
+    @property
+    def rtt(self) -> float | None:
+        """Round trip of the exchange used for the estimate [s] (None before any)."""
+        with self._lock:
+            return self._best.rtt if self._best else None
+
+    def to_local(self, remote_t: float) -> float:
+        """Convert a time on the remote clock to the local clock [s]."""
+        return remote_t - self.offset
+
+    def to_remote(self, local_t: float) -> float:
+        """Convert a time on the local clock to the remote clock [s]."""
+        return local_t + self.offset
+
+
+def conservative_delays(rtt: float) -> tuple[float, float]:
+    """Delays for the stability conditions when only the round trip is known.
+
+    In ntp mode the split of the round trip into h1 and h2 is unknown (up to the path
+    asymmetry). Since each one-way delay is at most the round trip, ``h1 = h2 = rtt``
+    is a safe upper bound for conditions that grow with the delays (eq. 40).
+
+    Parameters
+    ----------
+    rtt : float
+        Round trip [s].
+
+    Returns
+    -------
+    (h1, h2) : tuple of float
+        Both equal to ``rtt`` [s].
+    """
+    return (rtt, rtt)

@@ -1,0 +1,731 @@
+"""Zenoh transport: session from ``[network]``, key expressions, QoS, receivers, presence.
+
+Key expressions (DESIGN section 6)::
+
+    bipedtele/<robot_id>/cmd         leader -> follower  Command
+    bipedtele/<robot_id>/feedback    follower -> leader  Feedback
+    bipedtele/<robot_id>/video       follower -> leader  VideoFrame
+    bipedtele/<robot_id>/clock       both                ClockPing / ClockPong
+    bipedtele/<robot_id>/status      both                Status
+    bipedtele/<robot_id>/presence/<role>/<zid>   liveliness tokens
+
+Control publishers are *express* (no batching delay), ``Priority.REAL_TIME`` and drop on
+congestion; the video publisher has a low priority and drops too. Loops read the newest
+message only (:class:`LatestReceiver`, a ring of one); clock pongs, where every message
+matters, go through the queue-style :class:`MessageReceiver`.
+
+Receivers never raise on bad input: payloads that fail :func:`bipedtele.messages.decode`
+are dropped and counted in a :class:`~bipedtele.drops.DropCounter` under the
+:class:`~bipedtele.messages.MessageError` reason; stale and duplicated messages are
+dropped by an optional :class:`~bipedtele.gate.SequenceGate`.
+
+Examples
+--------
+>>> with open_session(cfg.network) as session:                        # doctest: +SKIP
+...     keys = Keys(cfg.robot.id)
+...     pubs = Publishers(session, keys)
+...     with LatestReceiver(session, keys.cmd, Command, DropCounter("cmd"), SequenceGate()) as rx:
+...         pubs.feedback.put(fb)
+...         got = rx.take()
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import zenoh
+from bipedtele.clock import ClockSync, DelayEstimator
+from bipedtele.config import ConfigError
+from bipedtele.drops import DropCounter
+from bipedtele.gate import SequenceGate
+from bipedtele.messages import Message, MessageError, decode, encode, new_session_id
+from bipedtele.sections import NetworkConfig
+
+__all__ = [
+    "ROLES",
+    "Keys",
+    "LatestReceiver",
+    "MessagePublisher",
+    "MessageReceiver",
+    "PresenceWatcher",
+    "Publishers",
+    "Received",
+    "Stamper",
+    "declare_control_publisher",
+    "declare_presence",
+    "declare_video_publisher",
+    "open_session",
+    "zenoh_config",
+]
+
+LOG = logging.getLogger("bipedtele.transport")
+
+ROLES = ("leader", "follower", "router", "monitor")
+M = TypeVar("M", bound=Message)
+
+
+# --------------------------------------------------------------------------- keys
+
+
+class Keys:
+    """Key expressions of one robot: ``bipedtele/<robot_id>/...``.
+
+    Parameters
+    ----------
+    robot_id : str
+        The robot's id (``[robot] id``); must form valid Zenoh key expressions without
+        wildcards.
+
+    Raises
+    ------
+    ConfigError
+        If the id makes an invalid key expression.
+    """
+
+    def __init__(self, robot_id: str) -> None:
+        if not robot_id or any(c in robot_id for c in "/*$?#@ "):
+            raise ConfigError(
+                f"robot id {robot_id!r}: allowed: a non-empty name without '/', '*', '$', '?', '#', '@' or spaces"
+            )
+        self.robot_id = robot_id
+        self.root = f"bipedtele/{robot_id}"
+        for key in (self.cmd, self.feedback, self.video, self.clock, self.status, self.presence("leader")):
+            try:
+                zenoh.KeyExpr(key)
+            except Exception as exc:  # zenoh raises ZError
+                raise ConfigError(f"robot id {robot_id!r}: invalid key expression {key!r} ({exc})") from None
+
+    @property
+    def cmd(self) -> str:
+        """Commands, leader -> follower."""
+        return f"{self.root}/cmd"
+
+    @property
+    def feedback(self) -> str:
+        """Feedback, follower -> leader."""
+        return f"{self.root}/feedback"
+
+    @property
+    def video(self) -> str:
+        """Video frames, follower -> leader."""
+        return f"{self.root}/video"
+
+    @property
+    def clock(self) -> str:
+        """Clock pings and pongs (both directions)."""
+        return f"{self.root}/clock"
+
+    @property
+    def status(self) -> str:
+        """Status messages (both directions)."""
+        return f"{self.root}/status"
+
+    def presence(self, role: str) -> str:
+        """Prefix of the liveliness tokens of ``role`` (tokens add ``/<zid>``)."""
+        if role not in ROLES:
+            raise ValueError(f"role {role!r}: allowed: {', '.join(ROLES)}")
+        return f"{self.root}/presence/{role}"
+
+    def all(self) -> dict[str, str]:
+        """Name -> key of every data key."""
+        return {n: getattr(self, n) for n in ("cmd", "feedback", "video", "clock", "status")}
+
+    def __repr__(self) -> str:
+        return f"Keys({self.robot_id!r})"
+
+
+# --------------------------------------------------------------------------- session
+
+
+def _read_password(net: NetworkConfig) -> str:
+    if net.password_file:
+        try:
+            return Path(net.password_file).read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigError(
+                f"network.password_file = {net.password_file!r}: cannot read ({exc.strerror}); allowed: a readable file"
+            ) from None
+    return net.password
+
+
+def _check_file(key: str, path: str) -> str:
+    if path and not Path(path).is_file():
+        raise ConfigError(f"network.{key} = {path!r}: no such file; allowed: a readable PEM file")
+    return path
+
+
+def _credential_users(path: str) -> list[str]:
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise ConfigError(
+            f"network.credentials_file = {path!r}: cannot read ({exc.strerror}); allowed: a file of user:password lines"
+        ) from None
+    users = []
+    for i, line in enumerate(lines, 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        user, sep, pwd = line.partition(":")
+        if not sep or not user or not pwd:
+            raise ConfigError(
+                f"network.credentials_file = {path!r}: line {i} is not user:password"
+            )
+        users.append(user.strip())
+    return users
+
+
+def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
+    """The Zenoh ``access_control`` section for a router, or None if not restricted.
+
+    Only the users in ``publishers_allowed`` may put on ``bipedtele/*/cmd``: every other
+    user of ``credentials_file`` is denied ``put``/``delete`` there (ingress). Clients
+    must be authenticated (user/password) for this to be meaningful, so a credentials
+    file is required.
+    """
+    if not net.publishers_allowed:
+        return None
+    if not net.credentials_file:
+        raise ConfigError(
+            "network.publishers_allowed: needs network.credentials_file (users must authenticate); allowed: set both or neither"
+        )
+    users = _credential_users(net.credentials_file)
+    unknown = [u for u in net.publishers_allowed if u not in users]
+    if unknown:
+        raise ConfigError(
+            f"network.publishers_allowed = {unknown[0]!r}: not a user of {net.credentials_file}; allowed: {', '.join(users)}"
+        )
+    others = [u for u in users if u not in net.publishers_allowed]
+    acl: dict[str, Any] = {"enabled": True, "default_permission": "allow"}
+    if others:
+        acl["rules"] = [
+            {
+                "id": "deny_cmd_put",
+                "permission": "deny",
+                "flows": ["ingress", "egress"],
+                "messages": ["put", "delete"],
+                "key_exprs": ["bipedtele/*/cmd"],
+            }
+        ]
+        acl["subjects"] = [{"id": "not_leaders", "usernames": others}]
+        acl["policies"] = [{"rules": ["deny_cmd_put"], "subjects": ["not_leaders"]}]
+    return acl
+
+
+def zenoh_config(
+    net: NetworkConfig,
+    *,
+    mode: str | None = None,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+) -> zenoh.Config:
+    """Build a :class:`zenoh.Config` from the ``[network]`` section.
+
+    Parameters
+    ----------
+    net : NetworkConfig
+        The section.
+    mode, listen, connect : optional
+        Override the section's mode and endpoints (e.g. from command-line flags).
+
+    Raises
+    ------
+    ConfigError
+        Unreadable password/credentials/PEM files.
+    """
+    mode = mode or net.mode
+    listen = list(net.listen if listen is None else listen)
+    connect = list(net.connect if connect is None else connect)
+    conf = zenoh.Config()
+
+    def put(key: str, value: Any) -> None:
+        conf.insert_json5(key, json.dumps(value))
+
+    put("mode", mode)
+    put("connect/endpoints", connect)
+    if listen or mode != "client":
+        # Explicit endpoints only; a peer with no listen endpoint listens nowhere rather
+        # than on an ephemeral port of every interface.
+        put("listen/endpoints", listen)
+    put("scouting/multicast/enabled", bool(net.multicast_scouting))
+    if not net.multicast_scouting:
+        put("scouting/gossip/enabled", mode != "client")
+    put("connect/timeout_ms", int(net.timeout_s * 1000))
+    put("connect/exit_on_failure", False)
+    tls: dict[str, Any] = {}
+    if net.tls_root_ca:
+        tls["root_ca_certificate"] = _check_file("tls_root_ca", net.tls_root_ca)
+    if net.tls_cert:
+        cert = _check_file("tls_cert", net.tls_cert)
+        key = _check_file("tls_key", net.tls_key)
+        tls.update(
+            listen_certificate=cert,
+            listen_private_key=key,
+            connect_certificate=cert,
+            connect_private_key=key,
+        )
+    if net.tls_mutual:
+        if not net.tls_cert:
+            raise ConfigError(
+                "network.tls_mutual = true: needs tls_cert and tls_key; allowed: set them or tls_mutual = false"
+            )
+        tls["enable_mtls"] = True
+    for k, v in tls.items():
+        put(f"transport/link/tls/{k}", v)
+    password = _read_password(net)
+    if net.user or password:
+        if not (net.user and password):
+            raise ConfigError(
+                "network.user/password: allowed: both a user and a password (or password_file), or neither"
+            )
+        put("transport/auth/usrpwd/user", net.user)
+        put("transport/auth/usrpwd/password", password)
+    if net.credentials_file:
+        _credential_users(net.credentials_file)
+        put("transport/auth/usrpwd/dictionary_file", net.credentials_file)
+    acl = access_control_json(net) if mode == "router" else None
+    if acl is not None:
+        put("access_control", acl)
+    return conf
+
+
+@contextmanager
+def open_session(
+    net: NetworkConfig,
+    *,
+    mode: str | None = None,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+) -> Iterator[zenoh.Session]:
+    """Open a Zenoh session from the ``[network]`` section; close it on exit.
+
+    Parameters are as in :func:`zenoh_config`.
+
+    Raises
+    ------
+    ConfigError
+        Bad files, or Zenoh refused the configuration (e.g. an endpoint cannot be bound).
+    """
+    conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
+    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode or net.mode)
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+# --------------------------------------------------------------------------- publishing
+
+
+class Stamper:
+    """Fills the envelope (sid, seq, send time) of outgoing messages.
+
+    Parameters
+    ----------
+    sid : int, optional
+        Session id; a new random one per process by default.
+    clock : callable
+        Send-time source [s] (``time.time`` so that receivers on the same host or with
+        synced clocks can compute one-way delays).
+    """
+
+    def __init__(self, sid: int | None = None, clock: Callable[[], float] = time.time) -> None:
+        self.sid = sid if sid is not None else new_session_id()
+        self._clock = clock
+        self._seq = itertools.count(1)
+        self._lock = threading.Lock()
+
+    def make(self, cls: type[M], **fields: Any) -> M:
+        """A new message of type ``cls`` with the next seq and the current time."""
+        with self._lock:
+            seq = next(self._seq)
+        return cls(sid=self.sid, seq=seq, t=self._clock(), **fields)
+
+    def restamp(self, msg: M) -> M:
+        """A copy of ``msg`` with this stamper's sid, the next seq and the current time."""
+        with self._lock:
+            seq = next(self._seq)
+        return dataclasses.replace(msg, sid=self.sid, seq=seq, t=self._clock())
+
+
+class MessagePublisher:
+    """A declared Zenoh publisher that sends :class:`Message` objects.
+
+    Use :func:`declare_control_publisher` or :func:`declare_video_publisher`.
+    """
+
+    def __init__(self, publisher: zenoh.Publisher, key: str) -> None:
+        self._pub = publisher
+        self.key = key
+        self.sent = 0
+
+    def put(self, msg: Message) -> None:
+        """Encode and send one message (never blocks: dropped on congestion)."""
+        self._pub.put(encode(msg))
+        self.sent += 1
+
+    def put_bytes(self, payload: bytes) -> None:
+        """Send raw bytes (tests and tools)."""
+        self._pub.put(payload)
+
+    def close(self) -> None:
+        """Undeclare the publisher."""
+        self._pub.undeclare()
+
+    def __enter__(self) -> MessagePublisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def declare_control_publisher(session: zenoh.Session, key: str) -> MessagePublisher:
+    """Publisher for control traffic: express, real-time priority, drop on congestion."""
+    pub = session.declare_publisher(
+        key,
+        express=True,
+        priority=zenoh.Priority.REAL_TIME,
+        congestion_control=zenoh.CongestionControl.DROP,
+    )
+    return MessagePublisher(pub, key)
+
+
+def declare_video_publisher(session: zenoh.Session, key: str) -> MessagePublisher:
+    """Publisher for video: low priority, drop on congestion (latest-only by nature)."""
+    pub = session.declare_publisher(
+        key,
+        priority=zenoh.Priority.DATA_LOW,
+        congestion_control=zenoh.CongestionControl.DROP,
+    )
+    return MessagePublisher(pub, key)
+
+
+class Publishers:
+    """The publishers of one robot's keys, declared on first use.
+
+    Attributes ``cmd``, ``feedback``, ``clock``, ``status`` (control QoS) and ``video``
+    (video QoS) are :class:`MessagePublisher` objects. ``close()`` (or leaving the
+    ``with`` block) undeclares the ones that were declared.
+    """
+
+    _CONTROL = ("cmd", "feedback", "clock", "status")
+
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+        self._session = session
+        self.keys = keys
+        self._pubs: dict[str, MessagePublisher] = {}
+        self._lock = threading.Lock()
+
+    def _get(self, name: str) -> MessagePublisher:
+        with self._lock:
+            pub = self._pubs.get(name)
+            if pub is None:
+                key = getattr(self.keys, name)
+                if name == "video":
+                    pub = declare_video_publisher(self._session, key)
+                else:
+                    pub = declare_control_publisher(self._session, key)
+                self._pubs[name] = pub
+            return pub
+
+    @property
+    def cmd(self) -> MessagePublisher:
+        return self._get("cmd")
+
+    @property
+    def feedback(self) -> MessagePublisher:
+        return self._get("feedback")
+
+    @property
+    def clock(self) -> MessagePublisher:
+        return self._get("clock")
+
+    @property
+    def status(self) -> MessagePublisher:
+        return self._get("status")
+
+    @property
+    def video(self) -> MessagePublisher:
+        return self._get("video")
+
+    def close(self) -> None:
+        """Undeclare every declared publisher."""
+        with self._lock:
+            pubs, self._pubs = list(self._pubs.values()), {}
+        for p in pubs:
+            p.close()
+
+    def __enter__(self) -> Publishers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------- receiving
+
+
+@dataclass(frozen=True)
+class Received(Generic[M]):
+    """A valid message and its local receive time.
+
+    Attributes
+    ----------
+    msg : Message
+        The decoded message.
+    t_recv : float
+        Local receive time (``time.time()`` by default) [s].
+    """
+
+    msg: M
+    t_recv: float
+
+
+class _Receiver(Generic[M]):
+    """Shared decoding/validation/gating for the receivers."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        expect: type[M] | tuple[type[M], ...],
+        drops: DropCounter,
+        gate: SequenceGate | None = None,
+        *,
+        estimator: DelayEstimator | None = None,
+        clock_sync: ClockSync | None = None,
+        clock: Callable[[], float] = time.time,
+        ignore_sid: int | None = None,
+    ) -> None:
+        self.key = key
+        self._expect: tuple[type[M], ...] = expect if isinstance(expect, tuple) else (expect,)
+        self.drops = drops
+        self.gate = gate
+        self.estimator = estimator
+        self.clock_sync = clock_sync
+        self._clock = clock
+        self._ignore_sid = ignore_sid
+        self._lock = threading.Lock()
+        self.count = 0
+        self._closed = False
+        self._sub = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        t_recv = self._clock()
+        try:
+            payload = sample.payload.to_bytes()
+            try:
+                msg = decode(payload, self._expect[0] if len(self._expect) == 1 else None)
+            except MessageError as exc:
+                self.drops.drop(exc.reason, exc.detail)
+                return
+            if not isinstance(msg, self._expect):
+                self.drops.drop("unknown_kind", f"k={msg.KIND!r}")
+                return
+            if self._ignore_sid is not None and msg.sid == self._ignore_sid:
+                return  # our own message on a shared key (clock, status)
+            if self.gate is not None:
+                reason = self.gate.accept(msg)
+                if reason is not None:
+                    self.drops.drop(reason, f"sid={msg.sid} seq={msg.seq}")
+                    return
+            if self.estimator is not None:
+                t_sent = self.clock_sync.to_local(msg.t) if self.clock_sync else msg.t
+                self.estimator.update(t_sent, t_recv)
+            self._deliver(Received(msg, t_recv))
+        except Exception as exc:  # never let a bad sample kill Zenoh's callback thread
+            self.drops.drop("receiver_error", f"{type(exc).__name__}: {exc}")
+
+    def _deliver(self, rec: Received[M]) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Undeclare the subscriber (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._sub.undeclare()
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class LatestReceiver(_Receiver[M]):
+    """Keeps only the newest valid message of one key (a ring of one).
+
+    Parameters
+    ----------
+    session : zenoh.Session
+    key : str
+        Key expression to subscribe to.
+    expect : type or tuple of types
+        Accepted message class(es); any other kind is dropped (``unknown_kind``).
+    drops : DropCounter
+        Where invalid/stale messages are counted.
+    gate : SequenceGate, optional
+        Drops stale and duplicated messages.
+    estimator : DelayEstimator, optional
+        Fed with every accepted message (send time, receive time) at reception, so the
+        delay estimate sees every message, not only those the loop takes.
+    clock_sync : ClockSync, optional
+        ntp mode: converts the sender's send time to the local clock first.
+    clock : callable
+        Local receive-time source [s] (``time.time``).
+    ignore_sid : int, optional
+        Messages with this sid (our own, on a shared key) are ignored silently.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._latest: Received[M] | None = None
+        self._fresh = False
+        super().__init__(*args, **kwargs)
+
+    def _deliver(self, rec: Received[M]) -> None:
+        with self._lock:
+            self._latest = rec
+            self._fresh = True
+            self.count += 1
+
+    def latest(self) -> Received[M] | None:
+        """The newest valid message (kept; None before the first)."""
+        with self._lock:
+            return self._latest
+
+    def take(self) -> Received[M] | None:
+        """The newest valid message if it was not taken before, else None."""
+        with self._lock:
+            if not self._fresh:
+                return None
+            self._fresh = False
+            return self._latest
+
+
+class MessageReceiver(_Receiver[M]):
+    """Queue of every valid message of one key (bounded; overflow is counted).
+
+    Same parameters as :class:`LatestReceiver`, plus ``maxlen`` (queue bound). When the
+    queue is full the oldest message is dropped and counted as ``overflow``.
+    """
+
+    def __init__(self, *args: Any, maxlen: int = 1024, **kwargs: Any) -> None:
+        self._q: deque[Received[M]] = deque()
+        self._maxlen = maxlen
+        self._cond = threading.Condition(threading.Lock())
+        super().__init__(*args, **kwargs)
+
+    def _deliver(self, rec: Received[M]) -> None:
+        overflow = False
+        with self._cond:
+            if len(self._q) >= self._maxlen:
+                self._q.popleft()
+                overflow = True
+            self._q.append(rec)
+            self.count += 1
+            self._cond.notify_all()
+        if overflow:
+            self.drops.drop("overflow", self.key)
+
+    def get(self, timeout: float | None = None) -> Received[M] | None:
+        """The oldest queued message, or None.
+
+        ``timeout`` [s]: None or 0 does not wait; a positive value waits at most that long.
+        """
+        with self._cond:
+            if not self._q and timeout:
+                self._cond.wait_for(lambda: bool(self._q), timeout)
+            return self._q.popleft() if self._q else None
+
+    def drain(self) -> list[Received[M]]:
+        """Every queued message, oldest first."""
+        with self._cond:
+            out = list(self._q)
+            self._q.clear()
+            return out
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._q)
+
+
+# --------------------------------------------------------------------------- presence
+
+
+def declare_presence(session: zenoh.Session, keys: Keys, role: str) -> zenoh.LivelinessToken:
+    """Declare this process alive as ``role``; undeclare with the token's ``with`` block.
+
+    The token's key is ``bipedtele/<robot_id>/presence/<role>/<zid>``, so several
+    processes of one role do not shadow each other.
+    """
+    key = f"{keys.presence(role)}/{session.zid()}"
+    return session.liveliness().declare_token(key)
+
+
+class PresenceWatcher:
+    """Tracks whether any process of ``role`` is alive (liveliness tokens).
+
+    ``alive`` becomes true when a token appears (including tokens already present when
+    the watcher starts) and false when the last one disappears (the peer closed its
+    session or its link was lost).
+    """
+
+    def __init__(self, session: zenoh.Session, keys: Keys, role: str) -> None:
+        self.role = role
+        self._alive: set[str] = set()
+        self._cond = threading.Condition(threading.Lock())
+        self.changes = 0
+        self._sub = session.liveliness().declare_subscriber(
+            f"{keys.presence(role)}/*", self._on_sample, history=True
+        )
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self._cond:
+            before = bool(self._alive)
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(key)
+            else:
+                self._alive.discard(key)
+            if bool(self._alive) != before:
+                self.changes += 1
+                LOG.info("%s %s", self.role, "present" if self._alive else "gone")
+            self._cond.notify_all()
+
+    @property
+    def alive(self) -> bool:
+        """True while at least one process of the role is present."""
+        with self._cond:
+            return bool(self._alive)
+
+    def wait(self, alive: bool = True, timeout: float = 5.0) -> bool:
+        """Wait up to ``timeout`` [s] until ``alive`` has the wanted value; return it."""
+        with self._cond:
+            return self._cond.wait_for(lambda: bool(self._alive) == alive, timeout)
+
+    def close(self) -> None:
+        """Undeclare the liveliness subscriber."""
+        self._sub.undeclare()
+
+    def __enter__(self) -> PresenceWatcher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
