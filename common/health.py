@@ -1,0 +1,59 @@
+"""``bipedtele health``: is a router reachable, is a leader or follower present?
+
+Used by the docker compose healthchecks and handy by hand. Opens a short-lived Zenoh
+session from the profile's ``[network]`` section (as a client when it names endpoints to
+connect to) and checks:
+
+- ``--role router``: the session opens, i.e. the router answers on the configured
+  endpoints (a Zenoh client cannot open a session without one);
+- ``--role leader|follower``: a liveliness token of that role appears within ``--timeout``.
+
+Exit code 0 when healthy, 1 when not (one line says why), 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.config import ConfigError
+from bipedtele.transport import Keys, PresenceWatcher, open_session
+
+__all__ = ["add_health_parser", "check_health"]
+
+
+def check_health(cfg: Any, role: str, timeout_s: float) -> tuple[bool, str]:
+    """``(healthy, reason)`` for ``role`` on the network of profile ``cfg``."""
+    net = cfg.section("network")
+    mode = "client" if net.connect else "peer"
+    keys = Keys(cfg.section("robot").id)
+    try:
+        with open_session(net, mode=mode, listen=[]) as session:
+            if role == "router":
+                return True, f"router reachable at {', '.join(net.connect) or '(local)'}"
+            with PresenceWatcher(session, keys, role) as watcher:
+                if watcher.wait(alive=True, timeout=timeout_s):
+                    return True, f"{role} present on {keys.presence(role)}"
+                return False, f"no {role} present on {keys.presence(role)} within {timeout_s:g} s"
+    except ConfigError as exc:
+        return False, str(exc)
+
+
+def _run(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    if args.timeout <= 0:
+        raise ConfigError(f"--timeout {args.timeout}: allowed: a number of seconds > 0")
+    ok, why = check_health(cfg, args.role, args.timeout)
+    (sys.stdout if ok else sys.stderr).write(f"{'healthy' if ok else 'unhealthy'}: {why}\n")
+    return 0 if ok else 1
+
+
+def add_health_parser(sub: Any) -> None:
+    """``bipedtele health --role ROLE``."""
+    p = sub.add_parser("health", help="check that a router is reachable or a leader/follower is present")
+    add_config_args(p)
+    p.add_argument("--role", required=True, choices=["router", "leader", "follower"], help="what to check")
+    p.add_argument("--timeout", type=float, default=3.0, metavar="S", help="seconds to wait (default 3)")
+    p.set_defaults(func=_run)
