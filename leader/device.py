@@ -16,6 +16,9 @@ Contract (checked by :func:`bipedtele.leader.check.check_device`):
   its dynamics (eq. 1) under the applied force and the operator's force; a real device
   services its I/O and returns (the loop paces).
 - ``disconnect()`` zeroes the force, is idempotent and runs on leaving a ``with`` block.
+- ``set_operator(hand)`` attaches a simulated operator's hand (f_h of eq. 1) to a
+  simulated device; physical devices are moved by a real hand and raise
+  :class:`DeviceError`.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 
@@ -34,6 +37,7 @@ __all__ = [
     "DeviceNotConnectedError",
     "HandleState",
     "LeaderDevice",
+    "OperatorHand",
     "make_device",
     "register_device",
 ]
@@ -88,6 +92,15 @@ class HandleState:
     buttons: tuple[bool, ...] = ()
 
 
+class OperatorHand(Protocol):
+    """A simulated operator's hand: the force f_h it puts on the handle (eq. 1)."""
+
+    def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
+        """Force [N] per axis on the handle at device time ``t`` [s], position ``x_m`` [m]
+        and velocity ``dx_m`` [m/s]."""
+        ...
+
+
 class LeaderDevice(abc.ABC):
     """Base class of every leader device. See the module docstring for the contract."""
 
@@ -118,6 +131,13 @@ class LeaderDevice(abc.ABC):
     @abc.abstractmethod
     def advance(self, dt: float) -> None:
         """Let ``dt`` seconds of device time pass (simulated devices integrate eq. 1)."""
+
+    def set_operator(self, hand: OperatorHand | None) -> None:
+        """Attach a simulated hand (``None`` detaches). Only simulated devices accept one."""
+        raise DeviceError(
+            f"device {self.name!r} is moved by a real hand; operator models need a simulated "
+            "device (--device sim-falcon)"
+        )
 
     def clamp_force(self, force_n: np.ndarray) -> np.ndarray:
         """``force_n`` clamped to the device limit, non-finite entries set to 0."""

@@ -1,0 +1,586 @@
+"""Operator models: the human force f_h of eq. (1) for a simulated leader device.
+
+Every model decides an *intended* speed pair [forward cm/s, turn deg/s], turns it into an
+intended handle position ``x_d = ref / k_g`` (inside the workspace) and moves the handle
+with a :class:`Hand`: a PD "hand" of limited stiffness, damping and strength pulling the
+handle toward a smoothed ``x_d``. The device's force feedback therefore pushes the hand
+off its target, as it does a human's: the operator feels the coordination error and
+yields to it partly.
+
+Models
+------
+``scripted``
+    A profile of intended speeds over time (``(t, v, w)`` points, linear or step).
+``pilot``
+    The paper's task (Sec. 5, Fig. 10): walk toward an obstacle and evade it by the left
+    and the right side alternately, N passes, steering only from the delayed feedback
+    (pose and sonar) with a pure-pursuit law through waypoints beside each obstacle.
+``browser``
+    The intended handle position comes from the cockpit's virtual joystick.
+
+The loop calls :meth:`Operator.update` (at its command rate) with the device time and the
+latest feedback; the device calls :meth:`Operator.hand_force` at every integration step.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from bipedtele.messages import Feedback
+
+__all__ = [
+    "OPERATORS",
+    "BrowserOperator",
+    "Hand",
+    "Obstacle",
+    "Operator",
+    "PilotOperator",
+    "ScriptedOperator",
+    "course_from_config",
+    "make_operator",
+]
+
+LOG = logging.getLogger(__name__)
+
+
+class Hand:
+    """A human hand holding the handle: f_h = k_h (x_d - x) - b_h dx, |f_h| <= f_max.
+
+    The target ``x_d`` follows the commanded target through a first-order lag of time
+    constant ``tau_s`` (reaction and arm dynamics).
+
+    Parameters
+    ----------
+    stiffness_n_m : float
+        Hand stiffness k_h [N/m].
+    damping_n_s_m : float
+        Hand damping b_h [N s/m].
+    force_max_n : float
+        Largest force per axis the hand exerts [N].
+    tau_s : float
+        Time constant of the target smoothing [s] (0: none).
+    """
+
+    def __init__(
+        self,
+        stiffness_n_m: float = 300.0,
+        damping_n_s_m: float = 8.0,
+        force_max_n: float = 15.0,
+        tau_s: float = 0.15,
+    ) -> None:
+        self.k = float(stiffness_n_m)
+        self.b = float(damping_n_s_m)
+        self.f_max = float(force_max_n)
+        self.tau = float(tau_s)
+        self.target = np.zeros(2)
+        self.x_d = np.zeros(2)
+        self._t_last: float | None = None
+
+    def set_target(self, x_target_m: np.ndarray) -> None:
+        """Where the hand wants the handle [m] per axis."""
+        self.target = np.asarray(x_target_m, dtype=float).reshape(2).copy()
+
+    def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
+        """Force [N] on the handle at device time ``t`` [s] (see the class docstring)."""
+        dt = 0.0 if self._t_last is None else max(0.0, t - self._t_last)
+        self._t_last = t
+        if self.tau > 0.0:
+            self.x_d += (self.target - self.x_d) * (1.0 - math.exp(-dt / self.tau))
+        else:
+            self.x_d = self.target.copy()
+        f = self.k * (self.x_d - x_m) - self.b * dx_m
+        return np.clip(f, -self.f_max, self.f_max)
+
+
+class Operator(abc.ABC):
+    """Base of the operator models (see the module docstring).
+
+    Parameters
+    ----------
+    k_g : sequence of float
+        Handle position -> [forward cm/s, turn deg/s] per metre (eq. 7, 11).
+    workspace_m : float
+        Half-width of the handle workspace [m]; targets stay 2 % inside it.
+    hand : Hand, optional
+        The hand that moves the handle.
+    """
+
+    name: ClassVar[str] = ""
+
+    def __init__(self, k_g: Sequence[float], workspace_m: float = 0.05, hand: Hand | None = None) -> None:
+        self.k_g = np.asarray(k_g, dtype=float).reshape(2)
+        self.workspace_m = float(workspace_m)
+        self.hand = hand or Hand()
+        self.intended = np.zeros(2)
+
+    def update(self, t: float, feedback: Feedback | None) -> None:
+        """Decide the intended speeds at device time ``t`` [s] from the latest feedback."""
+        self.intended = np.asarray(self.intended_speed(t, feedback), dtype=float).reshape(2)
+        lim = 0.98 * self.workspace_m
+        self.hand.set_target(np.clip(self.intended / self.k_g, -lim, lim))
+
+    @abc.abstractmethod
+    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s]."""
+
+    def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
+        """f_h [N] (the :class:`bipedtele.leader.device.OperatorHand` protocol)."""
+        return self.hand.hand_force(t, x_m, dx_m)
+
+    @property
+    def done(self) -> bool:
+        """True when the operator has finished its task (never, for open-ended ones)."""
+        return False
+
+    def progress(self) -> dict[str, Any]:
+        """Plain-data progress for telemetry."""
+        return {"operator": self.name, "done": self.done, "intended": self.intended.tolist()}
+
+
+# --------------------------------------------------------------------------- scripted
+
+
+class ScriptedOperator(Operator):
+    """Intended speeds from a profile of ``(t [s], forward [cm/s], turn [deg/s])`` points.
+
+    ``interp="linear"`` interpolates between points, ``"step"`` holds each point's value
+    until the next. Before the first point and after the last, the end values hold; the
+    operator is done once ``t`` passes the last point.
+    """
+
+    name = "scripted"
+
+    def __init__(
+        self,
+        points: Sequence[Sequence[float]],
+        k_g: Sequence[float],
+        interp: str = "linear",
+        workspace_m: float = 0.05,
+        hand: Hand | None = None,
+    ) -> None:
+        super().__init__(k_g, workspace_m, hand)
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        if len(pts) == 0 or np.any(np.diff(pts[:, 0]) < 0) or not np.all(np.isfinite(pts)):
+            raise ValueError("points: allowed: finite [t, forward, turn] rows with non-decreasing t")
+        if interp not in ("linear", "step"):
+            raise ValueError(f"interp = {interp!r}: allowed: 'linear', 'step'")
+        self.points = pts
+        self.interp = interp
+        self._t = 0.0
+
+    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        self._t = t
+        ts = self.points[:, 0]
+        if self.interp == "step":
+            i = max(0, int(np.searchsorted(ts, t, side="right")) - 1)
+            return self.points[i, 1:].copy()
+        return np.array([np.interp(t, ts, self.points[:, 1]), np.interp(t, ts, self.points[:, 2])])
+
+    @property
+    def done(self) -> bool:
+        return self._t > self.points[-1, 0]
+
+
+# --------------------------------------------------------------------------- browser
+
+
+class BrowserOperator(Operator):
+    """Intended handle position from the cockpit's virtual joystick.
+
+    ``joystick()`` returns ``(x, y, t)`` with x, y in [-1, 1] (x right, y up) and ``t`` the
+    time of the last browser input (``time.time()``), or ``None``. Joystick up moves the
+    handle forward (forward speed), joystick right turns right (negative turn speed,
+    yaw counter-clockwise positive). With no input, or input older than ``timeout_s``
+    (the page went away), the hand holds the handle at zero.
+    """
+
+    name = "browser"
+
+    def __init__(
+        self,
+        joystick: Callable[[], tuple[float, float, float] | None],
+        k_g: Sequence[float],
+        workspace_m: float = 0.05,
+        hand: Hand | None = None,
+        timeout_s: float = 1.0,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        super().__init__(k_g, workspace_m, hand)
+        self.joystick = joystick
+        self.timeout_s = timeout_s
+        self.clock = clock
+        self.active = False
+
+    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        js = self.joystick()
+        self.active = False
+        if js is None:
+            return np.zeros(2)
+        x, y, t_js = js
+        if not (math.isfinite(x) and math.isfinite(y)) or self.clock() - t_js > self.timeout_s:
+            return np.zeros(2)
+        self.active = True
+        pos = np.array([np.clip(y, -1, 1), -np.clip(x, -1, 1)]) * 0.98 * self.workspace_m
+        return pos * self.k_g
+
+    def progress(self) -> dict[str, Any]:
+        return {**super().progress(), "joystick_active": self.active}
+
+
+# --------------------------------------------------------------------------- pilot
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A round obstacle on the pilot's course.
+
+    Attributes
+    ----------
+    x, y : float
+        Centre in the world frame [m] (the frame of ``Feedback.pose``).
+    radius : float
+        Radius [m] (half the width of a box).
+    """
+
+    x: float
+    y: float
+    radius: float
+
+
+@dataclass(frozen=True)
+class _Pass:
+    centre: np.ndarray
+    u: np.ndarray  # direction of travel (unit)
+    side: int  # +1: the robot passes on its left of the obstacle, -1: right
+    waypoints: tuple[np.ndarray, ...]
+    radius: float
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class PilotOperator(Operator):
+    """The paper's evasion task (Sec. 5, Fig. 10) driven from delayed feedback.
+
+    The course is a row of obstacles passed in order, then back in reverse order
+    (a U-turn after the last), N passes in all. Pass k goes by the robot's *left* of its
+    obstacle when k is even and by its *right* when k is odd (sides relative to the
+    direction of travel, as the operator steers them). Each pass has three waypoints:
+    on the course line ``approach_m`` before the obstacle, beside it at
+    ``radius + clearance_m`` on the chosen side, and ``approach_m`` after it. A pass
+    counts when the robot's (fed back) position crosses the line through the obstacle
+    centre, perpendicular to the travel direction, on the chosen side.
+
+    Steering is pure pursuit on the latest ``Feedback.pose``: the current waypoint is
+    dropped once closer than the look-ahead distance; the turn speed is
+    ``v * 2 sin(a) / L`` (rad/s -> deg/s) toward it, clipped, and the forward speed shrinks
+    with the heading error (to 30 % beyond 60 degrees, as a person slows to turn round)
+    and when a sonar reads below ``slow_range_m``.
+
+    Parameters
+    ----------
+    obstacles : sequence of Obstacle
+        The course (at least one).
+    k_g : sequence of float
+        Handle position -> speed gains (eq. 7, 11).
+    passes : int
+        Number of passes N.
+    clearance_m, approach_m, lookahead_m : float
+        Course geometry [m].
+    speed_cm_s : float
+        Cruise forward speed [cm/s].
+    turn_max_deg_s : float
+        Largest turn speed asked [deg/s].
+    slow_range_m : float
+        Sonar range below which the pilot slows [m].
+    """
+
+    name = "pilot"
+
+    def __init__(
+        self,
+        obstacles: Sequence[Obstacle],
+        k_g: Sequence[float],
+        passes: int = 10,
+        clearance_m: float = 0.35,
+        approach_m: float = 0.7,
+        lookahead_m: float = 0.35,
+        speed_cm_s: float = 6.0,
+        turn_max_deg_s: float = 9.0,
+        slow_range_m: float = 0.45,
+        workspace_m: float = 0.05,
+        hand: Hand | None = None,
+    ) -> None:
+        super().__init__(k_g, workspace_m, hand)
+        if not obstacles:
+            raise ValueError("obstacles: allowed: at least one obstacle")
+        if passes < 1:
+            raise ValueError(f"passes = {passes}: allowed: an integer >= 1")
+        self.obstacles = list(obstacles)
+        self.passes = int(passes)
+        self.clearance_m = clearance_m
+        self.approach_m = approach_m
+        self.lookahead_m = lookahead_m
+        self.speed_cm_s = speed_cm_s
+        self.turn_max_deg_s = turn_max_deg_s
+        self.slow_range_m = slow_range_m
+        self.passes_done = 0
+        self.retries = 0
+        self.sides: list[str] = []
+        self._start: np.ndarray | None = None
+        self._pass: _Pass | None = None
+        self._wp = 0
+        self._approached = False
+        self._crossed = False
+        self._turn_dir = 0.0
+        self._t_done: float | None = None
+        self.target: np.ndarray | None = None
+
+    # ---------------------------------------------------------------- course
+
+    def _direction(self) -> np.ndarray:
+        assert self._start is not None
+        first = np.array([self.obstacles[0].x, self.obstacles[0].y])
+        last = np.array([self.obstacles[-1].x, self.obstacles[-1].y])
+        d = last - first if len(self.obstacles) > 1 else first - self._start
+        n = float(np.hypot(*d))
+        return d / n if n > 1e-9 else np.array([1.0, 0.0])
+
+    def _make_pass(self, k: int) -> _Pass:
+        n = len(self.obstacles)
+        lap, i = divmod(k, n)
+        d = self._direction()
+        if lap % 2 == 0:
+            ob, u = self.obstacles[i], d
+        else:
+            ob, u = self.obstacles[n - 1 - i], -d
+        c = np.array([ob.x, ob.y])
+        side = 1 if k % 2 == 0 else -1
+        left = np.array([-u[1], u[0]])
+        beside = c + side * left * (ob.radius + self.clearance_m)
+        wps = (
+            c - u * (ob.radius + self.approach_m),
+            beside - u * (ob.radius + 0.5 * self.clearance_m),
+            beside + u * (ob.radius + 0.5 * self.clearance_m),
+            c + u * (ob.radius + self.approach_m),
+        )
+        return _Pass(c, u, side, wps, ob.radius)
+
+    # ---------------------------------------------------------------- steering
+
+    def _carrot(self, p: np.ndarray, ps: _Pass) -> np.ndarray | None:
+        """The pure-pursuit goal: ``lookahead_m`` along the pass's path beyond the
+        robot's projection on it (None past the path's end)."""
+        wps = ps.waypoints
+        while self._wp < len(wps) - 2:
+            a, b = wps[self._wp], wps[self._wp + 1]
+            ab = b - a
+            if float((p - a) @ ab) / float(ab @ ab) >= 1.0:
+                self._wp += 1
+            else:
+                break
+        a, b = wps[self._wp], wps[self._wp + 1]
+        ab = b - a
+        s = float((p - a) @ ab) / float(ab @ ab)
+        if self._wp == len(wps) - 2 and s >= 1.0:
+            return None
+        point = a + min(max(s, 0.0), 1.0) * ab
+        remaining = self.lookahead_m
+        seg = self._wp
+        while True:
+            nxt = wps[seg + 1]
+            d = float(np.hypot(*(nxt - point)))
+            if remaining <= d or seg + 1 == len(wps) - 1:
+                if d < 1e-9:
+                    return nxt.copy()
+                return point + (nxt - point) * min(1.0, remaining / d)
+            remaining -= d
+            point = nxt
+            seg += 1
+
+    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        if feedback is None or self.done:
+            if self.done and self._t_done is None:
+                self._t_done = t
+            self.target = None
+            return np.zeros(2)
+        px, py, yaw = feedback.pose
+        p = np.array([px, py])
+        if self._start is None:
+            self._start = p.copy()
+        if self._pass is None:
+            self._pass = self._make_pass(self.passes_done)
+            self._wp = 0
+        ps = self._pass
+        rel = p - ps.centre
+        along = float(rel @ ps.u)
+        lateral = float(rel @ np.array([-ps.u[1], ps.u[0]])) * ps.side
+        if not self._approached and float(np.hypot(*(ps.waypoints[0] - p))) < self.lookahead_m:
+            self._approached = True  # lined up before the obstacle: the pass begins
+        if self._approached and not self._crossed and along > 0.0 and lateral > ps.radius:
+            self._crossed = True
+            self.sides.append("left" if ps.side > 0 else "right")
+            self.passes_done += 1
+            LOG.info("pilot: pass %d/%d done (%s)", self.passes_done, self.passes, self.sides[-1])
+            if self.done:
+                self._t_done = t
+                self.target = None
+                return np.zeros(2)
+        target = self._carrot(p, ps) if self._approached else ps.waypoints[0].copy()
+        at_exit = self._approached and float(np.hypot(*(ps.waypoints[-1] - p))) < self.lookahead_m
+        if target is None or at_exit:
+            if not self._crossed:
+                # Reached the end of the pass without crossing on the chosen side: again.
+                self.retries += 1
+                LOG.warning("pilot: pass %d missed its side; trying again", self.passes_done + 1)
+            else:
+                self._pass = ps = self._make_pass(self.passes_done)
+            self._wp = 0
+            self._approached = float(np.hypot(*(ps.waypoints[0] - p))) < self.lookahead_m
+            self._crossed = False
+            target = self._carrot(p, ps) if self._approached else ps.waypoints[0].copy()
+            assert target is not None
+        self.target = target
+        dx, dy = target - p
+        dist = max(float(np.hypot(dx, dy)), 1e-6)
+        a = _wrap(math.atan2(dy, dx) - yaw)
+        v = self.speed_cm_s
+        v_min = 0.25 * self.speed_cm_s
+        sonar = min(feedback.sonar) if feedback.sonar else math.inf
+        if 0.0 < sonar < self.slow_range_m:
+            v *= max(0.4, sonar / self.slow_range_m)
+        w_max = math.radians(self.turn_max_deg_s)
+        look = max(self.lookahead_m, min(dist, 2.0 * self.lookahead_m))
+        kappa = 2.0 * math.sin(a) / look  # pure-pursuit curvature [1/m]
+        if abs(a) > math.pi / 2 and self._turn_dir == 0.0:
+            # Goal behind: turn round away from the obstacle, as a person turning round to
+            # come back would, and keep that direction until roughly facing the goal.
+            ox, oy = ps.centre - p
+            obstacle_left = math.cos(yaw) * oy - math.sin(yaw) * ox
+            self._turn_dir = -1.0 if obstacle_left > 0.0 else 1.0
+        elif abs(a) < math.pi / 4:
+            self._turn_dir = 0.0
+        if self._turn_dir != 0.0:
+            kappa = self._turn_dir * 2.0 / self.lookahead_m
+        if abs(kappa) * v / 100.0 > w_max:
+            v = max(v_min, 100.0 * w_max / abs(kappa))  # slow down to make the turn
+        w = math.degrees(float(np.clip(v / 100.0 * kappa, -w_max, w_max)))
+        return np.array([v, w])
+
+    @property
+    def done(self) -> bool:
+        return self.passes_done >= self.passes
+
+    def progress(self) -> dict[str, Any]:
+        return {
+            **super().progress(),
+            "passes_done": self.passes_done,
+            "passes": self.passes,
+            "sides": list(self.sides),
+            "retries": self.retries,
+            "t_done": self._t_done,
+            "target": None if self.target is None else self.target.tolist(),
+        }
+
+
+# --------------------------------------------------------------------------- factory
+
+
+def _obstacle_from(item: Any) -> Obstacle:
+    """An obstacle from ``[x, y, radius]`` or a table/object with x, y and radius (or
+    ``size``: full widths [m])."""
+    if isinstance(item, list | tuple) and len(item) == 3:
+        return Obstacle(float(item[0]), float(item[1]), float(item[2]))
+
+    def get(key: str) -> Any:
+        return item.get(key) if isinstance(item, dict) else getattr(item, key, None)
+
+    x, y, r, size = get("x"), get("y"), get("radius"), get("size")
+    if x is None or y is None:
+        raise ValueError(f"obstacle {item!r}: allowed: [x, y, radius] or a table with x, y, radius")
+    if r is None:
+        r = max(float(v) for v in size[:2]) / 2.0 if size else 0.1
+    return Obstacle(float(x), float(y), float(r))
+
+
+def course_from_config(cfg: Any) -> list[Obstacle]:
+    """The pilot's obstacles from a loaded :class:`bipedtele.config.Config`.
+
+    ``[leader] pilot_obstacles`` when not empty; otherwise ``obstacles`` of the
+    ``[world]`` section as plain data (``[x, y, radius]`` lists or tables/objects with
+    ``x``, ``y`` and ``radius`` (or ``size`` = full widths)). The leader never imports
+    follower code; it reads the section's attributes only.
+
+    Raises
+    ------
+    ValueError
+        If neither gives an obstacle.
+    """
+    leader = cfg.sections["leader"]
+    if leader.pilot_obstacles:
+        return [_obstacle_from(o) for o in leader.pilot_obstacles]
+    world = cfg.sections.get("world")
+    items = getattr(world, "obstacles", None) if world is not None else None
+    if items:
+        return [_obstacle_from(o) for o in items]
+    raise ValueError("pilot: no course: set [leader] pilot_obstacles = [[x, y, radius], ...]")
+
+
+def _hand(lc: Any) -> Hand:
+    return Hand(lc.hand_stiffness_n_m, lc.hand_damping_n_s_m, lc.hand_force_max_n, lc.hand_tau_s)
+
+
+def make_operator(
+    name: str,
+    cfg: Any,
+    *,
+    workspace_m: float = 0.05,
+    joystick: Callable[[], tuple[float, float, float] | None] | None = None,
+) -> Operator:
+    """Build the operator ``name`` (``scripted``, ``pilot``, ``browser``) from a config.
+
+    Parameters
+    ----------
+    name : str
+        Operator model.
+    cfg : bipedtele.config.Config
+        Loaded profile (``[leader]`` and ``[control]`` are used).
+    workspace_m : float
+        The device's workspace half-width [m].
+    joystick : callable, optional
+        The cockpit's joystick reader (required for ``browser``).
+    """
+    lc = cfg.sections["leader"]
+    k_g = cfg.sections["control"].k_g
+    if name == "scripted":
+        return ScriptedOperator(lc.script, k_g, lc.script_interp, workspace_m, _hand(lc))
+    if name == "pilot":
+        return PilotOperator(
+            course_from_config(cfg),
+            k_g,
+            passes=lc.pilot_passes,
+            clearance_m=lc.pilot_clearance_m,
+            approach_m=lc.pilot_approach_m,
+            lookahead_m=lc.pilot_lookahead_m,
+            speed_cm_s=lc.pilot_speed_cm_s,
+            turn_max_deg_s=lc.pilot_turn_max_deg_s,
+            slow_range_m=lc.pilot_slow_range_m,
+            workspace_m=workspace_m,
+            hand=_hand(lc),
+        )
+    if name == "browser":
+        if joystick is None:
+            raise ValueError("operator 'browser' needs the cockpit (set leader.cockpit = true)")
+        return BrowserOperator(joystick, k_g, workspace_m, _hand(lc))
+    raise ValueError(f"operator {name!r}: allowed: {', '.join(OPERATORS)}")
+
+
+OPERATORS: tuple[str, ...] = ("scripted", "pilot", "browser")
