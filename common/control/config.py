@@ -8,14 +8,15 @@ them (Sec. 3.2.2, eq. 27) and documented choices elsewhere (docs/method.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from bipedtele.config import param
 
 __all__ = ["ControlConfig"]
 
 
-def _pair(default: tuple[float, float], **kw: object) -> object:
-    return param(default_factory=lambda: list(default), **kw)  # type: ignore[arg-type]
+def _pair(default: tuple[float, float], **kw: Any) -> Any:
+    return param(default_factory=lambda: list(default), **kw)
 
 
 @dataclass(frozen=True)
@@ -41,13 +42,19 @@ class ControlConfig:
     k_z: list[float] = _pair((1.0, 0.0), lo=0.0, doc="impedance on the fictitious force f_v (eq. 20, 22)")
     eps: float = param(0.5, lo=0.0, lo_open=True, unit="s", doc="nominal joint-servo gain (eq. 21)")
     dp: float = param(0.7, lo=0.0, hi=1.0, lo_open=True, doc="reset-map hip-speed factor at impact")
+    dp_turn: float = param(
+        1.0, lo=0.0, hi=1.0, lo_open=True,
+        doc="reset-map turn-speed factor at impact (1 = the impact leaves the turn speed alone)",
+    )
     dq: float = param(1.0, lo=0.0, lo_open=True, doc="Poincare Jacobian perturbation of positions (eq. 26)")
     dqdot: float = param(0.375, lo=0.0, lo_open=True, doc="Poincare Jacobian perturbation of velocities (eq. 26)")
     v_ref: float = param(5.0, lo=0.0, unit="cm/s", doc="calibration forward speed")
     turn_ref: float = param(4.0, lo=0.0, unit="deg/s", doc="calibration turn speed")
     margin: float = param(0.2, lo=0.0, hi=10.0, doc="relative margin on the conditions (40)")
-    alpha_m_min: float = param(0.05, lo=0.0, lo_open=True, unit="N s/m", doc="lower bound of alpha_m")
-    s_e_min: float = param(0.05, lo=0.0, lo_open=True, doc="lower bound of sigma_e (sigma_e_min > 0)")
+    alpha_m_min: float = param(0.05, lo=0.0, lo_open=True, unit="N s/m", doc="lower bound of alpha_m (leader damping, per channel)")
+    s_e_min: float = param(
+        0.05, lo=0.0, lo_open=True, unit="same as D", doc="lower bound of sigma_e (sigma_e_min > 0)"
+    )
     s_r_range: list[float] = _pair((0.0, 10.0), lo=0.0, hi=100.0, doc="bounds of the real damping sigma_r")
     T_range: list[float] = _pair((0.5, 5.0), lo=0.05, hi=20.0, unit="s", doc="bounds of the walking cycle time")
     eps_range: list[float] = _pair((0.05, 1.0), lo=0.001, hi=10.0, unit="s", doc="bounds of eps")
