@@ -272,7 +272,7 @@ def profile_names() -> list[str]:
 
 def _read_profile(name_or_path: str | Path) -> tuple[str, dict[str, Any]]:
     path = Path(name_or_path)
-    if path.suffix == ".toml" or path.exists():
+    if path.suffix == ".toml" or path.is_file():
         label = str(path)
         try:
             text = path.read_text(encoding="utf-8")
