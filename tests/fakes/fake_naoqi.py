@@ -316,6 +316,11 @@ class FakeNaoControl:
         with self.w.lock:
             self.w.obstacles = [(float(o[0]), float(o[1]), float(o[2])) for o in obstacles]
 
+    def set_pose(self, x: float, y: float, theta: float) -> None:
+        with self.w.lock:
+            self.w.update()
+            self.w.pose = [float(x), float(y), float(theta)]
+
     def set_fault(self, method: str, kind: str) -> None:
         with self.w.lock:
             if kind:
