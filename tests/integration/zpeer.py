@@ -74,8 +74,9 @@ def _valid(name: str, st: Stamper) -> Message:
     return st.make(Status, role="leader", state="running")
 
 
-def _malformed(rng: random.Random, st: Stamper) -> list[bytes]:
-    good = encode(st.make(Command))
+def _malformed(rng: random.Random, name: str, st: Stamper) -> list[bytes]:
+    """Bad payloads for one key, built on a valid message of that key's type."""
+    good = encode(_valid(name, st))
     base = msgpack.unpackb(good)
     out = [
         rng.randbytes(rng.randint(0, 64)),
@@ -83,11 +84,11 @@ def _malformed(rng: random.Random, st: Stamper) -> list[bytes]:
         msgpack.packb([1, 2, 3]),
         msgpack.packb({**base, "v": 99}),
         msgpack.packb({**base, "k": "nope"}),
-        msgpack.packb({**base, "ref": [float("nan"), 0.0]}),
-        msgpack.packb({**base, "ref": [1e9, 0.0]}),
+        msgpack.packb({**base, "t": float("nan")}),
+        msgpack.packb({**base, "t": -5.0}),
         msgpack.packb({k: v for k, v in base.items() if k != "seq"}),
         msgpack.packb({**base, "seq": -1}),
-        msgpack.packb({**base, "enable": "yes"}),
+        msgpack.packb({**base, "sid": "me"}),
         good[:-3],
     ]
     return out
@@ -174,7 +175,7 @@ def main() -> int:
             bad = 0
             for name in KEY_TYPES:
                 pub = getattr(pubs, name)
-                for payload in _malformed(rng, st):
+                for payload in _malformed(rng, name, st):
                     pub.put_bytes(payload)
                     bad += 1
                 for _ in range(20):
