@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bipedtele.control.observer import Observer
+
 __all__ = ["RealFollowerReference"]
 
 
@@ -44,15 +46,18 @@ class RealFollowerReference:
         if dt <= 0:
             raise ValueError(f"dt = {dt}: allowed: > 0 s")
         self.dt = float(dt)
-        # Exact discretisation of the first-order observer (input held over dt).
-        self._obs_a = np.exp(-self.dt / self.beta_r)
+        self.observer = Observer(self.beta_r, self.dt)
         self.eta = np.zeros(2)
-        self.z_r = np.zeros(2)
+
+    @property
+    def z_r(self) -> np.ndarray:
+        """Observer estimate of the real speeds [cm/s, deg/s] (eq. 12)."""
+        return self.observer.z_r
 
     def reset(self, eta: np.ndarray | None = None, z_r: np.ndarray | None = None) -> None:
         """Set the commanded speed ``eta`` and the observer state ``z_r`` (default zero)."""
         self.eta = np.zeros(2) if eta is None else np.asarray(eta, dtype=float).copy()
-        self.z_r = np.zeros(2) if z_r is None else np.asarray(z_r, dtype=float).copy()
+        self.observer.reset(0.0 if z_r is None else z_r)
 
     def step(
         self,
@@ -88,10 +93,10 @@ class RealFollowerReference:
         eta_meas = np.asarray(eta_meas, dtype=float)
         s_r = np.asarray(s_r, dtype=float)
         fv = np.zeros(2) if f_v is None else np.asarray(f_v, dtype=float)
-        z_prev = self.z_r
-        self.z_r = self._obs_a * z_prev + (1.0 - self._obs_a) * eta_meas
-        dz_r = (self.z_r - z_prev) / self.dt
-        deta = (self.k_s * (ref - self.z_r) - s_r * dz_r - self.k_z * fv) / self.D
+        z_prev = self.observer.z_r.copy()
+        z_r = self.observer.step(eta_meas)
+        dz_r = (z_r - z_prev) / self.dt
+        deta = (self.k_s * (ref - z_r) - s_r * dz_r - self.k_z * fv) / self.D
         self.eta = self.eta + self.dt * deta
         if eta_max is not None:
             lim = np.asarray(eta_max, dtype=float)
