@@ -1,0 +1,370 @@
+"""Online choice of ``(sigma_r, T, eps)``, eq. (30) (cascade step V.3).
+
+Problem (30), for the current equivalent damping ``s_e = [s_e_v, s_e_d]``::
+
+    minimise   k_sigma (|sigma - s_e_v| + |tau - s_e_d|) + k_wt T + k_eps eps
+    subject to | max|l_hybrid|(sigma, tau, T, eps) - max|l_equivalent|(s_e, T) | <= tolerance
+               sigma, tau in s_r_range,  T in T_range,  eps in eps_range
+
+``T`` and ``eps`` are shared by both channels (one walking cycle), ``sigma_r = [sigma, tau]``
+is per channel. ``max|l_equivalent|`` is the spectral radius of (29) discretised over the
+same walking cycle ``T`` (both sides of the equality are then contractions per cycle; with
+the control period instead, ``max|l_equivalent|`` is about 0.997 and the equality has no
+solution in the bounds; docs/method.md).
+
+Structure used by both solvers: ``max|l_hybrid| = max(r_v(sigma, T), r_d(tau, T), r_j(eps, T))``
+where each block radius is continuous and increasing in its own variable (checked when the
+table is built). For a fixed ``T`` the problem is then solved exactly: every block must stay
+under ``target + tol`` (an upper bound on each variable), each variable sits at its preferred
+value (``s_e``, ``s_e``, ``eps_min``) clipped to that bound, and if no block reaches
+``target - tol`` the block that is cheapest to raise is raised to it. The outer problem is
+one-dimensional in ``T``.
+
+* :func:`solve_exact`: exact block radii and bisection inverses, a fine ``T`` grid plus a
+  bounded scalar refinement. Offline.
+* :class:`OnlineChooser`: the block radii tabulated once over ``(sigma, T)`` (the joint
+  block is analytic), inverses by table interpolation, ``T`` on the table's grid. The band
+  is narrowed by the table's measured interpolation error so that the exact residual of its
+  answer stays within the tolerance. One call costs well under a millisecond.
+
+When no point satisfies the equality (``target`` outside the achievable range of
+``max|l_hybrid|`` for every ``T``), both return the point whose ``max|l_hybrid|`` is nearest
+to ``max|l_equivalent|`` (all variables at their lower bounds if the target is too low, at
+their upper bounds if it is too high) with ``feasible = False``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.equivalent import equivalent_max_real
+from bipedtele.control.hybrid import rho_blocks, rho_joint, rho_speed_block
+from numpy.typing import ArrayLike
+from scipy.optimize import minimize_scalar
+
+__all__ = ["Choice", "OnlineChooser", "choice_cost", "solve_exact"]
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """One solution of (30).
+
+    Attributes
+    ----------
+    s_r : numpy.ndarray, shape (2,)
+        Real damping ``[sigma, tau]``.
+    T : float
+        Walking cycle time [s].
+    eps : float
+        Joint servo time constant [s].
+    rho_hybrid : float
+        ``max|l_hybrid|`` at the choice (exact).
+    rho_equivalent : float
+        ``max|l_equivalent|(s_e)`` over the cycle ``T``.
+    residual : float
+        ``rho_hybrid - rho_equivalent``.
+    cost : float
+        Value of the functional of (30).
+    feasible : bool
+        ``|residual| <= tolerance`` was reachable within the bounds.
+    """
+
+    s_r: np.ndarray
+    T: float
+    eps: float
+    rho_hybrid: float
+    rho_equivalent: float
+    residual: float
+    cost: float
+    feasible: bool
+
+
+def choice_cost(s_r: ArrayLike, T: float, eps: float, s_e: ArrayLike, cfg: ControlConfig) -> float:
+    """The functional of (30)."""
+    d = np.abs(np.asarray(s_r, dtype=float) - np.asarray(s_e, dtype=float)).sum()
+    return float(cfg.k_sigma * d + cfg.k_wt * T + cfg.k_eps * eps)
+
+
+def _target(s_e: np.ndarray, T: np.ndarray, cfg: ControlConfig) -> np.ndarray:
+    return np.exp(T * float(np.max(equivalent_max_real(s_e, cfg))))
+
+
+def _finish(s_e: np.ndarray, x: np.ndarray, T: float, cfg: ControlConfig, feasible: bool) -> Choice:
+    sig, tau, eps = (float(v) for v in x)
+    f, t, j = rho_blocks(sig, tau, T, eps, cfg.dp, cfg)
+    rh = float(max(f, t, j))
+    re = float(_target(s_e, np.asarray(T), cfg))
+    return Choice(
+        s_r=np.array([sig, tau]),
+        T=float(T),
+        eps=eps,
+        rho_hybrid=rh,
+        rho_equivalent=re,
+        residual=rh - re,
+        cost=choice_cost([sig, tau], T, eps, s_e, cfg),
+        feasible=feasible,
+    )
+
+
+# Block interface: rho(b, x, T) and inv(b, y, T) (root of rho_b(., T) = y, NaN outside).
+RhoFn = Callable[[int, np.ndarray, np.ndarray], np.ndarray]
+InvFn = Callable[[int, np.ndarray, np.ndarray], np.ndarray]
+
+
+def _solve_on_T(
+    T: np.ndarray,
+    target: np.ndarray,
+    band: float,
+    pref: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    w: np.ndarray,
+    rho: RhoFn,
+    inv: InvFn,
+    k_wt: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact per-T solution given block radii and inverses.
+
+    Returns
+    -------
+    (cost, x, feasible)
+        ``cost`` (n,), ``x`` (3, n) = sigma, tau, eps, ``feasible`` (n,) bool; infeasible
+        entries have ``cost = inf``.
+    """
+    n = T.shape[0]
+    y_hi = target + band
+    y_lo = target - band
+    x_base = np.empty((3, n))
+    r_base = np.empty((3, n))
+    r_min = np.empty((3, n))
+    r_max = np.empty((3, n))
+    up = np.empty((3, n))
+    for b in range(3):
+        lo_b = np.full(n, lo[b])
+        hi_b = np.full(n, hi[b])
+        r_min[b] = rho(b, lo_b, T)
+        r_max[b] = rho(b, hi_b, T)
+        root = inv(b, y_hi, T)
+        up[b] = np.where(r_max[b] <= y_hi, hi[b], np.where(r_min[b] > y_hi, np.nan, root))
+        x_base[b] = np.clip(pref[b], lo[b], np.where(np.isnan(up[b]), lo[b], up[b]))
+        r_base[b] = rho(b, x_base[b], T)
+    upper_ok = np.all(r_min <= y_hi, axis=0)
+    reached = np.max(r_base, axis=0) >= y_lo
+    cost0 = np.sum(w[:, None] * np.abs(x_base - pref[:, None]), axis=0)
+    extra = np.full((3, n), np.inf)
+    x_new = x_base.copy()
+    for b in range(3):
+        low = np.where(r_min[b] >= y_lo, lo[b], inv(b, y_lo, T))
+        ok = (r_max[b] >= y_lo) & (low <= up[b])
+        cand = np.maximum(x_base[b], low)
+        e = w[b] * (np.abs(cand - pref[b]) - np.abs(x_base[b] - pref[b]))
+        extra[b] = np.where(ok, e, np.inf)
+        x_new[b] = cand
+    best_b = np.argmin(extra, axis=0)
+    best_extra = extra[best_b, np.arange(n)]
+    x = x_base.copy()
+    need = ~reached
+    cols = np.nonzero(need & np.isfinite(best_extra))[0]
+    x[best_b[cols], cols] = x_new[best_b[cols], cols]
+    feasible = upper_ok & (reached | np.isfinite(best_extra))
+    cost = np.where(feasible, cost0 + np.where(reached, 0.0, best_extra) + k_wt * T, np.inf)
+    return cost, x, feasible
+
+
+def _fallback(T: np.ndarray, target: np.ndarray, lo: np.ndarray, hi: np.ndarray, rho: RhoFn) -> tuple[int, np.ndarray]:
+    """Nearest achievable ``max|l_hybrid|`` when nothing is feasible: (index of T, x)."""
+    n = T.shape[0]
+    r_lo = np.max([rho(b, np.full(n, lo[b]), T) for b in range(3)], axis=0)
+    r_hi = np.max([rho(b, np.full(n, hi[b]), T) for b in range(3)], axis=0)
+    dist = np.maximum.reduce([r_lo - target, target - r_hi, np.zeros(n)])
+    i = int(np.argmin(dist))
+    x = lo.copy() if target[i] < r_lo[i] else hi.copy()
+    return i, x
+
+
+def _problem(s_e: ArrayLike, cfg: ControlConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    s = np.broadcast_to(np.asarray(s_e, dtype=float), (2,)).copy()
+    lo = np.array([cfg.s_r_range[0], cfg.s_r_range[0], cfg.eps_range[0]], dtype=float)
+    hi = np.array([cfg.s_r_range[1], cfg.s_r_range[1], cfg.eps_range[1]], dtype=float)
+    pref = np.clip(np.array([s[0], s[1], cfg.eps_range[0]]), lo, hi)
+    w = np.array([cfg.k_sigma, cfg.k_sigma, cfg.k_eps], dtype=float)
+    return s, lo, hi, pref, w
+
+
+def _joint_inv(y: np.ndarray, T: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((y > 0) & (y < 1), -T / (2.0 * np.log(np.clip(y, 1e-300, 1 - 1e-16))), np.nan)
+
+
+# ------------------------------------------------------------------------------ exact
+
+
+def _exact_blocks(cfg: ControlConfig, lo: np.ndarray, hi: np.ndarray) -> tuple[RhoFn, InvFn]:
+    (m, i_), (kv, kd), (bv, bd) = (np.asarray(v, dtype=float) for v in (cfg.D, cfg.k_s, cfg.beta_r))
+
+    def rho(b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
+        if b == 0:
+            return rho_speed_block(x, T, m, kv, bv, cfg.dp)
+        if b == 1:
+            return rho_speed_block(x, T, i_, kd, bd, cfg.dp_turn)
+        return rho_joint(T, x)
+
+    def inv(b: int, y: np.ndarray, T: np.ndarray) -> np.ndarray:
+        if b == 2:
+            return _joint_inv(y, T)
+        a = np.full(T.shape, lo[b])
+        c = np.full(T.shape, hi[b])
+        for _ in range(64):
+            mid = 0.5 * (a + c)
+            below = rho(b, mid, T) <= y
+            a = np.where(below, mid, a)
+            c = np.where(below, c, mid)
+        return 0.5 * (a + c)
+
+    return rho, inv
+
+
+def solve_exact(s_e: ArrayLike, cfg: ControlConfig, *, n_T: int = 901) -> Choice:
+    """Offline solution of (30): exact block radii, ``n_T``-point ``T`` grid, then a bounded
+    scalar refinement of ``T`` around the best grid point.
+
+    Parameters
+    ----------
+    s_e : array_like, shape (2,)
+        Equivalent damping ``[s_e_v, s_e_d]`` (from the scheduler (40)).
+    cfg : ControlConfig
+        Bounds, weights, ``tolerance``, ``dp`` and the model gains.
+    """
+    s, lo, hi, pref, w = _problem(s_e, cfg)
+    rho, inv = _exact_blocks(cfg, lo, hi)
+    band = cfg.tolerance * (1.0 - 1e-6)
+    T = np.linspace(cfg.T_range[0], cfg.T_range[1], n_T)
+    cost, x, feas = _solve_on_T(T, _target(s, T, cfg), band, pref, lo, hi, w, rho, inv, cfg.k_wt)
+    if not np.any(feas):
+        i, xf = _fallback(T, _target(s, T, cfg), lo, hi, rho)
+        return _finish(s, xf, float(T[i]), cfg, feasible=False)
+    i = int(np.argmin(cost))
+    best_T, best_x, best_c = float(T[i]), x[:, i], float(cost[i])
+
+    def f(t: float) -> float:
+        tt = np.array([t])
+        c, _, _ = _solve_on_T(tt, _target(s, tt, cfg), band, pref, lo, hi, w, rho, inv, cfg.k_wt)
+        return float(c[0]) if np.isfinite(c[0]) else 1e300
+
+    a, b = float(T[max(i - 1, 0)]), float(T[min(i + 1, n_T - 1)])
+    if b > a:
+        res = minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-9})
+        if res.fun < best_c:
+            tt = np.array([float(res.x)])
+            _, xx, _ = _solve_on_T(tt, _target(s, tt, cfg), band, pref, lo, hi, w, rho, inv, cfg.k_wt)
+            best_T, best_x = float(res.x), xx[:, 0]
+    return _finish(s, best_x, best_T, cfg, feasible=True)
+
+
+# ------------------------------------------------------------------------------ online
+
+
+class OnlineChooser:
+    """Tabulated solver of (30) for the online path (built in a few milliseconds).
+
+    Parameters
+    ----------
+    cfg : ControlConfig
+        Model gains, ``dp``, bounds, weights and ``tolerance``.
+    n_sigma, n_T : int
+        Table resolution over ``s_r_range`` and ``T_range``.
+
+    Raises
+    ------
+    ValueError
+        If a block radius is not increasing in its damping (the solver's premise).
+    """
+
+    def __init__(self, cfg: ControlConfig, *, n_sigma: int = 1001, n_T: int = 181) -> None:
+        self.cfg = cfg
+        self.T = np.linspace(cfg.T_range[0], cfg.T_range[1], n_T)
+        self.sigma = np.linspace(cfg.s_r_range[0], cfg.s_r_range[1], n_sigma)
+        self._ds = self.sigma[1] - self.sigma[0]
+        (m, i_), (kv, kd), (bv, bd) = (np.asarray(v, dtype=float) for v in (cfg.D, cfg.k_s, cfg.beta_r))
+        sg, tg = self.sigma[:, None], self.T[None, :]
+        self._tab = np.stack(
+            [rho_speed_block(sg, tg, m, kv, bv, cfg.dp), rho_speed_block(sg, tg, i_, kd, bd, cfg.dp_turn)]
+        )
+        if not np.all(np.diff(self._tab, axis=1) > 0):
+            raise ValueError("max|l_hybrid| of a speed block is not increasing in sigma_r: the solver does not apply")
+        # Interpolation error of the table (at the midpoints), to keep the exact residual in band.
+        mid = 0.5 * (sg[1:] + sg[:-1])
+        exact_mid = np.stack(
+            [rho_speed_block(mid, tg, m, kv, bv, cfg.dp), rho_speed_block(mid, tg, i_, kd, bd, cfg.dp_turn)]
+        )
+        self.interp_error = float(np.max(np.abs(exact_mid - 0.5 * (self._tab[:, 1:] + self._tab[:, :-1]))))
+        self.band = cfg.tolerance - 2.0 * self.interp_error
+        if self.band <= 0:
+            raise ValueError(f"tolerance = {cfg.tolerance} is below the table's interpolation error; allowed: > {2 * self.interp_error:.2e}")
+        self._cols = np.arange(n_T)
+        # Column-major flat copies: entry (row i, column c) is at c * n_sigma + i.
+        self._flat = [np.ascontiguousarray(t.T).ravel() for t in self._tab]
+        self._base = self._cols * n_sigma
+        self._n_bisect = int(np.ceil(np.log2(n_sigma - 1)))
+        self._memo: dict[tuple[float, ...], Choice] = {}
+
+    def _rho(self, b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
+        if b == 2:
+            return rho_joint(T, x)
+        f = (x - self.sigma[0]) / self._ds
+        i = np.clip(f.astype(int), 0, self.sigma.size - 2)
+        frac = f - i
+        k = self._base + i
+        flat = self._flat[b]
+        y0 = flat.take(k)
+        return y0 + (flat.take(k + 1) - y0) * frac
+
+    def _inv(self, b: int, y: np.ndarray, T: np.ndarray) -> np.ndarray:
+        if b == 2:
+            return _joint_inv(y, T)
+        flat = self._flat[b]
+        base = self._base
+        # Vectorised bisection over the rows of every column: tab[i] <= y < tab[i + 1].
+        i = np.zeros(T.shape[0], dtype=np.intp)
+        j = np.full(T.shape[0], self.sigma.size - 1, dtype=np.intp)
+        for _ in range(self._n_bisect):
+            mid = (i + j) >> 1
+            below = flat.take(base + mid) <= y
+            i = np.where(below, mid, i)
+            j = np.where(below, j, mid)
+        y0 = flat.take(base + i)
+        y1 = flat.take(base + i + 1)
+        frac = np.clip((y - y0) / (y1 - y0), 0.0, 1.0)
+        return self.sigma[i] + frac * self._ds
+
+    def choose(self, s_e: ArrayLike) -> Choice:
+        """Solve (30) for the equivalent damping ``s_e`` (shape (2,)); < 1 ms per call.
+
+        Answers are memoised per exact ``s_e`` value (the scheduler (40) often returns the
+        same ``s_e``, e.g. its lower bound, for many delay estimates).
+        """
+        key = tuple(float(v) for v in np.broadcast_to(np.asarray(s_e, dtype=float), (2,)))
+        hit = self._memo.get(key)
+        if hit is not None:
+            return hit
+        out = self._choose(key)
+        if len(self._memo) >= 1024:
+            self._memo.clear()
+        self._memo[key] = out
+        return out
+
+    def _choose(self, s_e: ArrayLike) -> Choice:
+        s, lo, hi, pref, w = _problem(s_e, self.cfg)
+        target = _target(s, self.T, self.cfg)
+        cost, x, feas = _solve_on_T(self.T, target, self.band, pref, lo, hi, w, self._rho, self._inv, self.cfg.k_wt)
+        if not feas.any():
+            i, xf = _fallback(self.T, target, lo, hi, self._rho)
+            return _finish(s, xf, float(self.T[i]), self.cfg, feasible=False)
+        i = int(np.argmin(cost))
+        return _finish(s, x[:, i], float(self.T[i]), self.cfg, feasible=True)
