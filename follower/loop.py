@@ -1,0 +1,318 @@
+"""The follower loop: the paper's follower side around any :class:`FollowerRobot`.
+
+Every control period ``dt`` the loop
+
+1. takes the latest command (dropping those older than ``max_cmd_age_s``) and feeds the
+   forward-delay estimator h1 (1 s moving average, DESIGN section 3);
+2. recomputes, when h1 or h2 moved, the equivalent damping sigma_e from (40) and the
+   walking parameters (sigma_r, T, eps) from (30) (V.2 and V.3 of the cascade);
+3. turns the sonar ranges into the fictitious force f_v (Sec. 3.2.1);
+4. runs the reference model (28) with the observer (12) on the measured speeds to get the
+   commanded walking speed, clamps it and sends it to the robot with T and eps;
+5. runs the equivalent follower (29), whose smooth output z_e is what the leader feels;
+6. publishes feedback, status and (at its own rate) camera frames.
+
+Safety: with no new command for ``watchdog_s`` (local receive time) or ``enable`` false,
+the robot stops and stands; a fall (torso tilt) stops it and is reported in the state.
+
+The loop is transport-agnostic: it gets callables for the latest command and for
+publishing, so it runs in simulated time in tests and over Zenoh in the program.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from bipedtele.clock import DelayEstimator
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.damping import schedule_damping
+from bipedtele.control.equivalent import EquivalentFollower
+from bipedtele.control.online import OnlineChooser
+from bipedtele.control.reference import RealFollowerReference
+from bipedtele.follower.config import FollowerConfig
+from bipedtele.follower.fictitious import FictitiousForce
+from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand
+from bipedtele.messages import Command, Feedback, Status, new_session_id
+
+__all__ = ["FollowerLoop", "FollowerTelemetry"]
+
+LOG = logging.getLogger(__name__)
+
+CM = 100.0  # cm per m
+
+
+@dataclass
+class FollowerTelemetry:
+    """What the loop did in its last tick (for feedback, recording and tests)."""
+
+    t: float = 0.0
+    state: str = "starting"
+    ref: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    eta_cmd: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    eta_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    z_r: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    z_e: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    f_v: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    h1_s: float = 0.0
+    h2_s: float = 0.0
+    s_e: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    s_r: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    T: float = 1.0
+    eps: float = 0.1
+    sent: WalkCommand | None = None
+    obs: RobotObservation | None = None
+
+
+class FollowerLoop:
+    """The follower controller around a connected robot.
+
+    Parameters
+    ----------
+    robot : FollowerRobot
+        A connected robot.
+    control : ControlConfig
+        The ``[control]`` section.
+    cfg : FollowerConfig
+        The ``[follower]`` section.
+    latest_command : callable
+        Returns ``(Command, t_recv)`` of the newest valid command (t_recv on the local
+        clock [s]) or None.
+    publish : callable
+        ``publish(msg)`` for Feedback and Status messages.
+    now : callable
+        Local clock [s] used for message times, delays and the watchdog (``time.time``;
+        a simulated clock in tests).
+    to_local : callable
+        Converts a sender time to the local clock (identity with a synced clock; the
+        NTP offset otherwise).
+    delay_window_s : float
+        Window of the h1 moving average [s].
+    on_event : callable, optional
+        ``on_event(name, detail_dict)`` for falls, watchdog stops, collisions (recording).
+    """
+
+    def __init__(
+        self,
+        robot: FollowerRobot,
+        control: ControlConfig,
+        cfg: FollowerConfig,
+        latest_command: Callable[[], tuple[Command, float] | None],
+        publish: Callable[[Any], None],
+        *,
+        now: Callable[[], float] = time.time,
+        to_local: Callable[[float], float] = lambda t: t,
+        delay_window_s: float = 1.0,
+        on_event: Callable[[str, dict[str, Any]], None] | None = None,
+    ) -> None:
+        self.robot = robot
+        self.control = control
+        self.cfg = cfg
+        self.dt = 1.0 / cfg.control_rate_hz
+        self._latest_command = latest_command
+        self._publish = publish
+        self._now = now
+        self._to_local = to_local
+        self._on_event = on_event or (lambda name, detail: None)
+        self.sid = new_session_id()
+        self.h1 = DelayEstimator(delay_window_s)
+        self.chooser = OnlineChooser(control)
+        self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
+        self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt)
+        self.fictitious = FictitiousForce(
+            d_safe=cfg.sonar_d_safe_m,
+            d_stop=cfg.sonar_d_stop_m,
+            f_max=cfg.sonar_f_max,
+            sonar_yaw_rad=math.radians(cfg.sonar_yaw_deg),
+        )
+        lim = robot.limits
+        self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
+        self.telemetry = FollowerTelemetry()
+        self.counters: dict[str, int] = {
+            "cmd_accepted": 0, "cmd_too_old": 0, "watchdog_stops": 0, "falls": 0, "collisions": 0,
+        }
+        self._cmd: Command | None = None
+        self._cmd_key: tuple[int, int] | None = None
+        self._cmd_recv = -math.inf
+        self._h_used: tuple[float, float] | None = None
+        self._s_e = np.full(2, control.s_e_min)
+        self._choice_s_r = np.zeros(2)
+        self._T = 1.0
+        self._eps = control.eps
+        clamped = WalkCommand(cycle_s=self._T, eps_s=self._eps).clamped(robot.limits)
+        self._T_sent, self._eps_sent = clamped.cycle_s, clamped.eps_s
+        self._walking_cmd = False
+        self._fallen = False
+        self._in_contact = False
+        self._fb_seq = 0
+        self._st_seq = 0
+        self._next_fb = -math.inf
+        self._next_status = -math.inf
+        self._update_parameters(0.0, 0.0)
+
+    # ------------------------------------------------------------------ parameters
+
+    def _update_parameters(self, h1: float, h2: float) -> None:
+        """V.2 and V.3 of the cascade: sigma_e from (40), then (sigma_r, T, eps) from (30)."""
+        if self._h_used is not None:
+            moved = max(abs(h1 - self._h_used[0]), abs(h2 - self._h_used[1]))
+            if moved <= self.cfg.param_update_s:
+                return
+        damping = schedule_damping(h1, h2, self.control)
+        choice = self.chooser.choose(np.asarray(damping.s_e, dtype=float))
+        self._s_e = np.asarray(damping.s_e, dtype=float)
+        self._choice_s_r = np.asarray(choice.s_r, dtype=float)
+        self._T = float(choice.T)
+        self._eps = float(choice.eps)
+        self._h_used = (h1, h2)
+
+    # ------------------------------------------------------------------ command intake
+
+    def _take_command(self, now: float) -> None:
+        rec = self._latest_command()
+        if rec is None:
+            return
+        msg, t_recv = rec
+        key = (msg.sid, msg.seq)
+        if key == self._cmd_key:
+            return
+        self._cmd_key = key
+        t_sent = self._to_local(msg.t)
+        self.h1.update(t_sent, t_recv)
+        if now - t_sent > self.cfg.max_cmd_age_s:
+            self.counters["cmd_too_old"] += 1
+            return
+        self._cmd = msg
+        self._cmd_recv = t_recv
+        self.counters["cmd_accepted"] += 1
+
+    # ------------------------------------------------------------------ tick
+
+    def tick(self) -> FollowerTelemetry:
+        """Run one control period (the caller advances the robot by ``dt`` afterwards)."""
+        now = self._now()
+        tel = self.telemetry
+        obs = self.robot.observe()
+        self._take_command(now)
+
+        h1 = self.h1.value(now)
+        h1 = tel.h1_s if h1 is None else h1
+        h2 = self._cmd.h2_s if self._cmd is not None else 0.0
+        self._update_parameters(h1, h2)
+
+        fresh = (
+            self._cmd is not None
+            and now - self._cmd_recv <= self.cfg.watchdog_s
+            and self._cmd.enable
+        )
+        eta_meas = np.array([obs.v_hip_m_s * CM, math.degrees(obs.turn_rate_rad_s)])
+        f_v = self.fictitious(*obs.sonar_m)
+        ref = np.clip(np.asarray(self._cmd.ref), -self.eta_max, self.eta_max) if fresh and self._cmd else np.zeros(2)
+
+        if obs.in_contact and not self._in_contact:
+            self.counters["collisions"] += 1
+            self._on_event("collision", {"t": now, "pose": list(obs.pose)})
+        self._in_contact = obs.in_contact
+
+        if obs.fallen:
+            if not self._fallen:
+                self.counters["falls"] += 1
+                LOG.error("robot fell (tilt %.1f deg): stopping", math.degrees(obs.tilt_rad))
+                self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad})
+                self.robot.stop()
+            self._fallen = True
+            state = "fallen"
+            self.reference.reset()
+            sent = None
+        elif fresh:
+            self._walking_cmd = True
+            eta_cmd = self.reference.step(
+                ref, eta_meas, self._choice_s_r, np.array([f_v[0], 0.0]), eta_max=self.eta_max
+            )
+            sent = self.robot.send_walk(
+                WalkCommand(
+                    forward_m_s=eta_cmd[0] / CM,
+                    turn_rad_s=math.radians(eta_cmd[1]),
+                    cycle_s=self._T,
+                    eps_s=self._eps,
+                )
+            )
+            state = "walking"
+        else:
+            if self._walking_cmd:
+                self._walking_cmd = False
+                self.counters["watchdog_stops"] += 1
+                why = "operator released" if self._cmd is not None and not self._cmd.enable else "no fresh command"
+                LOG.warning("stopping: %s", why)
+                self._on_event("watchdog_stop", {"t": now, "why": why})
+                self.robot.stop()
+            self.reference.reset(z_r=self.reference.z_r)
+            sent = None
+            state = "stopping" if obs.walking else "standing"
+
+        z_e = self.equivalent.step(ref, self._s_e)
+
+        tel.t, tel.state, tel.ref, tel.eta_meas = now, state, ref, eta_meas
+        tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = self.reference.eta.copy(), self.reference.z_r.copy(), np.asarray(z_e), f_v
+        tel.h1_s, tel.h2_s, tel.s_e, tel.s_r = h1, h2, self._s_e, self._choice_s_r
+        # Report what the robot really got (it clamps T and eps to what it can do).
+        if sent is not None:
+            self._T_sent, self._eps_sent = sent.cycle_s, sent.eps_s
+        tel.T, tel.eps, tel.sent, tel.obs = self._T_sent, self._eps_sent, sent, obs
+
+        if now >= self._next_fb:
+            self._next_fb = max(now, self._next_fb + 1.0 / self.cfg.feedback_rate_hz)
+            self._publish(self._feedback(now, obs))
+        if now >= self._next_status:
+            self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
+            self._publish(self.status(now))
+        return tel
+
+    # ------------------------------------------------------------------ messages
+
+    def _feedback(self, now: float, obs: RobotObservation) -> Feedback:
+        tel = self.telemetry
+        self._fb_seq += 1
+        lim = 999.0
+        return Feedback(
+            sid=self.sid,
+            seq=self._fb_seq,
+            t=now,
+            z_e=_pair(tel.z_e, lim),
+            z_r=_pair(tel.z_r, lim),
+            eta=_pair(tel.eta_meas, lim),
+            ref=_pair(tel.ref, lim),
+            pose=[float(v) for v in obs.pose],
+            sonar=[float(min(max(v, 0.0), 100.0)) for v in obs.sonar_m],
+            f_v=_pair(tel.f_v, 999.0),
+            h1_s=float(min(max(tel.h1_s, 0.0), 60.0)),
+            s_e=[float(v) for v in tel.s_e],
+            s_r=[float(v) for v in tel.s_r],
+            T=float(tel.T),
+            eps=float(tel.eps),
+            state=tel.state,
+            cmd_seq=self._cmd.seq if self._cmd is not None else 0,
+        )
+
+    def status(self, now: float) -> Status:
+        """A Status message with the loop's counters."""
+        self._st_seq += 1
+        return Status(
+            sid=self.sid,
+            seq=self._st_seq,
+            t=now,
+            role="follower",
+            state=self.telemetry.state,
+            counters=dict(self.counters),
+            text=f"robot={self.robot.name} T={self._T:.2f}s",
+        )
+
+
+def _pair(v: np.ndarray, lim: float) -> list[float]:
+    a = np.nan_to_num(np.asarray(v, dtype=float), nan=0.0, posinf=lim, neginf=-lim)
+    return [float(x) for x in np.clip(a, -lim, lim)]
