@@ -1,0 +1,365 @@
+"""The leader loop: the paper's leader side around any :class:`LeaderDevice`.
+
+Every haptic tick (1 kHz by default) the loop
+
+1. reads the handle (x_m, dx_m);
+2. takes the latest feedback; a new one feeds the backward-delay estimator h2 (1 s moving
+   average of ``t_recv - feedback.t``); h1 is the follower's own estimate
+   (``feedback.h1_s``); in ntp mode with the conservative split, ``h1 = h2 = rtt``;
+3. schedules the damping alpha_m from (40) at the current (h1, h2)
+   (:func:`bipedtele.control.damping.schedule_damping`);
+4. computes the force (31) with the latest ``z_e``, which is ``z_e(t - h2)`` by
+   construction (it travelled h2 to get here)
+   (:func:`bipedtele.control.leader_law.leader_force`);
+5. scales it by the *link gain*: 1 while feedback is fresh; once no new feedback arrived
+   for ``feedback_timeout_s`` it falls linearly to 0 over ``fade_s`` (and rises the same
+   way when feedback returns), so a lost link never leaves the operator pushed by a
+   frozen error; the device clamps the result (8 N);
+6. lets the device time pass (a simulated device integrates eq. 1 with the operator's
+   hand attached);
+7. at ``cmd_rate_hz`` updates the operator model and sends a :class:`Command`
+   (``ref = k_g x_m``), and refreshes the telemetry snapshot read by the cockpit and the
+   recorder.
+
+The loop is transport-agnostic: it gets ``send_command(Command)`` and
+``latest_feedback() -> (Feedback, t_recv) | None`` callables, so tests drive it in
+simulated time (:meth:`LeaderLoop.run_for`) and the program over Zenoh in real time
+(:meth:`LeaderLoop.run`, paced by :class:`bipedtele.leader.pacing.Pacer`).
+
+Message ``t`` fields and staleness use ``clock`` (``time.time`` by default: delays are
+computed across processes); pacing uses a monotonic clock.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from bipedtele.clock import DelayEstimator
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.damping import schedule_damping
+from bipedtele.control.leader_law import leader_force
+from bipedtele.leader.config import LeaderConfig
+from bipedtele.leader.device import LeaderDevice
+from bipedtele.leader.operators import Operator
+from bipedtele.leader.pacing import Pacer, PeriodStats, set_timer_slack
+from bipedtele.messages import Command, Feedback, new_session_id
+
+__all__ = ["LeaderLoop"]
+
+LOG = logging.getLogger(__name__)
+
+#: Recompute (40) when h1 or h2 moved by more than this [s].
+_DAMPING_STEP_S = 0.0005
+
+
+class LeaderLoop:
+    """The leader controller around a connected device.
+
+    Parameters
+    ----------
+    device : LeaderDevice
+        A connected device.
+    operator : Operator or None
+        The simulated operator; it is attached to the device (``set_operator``). None for
+        a physical device held by a person.
+    control : ControlConfig
+        ``k_m``, ``k_g`` and the damping scheduler's parameters.
+    send_command : callable
+        ``send_command(Command)``: publish one command (never blocks).
+    latest_feedback : callable
+        ``latest_feedback() -> (Feedback, t_recv) | None``: the newest feedback and its
+        local receive time [s, ``clock``].
+    cfg : LeaderConfig, optional
+        Rates, feedback timeout, fade and g_m (defaults if omitted).
+    clock : callable
+        Time for message stamps and staleness [s] (``time.time``).
+    estimator : DelayEstimator, optional
+        The h2 estimator. If given it is assumed to be fed by the receiver (which sees
+        every message, in ntp mode converted to the local clock); otherwise the loop makes
+        one (window ``delay_window_s``) and feeds it with each new feedback.
+    delay_window_s : float
+        Window of the loop's own estimator [s].
+    conservative_rtt : callable, optional
+        ntp mode: ``() -> rtt [s] | None``; when it gives a value, (40) uses
+        ``h1 = h2 = rtt`` (the split of the round trip is unknown).
+    sid : int, optional
+        Session id of the commands (random by default).
+    on_sample : callable, optional
+        Called with the telemetry snapshot at every command (cockpit, recorder).
+    """
+
+    def __init__(
+        self,
+        device: LeaderDevice,
+        operator: Operator | None,
+        control: ControlConfig,
+        send_command: Callable[[Command], None],
+        latest_feedback: Callable[[], tuple[Feedback, float] | None],
+        *,
+        cfg: LeaderConfig | None = None,
+        clock: Callable[[], float] = time.time,
+        estimator: DelayEstimator | None = None,
+        delay_window_s: float = 1.0,
+        conservative_rtt: Callable[[], float | None] | None = None,
+        sid: int | None = None,
+        on_sample: Callable[[dict[str, Any]], None] | None = None,
+    ) -> None:
+        self.device = device
+        self.operator = operator
+        self.control = control
+        self.cfg = cfg or LeaderConfig()
+        self._send = send_command
+        self._latest = latest_feedback
+        self._clock = clock
+        self._feed_estimator = estimator is None
+        self.estimator = estimator or DelayEstimator(delay_window_s)
+        self._conservative_rtt = conservative_rtt
+        self.sid = sid if sid is not None else new_session_id()
+        self._on_sample = on_sample
+        self.dt = 1.0 / self.cfg.haptic_rate_hz
+        self._cmd_every = max(1, round(self.cfg.haptic_rate_hz / self.cfg.cmd_rate_hz))
+        self._k_m = np.asarray(control.k_m, dtype=float)
+        self._k_g = np.asarray(control.k_g, dtype=float)
+        self._g_m = np.asarray(self.cfg.g_m, dtype=float)
+        if operator is not None:
+            device.set_operator(operator)
+        # State.
+        self.ticks = 0
+        self.seq = 0
+        self.now = math.nan
+        self._fb: Feedback | None = None
+        self._fb_recv = -math.inf
+        self._fb_key: tuple[int, int, float] | None = None
+        self.feedback_count = 0
+        self.gain = 0.0
+        self.h1: float | None = None
+        self.h2: float | None = None
+        self._damp_at: tuple[float, float] | None = None
+        self.alpha_m = np.asarray(schedule_damping(0.0, 0.0, control).alpha_m, dtype=float)
+        self.force = np.zeros(2)
+        self.force_cmd = np.zeros(2)
+        self.x_m = np.zeros(2)
+        self.dx_m = np.zeros(2)
+        self.enable = True
+        self.state = "starting"
+        self.last_command: Command | None = None
+        self.snapshot: dict[str, Any] = {}
+        self.period_stats = PeriodStats()
+        self.missed_ticks = 0
+        self._stop = threading.Event()
+
+    # ------------------------------------------------------------------ one tick
+
+    @property
+    def feedback(self) -> Feedback | None:
+        """The latest feedback taken (None before the first)."""
+        return self._fb
+
+    def feedback_age(self, now: float | None = None) -> float:
+        """Seconds since the latest feedback arrived (inf before the first)."""
+        return (self.now if now is None else now) - self._fb_recv
+
+    def _take_feedback(self) -> None:
+        got = self._latest()
+        if got is None:
+            return
+        fb, t_recv = got
+        key = (fb.sid, fb.seq, t_recv)
+        if key == self._fb_key:
+            return
+        self._fb_key = key
+        self._fb = fb
+        self._fb_recv = t_recv
+        self.feedback_count += 1
+        if self._feed_estimator:
+            self.estimator.update(fb.t, t_recv)
+
+    def _delays(self, now: float) -> tuple[float, float]:
+        self.h2 = self.estimator.value(now)
+        self.h1 = self._fb.h1_s if self._fb is not None else None
+        if self._conservative_rtt is not None:
+            rtt = self._conservative_rtt()
+            if rtt is not None:
+                return rtt, rtt
+        return (self.h1 or 0.0), (self.h2 or 0.0)
+
+    def _update_damping(self, now: float) -> None:
+        h1, h2 = self._delays(now)
+        last = self._damp_at
+        if last is None or abs(h1 - last[0]) > _DAMPING_STEP_S or abs(h2 - last[1]) > _DAMPING_STEP_S:
+            self._damp_at = (h1, h2)
+            self.alpha_m = np.asarray(schedule_damping(h1, h2, self.control).alpha_m, dtype=float)
+
+    def _update_gain(self, now: float) -> None:
+        fresh = self._fb is not None and now - self._fb_recv <= self.cfg.feedback_timeout_s
+        target = 1.0 if fresh else 0.0
+        if self.cfg.fade_s <= 0.0:
+            self.gain = target
+        elif self.gain < target:
+            self.gain = min(target, self.gain + self.dt / self.cfg.fade_s)
+        elif self.gain > target:
+            self.gain = max(target, self.gain - self.dt / self.cfg.fade_s)
+        if self._fb is None:
+            self.state = "starting"
+        else:
+            self.state = "running" if fresh else "feedback_stale"
+
+    def tick(self, now: float | None = None, dt: float | None = None) -> None:
+        """One haptic period: read, force, (command), advance the device by ``dt`` [s].
+
+        Parameters
+        ----------
+        now : float, optional
+            Current time on ``clock`` [s] (read from ``clock`` when omitted).
+        dt : float, optional
+            Device time to advance [s] (one nominal period when omitted).
+        """
+        now = self._clock() if now is None else now
+        self.now = now
+        hs = self.device.read()
+        self.x_m, self.dx_m = hs.x_m, hs.dx_m
+        self._take_feedback()
+        self._update_damping(now)
+        self._update_gain(now)
+        z_e = np.asarray(self._fb.z_e, dtype=float) if self._fb is not None else self._k_g * self.x_m
+        f = leader_force(
+            self.x_m, self.dx_m, z_e, k_m=self._k_m, k_g=self._k_g, alpha_m=self.alpha_m, g_m=self._g_m
+        )
+        self.force_cmd = self.gain * f
+        self.force = self.device.apply_force(self.force_cmd)
+        if self.ticks % self._cmd_every == 0:
+            self._command(now, hs.t, hs.buttons)
+        self.device.advance(self.dt if dt is None else dt)
+        self.ticks += 1
+
+    def _command(self, now: float, t_dev: float, buttons: tuple[bool, ...]) -> None:
+        op = self.operator
+        if op is not None:
+            op.update(t_dev, self._fb)
+        released = bool(buttons) and not buttons[0]
+        self.enable = not released and not (op is not None and op.done)
+        ref = self._k_g * self.x_m if self.enable else np.zeros(2)
+        self.seq += 1
+        cmd = Command(
+            sid=self.sid,
+            seq=self.seq,
+            t=now,
+            ref=[float(ref[0]), float(ref[1])],
+            x_m=[float(self.x_m[0]), float(self.x_m[1])],
+            dx_m=[float(self.dx_m[0]), float(self.dx_m[1])],
+            h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
+            alpha_m=[float(self.alpha_m[0]), float(self.alpha_m[1])],
+            enable=self.enable,
+        )
+        try:
+            self._send(cmd)
+        except Exception as exc:  # a transport hiccup must not stop the haptic loop
+            LOG.warning("sending a command failed: %s", exc)
+        self.last_command = cmd
+        self.snapshot = self._make_snapshot(now, t_dev, cmd)
+        if self._on_sample is not None:
+            self._on_sample(self.snapshot)
+
+    def _make_snapshot(self, now: float, t_dev: float, cmd: Command) -> dict[str, Any]:
+        fb = self._fb
+        ms = lambda h: None if h is None else 1000.0 * h  # noqa: E731
+        snap: dict[str, Any] = {
+            "t": now,
+            "t_device": t_dev,
+            "ref_v": cmd.ref[0],
+            "ref_w": cmd.ref[1],
+            "x_v": float(self.x_m[0]),
+            "x_w": float(self.x_m[1]),
+            "force_v": float(self.force[0]),
+            "force_w": float(self.force[1]),
+            "h1_ms": ms(self.h1),
+            "h2_ms": ms(self.h2),
+            "delay_ms": None if self.h1 is None or self.h2 is None else 1000.0 * (self.h1 + self.h2),
+            "alpha_m_v": float(self.alpha_m[0]),
+            "alpha_m_w": float(self.alpha_m[1]),
+            "gain": self.gain,
+            "enable": self.enable,
+            "leader_state": self.state,
+            "link": {"starting": "waiting", "running": "ok", "feedback_stale": "stale"}.get(self.state, self.state),
+            "feedback_age_ms": None if fb is None else 1000.0 * (now - self._fb_recv),
+            "seq": cmd.seq,
+        }
+        if fb is not None:
+            snap.update(
+                z_e_v=fb.z_e[0], z_e_w=fb.z_e[1], z_r_v=fb.z_r[0], z_r_w=fb.z_r[1],
+                eta_v=fb.eta[0], eta_w=fb.eta[1], s_r_v=fb.s_r[0], s_r_w=fb.s_r[1],
+                s_e_v=fb.s_e[0], s_e_w=fb.s_e[1], T=fb.T, eps=fb.eps, state=fb.state,
+                pose_x=fb.pose[0], pose_y=fb.pose[1], pose_yaw=fb.pose[2],
+                sonar_l=fb.sonar[0], sonar_r=fb.sonar[1], f_v_t=fb.f_v[0], f_v_n=fb.f_v[1],
+            )  # fmt: skip
+        if self.operator is not None:
+            prog = self.operator.progress()
+            snap["operator"] = prog.get("operator")
+            snap["intended_v"], snap["intended_w"] = prog.get("intended", [0.0, 0.0])
+            if "passes_done" in prog:
+                snap["passes_done"] = prog["passes_done"]
+        return snap
+
+    # ------------------------------------------------------------------ running
+
+    @property
+    def done(self) -> bool:
+        """True once the operator model finished its task."""
+        return self.operator is not None and self.operator.done
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return after the current tick (thread-safe)."""
+        self._stop.set()
+
+    def run_for(self, seconds: float, realtime: bool = False, until_done: bool = False) -> None:
+        """Run ``seconds`` of loop time.
+
+        ``realtime=False`` steps as fast as possible in *virtual* time: the k-th tick sees
+        ``now = t0 + k * dt`` where t0 continues from the previous call (or ``clock()`` at
+        the first one); the feedback source can read :attr:`now`. ``realtime=True`` is
+        :meth:`run` with a duration.
+        """
+        if realtime:
+            self.run(duration_s=seconds, until_done=until_done)
+            return
+        n = round(seconds / self.dt)
+        t0 = self._clock() if math.isnan(self.now) else self.now + self.dt
+        for k in range(n):
+            self.tick(now=t0 + k * self.dt)
+            if until_done and self.done:
+                break
+
+    def run(
+        self,
+        stop: threading.Event | None = None,
+        duration_s: float | None = None,
+        until_done: bool = True,
+        mono: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        """Run in real time until ``stop`` is set, :meth:`stop` is called, ``duration_s``
+        [s] passed or (``until_done``) the operator finished.
+
+        Each tick advances the device by the real time elapsed since the previous one, so
+        a simulated device stays in real time even after an overrun.
+        """
+        set_timer_slack()
+        pacer = Pacer(self.dt, self.cfg.spin_s, mono)
+        t_start = pacer.start
+        last = t_start
+        self._stop.clear()
+        while not self._stop.is_set() and not (stop is not None and stop.is_set()):
+            t = mono()
+            self.period_stats.add(t)
+            self.tick(dt=min(max(t - last, 0.0), 0.05) if self.ticks else self.dt)
+            last = t
+            if duration_s is not None and t - t_start >= duration_s:
+                break
+            if until_done and self.done:
+                break
+            self.missed_ticks += pacer.wait()
