@@ -4,7 +4,7 @@ Each robot registers itself with :func:`bipedtele.follower.robot.register_robot`
 whose optional dependency is missing is simply not registered.
 """
 
-try:  # the real NAO through NAOqi (needs nothing at import; qi only when connecting)
+import contextlib
+
+with contextlib.suppress(ImportError):  # the real NAO through NAOqi (qi is needed only to connect)
     from bipedtele.follower.naoqi import NaoqiRobot  # noqa: F401
-except ImportError:  # pragma: no cover
-    pass

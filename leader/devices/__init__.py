@@ -6,6 +6,15 @@ themselves the same way; they must import cleanly without their hardware or libr
 (raise :class:`bipedtele.leader.device.DeviceError` from ``connect()`` instead).
 """
 
+import contextlib
+
 from bipedtele.leader.devices.sim_falcon import SimFalcon, SimFalconParams
 
 __all__ = ["SimFalcon", "SimFalconParams"]
+
+# Hardware drivers register themselves on import (they import without their libraries;
+# a missing library is reported by connect()).
+with contextlib.suppress(ImportError):
+    from bipedtele.leader.devices import joystick as _joystick  # noqa: F401
+with contextlib.suppress(ImportError):  # until falcon.py exists
+    from bipedtele.leader.devices import falcon as _falcon  # noqa: F401
