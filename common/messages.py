@@ -117,6 +117,21 @@ def _spec(spec: object, default: Any = dataclasses.MISSING, **kw: Any) -> Any:
     return field(default=default, metadata={"spec": spec})
 
 
+def _number(spec: _Num, name: str, value: Any) -> float:
+    """Validate one number against ``spec``'s range (the hot path of decoding)."""
+    if value.__class__ is float:
+        x = value
+    elif isinstance(value, int | float) and not isinstance(value, bool):
+        x = float(value)
+    else:
+        raise MessageError("bad_field", f"{name}: expected a number")
+    if not spec.lo <= x <= spec.hi:  # also false for NaN
+        if not math.isfinite(x):
+            raise MessageError("bad_field", f"{name}: not finite")
+        raise MessageError("bad_field", f"{name}: out of range [{spec.lo}, {spec.hi}]")
+    return x
+
+
 def _check(spec: object, name: str, value: Any) -> Any:
     """Validate one field; return it in canonical Python form."""
 
@@ -127,15 +142,8 @@ def _check(spec: object, name: str, value: Any) -> Any:
         if spec.n:
             if not isinstance(value, list | tuple) or len(value) != spec.n:
                 raise bad(f"expected a list of {spec.n} numbers")
-            return [_check(_Num(spec.lo, spec.hi), f"{name}[{i}]", v) for i, v in enumerate(value)]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise bad("expected a number")
-        value = float(value)
-        if not math.isfinite(value):
-            raise bad("not finite")
-        if not spec.lo <= value <= spec.hi:
-            raise bad(f"out of range [{spec.lo}, {spec.hi}]")
-        return value
+            return [_number(spec, f"{name}[{i}]", v) for i, v in enumerate(value)]
+        return _number(spec, name, value)
     if isinstance(spec, _Int):
         if isinstance(value, bool) or not isinstance(value, int):
             raise bad("expected an integer")

@@ -511,8 +511,10 @@ class _Receiver(Generic[M]):
         clock_sync: ClockSync | None = None,
         clock: Callable[[], float] = time.time,
         ignore_sid: int | None = None,
+        on_message: Callable[[Received[M]], None] | None = None,
     ) -> None:
         self.key = key
+        self._on_message = on_message
         self._expect: tuple[type[M], ...] = expect if isinstance(expect, tuple) else (expect,)
         self.drops = drops
         self.gate = gate
@@ -547,7 +549,10 @@ class _Receiver(Generic[M]):
             if self.estimator is not None:
                 t_sent = self.clock_sync.to_local(msg.t) if self.clock_sync else msg.t
                 self.estimator.update(t_sent, t_recv)
-            self._deliver(Received(msg, t_recv))
+            rec = Received(msg, t_recv)
+            self._deliver(rec)
+            if self._on_message is not None:
+                self._on_message(rec)
         except Exception as exc:  # never let a bad sample kill Zenoh's callback thread
             self.drops.drop("receiver_error", f"{type(exc).__name__}: {exc}")
 
@@ -592,6 +597,10 @@ class LatestReceiver(_Receiver[M]):
         Local receive-time source [s] (``time.time``).
     ignore_sid : int, optional
         Messages with this sid (our own, on a shared key) are ignored silently.
+    on_message : callable, optional
+        Called with each accepted :class:`Received` in Zenoh's callback thread (keep
+        it short: answer a ping, wake a loop). Exceptions are counted as
+        ``receiver_error`` drops.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:

@@ -132,7 +132,7 @@ def main() -> int:
                     now = time.time()
                     h = est.value(now)
                     if rx.count and first is None:
-                        first = rx.latest().t_recv  # type: ignore[union-attr]
+                        first = rx.latest().t_recv
                     if h is not None:
                         result["series"].append([now, h])
                     if args.role == "leader":

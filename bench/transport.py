@@ -1,0 +1,252 @@
+"""Benchmark: round trip of a Command leader -> follower -> leader over Zenoh (loopback,
+two processes) against a bare zenoh-python ping-pong of the same payload size, and the
+accuracy of `bipedtele delay-proxy`.
+
+    .venv/bin/python bench/transport.py [--quick]
+
+Prints p50/p99/max of the round trips at 100 Hz and 1 kHz for both, the p50 ratio
+(goal: ours within 1.3x of bare), and the proxy's measured-minus-configured delay per
+direction (goal: p50 < 2 ms). Both ping-pongs use the same QoS (express, real-time
+priority, drop on congestion), so the ratio is the cost of bipedtele's layer
+(encoding, validation, gate, estimator, stamping).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import socket
+import statistics
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+from bipedtele.clock import DelayEstimator
+from bipedtele.drops import DropCounter
+from bipedtele.gate import SequenceGate
+from bipedtele.messages import Command, Feedback, encode
+from bipedtele.sections import NetworkConfig
+from bipedtele.transport import Keys, LatestReceiver, Publishers, Received, Stamper, open_session
+
+BARE_PING, BARE_PONG = "benchbare/ping", "benchbare/pong"
+QOS = {"express": True, "priority": zenoh.Priority.REAL_TIME, "congestion_control": zenoh.CongestionControl.DROP}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def pct(xs: list[float], q: float) -> float:
+    ys = sorted(xs)
+    return ys[min(len(ys) - 1, int(q * len(ys)))]
+
+
+# --------------------------------------------------------------------------- echo process
+
+
+def echo(listen: str, seconds: float) -> None:
+    """Follower side: answers bipedtele Commands with Feedback and bare pings with pongs."""
+    keys = Keys("bench")
+    st = Stamper()
+    with open_session(NetworkConfig(listen=[listen])) as s, Publishers(s, keys) as pubs:
+        pong = s.declare_publisher(BARE_PONG, **QOS)
+        bare = s.declare_subscriber(BARE_PING, lambda sample: pong.put(sample.payload))
+
+        def answer(rec: Received[Command]) -> None:
+            pubs.feedback.put(st.make(Feedback, cmd_seq=rec.msg.seq, h1_s=0.0))
+
+        est = DelayEstimator(1.0)
+        with LatestReceiver(s, keys.cmd, Command, DropCounter("bench/cmd"), SequenceGate(), estimator=est, on_message=answer):
+            print("ready", flush=True)
+            time.sleep(seconds)
+        bare.undeclare()
+        pong.undeclare()
+
+
+# --------------------------------------------------------------------------- leader side
+
+
+def run_ours(s: zenoh.Session, rate: float, n: int) -> tuple[list[float], int]:
+    keys = Keys("bench")
+    st = Stamper()
+    sent: dict[int, float] = {}
+    rtts: list[float] = []
+
+    def got(rec: Received[Feedback]) -> None:
+        t = time.perf_counter()
+        t0 = sent.pop(rec.msg.cmd_seq, None)
+        if t0 is not None:
+            rtts.append(t - t0)
+
+    est = DelayEstimator(1.0)
+    with Publishers(s, keys) as pubs, LatestReceiver(
+        s, keys.feedback, Feedback, DropCounter("bench/fb"), SequenceGate(), estimator=est, on_message=got
+    ):
+        time.sleep(0.3)
+        period, t_next = 1.0 / rate, time.perf_counter()
+        size = 0
+        for _ in range(n):
+            msg = st.make(Command, ref=[3.0, 1.5], x_m=[0.01, 0.002], dx_m=[0.0, 0.0], h2_s=0.05, alpha_m=[2.0, 2.0])
+            size = len(encode(msg))
+            sent[msg.seq] = time.perf_counter()
+            pubs.cmd.put(msg)
+            t_next += period
+            time.sleep(max(0.0, t_next - time.perf_counter()))
+        time.sleep(0.3)
+    return rtts, size
+
+
+def run_bare(s: zenoh.Session, rate: float, n: int, size: int) -> list[float]:
+    sent: dict[int, float] = {}
+    rtts: list[float] = []
+
+    def got(sample: zenoh.Sample) -> None:
+        t = time.perf_counter()
+        seq = struct.unpack_from("<Q", sample.payload.to_bytes())[0]
+        t0 = sent.pop(seq, None)
+        if t0 is not None:
+            rtts.append(t - t0)
+
+    pub = s.declare_publisher(BARE_PING, **QOS)
+    sub = s.declare_subscriber(BARE_PONG, got)
+    time.sleep(0.3)
+    period, t_next = 1.0 / rate, time.perf_counter()
+    pad = b"\0" * (size - 8)
+    for seq in range(n):
+        sent[seq] = time.perf_counter()
+        pub.put(struct.pack("<Q", seq) + pad)
+        t_next += period
+        time.sleep(max(0.0, t_next - time.perf_counter()))
+    time.sleep(0.3)
+    sub.undeclare()
+    pub.undeclare()
+    return rtts
+
+
+def line(name: str, xs: list[float], n: int) -> str:
+    ms = [x * 1e3 for x in xs]
+    return f"  {name:<22} n={len(xs):5d}/{n:<5d} p50 {pct(ms, 0.5):7.3f} ms  p99 {pct(ms, 0.99):7.3f} ms  max {max(ms):7.3f} ms"
+
+
+def bench_roundtrip(quick: bool) -> None:
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    runs = [(100.0, 300 if quick else 1000), (1000.0, 1000 if quick else 5000)]
+    total = sum(n / r for r, n in runs) * 2 + 10
+    child = subprocess.Popen(
+        [sys.executable, __file__, "--echo", ep, "--seconds", str(total)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        print("Round trip leader -> follower -> leader, Zenoh over loopback TCP, two processes")
+        with open_session(NetworkConfig(connect=[ep])) as s:
+            time.sleep(0.5)
+            for rate, n in runs:
+                ours, size = run_ours(s, rate, n)
+                bare = run_bare(s, rate, n, size)
+                print(f" {rate:.0f} Hz, payload {size} bytes:")
+                print(line("bare zenoh ping-pong", bare, n))
+                print(line("bipedtele Command/Feedback", ours, n))
+                print(f"  ratio p50 ours/bare = {statistics.median(ours) / statistics.median(bare):.2f} (goal <= 1.3)")
+    finally:
+        child.send_signal(signal.SIGTERM)
+        child.wait(10)
+
+
+# --------------------------------------------------------------------------- proxy accuracy
+
+FRAME = struct.Struct("<dI")
+
+
+def _read_frames(sock: socket.socket, out: list[float], n: int, expected: float) -> None:
+    buf = b""
+    while len(out) < n:
+        data = sock.recv(65536)
+        t = time.time()
+        if not data:
+            return
+        buf += data
+        while len(buf) >= FRAME.size:
+            t_sent, _ = FRAME.unpack_from(buf)
+            buf = buf[FRAME.size :]
+            out.append(t - t_sent - expected)
+
+
+def _send_frames(sock: socket.socket, rate: float, n: int) -> None:
+    period, t_next = 1.0 / rate, time.perf_counter()
+    for i in range(n):
+        sock.sendall(FRAME.pack(time.time(), i))
+        t_next += period
+        time.sleep(max(0.0, t_next - time.perf_counter()))
+
+
+def bench_proxy(quick: bool) -> None:
+    fwd, bwd = 0.050, 0.080
+    server = socket.create_server(("127.0.0.1", 0))
+    target = server.getsockname()[1]
+    port = free_port()
+    proxy = subprocess.Popen(
+        [sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "delay-proxy", "--listen", f"127.0.0.1:{port}",
+         "--target", f"127.0.0.1:{target}", "--forward", f"const:{fwd * 1e3:g}ms", "--backward", f"const:{bwd * 1e3:g}ms"],
+        stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert proxy.stdout is not None and "listening" in proxy.stdout.readline()
+        print(f"\ndelay-proxy accuracy: measured minus configured one-way delay (forward {fwd * 1e3:g} ms, backward {bwd * 1e3:g} ms)")
+        for rate, n in ((100.0, 300 if quick else 1000), (1000.0, 1000 if quick else 5000)):
+            client = socket.create_connection(("127.0.0.1", port))
+            conn, _ = server.accept()
+            for s in (client, conn):
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            f_err: list[float] = []
+            b_err: list[float] = []
+            readers = [
+                threading.Thread(target=_read_frames, args=(conn, f_err, n, fwd)),
+                threading.Thread(target=_read_frames, args=(client, b_err, n, bwd)),
+            ]
+            writers = [
+                threading.Thread(target=_send_frames, args=(client, rate, n)),
+                threading.Thread(target=_send_frames, args=(conn, rate, n)),
+            ]
+            for t in readers + writers:
+                t.start()
+            for t in readers + writers:
+                t.join(timeout=n / rate + 10)
+            client.close()
+            conn.close()
+            for name, err in (("forward", f_err), ("backward", b_err)):
+                ms = [e * 1e3 for e in err]
+                print(
+                    f"  {rate:5.0f} Hz {name:<8} n={len(ms):5d}  error p50 {pct(ms, 0.5):6.3f} ms  p99 {pct(ms, 0.99):6.3f} ms  "
+                    f"min {min(ms):6.3f} ms  max {max(ms):6.3f} ms  (goal p50 < 2 ms)"
+                )
+    finally:
+        proxy.send_signal(signal.SIGINT)
+        proxy.wait(10)
+        server.close()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="fewer samples")
+    ap.add_argument("--echo", metavar="ENDPOINT", help=argparse.SUPPRESS)
+    ap.add_argument("--seconds", type=float, default=60.0, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.echo:
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+        echo(args.echo, args.seconds)
+        return 0
+    print(f"bench/transport.py  (python {sys.version.split()[0]}, zenoh {Path(zenoh.__file__).parent.name})")
+    bench_roundtrip(args.quick)
+    bench_proxy(args.quick)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
