@@ -6,5 +6,7 @@ whose optional dependency is missing is simply not registered.
 
 import contextlib
 
+from bipedtele.follower.sim.robot import SimNao  # noqa: F401  (the pybullet NAO, --robot sim)
+
 with contextlib.suppress(ImportError):  # the real NAO through NAOqi (qi is needed only to connect)
     from bipedtele.follower.naoqi import NaoqiRobot  # noqa: F401
