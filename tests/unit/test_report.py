@@ -1,0 +1,154 @@
+"""Table 2 report: hand-computed values on a synthetic recording, truncation, CLI errors."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+from bipedtele.cli import main
+from bipedtele.messages import Command, Feedback, Status
+from bipedtele.recording import Recorder, read_records
+from bipedtele.report import REPORT_KEYS, compute_report, plot_report
+
+
+def _synthetic(path: Path) -> None:
+    """A leader recording whose Table 2 values are worked out by hand in the test."""
+    with Recorder(path, metadata={"role": "leader"}) as rec:
+        rec.write("cmd/sent", Command(seq=0, t=99.0, ref=[5.0, 4.0]), 99.0)  # before the task
+        rec.write("estimates", {"h1_s": 0.05, "h2_s": 0.05}, 99.5)  # before the task: ignored
+        rec.write("feedback/recv", Feedback(sid=9, t=98.9, ref=[5.0, 4.0], eta=[-20.0, 0.0]), 99.0)
+        rec.write("events", {"event": "task_start"}, 100.0)
+        for k in range(21):  # commands every 0.5 s from 100 to 110 s
+            t = 100.0 + 0.5 * k
+            rec.write("cmd/sent", Command(seq=k + 1, t=t, ref=[5.0, 4.0]), t)
+        for t, h1, h2 in ((100.5, 0.10, 0.15), (101.5, 0.2, 0.2), (102.5, 0.0, 0.1), (103.5, 0.12, 0.18)):
+            rec.write("estimates", {"h1_s": h1, "h2_s": h2, "f_m": [0.5, -0.2]}, t)
+        for t, eta, state, yaw in (
+            (101.0, [4.0, 4.5], "walking", 0.0),
+            (102.0, [5.5, 3.0], "walking", 0.07),
+            (103.0, [5.0, 4.0], "fallen", 0.14),
+            (104.0, [2.0, 4.0], "fallen", 0.21),
+        ):
+            fb = Feedback(sid=9, t=t - 0.1, ref=[5.0, 4.0], eta=eta, state=state, pose=[0, 0, yaw])
+            rec.write("feedback/recv", fb, t)
+        # Follower status: session 9 had 2 falls before the recording, then one more and two
+        # obstacle contacts; it restarts as session 10 and falls once.
+        for t, sid, falls, coll in ((100.2, 9, 2, 0), (103.2, 9, 3, 2), (106.0, 10, 0, 0), (107.0, 10, 1, 0)):
+            st = Status(sid=sid, t=t, role="follower", state="walking",
+                        counters={"falls": falls, "collisions": coll, "cmd_accepted": 5})  # fmt: skip
+            rec.write("status/recv", st, t)
+        rec.write("events", {"event": "fall"}, 103.0)
+        rec.write("events", {"event": "pass_done", "n": 1}, 105.0)
+        rec.write("events", {"event": "task_done"}, 108.25)
+
+
+def test_table2_values_by_hand(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    _synthetic(path)
+    report = compute_report(read_records(path))
+    assert tuple(report) == REPORT_KEYS
+    # Delays inside [100, 108.25]: 250, 400, (0 + 100: not warm, left out), 300 ms.
+    assert report["min_delay_ms"] == pytest.approx(250.0)
+    assert report["max_delay_ms"] == pytest.approx(400.0)
+    assert report["mean_delay_ms"] == pytest.approx((250 + 400 + 300) / 3)
+    assert report["completion_s"] == pytest.approx(8.25)
+    # |ref - eta| over the four feedbacks in the window: forward 1, 0.5, 0, 3; turn .5, 1, 0, 0.
+    assert report["forward_error_cm_s"] == pytest.approx(4.5 / 4)
+    assert report["turn_error_deg_s"] == pytest.approx(1.5 / 4)
+    # falls: events 1, status increase (3-2) + 1 = 2, fallen transitions 1 -> 2.
+    assert report["falls"] == 2
+    assert report["collisions"] == 2
+
+
+def test_window_without_task_events_uses_commands(tmp_path: Path) -> None:
+    path = tmp_path / "bare.mcap"
+    with Recorder(path) as rec:
+        for k in range(5):
+            rec.write("cmd/recv", Command(seq=k, t=10.0 + k - 0.2, ref=[1.0, 0.0], h2_s=0.1), 10.0 + k)
+            rec.write("feedback/sent", Feedback(t=10.0 + k, ref=[1.0, 0.0], eta=[1.5, 1.0]), 10.0 + k)
+    report = compute_report(read_records(path))
+    assert report["completion_s"] == pytest.approx(4.0)
+    # A follower's file: h1 = t_recv - t = 0.2 s, plus the leader's h2 = 0.1 s.
+    assert report["mean_delay_ms"] == pytest.approx(300.0)
+    assert report["forward_error_cm_s"] == pytest.approx(0.5)
+    assert report["turn_error_deg_s"] == pytest.approx(1.0)
+    assert report["falls"] == 0 and report["collisions"] == 0
+
+
+def test_empty_input_gives_nones() -> None:
+    report = compute_report([])
+    assert tuple(report) == REPORT_KEYS
+    assert report["mean_delay_ms"] is None and report["completion_s"] is None
+    assert report["falls"] == 0
+
+
+def test_figures(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    _synthetic(path)
+    figs = plot_report(list(read_records(path)))
+    assert set(figs) == {"fig9_delay", "fig11_coordination", "fig12_tracking"}
+    assert len(figs["fig9_delay"].axes[0].lines) == 3  # h1+h2, h1, h2
+    assert [len(a.lines) for a in figs["fig11_coordination"].axes] == [2, 2, 2]
+    turn = figs["fig12_tracking"].axes[1].lines
+    assert turn[0].get_ydata()[-1] == pytest.approx(4.0 * 5.0)  # 4 deg/s, feedback 99..104 s
+    assert turn[1].get_ydata()[-1] == pytest.approx(12.03, abs=0.01)  # yaw 0.21 rad
+
+
+def test_cli_prints_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "run.mcap"
+    _synthetic(path)
+    out_json, plots = tmp_path / "r.json", tmp_path / "plots"
+    assert main(["report", str(path), "--json", str(out_json), "--plots", str(plots)]) == 0
+    text = capsys.readouterr().out
+    assert "Average delay" in text and "316.67 ms" in text and "8.25 s" in text
+    data = json.loads(out_json.read_text())
+    assert data == compute_report(read_records(path))
+    assert sorted(p.name for p in plots.iterdir()) == [
+        "fig11_coordination.png", "fig12_tracking.png", "fig9_delay.png",
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("content", [None, b"", b"garbage, not an mcap file"])
+def test_cli_bad_file_one_line_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes | None
+) -> None:
+    path = tmp_path / "bad.mcap"
+    if content is not None:
+        path.write_bytes(content)
+    assert main(["report", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("bipedtele report: ")
+
+
+def test_truncated_recording_reports_up_to_the_cut(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "long.mcap"
+    with Recorder(path, flush_s=0.05) as rec:
+        rec.write("events", {"event": "task_start"}, 0.0)
+        for k in range(1, 401):
+            t = 0.05 * k
+            rec.write("cmd/sent", Command(seq=k, t=t, ref=[5.0, 0.0]), t)
+            rec.write("estimates", {"h1_s": 0.1, "h2_s": 0.1 + 0.001 * k}, t)
+            rec.write("feedback/recv", Feedback(t=t, ref=[5.0, 0.0], eta=[4.0, 0.0]), t)
+            if k % 80 == 0:
+                time.sleep(0.12)  # the writer closes a chunk: a cut keeps what came before
+        rec.write("events", {"event": "task_done"}, 20.0)
+    full = compute_report(read_records(path))
+    assert full["completion_s"] == pytest.approx(20.0)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: int(path.stat().st_size * 0.6)])
+    kept = list(read_records(cut))
+    last_cmd = max(r.t_recv for r in kept if r.topic == "cmd/sent")
+    assert 0.0 < last_cmd < 19.0
+    out_json = tmp_path / "cut.json"
+    assert main(["report", str(cut), "--json", str(out_json)]) == 0
+    report = json.loads(out_json.read_text())
+    assert tuple(report) == REPORT_KEYS
+    assert report["completion_s"] == pytest.approx(last_cmd)  # no task_done: the last command
+    assert report["forward_error_cm_s"] == pytest.approx(1.0)
+    assert report["min_delay_ms"] == pytest.approx(201.0)
+    assert report["max_delay_ms"] < full["max_delay_ms"]
+    capsys.readouterr()
