@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from bipedtele.control.config import ControlConfig
 
-__all__ = ["Damping", "schedule_damping"]
+__all__ = ["Damping", "schedule_damping", "schedule_damping_array"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,21 @@ def schedule_damping(h1_s: float, h2_s: float, cfg: ControlConfig) -> Damping:
     for name, h in (("h1_s", h1_s), ("h2_s", h2_s)):
         if not (math.isfinite(h) and h >= 0.0):
             raise ValueError(f"{name} = {h!r}: allowed: a finite delay >= 0 s")
+    return Damping(*schedule_damping_array(np.asarray(h1_s, dtype=float), np.asarray(h2_s, dtype=float), cfg))
+
+
+def schedule_damping_array(
+    h1_s: np.ndarray, h2_s: np.ndarray, cfg: ControlConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Vectorised :func:`schedule_damping` for delay arrays of shape ``(n,)`` [s] (unchecked).
+
+    Returns
+    -------
+    (alpha_m, s_e, lambda_m, lambda_se)
+        Arrays of shape ``(n, 2)`` (``(2,)`` for scalar delays).
+    """
+    h1_s = np.asarray(h1_s, dtype=float)[..., None]
+    h2_s = np.asarray(h2_s, dtype=float)[..., None]
     k_pos = np.asarray(cfg.k_m, dtype=float) * np.asarray(cfg.k_g, dtype=float)
     k_s = np.asarray(cfg.k_s, dtype=float)
     d = np.asarray(cfg.D, dtype=float)
@@ -83,9 +98,4 @@ def schedule_damping(h1_s: float, h2_s: float, cfg: ControlConfig) -> Damping:
     scale = 1.0 + cfg.margin
     alpha_m = np.maximum(cfg.alpha_m_min, scale * k_pos * lead)
     s_e = np.maximum(cfg.s_e_min, scale * k_s * foll - d)
-    return Damping(
-        alpha_m=alpha_m,
-        s_e=s_e,
-        lambda_m=alpha_m / k_pos - lead,
-        lambda_se=(s_e + d) / k_s - foll,
-    )
+    return alpha_m, s_e, alpha_m / k_pos - lead, (s_e + d) / k_s - foll

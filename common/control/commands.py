@@ -1,0 +1,102 @@
+"""CLI sub-commands of the control core: ``surfaces`` (Fig. 6) and ``study`` (Fig. 8)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.config import ConfigError
+
+__all__ = ["add_study_parser", "add_surfaces_parser"]
+
+
+def _write_json(path: str, data: Any) -> None:
+    text = json.dumps(data, indent=1)
+    if path == "-":
+        sys.stdout.write(text + "\n")
+        return
+    try:
+        Path(path).write_text(text + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"--json {path}: cannot write ({exc.strerror})") from None
+
+
+def _save_fig(fig: Any, path: str) -> None:
+    try:
+        fig.savefig(path, dpi=90)
+    except OSError as exc:
+        raise ConfigError(f"--plot {path}: cannot write ({exc.strerror})") from None
+
+
+def _run_surfaces(args: argparse.Namespace) -> int:
+    from bipedtele.control.surfaces import compute_surfaces, plot_surfaces
+
+    for dp in args.dp:
+        if not 0.0 < dp <= 1.0:
+            raise ConfigError(f"--dp {dp}: allowed: 0 < dp <= 1")
+    cfg = config_from_args(args).section("control")
+    data = compute_surfaces(args.dp, cfg, n_sigma=args.n_sigma, n_T=args.n_T)
+    if args.json:
+        _write_json(args.json, data)
+    if args.plot:
+        _save_fig(plot_surfaces(data), args.plot)
+    if args.json != "-":
+        for i, dp in enumerate(data["dp"]):
+            flat = [v for row in data["rho"][i] for v in row]
+            sys.stdout.write(f"dp={dp:g}: max|l_hybrid| in [{min(flat):.4f}, {max(flat):.4f}] over sigma_r x T\n")
+    return 0
+
+
+def _run_study(args: argparse.Namespace) -> int:
+    from bipedtele.control.study import StudyParams, plot_study, run_study
+
+    if args.runs < 1:
+        raise ConfigError(f"--runs {args.runs}: allowed: >= 1")
+    if not args.duration >= 1.0:
+        raise ConfigError(f"--duration {args.duration}: allowed: >= 1 s")
+    cfg = config_from_args(args).section("control")
+    result = run_study(args.runs, args.seed, cfg, StudyParams(duration_s=args.duration))
+    if args.json:
+        _write_json(args.json, result)
+    if args.plot:
+        _save_fig(plot_study(result), args.plot)
+    if args.json != "-":
+        sys.stdout.write(f"study: {args.runs} runs per scheme, {args.duration:g} s each, seed {args.seed}\n")
+        for c in result["cases"]:
+            for s in ("cp", "vp"):
+                r = c[s]
+                sys.stdout.write(
+                    f"  {c['name']:<16} h1={c['h1_ms']:6.1f} ms h2={c['h2_ms']:6.1f} ms {s.upper()}: "
+                    f"forward {r['forward_error']:.3f} cm/s [{r['forward_ci95'][0]:.3f}, {r['forward_ci95'][1]:.3f}]  "
+                    f"turn {r['turn_error']:.3f} deg/s [{r['turn_ci95'][0]:.3f}, {r['turn_ci95'][1]:.3f}]  "
+                    f"diverged {r['diverged']}\n"
+                )
+    return 0
+
+
+def add_surfaces_parser(sub: Any) -> None:
+    """``bipedtele surfaces --dp 0.25 0.5 0.7 [--json F] [--plot F.png]`` (Fig. 6)."""
+    p = sub.add_parser("surfaces", help="stability surfaces max|l_hybrid| over sigma_r x T (Fig. 6)")
+    p.add_argument("--dp", type=float, nargs="+", default=[0.25, 0.5, 0.7], help="reset factors (0 < dp <= 1)")
+    p.add_argument("--json", metavar="FILE", help="write the surfaces as JSON ('-' for stdout)")
+    p.add_argument("--plot", metavar="FILE.png", help="write a figure")
+    p.add_argument("--n-sigma", type=int, default=41, choices=range(2, 1001), metavar="N", help="sigma_r points (default 41)")
+    p.add_argument("--n-T", type=int, default=46, choices=range(2, 1001), metavar="N", help="T points (default 46)")
+    add_config_args(p)
+    p.set_defaults(func=_run_surfaces)
+
+
+def add_study_parser(sub: Any) -> None:
+    """``bipedtele study [--runs 500] [--seed S] [--json F] [--plot F.png]`` (Fig. 8, Sec. 4)."""
+    p = sub.add_parser("study", help="CP vs VP numerical study over 4 delay cases (Fig. 8)")
+    p.add_argument("--runs", type=int, default=500, help="runs per scheme and case (default 500)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run (default 60)")
+    p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-' for stdout)")
+    p.add_argument("--plot", metavar="FILE.png", help="write Fig. 8")
+    add_config_args(p)
+    p.set_defaults(func=_run_study)

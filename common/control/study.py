@@ -1,0 +1,532 @@
+"""The paper's numerical study (Sec. 4, Fig. 8): constant (CP) vs variable (VP) parameters.
+
+For each delay case, ``runs`` closed-loop simulations with **constant parameters** (CP:
+``sigma_r`` per channel uniform in ``s_r_range``, ``T`` uniform in ``T_range``, ``eps`` the
+configured value, all fixed for the run) and ``runs`` with **variable parameters** (VP:
+``sigma_r``, ``T``, ``eps`` from the online choice (30), fed by the 1 s moving-average delay
+estimates). Both schemes use the damping scheduler (40) for ``alpha_m`` and ``sigma_e``.
+CP run ``i`` and VP run ``i`` share the operator's intentions (paired comparison).
+
+The loop, per control period ``dt`` (all runs at once, numpy over the run axis):
+
+* **Operator** (simulated): intends a speed pair that changes at random instants (mean
+  6 s apart); the intention ``ref/k_g`` is smoothed (0.15 s) and a PD hand pulls the handle
+  (``k_h = 300 N/m``, ``b_h = 8 N s/m``, ``|f_h| <= 15 N``), so the force feedback pushes it
+  off its target as it would a human's.
+* **Leader** (1), (31)-(32): a Falcon-like handle of mass 0.15 kg (``C_m = 0``, ``g_m``
+  compensated) under ``f_m`` clamped to 8 N; damping terms implicit (stable at any
+  ``alpha_m``), then the position (symplectic Euler).
+* **Channel**: one command and one feedback message per period; a message sent at step
+  ``n`` arrives ``ceil(h(t_n)/dt)`` steps later; receivers keep the newest arrived message
+  (older ones arriving later are dropped), as the real transport does.
+* **Delay estimate**: the receiver's mean of the one-way delays of the messages it got in
+  the last 1 s (time window), shared with the other side (sharing latency ignored).
+* **Equivalent follower** (29) driven by the received ``k_g x_m(t - h1)``, exact ZOH, with
+  ``sigma_e`` from (40); ``z_e`` goes back to the leader.
+* **Real follower**: the reduced hybrid model (20), (22), (12) in speed coordinates
+  ``[eta, z_r]`` per channel (exact ZOH between impacts, ``f_v = 0``) with the impact reset
+  ``eta_v <- dp eta_v`` (``eta_d <- dp_turn eta_d``) at the end of every walking cycle;
+  ``sigma_r`` and ``T`` change only at impacts (one cycle = one set of parameters, as in the
+  Poincare analysis). The joint block (21) is decoupled from the speeds, so ``eps`` enters
+  only through the choice (30).
+
+Reported per case and scheme: the mean over runs of the time-mean absolute coordination
+errors, eqs. (6) and (10): forward ``|k_gv x_mv(t - h1) - v_hip|`` [cm/s] and turn
+``|k_gd x_md(t - h1) - v_delta|`` [deg/s], with 95 % confidence intervals (Student t over
+runs), and the number of diverged runs (non-finite state or a speed above 1e4), which are
+left out of the means.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+from collections.abc import Callable, Generator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.damping import schedule_damping_array
+from bipedtele.control.equivalent import equivalent_zoh
+from bipedtele.control.linalg import mat2, zoh2
+from bipedtele.control.online import Choice, OnlineChooser
+from scipy import stats
+
+__all__ = [
+    "CASES",
+    "DelayCase",
+    "StudyParams",
+    "delay_sampler",
+    "plot_study",
+    "run_case",
+    "run_study",
+]
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DelayCase:
+    """One delay scenario: forward (``h1``) and backward (``h2``) delay model specs."""
+
+    name: str
+    h1: str
+    h2: str
+    description: str
+
+
+CASES: tuple[DelayCase, ...] = (
+    DelayCase("lan", "const:2ms", "const:2ms", "same-site LAN: 2 ms each way, constant"),
+    DelayCase(
+        "continental",
+        "uniform:40ms:15ms",
+        "uniform:40ms:15ms",
+        "same-continent internet: 40 ms +- 15 ms each way, uniform jitter per message (reordering)",
+    ),
+    DelayCase(
+        "asymmetric",
+        "const:300ms",
+        "const:100ms",
+        "asymmetric: 300 ms leader->robot, 100 ms back, constant",
+    ),
+    DelayCase(
+        "intercontinental",
+        "trace:intercontinental:h1",
+        "trace:intercontinental:h2",
+        "recorded intercontinental trace (130-370 ms, time-varying, asymmetric), shipped CSV",
+    ),
+)
+
+
+@dataclass(frozen=True)
+class StudyParams:
+    """Simulation settings that are not controller parameters.
+
+    Attributes
+    ----------
+    duration_s : float
+        Simulated time per run [s].
+    dt : float
+        Control period [s].
+    leader_mass_kg : float
+        Effective moving mass of the handle [kg].
+    force_max_n : float
+        Device force limit [N].
+    hand_k, hand_b, hand_f_max, hand_tau : float
+        Operator hand stiffness [N/m], damping [N s/m], strength [N], target lag [s].
+    intent_mean_s, intent_min_s : float
+        Mean and minimum time between changes of the operator's intention [s].
+    forward_range, turn_max : tuple / float
+        Intended forward speeds [cm/s] (uniform) and turn speeds in +-turn_max [deg/s].
+    window_s : float
+        Delay-estimate moving-average window [s].
+    diverge_limit : float
+        A run whose speed exceeds this [cm/s or deg/s] or becomes non-finite has diverged.
+    """
+
+    duration_s: float = 60.0
+    dt: float = 0.01
+    leader_mass_kg: float = 0.15
+    force_max_n: float = 8.0
+    hand_k: float = 300.0
+    hand_b: float = 8.0
+    hand_f_max: float = 15.0
+    hand_tau: float = 0.15
+    intent_mean_s: float = 6.0
+    intent_min_s: float = 1.0
+    forward_range: tuple[float, float] = (1.0, 7.0)
+    turn_max: float = 7.0
+    window_s: float = 1.0
+    diverge_limit: float = 1e4
+
+
+# ----------------------------------------------------------------------------- delays
+
+
+def _local_delay_model(spec: str, seed: int) -> Callable[[float], float]:
+    """Fallback when :mod:`bipedtele.delaymodels` is absent: const, uniform, trace."""
+    kind, _, rest = spec.partition(":")
+
+    def dur(text: str) -> float:
+        text = text.strip()
+        if text.endswith("ms"):
+            return float(text[:-2]) * 1e-3
+        if text.endswith("s"):
+            return float(text[:-1])
+        return float(text) * 1e-3
+
+    if kind == "const":
+        value = dur(rest)
+        return lambda _t: value
+    if kind == "uniform":
+        mean, half = (dur(x) for x in rest.split(":"))
+        rng = np.random.default_rng(seed)
+        return lambda _t: float(rng.uniform(mean - half, mean + half))
+    if kind == "trace":
+        from importlib import resources
+
+        _source, _, column = rest.rpartition(":")
+        text = resources.files("bipedtele.data").joinpath("intercontinental_delay.csv").read_text("utf-8")
+        data = np.loadtxt(text.splitlines()[1:], delimiter=",")
+        t = data[:, 0]
+        d = data[:, 1 if column == "h1" else 2] * 1e-3
+        period = t[-1] - t[0] + (t[-1] - t[-2])
+        return lambda tt: float(np.interp(t[0] + (tt - t[0]) % period, t, d))
+    raise ValueError(f"delay spec {spec!r}: allowed: const:, uniform:, trace:intercontinental:h1|h2")
+
+
+def delay_sampler(spec: str, seed: int) -> Callable[[float], float]:
+    """``t -> delay [s]`` for a spec, from :mod:`bipedtele.delaymodels` when installed."""
+    try:
+        from bipedtele.delaymodels import parse_delay_model
+    except ImportError:  # pragma: no cover - the module ships with the core
+        LOG.warning("bipedtele.delaymodels not found: using the study's local delay generator")
+        return _local_delay_model(spec, seed)
+    return parse_delay_model(spec, seed=seed).delay_s
+
+
+@dataclass(frozen=True)
+class _Channel:
+    """Shared per-case channel arrays over ``K`` steps."""
+
+    idx: np.ndarray  # newest message index arrived by step k (-1: none yet)
+    estimate: np.ndarray  # 1 s moving-average delay estimate at step k [s]
+    mean_s: float
+    ring: int  # ring-buffer length that covers every lag
+
+
+def _channel(delays: np.ndarray, dt: float, window_s: float) -> _Channel:
+    k_steps = delays.shape[0]
+    n = np.arange(k_steps)
+    arrive = n + np.ceil(delays / dt - 1e-9).astype(int)
+    newest = np.full(k_steps, -1)
+    ok = arrive < k_steps
+    np.maximum.at(newest, arrive[ok], n[ok])
+    newest = np.maximum.accumulate(newest)
+    lag = np.where(newest >= 0, n - newest, 0)
+    # moving average over arrival time of the delays received in (t - window, t]
+    w = max(1, round(window_s / dt))
+    sums = np.bincount(arrive[ok], weights=delays[ok], minlength=k_steps)[:k_steps]
+    counts = np.bincount(arrive[ok], minlength=k_steps)[:k_steps].astype(float)
+    cs, cc = np.cumsum(sums), np.cumsum(counts)
+    ws = cs - np.concatenate([np.zeros(w), cs[:-w]])
+    wc = cc - np.concatenate([np.zeros(w), cc[:-w]])
+    est = np.where(wc > 0, ws / np.maximum(wc, 1.0), np.nan)
+    # before the first arrival: the receiver knows nothing; hold the first estimate
+    first = np.flatnonzero(~np.isnan(est))
+    est = np.where(np.isnan(est), est[first[0]] if first.size else 0.0, est)
+    # gaps longer than the window: hold the last estimate
+    est = _ffill(np.where(wc > 0, est, np.nan))
+    return _Channel(idx=newest, estimate=est, mean_s=float(delays.mean()), ring=int(lag.max()) + 2)
+
+
+def _ffill(a: np.ndarray) -> np.ndarray:
+    idx = np.where(~np.isnan(a), np.arange(a.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    out = a[idx]
+    return np.where(np.isnan(out), np.nanmean(a) if np.any(~np.isnan(a)) else 0.0, out)
+
+
+# ----------------------------------------------------------------------------- follower
+
+
+def _hybrid_zoh(s_r: np.ndarray, cfg: ControlConfig, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-run ZOH of the real follower speed dynamics ``[eta, z_r]`` per channel.
+
+    ``D eta' = k_s (ref - eta) - sigma_r (eta - z_r)/beta_r``, ``z_r' = (eta - z_r)/beta_r``.
+    ``s_r`` has shape (n, 2); returns ``Phi`` (n, 2, 2, 2) and ``Gamma`` (n, 2, 2).
+    """
+    d = np.asarray(cfg.D, dtype=float)
+    k = np.asarray(cfg.k_s, dtype=float)
+    b = np.asarray(cfg.beta_r, dtype=float)
+    s = np.asarray(s_r, dtype=float)
+    a = mat2(-k / d - s / (d * b), s / (d * b), 1.0 / b + 0.0 * s, -1.0 / b + 0.0 * s)
+    bm = np.zeros((*s.shape, 2, 1))
+    bm[..., 0, 0] = k / d
+    phi, gam = zoh2(a, bm, dt)
+    return phi, gam[..., 0]
+
+
+# ----------------------------------------------------------------------------- one case
+
+
+def _ci95(x: np.ndarray) -> tuple[float, list[float]]:
+    n = x.size
+    if n == 0:
+        return math.nan, [math.nan, math.nan]
+    m = float(x.mean())
+    if n < 2:
+        return m, [m, m]
+    half = float(stats.t.ppf(0.975, n - 1) * x.std(ddof=1) / math.sqrt(n))
+    return m, [m - half, m + half]
+
+
+def _summary(fwd: np.ndarray, turn: np.ndarray, diverged: np.ndarray) -> dict[str, Any]:
+    ok = ~diverged
+    f, fci = _ci95(fwd[ok])
+    t, tci = _ci95(turn[ok])
+    return {
+        "forward_error": f,
+        "forward_ci95": fci,
+        "turn_error": t,
+        "turn_ci95": tci,
+        "diverged": int(diverged.sum()),
+    }
+
+
+def run_case(
+    case: DelayCase,
+    runs: int,
+    seed: int,
+    cfg: ControlConfig,
+    params: StudyParams,
+    chooser: OnlineChooser,
+    *,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Simulate ``runs`` CP and ``runs`` VP closed loops for one delay case.
+
+    Returns
+    -------
+    dict
+        ``{"name", "h1_ms", "h2_ms", "description", "cp": {...}, "vp": {...}}`` with the
+        summaries described in the module docstring (plus per-run arrays under ``"_runs"``
+        for callers that want them; not JSON-serialised by :func:`run_study`).
+    """
+    dt = params.dt
+    k_steps = round(params.duration_s / dt)
+    case_seed = [seed, CASES.index(case) if case in CASES else 99]
+    rng = np.random.default_rng(case_seed)
+    t_grid = np.arange(k_steps) * dt
+    offset = float(rng.uniform(0.0, 240.0)) if case.h1.startswith("trace") else 0.0
+    h = []
+    for j, spec in enumerate((case.h1, case.h2)):
+        f = delay_sampler(spec, seed=int(rng.integers(0, 2**31 - 1)) + j)
+        h.append(np.array([f(offset + t) for t in t_grid]))
+    ch1 = _channel(h[0], dt, params.window_s)
+    ch2 = _channel(h[1], dt, params.window_s)
+    alpha_k, s_e_k, _, _ = schedule_damping_array(ch1.estimate, ch2.estimate, cfg)
+
+    # VP: the online choice for every distinct s_e met along the case (shared by all runs)
+    uniq, inverse = np.unique(s_e_k, axis=0, return_inverse=True)
+    choices: list[Choice] = [chooser.choose(u) for u in uniq]
+    inverse = inverse.reshape(-1)
+    ch_T = np.array([c.T for c in choices])[inverse]
+    ch_sr = np.array([c.s_r for c in choices])[inverse]
+    ch_eps = np.array([c.eps for c in choices])[inverse]
+
+    n_all = 2 * runs
+    vp = np.zeros(n_all, dtype=bool)
+    vp[runs:] = True
+    # CP parameters, drawn per run, fixed
+    s_lo, s_hi = cfg.s_r_range
+    t_lo, t_hi = cfg.T_range
+    cp_sr = rng.uniform(s_lo, s_hi, size=(runs, 2))
+    cp_T = rng.uniform(t_lo, t_hi, size=runs)
+    s_r = np.concatenate([cp_sr, np.repeat(ch_sr[:1], runs, axis=0)])
+    T_run = np.concatenate([cp_T, np.full(runs, ch_T[0])])
+    eps_used = np.concatenate([np.full(runs, cfg.eps), np.full(runs, ch_eps[0])])
+
+    # operator intentions: the same for CP run i and VP run i
+    n_seg = int(params.duration_s / params.intent_min_s) + 2
+    gaps = params.intent_min_s + rng.exponential(params.intent_mean_s - params.intent_min_s, size=(runs, n_seg))
+    switch = np.concatenate([np.zeros((runs, 1)), np.cumsum(gaps, axis=1)], axis=1)
+    fwd_t = rng.uniform(*params.forward_range, size=(runs, n_seg + 1))
+    turn_t = rng.uniform(-params.turn_max, params.turn_max, size=(runs, n_seg + 1))
+    intent = np.stack([fwd_t, turn_t], -1)
+    switch = np.concatenate([switch, switch])
+    intent = np.concatenate([intent, intent])
+
+    k_g = np.asarray(cfg.k_g, dtype=float)
+    k_m = np.asarray(cfg.k_m, dtype=float)
+    dp = np.array([cfg.dp, cfg.dp_turn])
+    m = params.leader_mass_kg
+    a_hand = 1.0 - math.exp(-dt / params.hand_tau)
+    rows = np.arange(n_all)
+
+    x = np.zeros((n_all, 2))
+    v = np.zeros((n_all, 2))
+    x_d = np.zeros((n_all, 2))
+    seg = np.zeros(n_all, dtype=int)
+    eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
+    hy = np.zeros((n_all, 2, 2))  # [eta, z_r] per channel
+    phase = np.zeros(n_all)
+    phi_h, gam_h = _hybrid_zoh(s_r, cfg, dt)
+    cmd_buf = np.zeros((ch1.ring, n_all, 2))
+    fb_buf = np.zeros((ch2.ring, n_all, 2))
+    err_sum = np.zeros((n_all, 2))
+    peak = np.zeros(n_all)
+    sum_T = np.zeros(n_all)
+    sum_sr = np.zeros((n_all, 2))
+    n_cycles = np.zeros(n_all)
+    report_every = max(1, k_steps // 50)
+
+    for k in range(k_steps):
+        t = k * dt
+        # operator intention -> smoothed handle target
+        adv = switch[rows, np.minimum(seg + 1, n_seg)] <= t
+        seg = np.where(adv, np.minimum(seg + 1, n_seg), seg)
+        target = intent[rows, seg] / k_g
+        x_d += (target - x_d) * a_hand
+        # leader (31)-(32) with the feedback received
+        i2 = ch2.idx[k]
+        z_rx = fb_buf[i2 % ch2.ring] if i2 >= 0 else np.zeros((n_all, 2))
+        alpha = alpha_k[k]
+        spring = -k_m * (k_g * x - z_rx)
+        hand_pos = params.hand_k * (x_d - x)
+        v_new = (v + dt / m * (spring + hand_pos)) / (1.0 + dt * (alpha + params.hand_b) / m)
+        f_m = spring - alpha * v_new
+        f_h = hand_pos - params.hand_b * v_new
+        clamp_m = np.abs(f_m) > params.force_max_n
+        clamp_h = np.abs(f_h) > params.hand_f_max
+        if clamp_m.any() or clamp_h.any():
+            # saturated forces are constant over the step; unsaturated damping stays implicit
+            fm_c = np.clip(spring, -np.inf, np.inf)
+            denom = 1.0 + dt * (np.where(clamp_m, 0.0, alpha) + np.where(clamp_h, 0.0, params.hand_b)) / m
+            num = v + dt / m * (
+                np.where(clamp_m, np.sign(f_m) * params.force_max_n, fm_c)
+                + np.where(clamp_h, np.sign(f_h) * params.hand_f_max, hand_pos)
+            )
+            v_new = num / denom
+        v = v_new
+        x = x + dt * v
+        cmd_buf[k % ch1.ring] = k_g * x
+        # follower: newest command received
+        i1 = ch1.idx[k]
+        ref = cmd_buf[i1 % ch1.ring] if i1 >= 0 else np.zeros((n_all, 2))
+        # equivalent follower (29), shared discretisation for this step's sigma_e
+        phi_e, gam_e = equivalent_zoh(s_e_k[k], cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z, dt)
+        eq = np.einsum("cij,ncj->nci", phi_e, eq) + gam_e[None, :, :, 0] * ref[:, :, None]
+        fb_buf[k % ch2.ring] = eq[:, :, 1]
+        # real follower: hybrid speed dynamics between impacts, per-run matrices
+        h0 = phi_h[..., 0, 0] * hy[..., 0] + phi_h[..., 0, 1] * hy[..., 1] + gam_h[..., 0] * ref
+        h1_ = phi_h[..., 1, 0] * hy[..., 0] + phi_h[..., 1, 1] * hy[..., 1] + gam_h[..., 1] * ref
+        hy = np.stack([h0, h1_], -1)
+        phase += dt
+        hit = phase >= T_run - 1e-9
+        if hit.any():
+            hy[hit, :, 0] *= dp
+            phase[hit] -= T_run[hit]
+            sum_T[hit] += T_run[hit]
+            sum_sr[hit] += s_r[hit]
+            n_cycles[hit] += 1
+            upd = hit & vp
+            if upd.any():
+                T_run[upd] = ch_T[k]
+                s_r[upd] = ch_sr[k]
+                eps_used[upd] = ch_eps[k]
+                p, g = _hybrid_zoh(s_r[upd], cfg, dt)
+                phi_h[upd] = p
+                gam_h[upd] = g
+        err_sum += np.abs(ref - hy[..., 0])
+        peak = np.maximum(peak, np.abs(hy[..., 0]).max(axis=1))
+        if progress is not None and (k + 1) % report_every == 0:
+            progress(report_every)
+
+    mean_err = err_sum / k_steps
+    diverged = ~np.isfinite(mean_err).all(axis=1) | ~np.isfinite(peak) | (peak > params.diverge_limit)
+    cp_sl, vp_sl = slice(0, runs), slice(runs, n_all)
+    out: dict[str, Any] = {
+        "name": case.name,
+        "h1_ms": 1e3 * ch1.mean_s,
+        "h2_ms": 1e3 * ch2.mean_s,
+        "description": case.description,
+        "cp": _summary(mean_err[cp_sl, 0], mean_err[cp_sl, 1], diverged[cp_sl]),
+        "vp": _summary(mean_err[vp_sl, 0], mean_err[vp_sl, 1], diverged[vp_sl]),
+    }
+    cyc = np.maximum(n_cycles[vp_sl], 1)
+    out["vp"]["mean_T_s"] = float(np.mean(sum_T[vp_sl] / cyc))
+    out["vp"]["mean_s_r"] = (sum_sr[vp_sl] / cyc[:, None]).mean(axis=0).tolist()
+    out["vp"]["eps"] = float(np.mean(eps_used[vp_sl]))
+    out["_runs"] = {"mean_error": mean_err, "diverged": diverged, "cp_T": cp_T, "cp_s_r": cp_sr}
+    return out
+
+
+# ----------------------------------------------------------------------------- study
+
+
+def _progress_bar(total: int, enabled: bool) -> Generator[Callable[[int], None] | None, None, None]:
+    if not enabled:
+        yield None
+        return
+    from tqdm import tqdm
+
+    with tqdm(total=total, unit="step", desc="study", leave=False, file=sys.stderr) as bar:
+        yield bar.update
+
+
+def run_study(
+    runs: int = 500,
+    seed: int = 0,
+    cfg: ControlConfig | None = None,
+    params: StudyParams | None = None,
+    *,
+    cases: tuple[DelayCase, ...] = CASES,
+    progress: bool | None = None,
+) -> dict[str, Any]:
+    """The whole study: every case, CP and VP.
+
+    Parameters
+    ----------
+    runs : int
+        Runs per scheme and case (>= 1).
+    seed : int
+        Seed; equal seeds give equal results.
+    progress : bool, optional
+        Show a tqdm bar; default: only when stderr is a terminal.
+
+    Returns
+    -------
+    dict
+        ``{"seed", "runs", "duration_s", "dt_s", "cases": [...]}`` (JSON-serialisable).
+    """
+    if runs < 1:
+        raise ValueError(f"runs = {runs}: allowed: >= 1")
+    cfg = cfg or ControlConfig()
+    params = params or StudyParams()
+    chooser = OnlineChooser(cfg)
+    show = sys.stderr.isatty() if progress is None else progress
+    steps = round(params.duration_s / params.dt)
+    results = []
+    gen = _progress_bar(steps * len(cases), show)
+    update = next(gen)
+    try:
+        for case in cases:
+            res = run_case(case, runs, seed, cfg, params, chooser, progress=update)
+            res.pop("_runs")
+            results.append(res)
+    finally:
+        gen.close()
+    return {"seed": seed, "runs": runs, "duration_s": params.duration_s, "dt_s": params.dt, "cases": results}
+
+
+def plot_study(result: dict[str, Any]) -> Any:
+    """Fig. 8: mean coordination errors per case, CP vs VP, with 95 % CIs.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 3.6), layout="constrained")
+    axes = fig.subplots(1, 2)
+    names = [c["name"] for c in result["cases"]]
+    xs = np.arange(len(names))
+    for ax, key, unit in ((axes[0], "forward", "cm/s"), (axes[1], "turn", "deg/s")):
+        for off, scheme, color in ((-0.2, "cp", "tab:gray"), (0.2, "vp", "tab:blue")):
+            means = np.array([c[scheme][f"{key}_error"] for c in result["cases"]])
+            ci = np.array([c[scheme][f"{key}_ci95"] for c in result["cases"]])
+            err = np.abs(np.stack([means - ci[:, 0], ci[:, 1] - means]))
+            ax.bar(xs + off, means, 0.4, yerr=err, capsize=3, color=color, label=scheme.upper())
+        ax.set_xticks(xs, names, rotation=15)
+        ax.set_ylabel(f"mean |{key} error| [{unit}]")
+        ax.set_title(f"({'a' if key == 'forward' else 'b'}) {key} speed")
+        ax.legend()
+    fig.suptitle(f"Coordination errors, {result['runs']} runs per scheme, seed {result['seed']}")
+    return fig
