@@ -8,7 +8,8 @@ Prints p50/p99/max of the round trips at 100 Hz and 1 kHz for both, the p50 rati
 (goal: ours within 1.3x of bare), and the proxy's measured-minus-configured delay per
 direction (goal: p50 < 2 ms). Both ping-pongs use the same QoS (express, real-time
 priority, drop on congestion), so the ratio is the cost of bipedtele's layer
-(encoding, validation, gate, estimator, stamping).
+(encoding, validation, gate, estimator, stamping). The two are interleaved (half a
+period apart) so that both see the same machine load.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import zenoh
 from bipedtele.clock import DelayEstimator
@@ -33,7 +35,7 @@ from bipedtele.sections import NetworkConfig
 from bipedtele.transport import Keys, LatestReceiver, Publishers, Received, Stamper, open_session
 
 BARE_PING, BARE_PONG = "benchbare/ping", "benchbare/pong"
-QOS = {"express": True, "priority": zenoh.Priority.REAL_TIME, "congestion_control": zenoh.CongestionControl.DROP}
+QOS: dict[str, Any] = {"express": True, "priority": zenoh.Priority.REAL_TIME, "congestion_control": zenoh.CongestionControl.DROP}
 
 
 def free_port() -> int:
@@ -72,61 +74,55 @@ def echo(listen: str, seconds: float) -> None:
 # --------------------------------------------------------------------------- leader side
 
 
-def run_ours(s: zenoh.Session, rate: float, n: int) -> tuple[list[float], int]:
+def run_pair(s: zenoh.Session, rate: float, n: int) -> tuple[list[float], list[float], int]:
+    """Interleaved ping-pongs: a bipedtele Command at each tick, a bare ping of the same
+    size half a period later, so both see the same machine load."""
     keys = Keys("bench")
     st = Stamper()
-    sent: dict[int, float] = {}
-    rtts: list[float] = []
+    sent_ours: dict[int, float] = {}
+    sent_bare: dict[int, float] = {}
+    ours: list[float] = []
+    bare: list[float] = []
 
-    def got(rec: Received[Feedback]) -> None:
+    def got_ours(rec: Received[Feedback]) -> None:
         t = time.perf_counter()
-        t0 = sent.pop(rec.msg.cmd_seq, None)
+        t0 = sent_ours.pop(rec.msg.cmd_seq, None)
         if t0 is not None:
-            rtts.append(t - t0)
+            ours.append(t - t0)
 
+    def got_bare(sample: zenoh.Sample) -> None:
+        t = time.perf_counter()
+        seq = struct.unpack_from("<Q", sample.payload.to_bytes())[0]
+        t0 = sent_bare.pop(seq, None)
+        if t0 is not None:
+            bare.append(t - t0)
+
+    def command() -> Command:
+        return st.make(Command, ref=[3.0, 1.5], x_m=[0.01, 0.002], dx_m=[0.0, 0.0], h2_s=0.05, alpha_m=[2.0, 2.0])
+
+    size = len(encode(command()))
+    pad = b"\0" * (size - 8)
     est = DelayEstimator(1.0)
+    pub = s.declare_publisher(BARE_PING, **QOS)
+    sub = s.declare_subscriber(BARE_PONG, got_bare)
     with Publishers(s, keys) as pubs, LatestReceiver(
-        s, keys.feedback, Feedback, DropCounter("bench/fb"), SequenceGate(), estimator=est, on_message=got
+        s, keys.feedback, Feedback, DropCounter("bench/fb"), SequenceGate(), estimator=est, on_message=got_ours
     ):
         time.sleep(0.3)
         period, t_next = 1.0 / rate, time.perf_counter()
-        size = 0
-        for _ in range(n):
-            msg = st.make(Command, ref=[3.0, 1.5], x_m=[0.01, 0.002], dx_m=[0.0, 0.0], h2_s=0.05, alpha_m=[2.0, 2.0])
-            size = len(encode(msg))
-            sent[msg.seq] = time.perf_counter()
+        for i in range(n):
+            msg = command()
+            sent_ours[msg.seq] = time.perf_counter()
             pubs.cmd.put(msg)
+            time.sleep(max(0.0, t_next + period / 2 - time.perf_counter()))
+            sent_bare[i] = time.perf_counter()
+            pub.put(struct.pack("<Q", i) + pad)
             t_next += period
             time.sleep(max(0.0, t_next - time.perf_counter()))
         time.sleep(0.3)
-    return rtts, size
-
-
-def run_bare(s: zenoh.Session, rate: float, n: int, size: int) -> list[float]:
-    sent: dict[int, float] = {}
-    rtts: list[float] = []
-
-    def got(sample: zenoh.Sample) -> None:
-        t = time.perf_counter()
-        seq = struct.unpack_from("<Q", sample.payload.to_bytes())[0]
-        t0 = sent.pop(seq, None)
-        if t0 is not None:
-            rtts.append(t - t0)
-
-    pub = s.declare_publisher(BARE_PING, **QOS)
-    sub = s.declare_subscriber(BARE_PONG, got)
-    time.sleep(0.3)
-    period, t_next = 1.0 / rate, time.perf_counter()
-    pad = b"\0" * (size - 8)
-    for seq in range(n):
-        sent[seq] = time.perf_counter()
-        pub.put(struct.pack("<Q", seq) + pad)
-        t_next += period
-        time.sleep(max(0.0, t_next - time.perf_counter()))
-    time.sleep(0.3)
     sub.undeclare()
     pub.undeclare()
-    return rtts
+    return ours, bare, size
 
 
 def line(name: str, xs: list[float], n: int) -> str:
@@ -148,8 +144,7 @@ def bench_roundtrip(quick: bool) -> None:
         with open_session(NetworkConfig(connect=[ep])) as s:
             time.sleep(0.5)
             for rate, n in runs:
-                ours, size = run_ours(s, rate, n)
-                bare = run_bare(s, rate, n, size)
+                ours, bare, size = run_pair(s, rate, n)
                 print(f" {rate:.0f} Hz, payload {size} bytes:")
                 print(line("bare zenoh ping-pong", bare, n))
                 print(line("bipedtele Command/Feedback", ours, n))

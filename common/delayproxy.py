@@ -110,6 +110,7 @@ class DelayProxy:
         self._server: asyncio.Server | None = None
         self._tasks: set[asyncio.Task[None]] = set()
         self._writers: set[asyncio.StreamWriter] = set()
+        self._handlers: set[asyncio.Task[Any]] = set()
 
     @property
     def port(self) -> int:
@@ -134,10 +135,11 @@ class DelayProxy:
             self._server.close()
         for w in list(self._writers):
             w.close()
-        for t in list(self._tasks):
+        pending = [*self._tasks, *self._handlers]
+        for t in pending:
             t.cancel()
-        if self._tasks:
-            await asyncio.gather(*self._tasks, return_exceptions=True)
+        if pending:
+            await asyncio.gather(*pending, return_exceptions=True)
         if self._server is not None:
             await self._server.wait_closed()
         self._server = None
@@ -156,6 +158,20 @@ class DelayProxy:
         return task
 
     async def _on_client(self, c_reader: asyncio.StreamReader, c_writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        if task is not None:
+            self._handlers.add(task)
+        try:
+            await self._relay(c_reader, c_writer)
+        except asyncio.CancelledError:
+            # the proxy is closing: end normally (asyncio's stream callback would log a
+            # cancelled handler as an error)
+            c_writer.close()
+        finally:
+            if task is not None:
+                self._handlers.discard(task)
+
+    async def _relay(self, c_reader: asyncio.StreamReader, c_writer: asyncio.StreamWriter) -> None:
         self._writers.add(c_writer)
         try:
             t_reader, t_writer = await asyncio.open_connection(*self.target)
@@ -176,7 +192,8 @@ class DelayProxy:
         done = asyncio.Event()
         a = self._spawn(self._pipe(c_reader, t_writer, self.forward, self.stats["forward"], done))
         b = self._spawn(self._pipe(t_reader, c_writer, self.backward, self.stats["backward"], done))
-        await done.wait()
+        with contextlib.suppress(asyncio.CancelledError):  # the proxy is closing
+            await done.wait()
         # One side closed (and its pending bytes were delivered): close both sides.
         for w in (c_writer, t_writer):
             w.close()
