@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-
 from bipedtele.config import load_config
 from bipedtele.follower.loop import FollowerLoop, FollowerTelemetry
 from bipedtele.follower.robot import make_robot
