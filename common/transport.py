@@ -212,7 +212,7 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
             {
                 "id": "deny_cmd_put",
                 "permission": "deny",
-                "flows": ["ingress", "egress"],
+                "flows": ["ingress"],  # what they send; they still receive commands
                 "messages": ["put", "delete"],
                 "key_exprs": ["bipedtele/*/cmd"],
             }
