@@ -3,12 +3,13 @@
 Definitions (also in ``docs/recording.md``); all times are the recorder's ``t_recv`` [s]:
 
 Task window
-    From the first ``events`` record ``{"event": "task_start"}`` (else the first command
-    record) to the first ``{"event": "task_done"}`` after it (else the last command record).
-    ``completion_s`` is its length [s].
+    From the first ``events`` record ``{"event": "task_start"}`` (or ``"start"``; else the
+    first command record) to the first ``{"event": "task_done"}`` (or ``"done"``) after it
+    (else the last command record). ``completion_s`` is its length [s].
 Delay (Fig. 9)
     Total delay h1 + h2 [ms] of the 1 s moving-average estimates inside the task window,
-    from the leader's ``estimates`` records (``h1_s`` + ``h2_s``). Without them: from
+    from the leader's ``estimates`` records (``h1_s`` + ``h2_s``), else its ``leader/state``
+    records (the cockpit sample: ``h1_ms`` + ``h2_ms``). Without either: from
     ``feedback/recv`` (the follower's ``h1_s`` + this message's own one-way delay
     ``t_recv - t``) or, in a follower's file, ``cmd/recv`` (``t_recv - t`` + the leader's
     ``h2_s``). Samples where a component is missing, zero (estimator not warm yet) or
@@ -61,6 +62,8 @@ REPORT_KEYS: tuple[str, ...] = (
 CMD_TOPICS = ("cmd/sent", "cmd/recv")
 FEEDBACK_TOPICS = ("feedback/recv", "feedback/sent")
 STATUS_TOPICS = ("status/recv", "status/sent")
+#: Short event names the leader program may use for the task events.
+EVENT_ALIASES = {"start": "task_start", "done": "task_done", "pass": "pass_done"}
 
 
 # ---------------------------------------------------------------------- extraction
@@ -96,6 +99,10 @@ class _Run:
     delay_fallback: list[tuple[float, float]] = field(default_factory=list)
     force_t: list[float] = field(default_factory=list)
     force: list[tuple[float, float]] = field(default_factory=list)
+    state_delay_t: list[float] = field(default_factory=list)
+    state_delay: list[tuple[float, float]] = field(default_factory=list)
+    state_force_t: list[float] = field(default_factory=list)
+    state_force: list[tuple[float, float]] = field(default_factory=list)
     task_start: float | None = None
     task_done: list[float] = field(default_factory=list)
     passes: list[float] = field(default_factory=list)
@@ -164,10 +171,21 @@ def _collect(records: Iterable[Record]) -> _Run:
             if f is not None:
                 run.force_t.append(t)
                 run.force.append(f)
+        elif topic == "leader/state":  # the leader loop's cockpit sample (ms, N)
+            h1, h2 = _num(d.get("h1_ms")), _num(d.get("h2_ms"))
+            pair = _positive_pair(h1, h2)
+            if pair is not None:
+                run.state_delay_t.append(t)
+                run.state_delay.append((pair[0] / 1000.0, pair[1] / 1000.0))
+            fv, fw = _num(d.get("force_v")), _num(d.get("force_w"))
+            if fv is not None and fw is not None:
+                run.state_force_t.append(t)
+                run.state_force.append((fv, fw))
         elif topic == "events":
             ev = d.get("event")
             if not isinstance(ev, str):
                 continue
+            ev = EVENT_ALIASES.get(ev, ev)
             run.event_counts[ev] = run.event_counts.get(ev, 0) + 1
             if ev == "task_start" and run.task_start is None:
                 run.task_start = t
@@ -216,9 +234,18 @@ def _status_increase(run: _Run, key: str) -> int:
     return total
 
 
+def _delay_source(run: _Run) -> tuple[list[float], list[tuple[float, float]]]:
+    """The best delay signal: ``estimates``, else ``leader/state``, else per-message."""
+    if run.delay:
+        return run.delay_t, run.delay
+    if run.state_delay:
+        return run.state_delay_t, run.state_delay
+    return run.delay_fallback_t, run.delay_fallback
+
+
 def _delays(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """(times [s], h1 and h2 [s] as an (n, 2) array) inside the window."""
-    t, d = (run.delay_t, run.delay) if run.delay else (run.delay_fallback_t, run.delay_fallback)
+    t, d = _delay_source(run)
     ta = np.asarray(t, dtype=float)
     da = np.asarray(d, dtype=float).reshape(-1, 2)
     keep = (ta >= window[0]) & (ta <= window[1])
@@ -302,7 +329,7 @@ def plot_report(records: Iterable[Record]) -> dict[str, Figure]:
     # Fig. 9: total delay.
     fig = Figure(figsize=(8, 3.2), layout="constrained")
     ax = fig.add_subplot()
-    t, d = (run.delay_t, run.delay) if run.delay else (run.delay_fallback_t, run.delay_fallback)
+    t, d = _delay_source(run)
     if d:
         da = 1000.0 * np.asarray(d)
         tr = _rel(t, t0)
@@ -331,10 +358,11 @@ def plot_report(records: Iterable[Record]) -> dict[str, Figure]:
         a.legend(loc="upper right", fontsize=8)
         shade(a)
     a = axes[2]
-    if run.force:
-        f = np.asarray(run.force)
-        a.plot(_rel(run.force_t, t0), f[:, 0], color="C4", label="f_m forward axis")
-        a.plot(_rel(run.force_t, t0), f[:, 1], color="C5", label="f_m turn axis")
+    force_t, force = (run.force_t, run.force) if run.force else (run.state_force_t, run.state_force)
+    if force:
+        f = np.asarray(force)
+        a.plot(_rel(force_t, t0), f[:, 0], color="C4", label="f_m forward axis")
+        a.plot(_rel(force_t, t0), f[:, 1], color="C5", label="f_m turn axis")
         a.legend(loc="upper right", fontsize=8)
     a.set_ylabel("force [N]")
     a.set_xlabel("time [s]")

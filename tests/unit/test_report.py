@@ -77,6 +77,27 @@ def test_window_without_task_events_uses_commands(tmp_path: Path) -> None:
     assert report["falls"] == 0 and report["collisions"] == 0
 
 
+def test_leader_state_records_and_short_event_names(tmp_path: Path) -> None:
+    """The leader program records its cockpit sample on ``leader/state`` and ``start``/``done``."""
+    path = tmp_path / "leader.mcap"
+    with Recorder(path) as rec:
+        rec.write("events", {"event": "start", "operator": "pilot"}, 50.0)
+        for k, (h1, h2) in enumerate(((None, None), (120.0, 130.0), (100.0, 200.0))):
+            t = 50.0 + k
+            rec.write("cmd/sent", Command(seq=k, t=t, ref=[3.0, 0.0]), t)
+            rec.write("leader/state", {"t": t, "h1_ms": h1, "h2_ms": h2, "force_v": 0.1, "force_w": 0.0}, t)
+            rec.write("feedback/recv", Feedback(t=t - 0.1, ref=[3.0, 1.0], eta=[2.0, 1.0]), t)
+        rec.write("events", {"event": "done", "elapsed_s": 2.5}, 52.5)
+    records = list(read_records(path))
+    report = compute_report(records)
+    assert report["completion_s"] == pytest.approx(2.5)
+    assert report["min_delay_ms"] == pytest.approx(250.0)
+    assert report["max_delay_ms"] == pytest.approx(300.0)
+    assert report["forward_error_cm_s"] == pytest.approx(1.0)
+    assert report["turn_error_deg_s"] == pytest.approx(0.0)
+    assert len(plot_report(records)["fig11_coordination"].axes[2].lines) == 2  # force
+
+
 def test_empty_input_gives_nones() -> None:
     report = compute_report([])
     assert tuple(report) == REPORT_KEYS

@@ -45,7 +45,7 @@ const plots = [
 // ------------------------------------------------------------------ status panel
 
 const GOOD = new Set(["ok", "running", "walking", "standing", "up", "true"]);
-const WARN = new Set(["stale", "starting", "stopping", "feedback_stale"]);
+const WARN = new Set(["stale", "waiting", "starting", "stopping", "feedback_stale", "unknown"]);
 
 function setPill(id, value, cls) {
   const el = document.getElementById(id);
