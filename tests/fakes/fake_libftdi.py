@@ -145,4 +145,4 @@ class FakeFalconLib:
     def cartesian_force(self, gain: float = 1.0) -> np.ndarray:
         """The Cartesian force [N] the last efforts render at the grip (inverting the mapping)."""
         jac = fp.angle_jacobian(self.grip)
-        return np.linalg.solve(jac, -np.asarray(self.efforts[-1], dtype=float) / gain)  # type: ignore[no-any-return]
+        return np.linalg.solve(jac, -np.asarray(self.efforts[-1], dtype=float) / gain)
