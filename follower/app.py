@@ -1,0 +1,221 @@
+"""``bipedtele follower``: the robot-side process.
+
+Opens the Zenoh session from ``[network]``, connects the robot (``--robot sim`` or
+``naoqi``), and runs :class:`~bipedtele.follower.loop.FollowerLoop` at the control rate:
+commands in (latest only), feedback/status/video out, clock pings answered, presence
+declared, every message recorded to MCAP. With ``--realtime off`` (simulator only) the loop
+runs as fast as the CPU allows, for tests and batch runs.
+
+Stops cleanly on SIGINT/SIGTERM: the robot stops and stands, then everything closes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.clock import ClockSync
+from bipedtele.config import Config, ConfigError
+from bipedtele.drops import DropCounter
+from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot
+from bipedtele.follower.video import VideoStreamer
+from bipedtele.gate import SequenceGate
+from bipedtele.messages import ClockPing, ClockPong, Command, Feedback, Message, Status, VideoFrame
+from bipedtele.recording import Recorder
+from bipedtele.shutdown import shutdown_on_signals
+from bipedtele.transport import (
+    Keys,
+    LatestReceiver,
+    MessageReceiver,
+    Publishers,
+    declare_presence,
+    open_session,
+)
+
+__all__ = ["add_follower_parser", "main"]
+
+LOG = logging.getLogger(__name__)
+
+
+def _robot_from_config(cfg: Config, name: str) -> FollowerRobot:
+    try:
+        return make_robot(name, config=cfg)
+    except ValueError as exc:
+        raise ConfigError(f"--robot: {exc}") from None
+
+
+class _Pacer:
+    """Sleeps to keep a fixed period without drift (skips ahead after overruns)."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.next = time.monotonic()
+        self.overruns = 0
+
+    def wait(self) -> None:
+        self.next += self.period
+        delay = self.next - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        elif delay < -self.period:
+            self.overruns += 1
+            self.next = time.monotonic()
+
+
+def main(
+    cfg: Config,
+    *,
+    robot_name: str | None = None,
+    realtime: bool | None = None,
+    duration_s: float | None = None,
+    record: Path | None = None,
+) -> int:
+    """Run the follower until a signal or ``duration_s`` of robot time.
+
+    Parameters
+    ----------
+    cfg : Config
+        The loaded profile.
+    robot_name : str, optional
+        Overrides ``[follower] robot``.
+    realtime : bool, optional
+        Overrides ``[follower] realtime``.
+    duration_s : float, optional
+        Stop after this much robot time [s].
+    record : Path, optional
+        MCAP file (default: ``[record] dir``/follower-<time>.mcap when recording is enabled).
+    """
+    fcfg = cfg.section("follower")
+    name = robot_name or fcfg.robot
+    rt = fcfg.realtime if realtime is None else realtime
+    if not rt and name != "sim":
+        raise ConfigError(f"--realtime off with robot {name!r}: allowed: only with the simulator (robot 'sim')")
+    keys = Keys(cfg.section("robot").id)
+    rec_cfg = cfg.section("record")
+    if record is None and rec_cfg.enabled:
+        record = Path(rec_cfg.dir) / f"follower-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    ntp = cfg.section("clock").mode == "ntp"
+    sync = ClockSync(cfg.section("clock").ping_window)
+    drops = DropCounter("follower")
+
+    with contextlib.ExitStack() as stack:
+        stop = stack.enter_context(shutdown_on_signals())
+        recorder = stack.enter_context(Recorder(record, rec_cfg.flush_s, metadata={"role": "follower", "config": cfg.to_dict()})) if record else None
+        session = stack.enter_context(open_session(cfg.section("network")))
+        pubs = stack.enter_context(Publishers(session, keys))
+        stack.enter_context(declare_presence(session, keys, "follower"))
+        cmd_rx = stack.enter_context(
+            LatestReceiver(session, keys.cmd, Command, drops, SequenceGate(), clock_sync=sync if ntp else None)
+        )
+        clock_rx: MessageReceiver[Message] = stack.enter_context(
+            MessageReceiver(session, keys.clock, (ClockPing, ClockPong), drops)
+        )
+        try:
+            robot = stack.enter_context(_robot_from_config(cfg, name))
+        except RobotError as exc:
+            LOG.error("robot %s: %s", name, exc)
+            return 1
+
+        def publish(msg: Message) -> None:
+            if isinstance(msg, Feedback):
+                pubs.feedback.put(msg)
+                topic = "feedback/sent"
+            elif isinstance(msg, Status):
+                msg = Status(**{**msg.__dict__, "counters": {**msg.counters, **{f"drop_{k}": v for k, v in drops.counts().items()}}})
+                pubs.status.put(msg)
+                topic = "status/sent"
+            else:
+                pubs.video.put(msg)
+                topic = "video/sent"
+            if recorder is not None and not isinstance(msg, VideoFrame):
+                recorder.write(topic, msg, time.time())
+
+        def latest_command() -> tuple[Command, float] | None:
+            got = cmd_rx.latest()
+            return (got.msg, got.t_recv) if got is not None else None
+
+        def on_event(event: str, detail: dict[str, Any]) -> None:
+            if recorder is not None:
+                recorder.write("events", {"event": event, **detail}, time.time())
+
+        ticks = [0]
+        if rt:
+            clock = time.time
+        else:
+            # Faster than real time: message times follow robot time, offset to the wall
+            # clock at start so they stay plausible to receivers.
+            t0_wall = time.time()
+
+            def clock() -> float:
+                return t0_wall + ticks[0] * loop.dt
+
+        loop = FollowerLoop(
+            robot, cfg.section("control"), fcfg, latest_command, publish,
+            now=clock, to_local=sync.to_local if ntp else (lambda t: t),
+            delay_window_s=cfg.section("clock").delay_window_s, on_event=on_event,
+        )
+        video = stack.enter_context(
+            VideoStreamer(robot, fcfg.cameras, fcfg.camera_fps, pubs.video.put, now=clock, jpeg_quality=fcfg.jpeg_quality)
+        )
+        LOG.info("follower %s ready: robot %s, key %s, %s", keys.cmd.split("/")[1], name, keys.cmd, "real time" if rt else "as fast as possible")
+        pacer = _Pacer(loop.dt)
+        start_t = clock()
+        last_cmd_seen: tuple[int, int] | None = None
+        while not stop.is_set():
+            for got in clock_rx.drain():
+                _answer_clock(got.msg, got.t_recv, pubs, loop.sid, sync, clock)
+            tel = loop.tick()
+            got_cmd = cmd_rx.latest()
+            if recorder is not None and got_cmd is not None and (got_cmd.msg.sid, got_cmd.msg.seq) != last_cmd_seen:
+                last_cmd_seen = (got_cmd.msg.sid, got_cmd.msg.seq)
+                recorder.write("cmd/recv", got_cmd.msg, got_cmd.t_recv)
+            video.maybe_capture(tel.t)
+            try:
+                robot.advance(loop.dt)
+            except RobotError as exc:
+                LOG.error("robot failed: %s", exc)
+                return 1
+            if duration_s is not None and tel.t - start_t >= duration_s:
+                break
+            if rt:
+                pacer.wait()
+            else:
+                ticks[0] += 1
+        LOG.info("follower stopping: %s", dict(loop.counters))
+    return 0
+
+
+def _answer_clock(msg: Message, t_recv: float, pubs: Publishers, sid: int, sync: ClockSync, clock: Any) -> None:
+    """Answer others' pings; feed our ClockSync with pongs to our pings."""
+    if isinstance(msg, ClockPing) and msg.sid != sid:
+        pubs.clock.put(ClockPong(sid=sid, seq=msg.seq, t=clock(), ping_sid=msg.sid, ping_seq=msg.seq, t1=msg.t, t2=t_recv))
+    elif isinstance(msg, ClockPong) and msg.ping_sid == sid:
+        sync.on_pong(msg.t1, msg.t2, msg.t, t_recv)
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.naoqi_url:
+        args.overrides.append(f"naoqi.url={args.naoqi_url!r}".replace("'", '"'))
+    cfg = config_from_args(args)
+    if args.duration is not None and args.duration <= 0:
+        raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
+    realtime = None if args.realtime is None else args.realtime == "on"
+    return main(cfg, robot_name=args.robot, realtime=realtime, duration_s=args.duration, record=Path(args.record) if args.record else None)
+
+
+def add_follower_parser(sub: Any) -> None:
+    """``bipedtele follower``: run the robot side."""
+    p = sub.add_parser("follower", help="run the robot side (pybullet NAO or a real NAO)")
+    add_config_args(p)
+    p.add_argument("--robot", choices=["sim", "naoqi"], default=None, help="robot (default: [follower] robot)")
+    p.add_argument("--naoqi-url", default=None, metavar="URL", help="real NAO: tcp://HOST:9559 or tcps://HOST:9503 (sets naoqi.url)")
+    p.add_argument("--realtime", choices=["on", "off"], default=None, help="pace in real time (off: simulator only)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds of robot time")
+    p.add_argument("--record", default=None, metavar="F.mcap", help="recording file")
+    p.set_defaults(func=_run)
