@@ -128,8 +128,12 @@ def _solve_on_T(
     rho: RhoFn,
     inv: InvFn,
     k_wt: float,
+    bounds_rho: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact per-T solution given block radii and inverses.
+
+    ``bounds_rho`` optionally gives the block radii at the lower and upper bounds, shapes
+    (3, n) (they do not depend on ``s_e``, so the table precomputes them).
 
     Returns
     -------
@@ -142,14 +146,13 @@ def _solve_on_T(
     y_lo = target - band
     x_base = np.empty((3, n))
     r_base = np.empty((3, n))
-    r_min = np.empty((3, n))
-    r_max = np.empty((3, n))
+    if bounds_rho is None:
+        r_min = np.stack([rho(b, np.full(n, lo[b]), T) for b in range(3)])
+        r_max = np.stack([rho(b, np.full(n, hi[b]), T) for b in range(3)])
+    else:
+        r_min, r_max = bounds_rho
     up = np.empty((3, n))
     for b in range(3):
-        lo_b = np.full(n, lo[b])
-        hi_b = np.full(n, hi[b])
-        r_min[b] = rho(b, lo_b, T)
-        r_max[b] = rho(b, hi_b, T)
         root = inv(b, y_hi, T)
         up[b] = np.where(r_max[b] <= y_hi, hi[b], np.where(r_min[b] > y_hi, np.nan, root))
         x_base[b] = np.clip(pref[b], lo[b], np.where(np.isnan(up[b]), lo[b], up[b]))
@@ -313,6 +316,11 @@ class OnlineChooser:
         self._base = self._cols * n_sigma
         self._n_bisect = int(np.ceil(np.log2(n_sigma - 1)))
         self._memo: dict[tuple[float, ...], Choice] = {}
+        _, lo, hi, _, _ = _problem([0.0, 0.0], cfg)
+        self._bounds_rho = (
+            np.stack([self._rho(b, np.full(n_T, lo[b]), self.T) for b in range(3)]),
+            np.stack([self._rho(b, np.full(n_T, hi[b]), self.T) for b in range(3)]),
+        )
 
     def _rho(self, b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
         if b == 2:
@@ -362,7 +370,9 @@ class OnlineChooser:
     def _choose(self, s_e: ArrayLike) -> Choice:
         s, lo, hi, pref, w = _problem(s_e, self.cfg)
         target = _target(s, self.T, self.cfg)
-        cost, x, feas = _solve_on_T(self.T, target, self.band, pref, lo, hi, w, self._rho, self._inv, self.cfg.k_wt)
+        cost, x, feas = _solve_on_T(
+            self.T, target, self.band, pref, lo, hi, w, self._rho, self._inv, self.cfg.k_wt, self._bounds_rho
+        )
         if not feas.any():
             i, xf = _fallback(self.T, target, lo, hi, self._rho)
             return _finish(s, xf, float(self.T[i]), self.cfg, feasible=False)

@@ -77,3 +77,39 @@ def plot_surfaces(data: dict[str, Any]) -> Any:
             ax.set_zlim(0.0, 1.0)
             ax.set_title(f"{label}, dp = {dp:g}")
     return fig
+
+
+def plot_equivalent_trend(cfg: ControlConfig, periods: Sequence[float] = (0.5, 1.0, 2.0)) -> Any:
+    """``max|l_equivalent|`` per channel against ``sigma_e`` for several periods [s].
+
+    The figure behind docs/method.md's check of the claim "sigma_e up => max|l_equivalent|
+    down" (Sec. 3.3, Fig. 7).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from bipedtele.control.equivalent import equivalent_max_real
+    from matplotlib.figure import Figure
+
+    s = np.linspace(0.0, 10.0, 401)
+    fig = Figure(figsize=(8.0, 3.4), layout="constrained")
+    axes = fig.subplots(1, 2)
+    for c, (ax, name) in enumerate(zip(axes, ("forward (D = M)", "turn (D = I)"), strict=True)):
+        se = np.zeros((s.size, 2))
+        se[:, c] = s
+        re = equivalent_max_real(se, cfg)[:, c]
+        for dt in periods:
+            ax.plot(s, np.exp(dt * re), label=f"period {dt:g} s")
+        d = cfg.D[c]
+        crit = 2.0 * np.sqrt(cfg.k_s[c] * d * cfg.beta_e[c]) - d
+        if crit > 0:
+            ax.axvline(crit, color="k", lw=0.8, ls="--", label=f"critical sigma_e = {crit:.3f}")
+        ax.set_xlabel("sigma_e")
+        ax.set_ylabel("max|l_equivalent|")
+        ax.set_title(name)
+        ax.legend(fontsize=8)
+    return fig
