@@ -61,6 +61,7 @@ METADATA_NAME = "bipedtele"
 PROFILE = "bipedtele"
 _CHUNK_BYTES = 256 * 1024
 _RECORD_SIZE_LIMIT = 64 * 1024 * 1024
+_YIELD_EVERY = 32  # messages the writer thread adds before it releases the GIL
 
 
 class RecordingError(Exception):
@@ -345,6 +346,8 @@ class Recorder:
                 publish_time=t_recv,
             )
             n += 1
+            if n % _YIELD_EVERY == 0:
+                time.sleep(0)  # let the control loop have the GIL (it may be waiting)
         if n:
             self._count("written", n)
         return n
