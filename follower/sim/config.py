@@ -18,7 +18,7 @@ class SimConfig:
     """Simulated NAO settings (see docs/follower.md). Pacing is the follower loop's job."""
 
     physics_hz: float = param(240.0, lo=100.0, hi=2000.0, unit="Hz", doc="physics step rate")
-    solver_iterations: int = param(30, lo=5, hi=200, doc="pybullet constraint-solver iterations per step")
+    solver_iterations: int = param(100, lo=5, hi=200, doc="pybullet constraint-solver iterations per step")
     gravity_m_s2: float = param(9.81, lo=0.0, hi=30.0, unit="m/s^2", doc="gravity")
     max_torque_nm: float = param(10.0, lo=0.1, hi=100.0, unit="N m", doc="joint torque limit of the leg servos")
     foot_friction: float = param(1.0, lo=0.05, hi=5.0, doc="sole friction coefficient")

@@ -16,9 +16,10 @@ the phase, end points pinned so phases join without jumps:
   two legs repeat the same pattern half a cycle apart (the paper's phase shift);
 - ankles keep the feet parallel to the upright torso: ``q_a = -(q_h + q_k)``, ankle roll
   ``= -`` hip roll;
-- lateral sway by hip and ankle roll moves the torso over the stance foot; its amplitude
-  follows the linear inverted pendulum for the cycle time (``A = d / (1 + (2 pi / T)^2 / w^2)``,
-  ``w^2 = g / z_c``) so the zero-moment point reaches the stance foot at every ``T``;
+- lateral sway by hip and ankle roll moves the torso over the stance foot: the periodic
+  linear-inverted-pendulum motion whose zero-moment point rests on the stance foot in
+  single support and crosses over in double support (:meth:`GaitConfig.sway`), so the
+  sway matches any cycle time ``T``;
 - turning (Fig. 5): the stance leg's hip yaw moves by half the cycle's turn during single
   support (from ``+Delta/2`` to ``-Delta/2``, ``Delta = omega T / 2``) while the swing leg's
   hip yaw pre-rotates the landing foot; in double support the yaws hold.
@@ -33,6 +34,7 @@ right leg (12 angles) [rad].
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -83,11 +85,35 @@ class GaitConfig:
     zmp_y_m: float = 0.045
     sway_com_ratio: float = 0.85
 
-    def sway_amplitude(self, cycle_s: float) -> float:
-        """Torso sway amplitude [m] for the cycle time ``cycle_s`` [s] (linear pendulum)."""
-        w2 = G / self.com_height_m
-        big_omega = 2.0 * math.pi / cycle_s
-        return self.zmp_y_m / (1.0 + big_omega**2 / w2) / self.sway_com_ratio
+    def sway(self, cycle_s: float, tau: np.ndarray) -> np.ndarray:
+        """Torso sway [m] (to the left) at time ``tau`` [s] after the start of a left-stance step.
+
+        The periodic solution of the linear inverted pendulum ``y'' = w^2 (y - p)``,
+        ``w^2 = g / z_c``, for a zero-moment point ``p`` that stays at ``+zmp_y`` during left
+        single support, at ``-zmp_y`` during right single support and moves linearly in
+        double support (harmonic by harmonic: ``Y_k = P_k / (1 + (k 2 pi / T)^2 / w^2)``),
+        divided by :attr:`sway_com_ratio`. A right-stance step uses the negative.
+        """
+        coef = _sway_fourier(round(cycle_s, 6), self.double_support, self.zmp_y_m, self.com_height_m)
+        k = np.arange(1, len(coef) + 1)
+        ang = 2.0 * np.pi * np.outer(np.asarray(tau, float).ravel(), k) / cycle_s
+        y = (np.cos(ang) * coef.real - np.sin(ang) * coef.imag).sum(axis=1)
+        return (y / self.sway_com_ratio).reshape(np.shape(tau))
+
+
+@functools.lru_cache(maxsize=64)
+def _sway_fourier(cycle_s: float, phi: float, zmp_y: float, com_h: float) -> np.ndarray:
+    """Complex Fourier coefficients (harmonics 1..15, doubled) of the pendulum's periodic sway [m]."""
+    n = 512
+    t = np.arange(n) / n  # fraction of the cycle, left-stance step first
+    ds = phi / 2.0
+    p = np.where(t < 0.5, 1.0, -1.0)
+    p = np.where(t < ds, -1.0 + 2.0 * t / ds, p)
+    p = np.where((t >= 0.5) & (t < 0.5 + ds), 1.0 - 2.0 * (t - 0.5) / ds, p)
+    spec = np.fft.rfft(zmp_y * p) / n * 2.0
+    k = np.arange(1, 16)
+    w2 = G / com_h
+    return spec[1:16] / (1.0 + (2.0 * np.pi * k / cycle_s) ** 2 / w2)
 
 
 def ik_sagittal(x: np.ndarray, h: np.ndarray, l1: float, l2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -289,9 +315,8 @@ class Gait:
         sw = 6 - st
         q0 = self._q
         sigma = 1.0 if stance == "L" else -1.0
-        amp = cfg.sway_amplitude(cycle) if kind != "settle" else 0.0
-        t_mid = ts * (1.0 + phi) / 2.0
-        y_nom0 = sigma * amp * math.cos(2 * math.pi * (0.0 - t_mid) / cycle)
+        amp = 0.0 if kind == "settle" else 1.0
+        y_nom0 = sigma * amp * float(cfg.sway(cycle, np.array(0.0)))
         dy0 = self._sway - y_nom0
         p_st0 = p_hip_linear(q0[st + HIP], q0[st + KNEE], l1, l2)
         p_sw0 = p_hip_linear(q0[sw + HIP], q0[sw + KNEE], l1, l2)
@@ -299,7 +324,7 @@ class Gait:
         settle_d = -(p_st0 + p_sw0) / 2.0
 
         def sway(tau: np.ndarray) -> np.ndarray:
-            nom = sigma * amp * np.cos(2 * np.pi * (tau - t_mid) / cycle)
+            nom = sigma * amp * cfg.sway(cycle, tau)
             return nom + dy0 * (1.0 - _smooth(tau / ts))
 
         def ground_p(p0: float, tau: np.ndarray) -> np.ndarray:

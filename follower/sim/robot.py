@@ -167,7 +167,8 @@ class SimNao(FollowerRobot):
         pb.setTimeStep(self._dt, physicsClientId=c)
         pb.setPhysicsEngineParameter(numSolverIterations=cfg.solver_iterations, physicsClientId=c)
         plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
-        plane_vis = pb.createVisualShape(pb.GEOM_PLANE, rgbaColor=[0.75, 0.72, 0.65, 1], physicsClientId=c)
+        plane_vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[15, 15, 0.001], visualFramePosition=[0, 0, -0.001],
+                                         rgbaColor=[0.75, 0.72, 0.65, 1], physicsClientId=c)
         self._floor = pb.createMultiBody(0, plane, plane_vis, physicsClientId=c)
         pb.changeDynamics(self._floor, -1, lateralFriction=self.world.floor_friction, physicsClientId=c)
         fd, path = tempfile.mkstemp(suffix=".urdf", prefix="bipedtele_nao_")
