@@ -1,9 +1,9 @@
 """The ``[leader]`` section: device, operator model, loop rates, safety and the cockpit.
 
 The pilot's course (``pilot_obstacles``) is plain data in world coordinates (the frame of
-``Feedback.pose``, the robot starting at the origin facing +x). When it is empty the
-pilot reads ``obstacles`` from the ``[world]`` section if the profile has one (items
-``[x, y, radius]`` or tables with ``x``, ``y`` and ``radius``); see
+``Feedback.pose``, the robot starting at the origin facing +x). When it is empty (the
+default) the pilot reads the ``obstacles`` of the profile's ``[world]`` section, the same
+obstacles the simulated robot meets, as plain data; see
 :func:`bipedtele.leader.operators.course_from_config`.
 """
 
@@ -44,6 +44,9 @@ class LeaderConfig:
     haptic_rate_hz: float = param(1000.0, lo=50.0, hi=5000.0, unit="Hz", doc="haptic loop rate")
     cmd_rate_hz: float = param(100.0, lo=1.0, hi=1000.0, unit="Hz", doc="command publish rate")
     status_rate_hz: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="status publish rate")
+    rt_priority: int = param(
+        0, lo=0, hi=99, doc="SCHED_FIFO priority of the haptic loop thread (0: normal; needs CAP_SYS_NICE)"
+    )
     spin_s: float = param(
         0.0003, lo=0.0, hi=0.005, unit="s", doc="pacing: busy-wait this long before each deadline"
     )
@@ -75,8 +78,8 @@ class LeaderConfig:
     # ---- pilot operator (Sec. 5, Fig. 10)
     pilot_passes: int = param(10, lo=1, hi=1000, doc="obstacle passes (sides alternate, left first)")
     pilot_obstacles: list[list[float]] = param(
-        default_factory=lambda: [[1.2, 0.0, 0.12]], unit="m",
-        doc="course: [x, y, radius] per obstacle, passed in order then back (empty: from [world])",
+        default_factory=list, unit="m",
+        doc="course: [x, y, radius] per obstacle, passed in order then back (empty: [world] obstacles)",
     )
     pilot_clearance_m: float = param(0.35, lo=0.05, hi=5.0, unit="m", doc="lateral clearance from an obstacle's edge")
     pilot_approach_m: float = param(0.7, lo=0.1, hi=10.0, unit="m", doc="waypoint distance before/after an obstacle")

@@ -47,7 +47,7 @@ from bipedtele.control.leader_law import leader_force
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operators import Operator
-from bipedtele.leader.pacing import Pacer, PeriodStats, set_timer_slack
+from bipedtele.leader.pacing import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.messages import Command, Feedback, new_session_id
 
 __all__ = ["LeaderLoop"]
@@ -276,6 +276,8 @@ class LeaderLoop:
             "ref_w": cmd.ref[1],
             "x_v": float(self.x_m[0]),
             "x_w": float(self.x_m[1]),
+            "dx_v": float(self.dx_m[0]),
+            "dx_w": float(self.dx_m[1]),
             "force_v": float(self.force[0]),
             "force_w": float(self.force[1]),
             "h1_ms": ms(self.h1),
@@ -305,6 +307,29 @@ class LeaderLoop:
             if "passes_done" in prog:
                 snap["passes_done"] = prog["passes_done"]
         return snap
+
+    def send_stop(self, repeats: int = 3) -> None:
+        """Zero the force and send ``enable = False`` commands (the follower stops and
+        stands at once instead of waiting for its watchdog)."""
+        try:
+            self.device.apply_force(np.zeros(2))
+        except Exception as exc:  # the device may already be gone
+            LOG.debug("zeroing the force at stop: %s", exc)
+        self.force = np.zeros(2)
+        self.enable = False
+        for _ in range(repeats):
+            self.seq += 1
+            cmd = Command(
+                sid=self.sid, seq=self.seq, t=self._clock(),
+                x_m=[float(v) for v in self.x_m], h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
+                alpha_m=[float(v) for v in self.alpha_m], enable=False,
+            )  # fmt: skip
+            try:
+                self._send(cmd)
+            except Exception as exc:
+                LOG.warning("sending the stop command failed: %s", exc)
+            self.last_command = cmd
+        self.state = "stopped"
 
     # ------------------------------------------------------------------ running
 
@@ -349,17 +374,18 @@ class LeaderLoop:
         a simulated device stays in real time even after an overrun.
         """
         set_timer_slack()
-        pacer = Pacer(self.dt, self.cfg.spin_s, mono)
-        t_start = pacer.start
-        last = t_start
-        self._stop.clear()
-        while not self._stop.is_set() and not (stop is not None and stop.is_set()):
-            t = mono()
-            self.period_stats.add(t)
-            self.tick(dt=min(max(t - last, 0.0), 0.05) if self.ticks else self.dt)
-            last = t
-            if duration_s is not None and t - t_start >= duration_s:
-                break
-            if until_done and self.done:
-                break
-            self.missed_ticks += pacer.wait()
+        with realtime_scheduling(self.cfg.rt_priority):
+            pacer = Pacer(self.dt, self.cfg.spin_s, mono)
+            t_start = pacer.start
+            last = t_start
+            self._stop.clear()
+            while not self._stop.is_set() and not (stop is not None and stop.is_set()):
+                t = mono()
+                self.period_stats.add(t)
+                self.tick(dt=min(max(t - last, 0.0), 0.05) if self.ticks else self.dt)
+                last = t
+                if duration_s is not None and t - t_start >= duration_s:
+                    break
+                if until_done and self.done:
+                    break
+                self.missed_ticks += pacer.wait()

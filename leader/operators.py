@@ -36,6 +36,7 @@ import numpy as np
 from bipedtele.messages import Feedback
 
 __all__ = [
+    "DEFAULT_COURSE",
     "OPERATORS",
     "BrowserOperator",
     "Hand",
@@ -152,7 +153,9 @@ class ScriptedOperator(Operator):
 
     ``interp="linear"`` interpolates between points, ``"step"`` holds each point's value
     until the next. Before the first point and after the last, the end values hold; the
-    operator is done once ``t`` passes the last point.
+    operator is done once ``t`` passes the last point. With ``wait_for_feedback`` (the
+    default) the profile's time starts at the first update with feedback, as an operator
+    waits for the robot to appear before driving it; before that the intent is zero.
     """
 
     name = "scripted"
@@ -164,8 +167,11 @@ class ScriptedOperator(Operator):
         interp: str = "linear",
         workspace_m: float = 0.05,
         hand: Hand | None = None,
+        wait_for_feedback: bool = True,
     ) -> None:
         super().__init__(k_g, workspace_m, hand)
+        self.wait_for_feedback = wait_for_feedback
+        self.t_start: float | None = None
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
         if len(pts) == 0 or np.any(np.diff(pts[:, 0]) < 0) or not np.all(np.isfinite(pts)):
             raise ValueError("points: allowed: finite [t, forward, turn] rows with non-decreasing t")
@@ -176,6 +182,11 @@ class ScriptedOperator(Operator):
         self._t = 0.0
 
     def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        if self.t_start is None:
+            if self.wait_for_feedback and feedback is None:
+                return np.zeros(2)
+            self.t_start = t
+        t = t - self.t_start
         self._t = t
         ts = self.points[:, 0]
         if self.interp == "step":
@@ -358,20 +369,24 @@ class PilotOperator(Operator):
         n = len(self.obstacles)
         lap, i = divmod(k, n)
         d = self._direction()
-        if lap % 2 == 0:
-            ob, u = self.obstacles[i], d
-        else:
-            ob, u = self.obstacles[n - 1 - i], -d
+        order = list(range(n)) if lap % 2 == 0 else list(range(n - 1, -1, -1))
+        u = d if lap % 2 == 0 else -d
+        ob = self.obstacles[order[i]]
         c = np.array([ob.x, ob.y])
+        # Approach and exit points: approach_m beyond the edge, but at most half-way to
+        # the neighbouring obstacles of this lap (a slalom through a row).
+        a = e = ob.radius + self.approach_m
+        if i > 0:
+            prev = self.obstacles[order[i - 1]]
+            a = min(a, max(ob.radius, 0.5 * float((c - np.array([prev.x, prev.y])) @ u)))
+        if i < n - 1:
+            nxt = self.obstacles[order[i + 1]]
+            e = min(e, max(ob.radius, 0.5 * float((np.array([nxt.x, nxt.y]) - c) @ u)))
         side = 1 if k % 2 == 0 else -1
         left = np.array([-u[1], u[0]])
         beside = c + side * left * (ob.radius + self.clearance_m)
-        wps = (
-            c - u * (ob.radius + self.approach_m),
-            beside - u * (ob.radius + 0.5 * self.clearance_m),
-            beside + u * (ob.radius + 0.5 * self.clearance_m),
-            c + u * (ob.radius + self.approach_m),
-        )
+        half = ob.radius + 0.5 * self.clearance_m
+        wps = (c - u * a, beside - u * min(half, a), beside + u * min(half, e), c + u * e)
         return _Pass(c, u, side, wps, ob.radius)
 
     # ---------------------------------------------------------------- steering
@@ -494,35 +509,42 @@ class PilotOperator(Operator):
 # --------------------------------------------------------------------------- factory
 
 
+#: The course used when neither ``[leader] pilot_obstacles`` nor ``[world] obstacles`` give
+#: one: the simulated lab's task course (a box, a cylinder, a box in a row along +x,
+#: offset left/right; boxes as their circumscribed circles).
+DEFAULT_COURSE: tuple[Obstacle, ...] = (
+    Obstacle(1.0, 0.15, 0.5 * math.hypot(0.2, 0.3)),
+    Obstacle(2.0, -0.15, 0.12),
+    Obstacle(3.0, 0.15, 0.5 * math.hypot(0.2, 0.3)),
+)
+
+
 def _obstacle_from(item: Any) -> Obstacle:
-    """An obstacle from ``[x, y, radius]`` or a table/object with x, y and radius (or
-    ``size``: full widths [m])."""
+    """An obstacle from ``[x, y, radius]`` or a ``[world]`` obstacle (a table or object
+    with ``shape``, ``position`` [x, y, z] and ``size``: box edge lengths, or cylinder
+    radius and height; a box counts as its circumscribed circle in the ground plane)."""
     if isinstance(item, list | tuple) and len(item) == 3:
         return Obstacle(float(item[0]), float(item[1]), float(item[2]))
 
     def get(key: str) -> Any:
         return item.get(key) if isinstance(item, dict) else getattr(item, key, None)
 
-    x, y, r, size = get("x"), get("y"), get("radius"), get("size")
-    if x is None or y is None:
-        raise ValueError(f"obstacle {item!r}: allowed: [x, y, radius] or a table with x, y, radius")
-    if r is None:
-        r = max(float(v) for v in size[:2]) / 2.0 if size else 0.1
-    return Obstacle(float(x), float(y), float(r))
+    pos, size, shape = get("position"), get("size"), get("shape") or "box"
+    if pos is None or size is None or len(pos) < 2 or len(size) < 1:
+        raise ValueError(f"obstacle {item!r}: allowed: [x, y, radius] or a [world] obstacle with position and size")
+    if shape == "cylinder":
+        r = float(size[0])
+    else:
+        r = 0.5 * math.hypot(float(size[0]), float(size[1]) if len(size) > 1 else float(size[0]))
+    return Obstacle(float(pos[0]), float(pos[1]), r)
 
 
 def course_from_config(cfg: Any) -> list[Obstacle]:
     """The pilot's obstacles from a loaded :class:`bipedtele.config.Config`.
 
     ``[leader] pilot_obstacles`` when not empty; otherwise ``obstacles`` of the
-    ``[world]`` section as plain data (``[x, y, radius]`` lists or tables/objects with
-    ``x``, ``y`` and ``radius`` (or ``size`` = full widths)). The leader never imports
-    follower code; it reads the section's attributes only.
-
-    Raises
-    ------
-    ValueError
-        If neither gives an obstacle.
+    ``[world]`` section read as plain data (the leader never imports follower code);
+    otherwise :data:`DEFAULT_COURSE` (logged: the robot's world may differ).
     """
     leader = cfg.sections["leader"]
     if leader.pilot_obstacles:
@@ -531,7 +553,8 @@ def course_from_config(cfg: Any) -> list[Obstacle]:
     items = getattr(world, "obstacles", None) if world is not None else None
     if items:
         return [_obstacle_from(o) for o in items]
-    raise ValueError("pilot: no course: set [leader] pilot_obstacles = [[x, y, radius], ...]")
+    LOG.warning("pilot: no [world] obstacles nor [leader] pilot_obstacles: using the default course")
+    return list(DEFAULT_COURSE)
 
 
 def _hand(lc: Any) -> Hand:

@@ -12,16 +12,18 @@ allowed, which trims the default 50 us oversleep of ``time.sleep``.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import logging
+import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
-__all__ = ["Pacer", "PeriodStats", "set_timer_slack"]
+__all__ = ["Pacer", "PeriodStats", "realtime_scheduling", "set_timer_slack"]
 
 LOG = logging.getLogger(__name__)
 
@@ -37,6 +39,28 @@ def set_timer_slack(ns: int = 1000) -> bool:
         return int(libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(ns), 0, 0, 0)) == 0
     except (OSError, AttributeError):  # pragma: no cover - exotic libc
         return False
+
+
+@contextlib.contextmanager
+def realtime_scheduling(priority: int) -> Iterator[bool]:
+    """Run the calling thread with ``SCHED_FIFO`` at ``priority`` (1-99) inside the block,
+    restoring its policy after; yields whether it worked (0 or no permission: False)."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        yield False
+        return
+    try:
+        old_policy = os.sched_getscheduler(0)
+        old_param = os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        LOG.warning("real-time scheduling (SCHED_FIFO %d) refused: %s; running at normal priority", priority, exc)
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, old_policy, old_param)
 
 
 class PeriodStats:

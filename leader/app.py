@@ -1,0 +1,398 @@
+"""``bipedtele leader``: the operator's side as a program.
+
+Opens the Zenoh session from ``[network]``, declares the leader's presence, publishes
+commands (and status, and clock pings in ``[clock] mode = "ntp"``), receives feedback,
+status and video, serves the browser cockpit, records everything to MCAP and runs the
+1 kHz :class:`~bipedtele.leader.loop.LeaderLoop` in the main thread until the operator
+model is done, ``--duration`` passed, or SIGINT/SIGTERM. On the way out it sends
+``enable = false`` commands so the robot stops at once, then prints a one-line summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.clock import ClockSync, DelayEstimator
+from bipedtele.config import Config, ConfigError
+from bipedtele.drops import DropCounter
+from bipedtele.gate import SequenceGate
+from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
+from bipedtele.leader.devices import SimFalcon, SimFalconParams
+from bipedtele.leader.loop import LeaderLoop
+from bipedtele.leader.operators import OPERATORS, Operator, make_operator
+from bipedtele.messages import (
+    ClockPing,
+    ClockPong,
+    Command,
+    Feedback,
+    Message,
+    Status,
+    VideoFrame,
+    new_session_id,
+)
+from bipedtele.shutdown import shutdown_on_signals
+from bipedtele.transport import (
+    Keys,
+    LatestReceiver,
+    MessageReceiver,
+    PresenceWatcher,
+    Publishers,
+    Received,
+    declare_presence,
+    open_session,
+)
+
+__all__ = ["add_leader_parser", "main"]
+
+LOG = logging.getLogger(__name__)
+
+
+def _make_device(cfg: Config, name: str) -> LeaderDevice:
+    lc = cfg.section("leader")
+    if name == "sim-falcon":
+        params = SimFalconParams(
+            mass_kg=lc.mass_kg, viscous_n_s_m=lc.viscous_n_s_m, coulomb_n=lc.coulomb_n,
+            gravity_n=(lc.gravity_n[0], lc.gravity_n[1]),
+        )  # fmt: skip
+        return SimFalcon(params)
+    try:
+        return make_device(name)
+    except ValueError as exc:
+        raise ConfigError(f"--device {name!r}: {exc}") from None
+
+
+class _Aux:
+    """The leader's slow duties in a side thread (about 20 Hz): status out, clock pings
+    (ntp mode), follower status in, presence, events of the operator's progress."""
+
+    def __init__(
+        self, loop: LeaderLoop, pubs: Publishers, cfg: Config, sync: ClockSync | None,
+        clock_rx: MessageReceiver[Message] | None, status_rx: LatestReceiver[Status],
+        presence: PresenceWatcher, drops: DropCounter, record: Callable[[str, Any, float], None],
+    ) -> None:  # fmt: skip
+        self.loop, self.pubs, self.cfg, self.sync = loop, pubs, cfg, sync
+        self.clock_rx, self.status_rx, self.presence = clock_rx, status_rx, presence
+        self.drops, self.record = drops, record
+        self.follower_status: Status | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="leader-aux", daemon=True)
+        self._ping_seq = 0
+        self._passes = 0
+
+    def __enter__(self) -> _Aux:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+
+    def extras(self) -> dict[str, Any]:
+        """Cockpit fields from the follower's status and the link."""
+        st = self.follower_status
+        out: dict[str, Any] = {"follower_present": self.presence.alive}
+        if st is not None:
+            out["watchdog"] = st.counters.get("watchdog_stops", st.counters.get("watchdog", 0))
+            out["falls"] = st.counters.get("falls", 0)
+            out["collisions"] = st.counters.get("collisions", 0)
+            out["follower_text"] = st.text
+        if not self.presence.alive:
+            out["link"] = "no follower"
+        return out
+
+    def _run(self) -> None:
+        lc, ck = self.cfg.section("leader"), self.cfg.section("clock")
+        next_status = next_ping = time.monotonic()
+        text = "clock: synced" if ck.mode == "synced" else "clock: ntp (h1+h2 exact, split estimated)"
+        while not self._stop.wait(0.05):
+            now_m, now = time.monotonic(), time.time()
+            try:
+                got = self.status_rx.take()
+                if got is not None:
+                    self.follower_status = got.msg
+                if self.sync is not None and self.clock_rx is not None:
+                    for rec in self.clock_rx.drain():
+                        msg = rec.msg
+                        if isinstance(msg, ClockPing) and msg.sid != self.loop.sid:
+                            self.pubs.clock.put(ClockPong(
+                                sid=self.loop.sid, seq=msg.seq, t=time.time(), ping_sid=msg.sid,
+                                ping_seq=msg.seq, t1=msg.t, t2=rec.t_recv,
+                            ))  # fmt: skip
+                        elif isinstance(msg, ClockPong) and msg.ping_sid == self.loop.sid:
+                            self.sync.on_pong(msg.t1, msg.t2, msg.t, rec.t_recv)
+                    if now_m >= next_ping:
+                        next_ping = now_m + 1.0 / ck.ping_rate_hz
+                        self._ping_seq += 1
+                        self.pubs.clock.put(ClockPing(sid=self.loop.sid, seq=self._ping_seq, t=time.time()))
+                if now_m >= next_status:
+                    next_status = now_m + 1.0 / lc.status_rate_hz
+                    counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
+                    counters.update(commands=self.loop.seq, feedback=self.loop.feedback_count,
+                                    missed_ticks=self.loop.missed_ticks)  # fmt: skip
+                    st = Status(sid=self.loop.sid, seq=int(now * 1000) % (2**62), t=now, role="leader",
+                                state=self.loop.state, counters=counters, text=text)  # fmt: skip
+                    self.pubs.status.put(st)
+                    self.record("status/sent", st, now)
+                op = self.loop.operator
+                if op is not None:
+                    prog = op.progress()
+                    n = int(prog.get("passes_done", 0))
+                    if n > self._passes:
+                        self._passes = n
+                        side = prog.get("sides", [""])[-1]
+                        self.record("events", {"event": "pass", "n": n, "side": side}, now)
+            except Exception as exc:  # a bad moment on the network must not end the program
+                LOG.warning("leader side thread: %s", exc)
+
+
+def main(
+    cfg: Config,
+    *,
+    operator_name: str | None = None,
+    device_name: str | None = None,
+    duration_s: float | None = None,
+    realtime: bool | None = None,
+    record: Path | None = None,
+    stats: dict[str, Any] | None = None,
+) -> int:
+    """Run the leader program. Returns the exit code (0: clean end).
+
+    Parameters
+    ----------
+    cfg : Config
+        Loaded profile.
+    operator_name, device_name : str, optional
+        Override ``[leader] operator`` / ``device``.
+    duration_s : float, optional
+        Stop after this long [s] (``[leader] duration_s`` when omitted; 0 = no limit).
+    realtime : bool, optional
+        Override ``[leader] realtime``. Off runs the loop as fast as possible with message
+        times on a virtual clock (tests and tools only: a real-time follower sees it as
+        time passing faster).
+    record : Path, optional
+        MCAP file (default ``[record] dir``/leader-<time>.mcap when recording is enabled).
+    stats : dict, optional
+        Filled at the end with the loop's figures (period statistics, counters, progress).
+    """
+    lc = cfg.section("leader")
+    op_name = operator_name or lc.operator
+    dev_name = device_name or lc.device
+    rt = lc.realtime if realtime is None else realtime
+    duration = lc.duration_s if duration_s is None else duration_s
+    if op_name not in OPERATORS:
+        raise ConfigError(f"--operator {op_name!r}: allowed: {', '.join(OPERATORS)}")
+    if op_name == "browser" and not lc.cockpit:
+        raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
+    keys = Keys(cfg.section("robot").id)
+    ck = cfg.section("clock")
+    ntp = ck.mode == "ntp"
+    sync = ClockSync(ck.ping_window) if ntp else None
+    rec_cfg = cfg.section("record")
+    if record is None and rec_cfg.enabled:
+        record = Path(rec_cfg.dir) / f"leader-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    drops = DropCounter("leader")
+    estimator = DelayEstimator(ck.delay_window_s)
+    sid = new_session_id()
+
+    with contextlib.ExitStack() as stack:
+        stop = stack.enter_context(shutdown_on_signals())
+        # Python threads (Zenoh callbacks, cockpit, recorder) hand the GIL back to the
+        # haptic loop sooner than the default 5 ms.
+        stack.callback(sys.setswitchinterval, sys.getswitchinterval())
+        sys.setswitchinterval(0.0005)
+        recorder = None
+        if record is not None:
+            from bipedtele.recording import Recorder
+
+            record.parent.mkdir(parents=True, exist_ok=True)
+            recorder = stack.enter_context(Recorder(
+                record, rec_cfg.flush_s, jpeg_every=10,
+                metadata={"role": "leader", "operator": op_name, "device": dev_name, "config": cfg.to_dict()},
+            ))  # fmt: skip
+
+        def rec(topic: str, msg: Any, t: float) -> None:
+            if recorder is not None:
+                recorder.write(topic, msg, t)
+
+        cockpit = None
+        if lc.cockpit:
+            from bipedtele.leader.cockpit import CockpitServer
+
+            try:
+                cockpit = CockpitServer(lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz).start()
+            except OSError as exc:
+                raise ConfigError(
+                    f"leader.cockpit_port = {lc.cockpit_port}: cannot serve on {lc.cockpit_host} "
+                    f"({exc.strerror or exc}); allowed: a free port, or 0 for any"
+                ) from None
+            stack.callback(cockpit.stop)
+
+        session = stack.enter_context(open_session(cfg.section("network")))
+        pubs = stack.enter_context(Publishers(session, keys))
+        stack.enter_context(declare_presence(session, keys, "leader"))
+        presence = stack.enter_context(PresenceWatcher(session, keys, "follower"))
+
+        def on_feedback(r: Received[Any]) -> None:
+            rec("feedback/recv", r.msg, r.t_recv)
+
+        def on_video(r: Received[Any]) -> None:
+            msg: VideoFrame = r.msg
+            if cockpit is not None:
+                cockpit.publish_video(msg.camera, msg.jpeg, msg.t_capture)
+            rec("video/recv", msg, r.t_recv)
+
+        def on_status(r: Received[Any]) -> None:
+            rec("status/recv", r.msg, r.t_recv)
+
+        fb_rx: LatestReceiver[Feedback] = stack.enter_context(LatestReceiver(
+            session, keys.feedback, Feedback, drops, SequenceGate(), estimator=estimator,
+            clock_sync=sync, on_message=on_feedback,
+        ))  # fmt: skip
+        stack.enter_context(LatestReceiver(session, keys.video, VideoFrame, drops, SequenceGate(), on_message=on_video))
+        status_rx: LatestReceiver[Status] = stack.enter_context(LatestReceiver(
+            session, keys.status, Status, drops, SequenceGate(), on_message=on_status, ignore_sid=sid,
+        ))  # fmt: skip
+        clock_rx = None
+        if ntp:
+            clock_rx = stack.enter_context(
+                MessageReceiver(session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=sid)
+            )
+
+        try:
+            device = _make_device(cfg, dev_name)
+            stack.enter_context(device)
+        except DeviceError as exc:
+            LOG.error("device %s: %s", dev_name, exc)
+            return 1
+        try:
+            operator: Operator | None = make_operator(
+                op_name, cfg, workspace_m=device.limits.workspace_m,
+                joystick=cockpit.joystick if cockpit is not None else None,
+            )  # fmt: skip
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        if not isinstance(device, SimFalcon):
+            operator = None  # a person holds a physical device
+            LOG.info("device %s is held by a person: operator model %s not used", dev_name, op_name)
+
+        def latest_feedback() -> tuple[Feedback, float] | None:
+            got = fb_rx.latest()
+            return (got.msg, got.t_recv) if got is not None else None
+
+        def send_command(cmd: Command) -> None:
+            pubs.cmd.put(cmd)
+            rec("cmd/sent", cmd, cmd.t)
+
+        aux_holder: list[_Aux] = []
+
+        def on_sample(snap: dict[str, Any]) -> None:
+            if aux_holder:
+                snap.update(aux_holder[0].extras())
+            if cockpit is not None:
+                cockpit.publish_sample(snap)
+            rec("leader/state", snap, snap["t"])
+
+        ticks = [0]
+        if rt:
+            clock: Callable[[], float] = time.time
+        else:
+            t0_wall = time.time()
+
+            def clock() -> float:
+                return t0_wall + ticks[0] * (1.0 / lc.haptic_rate_hz)
+
+        rtt_fn = None
+        if sync is not None and ck.conservative_split:
+            rtt_fn = sync.rtt
+        loop = LeaderLoop(
+            device, operator, cfg.section("control"), send_command, latest_feedback, cfg=lc,
+            clock=clock, estimator=estimator, conservative_rtt=rtt_fn, on_sample=on_sample, sid=sid,
+        )  # fmt: skip
+        aux = stack.enter_context(_Aux(loop, pubs, cfg, sync, clock_rx, status_rx, presence, drops, rec))
+        aux_holder.append(aux)
+        LOG.info(
+            "leader ready: robot %s, device %s, operator %s, %s%s", cfg.section("robot").id, dev_name,
+            op_name if operator is not None else "(person)", "real time" if rt else "as fast as possible",
+            f", cockpit {cockpit.url}" if cockpit is not None else "",
+        )  # fmt: skip
+        rec("events", {"event": "start", "operator": op_name}, time.time())
+        t_start = time.time()
+        if rt:
+            loop.run(stop=stop, duration_s=duration or None, until_done=True)
+        else:
+            limit = round(duration * lc.haptic_rate_hz) if duration else None
+            while not stop.is_set() and not loop.done and (limit is None or ticks[0] < limit):
+                loop.tick(now=clock())
+                ticks[0] += 1
+        elapsed = time.time() - t_start
+        done = loop.done
+        rec("events", {"event": "done" if done else "stop", "elapsed_s": elapsed}, time.time())
+        loop.send_stop()
+        summary = _summary(loop, op_name, operator, elapsed, drops, record, rt)
+        if stats is not None:
+            stats.update(loop.period_stats.summary(loop.dt))
+            stats.update(
+                missed_ticks=loop.missed_ticks, commands=loop.seq, feedback=loop.feedback_count,
+                drops=drops.total, done=done, elapsed_s=elapsed,
+                progress=operator.progress() if operator is not None else {},
+                cockpit=cockpit.stats if cockpit is not None else {},
+            )  # fmt: skip
+    print(summary, flush=True)  # noqa: T201 - the program's one-line result
+    return 0
+
+
+def _summary(
+    loop: LeaderLoop, op_name: str, operator: Operator | None, elapsed: float,
+    drops: DropCounter, record: Path | None, rt: bool,
+) -> str:  # fmt: skip
+    parts = [f"leader: operator {op_name}"]
+    prog = operator.progress() if operator is not None else {}
+    if "passes_done" in prog:
+        parts.append(f"{prog['passes_done']}/{prog['passes']} passes")
+    parts.append("done" if loop.done else "stopped")
+    parts.append(f"{elapsed:.1f} s")
+    parts.append(f"{loop.seq} commands sent, {loop.feedback_count} feedback received, {drops.total} dropped")
+    if loop.h1 is not None and loop.h2 is not None:
+        parts.append(f"last delay h1+h2 {1000 * (loop.h1 + loop.h2):.0f} ms")
+    parts.append(f"max |f_m| now {float(np.abs(loop.force).max()):.2f} N")
+    if rt:
+        st = loop.period_stats.summary(loop.dt)
+        if "rate_hz" in st:
+            parts.append(f"loop {st['rate_hz']:.1f} Hz, p99 period error {1000 * st['err_p99_s']:.2f} ms")
+    if record is not None:
+        parts.append(f"recording {record}")
+    return ", ".join(parts)
+
+
+def _run(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration >= 0):
+        raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds >= 0")
+    realtime = None if args.realtime is None else args.realtime == "on"
+    return main(
+        cfg, operator_name=args.operator, device_name=args.device, duration_s=args.duration,
+        realtime=realtime, record=Path(args.record) if args.record else None,
+    )  # fmt: skip
+
+
+def add_leader_parser(sub: Any) -> None:
+    """``bipedtele leader``: run the operator's side."""
+    p = sub.add_parser("leader", help="run the operator's side (haptic device, operator model, cockpit)")
+    add_config_args(p)
+    p.add_argument("--operator", choices=OPERATORS, help="operator model (default: [leader] operator)")
+    p.add_argument("--device", help="leader device, e.g. sim-falcon (default: [leader] device)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (0: no limit)")
+    p.add_argument("--realtime", choices=["on", "off"], help="pace in real time (default: [leader] realtime)")
+    p.add_argument("--record", metavar="FILE", help="MCAP file (default: [record] dir/leader-<time>.mcap)")
+    p.set_defaults(func=_run)
