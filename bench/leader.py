@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from bipedtele.config import load_config
 from bipedtele.leader.app import main as leader_main
 from bipedtele.leader.devices import SimFalcon

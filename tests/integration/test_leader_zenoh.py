@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from bipedtele.config import load_config
 from bipedtele.control.damping import schedule_damping
 from bipedtele.recording import read_records
