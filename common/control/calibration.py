@@ -24,7 +24,7 @@ from bipedtele.control.online import Choice, OnlineChooser
 __all__ = ["Calibration", "Setpoint"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # array fields: compare fields explicitly
 class Setpoint:
     """Everything the two sides need for the current delays.
 

@@ -34,7 +34,7 @@ from bipedtele.control.config import ControlConfig
 __all__ = ["Damping", "schedule_damping", "schedule_damping_array"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # array fields: compare fields explicitly
 class Damping:
     """Result of the scheduler, all ``[forward, turn]`` arrays of shape (2,).
 

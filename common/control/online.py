@@ -51,7 +51,7 @@ __all__ = ["Choice", "OnlineChooser", "choice_cost", "solve_exact"]
 LOG = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # array fields: compare fields explicitly
 class Choice:
     """One solution of (30).
 
