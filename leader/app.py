@@ -67,7 +67,8 @@ def _make_device(cfg: Config, name: str) -> LeaderDevice:
         )  # fmt: skip
         return SimFalcon(params)
     try:
-        return make_device(name)
+        # Hardware drivers read their own section ([falcon], [joystick]) from the profile.
+        return make_device(name, config=cfg)
     except ValueError as exc:
         raise ConfigError(f"--device {name!r}: {exc}") from None
 
@@ -194,6 +195,7 @@ def main(
         raise ConfigError(f"--operator {op_name!r}: allowed: {', '.join(OPERATORS)}")
     if op_name == "browser" and not lc.cockpit:
         raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
+    device = _make_device(cfg, dev_name)  # a bad name fails here, before any I/O
     keys = Keys(cfg.section("robot").id)
     ck = cfg.section("clock")
     ntp = ck.mode == "ntp"
@@ -270,7 +272,6 @@ def main(
             )
 
         try:
-            device = _make_device(cfg, dev_name)
             stack.enter_context(device)
         except DeviceError as exc:
             LOG.error("device %s: %s", dev_name, exc)

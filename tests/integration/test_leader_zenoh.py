@@ -125,3 +125,51 @@ def test_leader_against_a_follower_stub(tmp_path):
     assert before and all(s["gain"] == 1.0 for s in before)
     # The program ends by asking the robot to stop.
     assert cmds[-1]["enable"] is False
+
+
+@pytest.mark.timeout(60)
+def test_leader_exits_on_its_own_when_the_operator_is_done(tmp_path):
+    port = free_port()
+    robot = f"ld{os.getpid()}"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    stub = subprocess.Popen(
+        [sys.executable, str(HERE / "leader_stub_follower.py"), robot, f"tcp/127.0.0.1:{port}",
+         "0.02", "0.02", "100", "100", "12"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    try:
+        leader = subprocess.run(
+            [
+                sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "leader",
+                "--operator", "scripted", "--record", str(tmp_path / "l.mcap"),
+                "--set", f'robot.id="{robot}"', "--set", f'network.listen=["tcp/127.0.0.1:{port}"]',
+                "--set", "leader.cockpit=false", "--set", "leader.script=[[0, 3, 0], [1.0, 3, 0]]",
+            ],
+            capture_output=True, text=True, env=env, timeout=40,
+        )  # fmt: skip
+    finally:
+        stub.kill()
+        stub.communicate(timeout=10)
+    assert leader.returncode == 0, leader.stderr
+    assert ", done," in leader.stdout and leader.stdout.count("\n") == 1
+    events = [r.data["event"] for r in read_records(tmp_path / "l.mcap") if r.topic == "events"]
+    assert events[0] == "start" and events[-1] == "done"
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--set", "leader.cmd_rate_hz=0"], "leader.cmd_rate_hz"),
+        (["--device", "nope"], "sim-falcon"),
+        (["--operator", "browser", "--set", "leader.cockpit=false"], "cockpit"),
+        (["--duration", "-1"], "--duration"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_exit_2(args, needle, tmp_path):
+    res = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "leader", "--set", "record.enabled=false", *args],
+        capture_output=True, text=True, timeout=60, cwd=tmp_path,
+    )  # fmt: skip
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0], res.stderr

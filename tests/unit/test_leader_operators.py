@@ -1,0 +1,228 @@
+"""Operator models: the hand, scripted, browser and the obstacle pilot (Sec. 5)."""
+
+from __future__ import annotations
+
+import collections
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from bipedtele.config import ConfigError, load_config
+from bipedtele.leader.devices import SimFalcon
+from bipedtele.leader.loop import LeaderLoop
+from bipedtele.leader.operators import (
+    DEFAULT_COURSE,
+    BrowserOperator,
+    Hand,
+    Obstacle,
+    PilotOperator,
+    ScriptedOperator,
+    course_from_config,
+    make_operator,
+)
+from bipedtele.messages import Command, Feedback
+
+K_G = [160.0, 200.0]
+ROBOT_RADIUS = 0.15  # m: NAO's half shoulder width
+
+
+def test_hand_pulls_toward_its_target_with_limited_force():
+    h = Hand(stiffness_n_m=300.0, damping_n_s_m=8.0, force_max_n=15.0, tau_s=0.0)
+    h.set_target(np.array([0.01, -0.02]))
+    f = h.hand_force(0.0, np.zeros(2), np.zeros(2))
+    assert f.tolist() == pytest.approx([3.0, -6.0])
+    f = h.hand_force(0.001, np.zeros(2), np.array([0.5, 0.0]))
+    assert f.tolist() == pytest.approx([3.0 - 4.0, -6.0])
+    h.set_target(np.array([1.0, -1.0]))
+    assert h.hand_force(0.002, np.zeros(2), np.zeros(2)).tolist() == [15.0, -15.0]
+
+
+def test_hand_target_is_smoothed_by_its_time_constant():
+    h = Hand(tau_s=0.2)
+    h.set_target(np.array([0.02, 0.0]))
+    h.hand_force(0.0, np.zeros(2), np.zeros(2))
+    h.hand_force(0.2, np.zeros(2), np.zeros(2))
+    assert h.x_d[0] == pytest.approx(0.02 * (1 - math.exp(-1)))
+
+
+def test_scripted_linear_and_step():
+    pts = [[0, 0, 0], [2, 4, -2], [4, 4, 6]]
+    lin = ScriptedOperator(pts, K_G, "linear", wait_for_feedback=False)
+    assert lin.intended_speed(0.0, None).tolist() == [0.0, 0.0]  # the profile starts now
+    assert lin.intended_speed(1.0, None).tolist() == [2.0, -1.0]
+    assert lin.intended_speed(3.0, None).tolist() == [4.0, 2.0]
+    step = ScriptedOperator(pts, K_G, "step", wait_for_feedback=False)
+    assert step.intended_speed(0.0, None).tolist() == [0.0, 0.0]
+    assert step.intended_speed(1.0, None).tolist() == [0.0, 0.0]
+    assert step.intended_speed(3.9, None).tolist() == [4.0, -2.0]
+    assert not step.done
+    step.intended_speed(4.1, None)
+    assert step.done
+
+
+def test_scripted_waits_for_the_robot_and_targets_ref_over_k_g():
+    op = ScriptedOperator([[0, 4, -5], [10, 4, -5]], K_G, "step")
+    op.update(5.0, None)
+    assert op.intended.tolist() == [0.0, 0.0]
+    op.update(7.0, Feedback())
+    assert op.t_start == 7.0
+    assert op.hand.target.tolist() == pytest.approx([4 / 160, -5 / 200])
+    # Targets stay inside the workspace.
+    big = ScriptedOperator([[0, 100, 100]], K_G, wait_for_feedback=False)
+    big.update(0.0, None)
+    assert np.all(np.abs(big.hand.target) < 0.05)
+
+
+def test_scripted_rejects_bad_profiles():
+    with pytest.raises(ValueError):
+        ScriptedOperator([[1, 0, 0], [0, 0, 0]], K_G)
+    with pytest.raises(ValueError):
+        ScriptedOperator([[0, 0, 0]], K_G, interp="cubic")
+
+
+def test_browser_joystick_maps_up_to_forward_and_right_to_right_turn():
+    state = {"js": None, "now": 100.0}
+    op = BrowserOperator(lambda: state["js"], K_G, clock=lambda: state["now"])
+    assert op.intended_speed(0.0, None).tolist() == [0.0, 0.0]
+    state["js"] = (1.0, 0.5, 99.9)  # right, half up
+    v, w = op.intended_speed(0.0, None)
+    assert v == pytest.approx(0.5 * 0.98 * 0.05 * 160) and w == pytest.approx(-0.98 * 0.05 * 200)
+    assert op.progress()["joystick_active"]
+    state["now"] = 102.0  # the page went away: hold at zero
+    assert op.intended_speed(0.0, None).tolist() == [0.0, 0.0]
+
+
+def test_course_from_leader_then_world_then_default():
+    cfg = load_config("default", ["leader.pilot_obstacles=[[1.5, 0.2, 0.1]]"])
+    assert course_from_config(cfg) == [Obstacle(1.5, 0.2, 0.1)]
+    world = SimpleNamespace(obstacles=[
+        SimpleNamespace(shape="cylinder", position=[2.0, -0.1, 0.25], size=[0.12, 0.5]),
+        {"shape": "box", "position": [3.0, 0.1, 0.25], "size": [0.3, 0.4, 0.5]},
+    ])  # fmt: skip
+    fake = SimpleNamespace(sections={"leader": load_config("default").leader, "world": world})
+    assert course_from_config(fake) == [Obstacle(2.0, -0.1, 0.12), Obstacle(3.0, 0.1, 0.25)]
+    empty = SimpleNamespace(sections={"leader": load_config("default").leader, "world": SimpleNamespace(obstacles=[])})
+    assert course_from_config(empty) == list(DEFAULT_COURSE)
+
+
+def test_make_operator_and_config_errors():
+    cfg = load_config("default")
+    assert isinstance(make_operator("pilot", cfg), PilotOperator)
+    assert isinstance(make_operator("scripted", cfg), ScriptedOperator)
+    with pytest.raises(ValueError, match="cockpit"):
+        make_operator("browser", cfg)
+    with pytest.raises(ValueError, match="allowed"):
+        make_operator("telepathy", cfg)
+    with pytest.raises(ConfigError, match="script"):
+        load_config("default", ["leader.script=[[1, 0, 0], [0, 1, 1]]"])
+    with pytest.raises(ConfigError, match="pilot_obstacles"):
+        load_config("default", ["leader.pilot_obstacles=[[1, 0]]"])
+    with pytest.raises(ConfigError, match="cmd_rate_hz"):
+        load_config("default", ["leader.cmd_rate_hz=0"])
+
+
+# --------------------------------------------------------------------------- the pilot
+
+
+class Unicycle:
+    """A kinematic walking robot: it applies the command received h1 ago; its speeds follow
+    with a first-order lag; its pose feedback arrives h2 later."""
+
+    def __init__(self, h1: float, h2: float, tau: float = 0.5) -> None:
+        self.h1, self.h2, self.tau = h1, h2, tau
+        self.x = self.y = self.yaw = 0.0
+        self.v = self.w = 0.0  # cm/s, deg/s
+        self.cmds: collections.deque = collections.deque()
+        self.fbs: collections.deque = collections.deque()
+        self.ref = np.zeros(2)
+        self.min_clear = math.inf
+        self.seq = 0
+
+    def command(self, t: float, ref) -> None:
+        self.cmds.append((t + self.h1, np.asarray(ref, dtype=float)))
+
+    def step(self, t: float, dt: float, obstacles) -> None:
+        while self.cmds and self.cmds[0][0] <= t:
+            self.ref = self.cmds.popleft()[1]
+        self.v += (self.ref[0] - self.v) * dt / self.tau
+        self.w += (self.ref[1] - self.w) * dt / self.tau
+        self.yaw += math.radians(self.w) * dt
+        self.x += self.v / 100 * math.cos(self.yaw) * dt
+        self.y += self.v / 100 * math.sin(self.yaw) * dt
+        for o in obstacles:
+            self.min_clear = min(self.min_clear, math.hypot(self.x - o.x, self.y - o.y) - o.radius)
+
+    def publish(self, t: float) -> None:
+        self.seq += 1
+        fb = Feedback(seq=self.seq, t=t, z_e=[self.v, self.w], pose=[self.x, self.y, self.yaw],
+                      sonar=[2.55, 2.55], h1_s=self.h1)  # fmt: skip
+        self.fbs.append((t + self.h2, fb))
+
+    def latest(self, t: float):
+        out = None
+        while self.fbs and self.fbs[0][0] <= t:
+            out = self.fbs.popleft()
+        return out
+
+
+@pytest.mark.parametrize(
+    ("course", "h"),
+    [
+        (list(DEFAULT_COURSE), 0.3),
+        ([Obstacle(1.2, 0.0, 0.12)], 0.6),
+    ],
+)
+def test_pilot_completes_ten_passes_alternating_sides_without_contact(course, h):
+    op = PilotOperator(course, K_G, passes=10)
+    robot = Unicycle(h1=h, h2=h)
+    fb = None
+    dt, t = 0.02, 0.0
+    while t < 900.0 and not op.done:
+        got = robot.latest(t)
+        fb = got[1] if got else fb
+        op.update(t, fb)
+        robot.command(t, op.intended)
+        robot.step(t, dt, course)
+        robot.publish(t)
+        t += dt
+    assert op.done and op.passes_done == 10
+    assert op.sides == ["left", "right"] * 5
+    assert op.retries == 0
+    assert robot.min_clear > ROBOT_RADIUS + 0.05
+    assert op.intended.tolist() == [0.0, 0.0]  # stops when done
+
+
+@pytest.mark.timeout(60)
+def test_pilot_drives_through_the_hand_device_and_force_feedback():
+    """The whole leader side: pilot -> hand -> simulated Falcon with force feedback (31) ->
+    commands -> delayed robot -> delayed feedback -> pilot."""
+    cfg = load_config("default")
+    course = list(DEFAULT_COURSE)
+    op = PilotOperator(course, cfg.control.k_g, passes=3)
+    robot = Unicycle(h1=0.2, h2=0.2)
+    dev = SimFalcon()
+    dev.connect()
+    state: dict = {"fb": None}
+
+    def send(cmd: Command) -> None:
+        robot.command(loop.now, cmd.ref if cmd.enable else [0.0, 0.0])
+
+    def latest():
+        return state["fb"]
+
+    loop = LeaderLoop(dev, op, cfg.control, send, latest, cfg=cfg.leader, clock=lambda: 0.0)
+    t, forces = 0.0, []
+    while t < 300.0 and not op.done:
+        loop.run_for(0.02)
+        t = loop.now
+        robot.step(t, 0.02, course)
+        robot.publish(t)
+        got = robot.latest(t)
+        if got is not None:
+            state["fb"] = (got[1], t)
+        forces.append(np.abs(loop.force).max())
+    assert op.done and op.sides == ["left", "right", "left"]
+    assert robot.min_clear > ROBOT_RADIUS + 0.05
+    assert max(forces) > 0.2  # the operator felt the coordination error
+    assert max(forces) <= 8.0
