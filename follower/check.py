@@ -25,6 +25,7 @@ from dataclasses import fields
 
 import numpy as np
 from bipedtele.follower.robot import (
+    Camera,
     FollowerRobot,
     RobotNotConnectedError,
     RobotObservation,
@@ -148,8 +149,9 @@ def check_robot(factory: Callable[[], FollowerRobot], advance_s: float = 0.5) ->
         robot.advance(0.01)
         robot.stop()
         _check_observation(robot.observe())
-        for cam in ("head", "scene"):
-            img = robot.capture(cam)  # type: ignore[arg-type]
+        cams: tuple[Camera, ...] = ("head", "scene")
+        for cam in cams:
+            img = robot.capture(cam)
             if img is not None:
                 _expect(isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3
                         and img.dtype == np.uint8, f"capture({cam!r}): expected None or an H x W x 3 uint8 array")
