@@ -4,7 +4,11 @@ Each sonar ``i`` looks along a yaw ``psi_i`` (left positive) and reports a range
 It contributes a repulsive force along its axis, pointing back at the robot, whose
 magnitude rises linearly from 0 at ``d_safe`` to ``f_max`` at ``d_stop`` and saturates
 closer than that. The force is split into its **tangential** part (along the robot's
-forward axis; positive opposes forward motion) and its **normal** part (lateral). Only the
+forward axis; positive opposes forward motion) and its **normal** part (lateral).
+The two cones overlap in front of the robot, so one obstacle straight ahead is seen by
+both sonars: the tangential part is the larger of the two sonars' (not their sum, which
+would count that obstacle twice and push the robot backwards at half the range); the
+normal part is their difference (it points away from the nearer side). Only the
 tangential part slows the robot (through ``k_z`` in eq. 28); the operator steers around
 the obstacle, warned by the force and the video.
 """
@@ -60,6 +64,6 @@ class FictitiousForce:
         """
         fl, fr = self.magnitude(left_m), self.magnitude(right_m)
         c, s = math.cos(self.sonar_yaw_rad), math.sin(self.sonar_yaw_rad)
-        tangential = (fl + fr) * c
-        normal = (-fl + fr) * s
+        tangential = max(fl, fr) * c
+        normal = (fr - fl) * s
         return np.array([tangential, normal])

@@ -17,7 +17,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from bipedtele.follower.robot import FollowerRobot
+from bipedtele.follower.robot import Camera, FollowerRobot
 from bipedtele.messages import VideoFrame, new_session_id
 
 __all__ = ["VideoStreamer"]
@@ -47,7 +47,7 @@ class VideoStreamer:
     def __init__(
         self,
         robot: FollowerRobot,
-        cameras: Sequence[str],
+        cameras: Sequence[Camera],
         fps: float,
         publish: Callable[[VideoFrame], None],
         *,
@@ -100,7 +100,7 @@ class VideoStreamer:
                 continue
             self._next[cam] = max(t, self._next[cam] + self.period)
             t0 = time.perf_counter()
-            image = self.robot.capture(cam)  # type: ignore[arg-type]
+            image = self.robot.capture(cam)
             self.stats["capture_s"] += time.perf_counter() - t0
             if image is None:
                 continue

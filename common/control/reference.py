@@ -15,8 +15,8 @@ Units: forward channel in cm/s, turn channel in deg/s, times in s.
 from __future__ import annotations
 
 import numpy as np
-
 from bipedtele.control.observer import Observer
+from numpy.typing import ArrayLike
 
 __all__ = ["RealFollowerReference"]
 
@@ -38,7 +38,7 @@ class RealFollowerReference:
         Control period [s].
     """
 
-    def __init__(self, D, k_s, k_z, beta_r, dt: float) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, D: ArrayLike, k_s: ArrayLike, k_z: ArrayLike, beta_r: ArrayLike, dt: float) -> None:
         self.D = np.asarray(D, dtype=float).reshape(2)
         self.k_s = np.asarray(k_s, dtype=float).reshape(2)
         self.k_z = np.asarray(k_z, dtype=float).reshape(2)

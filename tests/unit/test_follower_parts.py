@@ -56,7 +56,7 @@ def test_fictitious_force_profile() -> None:
     f = FictitiousForce(d_safe=0.7, d_stop=0.3, f_max=10.0, sonar_yaw_rad=math.radians(22.0))
     c, s = math.cos(math.radians(22.0)), math.sin(math.radians(22.0))
     np.testing.assert_allclose(f(0.8, 0.8), [0.0, 0.0])  # nothing close
-    np.testing.assert_allclose(f(0.5, 0.5), [2 * 5.0 * c, 0.0])  # halfway, symmetric
+    np.testing.assert_allclose(f(0.5, 0.5), [5.0 * c, 0.0])  # halfway, seen by both: counted once
     np.testing.assert_allclose(f(0.1, 0.9), [10.0 * c, -10.0 * s])  # obstacle on the left
     np.testing.assert_allclose(f(0.9, 0.2), [10.0 * c, 10.0 * s])  # on the right -> push left
     np.testing.assert_allclose(f(float("nan"), float("inf")), [0.0, 0.0])
