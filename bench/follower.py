@@ -1,0 +1,94 @@
+"""Benchmark: real-time factor of the simulated NAO (physics + control), with and without cameras.
+
+Runs the same scripted walk (5 cm/s straight, then 5 cm/s turning at 4 deg/s) three ways,
+side by side in one process:
+
+1. physics + control only (50 Hz control: send_walk, advance, observe with sonar);
+2. the same plus one QVGA camera rendered at 10 fps (TinyRenderer, CPU);
+3. the same plus both cameras (head and scene) at 10 fps each.
+
+Prints the real-time factor (simulated seconds per wall second; goals >= 4x physics+control,
+>= 1.5x with the camera at 10 fps), the camera's cost per frame (p50/p99), the RMS joint
+tracking error and the forward (eq. 8) and turn tracking errors after the first 5 s.
+
+    .venv/bin/python bench/follower.py [--seconds 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from bipedtele.follower.robot import WalkCommand
+from bipedtele.follower.sim.robot import SimNao
+from bipedtele.follower.sim.world import TASK_COURSE, WorldConfig
+
+DT = 0.02
+V = 0.05
+TURN = math.radians(4.0)
+
+
+def run(seconds: float, cameras: tuple[str, ...], fps: float) -> dict[str, float]:
+    # the task course, moved 1.5 m further so the walk (about 1.3 m) does not reach it
+    course = [dataclasses.replace(o, position=[o.position[0] + 1.5, *o.position[1:]]) for o in TASK_COURSE]
+    world = WorldConfig(obstacles=course)
+    frame_s: list[float] = []
+    v_err, w_err, j_err = [], [], []
+    every = round(1.0 / (fps * DT)) if cameras else 0
+    with SimNao(world=world) as robot:
+        t0 = time.perf_counter()
+        for i in range(round(seconds / DT)):
+            turn = TURN if i * DT > seconds / 2 else 0.0
+            robot.send_walk(WalkCommand(V, turn, 1.0, 0.1))
+            robot.advance(DT)
+            obs = robot.observe()
+            if every and i % every == 0:
+                for cam in cameras:
+                    f0 = time.perf_counter()
+                    robot.capture(cam)  # type: ignore[arg-type]
+                    frame_s.append(time.perf_counter() - f0)
+            if obs.t > 5.0:
+                v_err.append(abs(obs.v_hip_m_s - V))
+                j_err.append(obs.joint_error_rad)
+                if obs.t > seconds / 2 + 5.0:
+                    w_err.append(obs.turn_rate_rad_s - TURN)
+            if obs.fallen:
+                raise SystemExit(f"the robot fell at t = {obs.t:.1f} s")
+        wall = time.perf_counter() - t0
+    # turn error per walking cycle (the yaw moves only in single support)
+    w = np.array(w_err[: len(w_err) // 50 * 50]).reshape(-1, 50).mean(axis=1) if len(w_err) >= 50 else np.zeros(1)
+    return {
+        "rtf": seconds / wall,
+        "frame_p50_ms": float(np.percentile(frame_s, 50) * 1e3) if frame_s else 0.0,
+        "frame_p99_ms": float(np.percentile(frame_s, 99) * 1e3) if frame_s else 0.0,
+        "joint_rms_deg": math.degrees(float(np.sqrt(np.mean(np.square(j_err))))),
+        "v_err_cm_s": 100.0 * float(np.mean(v_err)),
+        "turn_err_deg_s": math.degrees(float(np.mean(np.abs(w)))),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=30.0, help="simulated seconds per run")
+    args = ap.parse_args()
+    rows = [
+        ("physics + control", (), 0.0, 4.0),
+        ("+ head camera 10 fps", ("head",), 10.0, 1.5),
+        ("+ head & scene 10 fps", ("head", "scene"), 10.0, 1.5),
+    ]
+    print(f"sim NAO, {args.seconds:.0f} s simulated per run, 50 Hz control, QVGA TinyRenderer")
+    print(f"{'run':24s} {'RTF':>6s} {'goal':>5s} {'frame p50/p99 ms':>17s} {'joint RMS deg':>13s} "
+          f"{'|v err| cm/s':>12s} {'|turn err| deg/s':>16s}")
+    for name, cams, fps, goal in rows:
+        r = run(args.seconds, cams, fps)
+        frame = f"{r['frame_p50_ms']:.1f}/{r['frame_p99_ms']:.1f}" if cams else "-"
+        print(f"{name:24s} {r['rtf']:5.1f}x {goal:4.1f}x {frame:>17s} {r['joint_rms_deg']:13.2f} "
+              f"{r['v_err_cm_s']:12.2f} {r['turn_err_deg_s']:16.2f}")
+
+
+if __name__ == "__main__":
+    main()
