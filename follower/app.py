@@ -159,17 +159,24 @@ def main(
             robot, cfg.section("control"), fcfg, latest_command, publish,
             now=clock, to_local=sync.to_local if ntp else (lambda t: t),
             delay_window_s=cfg.section("clock").delay_window_s, on_event=on_event,
+            conservative_rtt=(lambda: sync.rtt) if ntp and cfg.section("clock").conservative_split else None,
         )
         video = stack.enter_context(
             VideoStreamer(robot, fcfg.cameras, fcfg.camera_fps, pubs.video.put, now=clock, jpeg_quality=fcfg.jpeg_quality)
         )
         LOG.info("follower %s ready: robot %s, key %s, %s", keys.cmd.split("/")[1], name, keys.cmd, "real time" if rt else "as fast as possible")
+        ping_period = 1.0 / cfg.section("clock").ping_rate_hz
+        next_ping, ping_seq = 0.0, 0
         pacer = _Pacer(loop.dt)
         start_t = clock()
         last_cmd_seen: tuple[int, int] | None = None
         while not stop.is_set():
             for got in clock_rx.drain():
                 _answer_clock(got.msg, got.t_recv, pubs, loop.sid, sync, clock)
+            if ntp and time.monotonic() >= next_ping:
+                next_ping = time.monotonic() + ping_period
+                ping_seq += 1
+                pubs.clock.put(ClockPing(sid=loop.sid, seq=ping_seq, t=clock()))
             tel = loop.tick()
             got_cmd = cmd_rx.latest()
             if recorder is not None and got_cmd is not None and (got_cmd.msg.sid, got_cmd.msg.seq) != last_cmd_seen:

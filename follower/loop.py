@@ -95,6 +95,9 @@ class FollowerLoop:
         Window of the h1 moving average [s].
     on_event : callable, optional
         ``on_event(name, detail_dict)`` for falls, watchdog stops, collisions (recording).
+    conservative_rtt : callable, optional
+        ntp clock mode: ``() -> rtt [s] | None``. When it gives a value, (40) and (30) use
+        ``h1 = h2 = rtt``: across two clocks the round trip is exact but its split is not.
     """
 
     def __init__(
@@ -109,6 +112,7 @@ class FollowerLoop:
         to_local: Callable[[float], float] = lambda t: t,
         delay_window_s: float = 1.0,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
+        conservative_rtt: Callable[[], float | None] | None = None,
     ) -> None:
         self.robot = robot
         self.control = control
@@ -119,6 +123,7 @@ class FollowerLoop:
         self._now = now
         self._to_local = to_local
         self._on_event = on_event or (lambda name, detail: None)
+        self._conservative_rtt = conservative_rtt
         self.sid = new_session_id()
         self.h1 = DelayEstimator(delay_window_s)
         self.chooser = OnlineChooser(control)
@@ -203,7 +208,11 @@ class FollowerLoop:
         h1 = self.h1.value(now)
         h1 = tel.h1_s if h1 is None else h1
         h2 = self._cmd.h2_s if self._cmd is not None else 0.0
-        self._update_parameters(h1, h2)
+        rtt = self._conservative_rtt() if self._conservative_rtt is not None else None
+        if rtt is not None:
+            self._update_parameters(rtt, rtt)
+        else:
+            self._update_parameters(h1, h2)
 
         fresh = (
             self._cmd is not None

@@ -136,3 +136,23 @@ def test_walk_parameters_come_from_the_online_choice() -> None:
     fb = [m for m in h.published if isinstance(m, Feedback)][-1]
     assert pytest.approx(sent.cycle_s) == fb.T and fb.eps == pytest.approx(sent.eps_s)
     assert all(v > 0 for v in fb.s_e)
+
+
+def test_conservative_split_uses_the_round_trip_for_both_delays() -> None:
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    seen: list[tuple[float, float]] = []
+    loop = FollowerLoop(
+        robot, cfg.section("control"), cfg.section("follower"), lambda: None, lambda m: None,
+        now=lambda: 0.0, conservative_rtt=lambda: 0.4,
+    )
+    original = loop._update_parameters
+
+    def spy(h1: float, h2: float) -> None:
+        seen.append((h1, h2))
+        original(h1, h2)
+
+    loop._update_parameters = spy  # type: ignore[method-assign]
+    loop.tick()
+    assert seen == [(0.4, 0.4)]
