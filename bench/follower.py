@@ -22,7 +22,6 @@ import math
 import time
 
 import numpy as np
-
 from bipedtele.follower.robot import WalkCommand
 from bipedtele.follower.sim.robot import SimNao
 from bipedtele.follower.sim.world import TASK_COURSE, WorldConfig
