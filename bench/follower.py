@@ -48,7 +48,7 @@ def run(seconds: float, cameras: tuple[str, ...], fps: float) -> dict[str, float
             if every and i % every == 0:
                 for cam in cameras:
                     f0 = time.perf_counter()
-                    robot.capture(cam)  # type: ignore[arg-type]
+                    robot.capture(cam)
                     frame_s.append(time.perf_counter() - f0)
             if obs.t > 5.0:
                 v_err.append(abs(obs.v_hip_m_s - V))
