@@ -138,6 +138,7 @@ class LeaderLoop:
         self._fb_key: tuple[int, int, float] | None = None
         self.feedback_count = 0
         self.gain = 0.0
+        self._gain_t: float | None = None
         self.h1: float | None = None
         self.h2: float | None = None
         self._damp_at: tuple[float, float] | None = None
@@ -199,12 +200,15 @@ class LeaderLoop:
     def _update_gain(self, now: float) -> None:
         fresh = self._fb is not None and now - self._fb_recv <= self.cfg.feedback_timeout_s
         target = 1.0 if fresh else 0.0
+        # The fade runs on clock time (not tick counts), so skipped ticks do not stretch it.
+        step = self.dt if self._gain_t is None else min(max(now - self._gain_t, 0.0), 1.0)
+        self._gain_t = now
         if self.cfg.fade_s <= 0.0:
             self.gain = target
         elif self.gain < target:
-            self.gain = min(target, self.gain + self.dt / self.cfg.fade_s)
+            self.gain = min(target, self.gain + step / self.cfg.fade_s)
         elif self.gain > target:
-            self.gain = max(target, self.gain - self.dt / self.cfg.fade_s)
+            self.gain = max(target, self.gain - step / self.cfg.fade_s)
         if self._fb is None:
             self.state = "starting"
         else:

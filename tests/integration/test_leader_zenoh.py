@@ -127,6 +127,7 @@ def test_leader_against_a_follower_stub(tmp_path):
     assert cmds[-1]["enable"] is False
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_leader_exits_on_its_own_when_the_operator_is_done(tmp_path):
     port = free_port()

@@ -149,9 +149,11 @@ def test_stale_feedback_fades_the_force_to_zero_and_back():
         forces.append(np.abs(loop.force_cmd).max())
     assert loop.state == "feedback_stale"
     assert np.all(np.diff(gains) <= 0)
-    # Linear fade: each tick takes dt / fade_s off the gain.
+    # Linear fade over fade_s: each tick takes dt / fade_s off the gain.
     steps = -np.diff(gains)
-    assert steps[(steps > 0)] == pytest.approx(loop.dt / lc.fade_s)
+    steps = steps[steps > 0]
+    assert steps[:-1] == pytest.approx(loop.dt / lc.fade_s, rel=1e-3)
+    assert len(steps) == pytest.approx(lc.fade_s / loop.dt, abs=1.5)
     assert gains[-1] == 0.0 and forces[-1] == 0.0 and loop.force.tolist() == [0.0, 0.0]
     loop.run_for(1.0)
     assert loop.force.tolist() == [0.0, 0.0]

@@ -193,6 +193,7 @@ def test_pilot_completes_ten_passes_alternating_sides_without_contact(course, h)
     assert op.intended.tolist() == [0.0, 0.0]  # stops when done
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_pilot_drives_through_the_hand_device_and_force_feedback():
     """The whole leader side: pilot -> hand -> simulated Falcon with force feedback (31) ->
