@@ -31,8 +31,8 @@ class FollowerConfig:
     camera_fps: float = param(10.0, lo=0.0, hi=30.0, unit="Hz", doc="video rate per camera (0: no video)")
     cameras: list[str] = param(default_factory=lambda: ["scene", "head"], doc="cameras to stream: head, scene")
     jpeg_quality: int = param(80, lo=10, hi=100, doc="JPEG quality of video frames")
-    sonar_d_safe_m: float = param(0.70, lo=0.05, hi=5.0, unit="m", doc="fictitious force starts at this range")
-    sonar_d_stop_m: float = param(0.30, lo=0.01, hi=5.0, unit="m", doc="fictitious force saturates at this range")
+    sonar_d_safe_m: float = param(0.50, lo=0.05, hi=5.0, unit="m", doc="fictitious force starts at this range")
+    sonar_d_stop_m: float = param(0.20, lo=0.01, hi=5.0, unit="m", doc="fictitious force saturates at this range")
     sonar_f_max: float = param(10.0, lo=0.0, hi=100.0, doc="fictitious force per sonar at d_stop (cm/s with k_z = 1)")
     sonar_yaw_deg: float = param(22.0, lo=0.0, hi=90.0, unit="deg", doc="yaw of each sonar axis")
 

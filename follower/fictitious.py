@@ -40,8 +40,8 @@ class FictitiousForce:
         Yaw of each sonar axis from the forward axis [rad] (left +, right -).
     """
 
-    d_safe: float = 0.70
-    d_stop: float = 0.30
+    d_safe: float = 0.50
+    d_stop: float = 0.20
     f_max: float = 10.0
     sonar_yaw_rad: float = math.radians(22.0)
 
