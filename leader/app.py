@@ -313,9 +313,12 @@ def main(
             def clock() -> float:
                 return t0_wall + ticks[0] * (1.0 / lc.haptic_rate_hz)
 
-        rtt_fn = None
+        rtt_fn: Callable[[], float | None] | None = None
         if sync is not None and ck.conservative_split:
-            rtt_fn = sync.rtt
+            ntp_sync = sync
+
+            def rtt_fn() -> float | None:  # read at every use: the estimate improves
+                return ntp_sync.rtt
         loop = LeaderLoop(
             device, operator, cfg.section("control"), send_command, latest_feedback, cfg=lc,
             clock=clock, estimator=estimator, conservative_rtt=rtt_fn, on_sample=on_sample, sid=sid,
