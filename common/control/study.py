@@ -52,6 +52,7 @@ from bipedtele.control.damping import schedule_damping_array
 from bipedtele.control.equivalent import equivalent_zoh
 from bipedtele.control.linalg import mat2, zoh2
 from bipedtele.control.online import Choice, OnlineChooser
+from bipedtele.delaymodels import parse_delay_model
 from scipy import stats
 
 __all__ = [
@@ -145,45 +146,8 @@ class StudyParams:
 # ----------------------------------------------------------------------------- delays
 
 
-def _local_delay_model(spec: str, seed: int) -> Callable[[float], float]:
-    """Fallback when :mod:`bipedtele.delaymodels` is absent: const, uniform, trace."""
-    kind, _, rest = spec.partition(":")
-
-    def dur(text: str) -> float:
-        text = text.strip()
-        if text.endswith("ms"):
-            return float(text[:-2]) * 1e-3
-        if text.endswith("s"):
-            return float(text[:-1])
-        return float(text) * 1e-3
-
-    if kind == "const":
-        value = dur(rest)
-        return lambda _t: value
-    if kind == "uniform":
-        mean, half = (dur(x) for x in rest.split(":"))
-        rng = np.random.default_rng(seed)
-        return lambda _t: float(rng.uniform(mean - half, mean + half))
-    if kind == "trace":
-        from importlib import resources
-
-        _source, _, column = rest.rpartition(":")
-        text = resources.files("bipedtele.data").joinpath("intercontinental_delay.csv").read_text("utf-8")
-        data = np.loadtxt(text.splitlines()[1:], delimiter=",")
-        t = data[:, 0]
-        d = data[:, 1 if column == "h1" else 2] * 1e-3
-        period = t[-1] - t[0] + (t[-1] - t[-2])
-        return lambda tt: float(np.interp(t[0] + (tt - t[0]) % period, t, d))
-    raise ValueError(f"delay spec {spec!r}: allowed: const:, uniform:, trace:intercontinental:h1|h2")
-
-
 def delay_sampler(spec: str, seed: int) -> Callable[[float], float]:
-    """``t -> delay [s]`` for a spec, from :mod:`bipedtele.delaymodels` when installed."""
-    try:
-        from bipedtele.delaymodels import parse_delay_model
-    except ImportError:  # pragma: no cover - the module ships with the core
-        LOG.warning("bipedtele.delaymodels not found: using the study's local delay generator")
-        return _local_delay_model(spec, seed)
+    """``t -> delay [s]`` for a delay-model spec (:mod:`bipedtele.delaymodels`)."""
     return parse_delay_model(spec, seed=seed).delay_s
 
 
