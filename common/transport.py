@@ -262,6 +262,10 @@ def zenoh_config(
         put("scouting/gossip/enabled", mode != "client")
     put("connect/timeout_ms", int(net.timeout_s * 1000))
     put("connect/exit_on_failure", False)
+    # Reconnection to a lost router or peer: Zenoh retries with a doubling period up to
+    # 4 s by default, so a robot could stay cut off for 4 s after its router is back.
+    # Retry at least every second (one small TCP connect attempt per endpoint).
+    put("connect/retry", {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2.0})
     tls: dict[str, Any] = {}
     if net.tls_root_ca:
         tls["root_ca_certificate"] = _check_file("tls_root_ca", net.tls_root_ca)
