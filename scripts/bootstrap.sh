@@ -23,6 +23,7 @@ if [[ $want_test -eq 1 ]]; then
     missing=()
     command -v chromium >/dev/null 2>&1 || missing+=(chromium)
     command -v ip >/dev/null 2>&1 || missing+=(iproute2)
+    command -v openssl >/dev/null 2>&1 || missing+=(openssl)  # scripts/make-certs.sh (two-host TLS test)
     if [[ ${#missing[@]} -gt 0 ]]; then
         echo "bootstrap: installing system packages: ${missing[*]}"
         as_root apt-get update -qq
