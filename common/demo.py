@@ -73,6 +73,7 @@ class DemoPlan:
     cockpit_port: int = field(default_factory=free_port)
     follower_args: list[str] = field(default_factory=list)
     leader_args: list[str] = field(default_factory=list)
+    t0: float = field(default_factory=time.time)
 
     def commands(self) -> dict[str, list[str]]:
         """Command lines of the four processes, in start order."""
@@ -97,7 +98,7 @@ class DemoPlan:
             "proxy": [
                 *exe, "delay-proxy", "--listen", f"127.0.0.1:{self.proxy_port}",
                 "--target", f"127.0.0.1:{self.router_port}",
-                "--forward", self.forward, "--backward", self.backward,
+                "--forward", self.forward, "--backward", self.backward, "--t0", f"{self.t0:.6f}",
             ],
             "follower": [
                 *exe, "follower", *common,
@@ -153,6 +154,11 @@ def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
     from bipedtele.report import compute_report, format_report
 
     plan.run_dir.mkdir(parents=True, exist_ok=True)
+    plan.t0 = time.time()  # origin of trace delay models (recorded for later checks)
+    (plan.run_dir / "plan.json").write_text(
+        json.dumps({"t0": plan.t0, "forward": plan.forward, "backward": plan.backward,
+                    "commands": plan.commands()}, indent=2) + "\n"
+    )
     with shutdown_on_signals() as stop, _processes(plan) as procs:
         if not plan.headless:
             _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/")
