@@ -100,6 +100,11 @@ def main(
     rec_cfg = cfg.section("record")
     if record is None and rec_cfg.enabled:
         record = Path(rec_cfg.dir) / f"follower-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    if record is not None:
+        try:
+            record.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"recording {record}: cannot create its folder ({exc.strerror}); allowed: a writable folder") from None
     ntp = cfg.section("clock").mode == "ntp"
     sync = ClockSync(cfg.section("clock").ping_window)
     drops = DropCounter("follower")
