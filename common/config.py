@@ -372,7 +372,7 @@ def load_config(
         raise ConfigError(
             f"{label}: unknown section [{unknown[0]}]; known sections: {', '.join(sorted(classes))}"
         )
-    sections = {}
+    sections: dict[str, Any] = {}
     for name, cls in classes.items():
         raw = data.get(name, {})
         if not isinstance(raw, Mapping):
