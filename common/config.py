@@ -39,6 +39,7 @@ __all__ = [
     "parse_section",
     "profile_names",
     "register_section",
+    "resolve_section",
     "section_classes",
 ]
 
@@ -379,3 +380,53 @@ def load_config(
             raise ConfigError(f"{label}: {name} = {_fmt(raw)}: allowed: a table [{name}]")
         sections[name] = parse_section(cls, raw, f"{label}: {name}")
     return Config(label, sections)
+
+
+def resolve_section(config: Any, cls: type[T], name: str, overrides: Mapping[str, Any] | None = None) -> T:
+    """The ``[name]`` section of type ``cls`` from whatever a device or robot was given.
+
+    Parameters
+    ----------
+    config : Config, cls instance or None
+        A whole profile (its ``[name]`` section is used), the section itself, or None
+        (defaults).
+    cls : type
+        The section's dataclass.
+    name : str
+        The section's name, for messages.
+    overrides : mapping, optional
+        Fields to change; validated like the file (ranges, types, unknown keys).
+
+    Raises
+    ------
+    ConfigError
+        An override is unknown or out of range.
+    TypeError
+        ``config`` is of another type.
+    """
+    if config is None:
+        section = cls()
+    elif isinstance(config, cls):
+        section = config
+    elif isinstance(config, Config):
+        found = config.sections.get(name)
+        section = found if isinstance(found, cls) else cls()
+    else:
+        raise TypeError(f"config: expected {cls.__name__} or Config, got {type(config).__name__}")
+    if not overrides:
+        return section
+    current = {f.name: getattr(section, f.name) for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(overrides) - set(current))
+    if unknown:
+        raise ConfigError(f"{name}.{unknown[0]}: unknown key; allowed keys: {', '.join(sorted(current))}")
+    raw = {k: _as_raw(v) for k, v in {**current, **overrides}.items()}
+    return parse_section(cls, raw, name)
+
+
+def _as_raw(value: Any) -> Any:
+    """A dataclass field value back in the plain form a TOML file would hold."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _as_raw(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, list | tuple):
+        return [_as_raw(v) for v in value]
+    return value

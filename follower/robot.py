@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Literal, TypeVar
+from typing import ClassVar, Literal, TypeVar
 
 import numpy as np
+from bipedtele.registry import Registry
 
 __all__ = [
     "ROBOTS",
@@ -198,26 +198,10 @@ class FollowerRobot(abc.ABC):
 
 R = TypeVar("R", bound=FollowerRobot)
 
-ROBOTS: dict[str, Callable[..., FollowerRobot]] = {}
+ROBOTS: Registry[FollowerRobot] = Registry("robot", "bipedtele.follower.robots")
 
+#: Class decorator: make a robot available as ``--robot NAME``.
+register_robot = ROBOTS.register
 
-def register_robot(name: str) -> Callable[[type[R]], type[R]]:
-    """Class decorator: make a robot available as ``--robot NAME``."""
-
-    def deco(cls: type[R]) -> type[R]:
-        cls.name = name
-        ROBOTS[name] = cls
-        return cls
-
-    return deco
-
-
-def make_robot(name: str, **kwargs: Any) -> FollowerRobot:
-    """Instantiate a registered robot by name (``sim``, ``naoqi``, ...)."""
-    from bipedtele.follower import robots  # noqa: F401  (imports register the built-ins)
-
-    try:
-        factory = ROBOTS[name]
-    except KeyError:
-        raise ValueError(f"robot {name!r}: allowed: {', '.join(sorted(ROBOTS))}") from None
-    return factory(**kwargs)
+#: Instantiate a registered robot by name (``sim``, ``naoqi``, ...).
+make_robot = ROBOTS.make

@@ -24,11 +24,11 @@ Contract (checked by :func:`bipedtele.leader.check.check_device`):
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol, TypeVar
+from typing import ClassVar, Protocol, TypeVar
 
 import numpy as np
+from bipedtele.registry import Registry
 
 __all__ = [
     "DEVICES",
@@ -156,27 +156,11 @@ class LeaderDevice(abc.ABC):
 
 D = TypeVar("D", bound=LeaderDevice)
 
-DEVICES: dict[str, Callable[..., LeaderDevice]] = {}
+DEVICES: Registry[LeaderDevice] = Registry("device", "bipedtele.leader.devices")
 
+#: Class decorator: make a device available as ``--device NAME``.
+register_device = DEVICES.register
 
-def register_device(name: str) -> Callable[[type[D]], type[D]]:
-    """Class decorator: make a device available as ``--device NAME``."""
-
-    def deco(cls: type[D]) -> type[D]:
-        cls.name = name
-        DEVICES[name] = cls
-        return cls
-
-    return deco
-
-
-def make_device(name: str, **kwargs: Any) -> LeaderDevice:
-    """Instantiate a registered device by name (``sim-falcon``, ``falcon``, ``joystick``)."""
-    from bipedtele.leader import devices  # noqa: F401  (imports register the built-ins)
-
-    try:
-        factory = DEVICES[name]
-    except KeyError:
-        raise ValueError(f"device {name!r}: allowed: {', '.join(sorted(DEVICES))}") from None
-    return factory(**kwargs)
+#: Instantiate a registered device by name (``sim-falcon``, ``falcon``, ``joystick``).
+make_device = DEVICES.make
 

@@ -22,7 +22,6 @@ raises once connected (a vanished robot cannot be stopped from here: NAO keeps t
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import threading
@@ -30,7 +29,7 @@ import time
 from typing import Any
 
 import numpy as np
-from bipedtele.config import Config, ConfigError
+from bipedtele.config import Config, resolve_section
 from bipedtele.follower.naoqi.answers import as_bool, as_floats, decode_image
 from bipedtele.follower.naoqi.config import NaoqiConfig
 from bipedtele.follower.naoqi.gait import move_config_for, walk_limits
@@ -62,16 +61,6 @@ _OPTIONAL = ("ALSonar", "ALVideoDevice")
 _TOP_CAMERA, _K_QVGA, _K_RGB = 0, 1, 11
 
 
-def _section(config: NaoqiConfig | Config | None) -> NaoqiConfig:
-    if config is None:
-        return NaoqiConfig()
-    if isinstance(config, NaoqiConfig):
-        return config
-    if isinstance(config, Config):
-        section = config.sections.get("naoqi")
-        return section if isinstance(section, NaoqiConfig) else NaoqiConfig()
-    raise TypeError(f"config: expected NaoqiConfig or Config, got {type(config).__name__}")
-
 
 @register_robot("naoqi")
 class NaoqiRobot(FollowerRobot):
@@ -91,16 +80,7 @@ class NaoqiRobot(FollowerRobot):
     """
 
     def __init__(self, config: NaoqiConfig | Config | None = None, **overrides: Any) -> None:
-        cfg = _section(config)
-        if overrides:
-            names = {f.name for f in dataclasses.fields(NaoqiConfig)}
-            for key in overrides:
-                if key not in names:
-                    raise ConfigError(f"naoqi.{key}: unknown key; allowed keys: {', '.join(sorted(names))}")
-            try:
-                cfg = dataclasses.replace(cfg, **overrides)
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"naoqi: {exc}") from None
+        cfg = resolve_section(config, NaoqiConfig, "naoqi", overrides)
         self.config = cfg
         self.limits = walk_limits(cfg)
         self._lock = threading.RLock()

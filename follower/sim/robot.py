@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 import pybullet as pb
-from bipedtele.config import Config, ConfigError
+from bipedtele.config import Config, resolve_section
 from bipedtele.follower.robot import (
     Camera,
     FollowerRobot,
@@ -54,19 +54,6 @@ _SONAR_XYZ = (0.056, 0.042, 0.05)  # left sonar in the torso frame [m] (right: y
 _SETTLE_S = 0.4
 
 
-def _sections(config: Any, world: WorldConfig | None) -> tuple[SimConfig, WorldConfig]:
-    if isinstance(config, Config):
-        sim = config.sections.get("sim")
-        w = config.sections.get("world")
-        return (sim if isinstance(sim, SimConfig) else SimConfig(),
-                world or (w if isinstance(w, WorldConfig) else WorldConfig()))
-    if config is None:
-        return SimConfig(), world or WorldConfig()
-    if isinstance(config, SimConfig):
-        return config, world or WorldConfig()
-    raise TypeError(f"config: expected SimConfig or Config, got {type(config).__name__}")
-
-
 @register_robot("sim")
 class SimNao(FollowerRobot):
     """The simulated NAO.
@@ -88,16 +75,8 @@ class SimNao(FollowerRobot):
 
     def __init__(self, config: SimConfig | Config | None = None, world: WorldConfig | None = None,
                  **overrides: Any) -> None:
-        cfg, self.world = _sections(config, world)
-        if overrides:
-            names = {f.name for f in dataclasses.fields(SimConfig)}
-            for key in overrides:
-                if key not in names:
-                    raise ConfigError(f"sim.{key}: unknown key; allowed keys: {', '.join(sorted(names))}")
-            try:
-                cfg = dataclasses.replace(cfg, **overrides)
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"sim: {exc}") from None
+        cfg = resolve_section(config, SimConfig, "sim", overrides)
+        self.world = world or resolve_section(config if isinstance(config, Config) else None, WorldConfig, "world")
         self.config = cfg
         self.geom = NaoGeometry()
         self.gait = Gait(GaitConfig(leg_height_m=cfg.leg_height_m, step_height_m=cfg.step_height_m,

@@ -19,11 +19,11 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from bipedtele.config import Config, ConfigError, param
+from bipedtele.config import Config, param, resolve_section
 from bipedtele.leader.device import (
     DeviceError,
     DeviceNotConnectedError,
@@ -54,16 +54,6 @@ class FalconConfig:
     io_timeout_s: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="no status packet for this long: the Falcon is gone")
 
 
-def _section(config: FalconConfig | Config | None) -> FalconConfig:
-    if config is None:
-        return FalconConfig()
-    if isinstance(config, FalconConfig):
-        return config
-    if isinstance(config, Config):
-        sec = config.sections.get("falcon")
-        return sec if isinstance(sec, FalconConfig) else FalconConfig()
-    raise TypeError(f"config: expected FalconConfig or Config, got {type(config).__name__}")
-
 
 @register_device("falcon")
 class FalconDevice(LeaderDevice):
@@ -80,12 +70,7 @@ class FalconDevice(LeaderDevice):
     """
 
     def __init__(self, config: FalconConfig | Config | None = None, *, lib_loader: Callable[[], Any] | None = None, **overrides: Any) -> None:
-        cfg = _section(config)
-        names = {f.name for f in fields(FalconConfig)}
-        for key in overrides:
-            if key not in names:
-                raise ConfigError(f"falcon.{key}: unknown key; allowed keys: {', '.join(sorted(names))}")
-        self.config = replace(cfg, **overrides) if overrides else cfg
+        self.config = resolve_section(config, FalconConfig, "falcon", overrides)
         self._lib_loader = lib_loader or load_libftdi
         self._usb: FalconUsb | None = None
         self._thread: threading.Thread | None = None

@@ -20,11 +20,11 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from bipedtele.config import Config, ConfigError, param
+from bipedtele.config import Config, param, resolve_section
 from bipedtele.leader.device import (
     DeviceError,
     DeviceNotConnectedError,
@@ -67,16 +67,6 @@ def ff_direction(force_n: np.ndarray) -> int:
     return round(angle / (2.0 * math.pi) * 0x10000) & 0xFFFF
 
 
-def _section(config: JoystickConfig | Config | None) -> JoystickConfig:
-    if config is None:
-        return JoystickConfig()
-    if isinstance(config, JoystickConfig):
-        return config
-    if isinstance(config, Config):
-        sec = config.sections.get("joystick")
-        return sec if isinstance(sec, JoystickConfig) else JoystickConfig()
-    raise TypeError(f"config: expected JoystickConfig or Config, got {type(config).__name__}")
-
 
 def _import_evdev() -> Any:
     try:
@@ -110,12 +100,7 @@ class JoystickDevice(LeaderDevice):
         lister: Callable[[], Iterable[str]] | None = None,
         **overrides: Any,
     ) -> None:
-        cfg = _section(config)
-        names = {f.name for f in fields(JoystickConfig)}
-        for key in overrides:
-            if key not in names:
-                raise ConfigError(f"joystick.{key}: unknown key; allowed keys: {', '.join(sorted(names))}")
-        self.config = replace(cfg, **overrides) if overrides else cfg
+        self.config = resolve_section(config, JoystickConfig, "joystick", overrides)
         self._opener, self._lister = opener, lister
         self._dev: Any = None
         self._ecodes: Any = None

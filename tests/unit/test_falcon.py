@@ -65,7 +65,7 @@ def test_connect_homes_then_reads_and_renders_forces():
         # handle axis 0 (+8 N forward) is -z, axis 1 (-3 N, to the right) is +x; y holds the centre
         assert f[2] == pytest.approx(-8.0, abs=0.05) and f[0] == pytest.approx(3.0, abs=0.05)
         assert abs(f[1]) < 0.05
-        assert dev.loops > 10
+        _until(lambda: dev.loops > 10)  # the I/O thread keeps running (no rate asserted)
     assert not lib.opened and lib.efforts[-1].tolist() == [0, 0, 0]  # motors off at exit
 
 
