@@ -77,6 +77,12 @@ def test_router_restart_both_sides_reconnect(procs: Procs, tmp_path: Path) -> No
     fb_recv = [r.t_recv for r in records(l_rec, "feedback/recv")]
     assert not any(t_kill + 0.2 < t < t_back for t in fb_recv)
     assert sum(1 for t in fb_recv if t > t_back) > 50
+    # ... its force feedback faded out while the link was down and came back after
+    states = [r.data for r in records(l_rec, "leader/state")]
+    during = [s for s in states if t_kill + 1.0 < s["t"] < t_back]
+    assert during and all(s["link"] != "ok" for s in during), {s["link"] for s in during}
+    assert during[-1]["gain"] == 0.0
+    assert states[-1]["t"] > t_back and states[-1]["link"] == "ok" and states[-1]["gain"] == 1.0
     reconnect_s = min(t for t in fb_recv if t > t_back) - t_back
     print(f"feedback back at the leader {reconnect_s:.2f} s after the new router started; "
           f"robot walking again after {t_walk_again - t_back:.2f} s")  # fmt: skip
