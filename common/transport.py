@@ -35,6 +35,7 @@ import dataclasses
 import itertools
 import json
 import logging
+import re
 import threading
 import time
 from collections import deque
@@ -325,6 +326,14 @@ def open_session(
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        first = re.sub(r"\s+at \S+\.rs:\d+\.?$", "", first)  # Zenoh's Rust source location
+        if "Unable to connect" in first:
+            # A router that refuses a client (TLS certificate, user/password) looks the
+            # same to the client as no router at all: say both.
+            first += (
+                f" (no router answered within {net.timeout_s:g} s, or it refused this client's"
+                " TLS certificate or user/password)"
+            )
         raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
     LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode or net.mode)
     try:
