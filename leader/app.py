@@ -90,6 +90,21 @@ class _Aux:
         self._thread = threading.Thread(target=self._run, name="leader-aux", daemon=True)
         self._ping_seq = 0
         self._passes = 0
+        self._progress_lock = threading.Lock()
+
+    def record_progress(self, now: float) -> None:
+        """Record a ``pass`` event for every pass the operator completed since the last call."""
+        op = self.loop.operator
+        if op is None:
+            return
+        with self._progress_lock:
+            prog = op.progress()
+            n = int(prog.get("passes_done", 0))
+            sides = list(prog.get("sides", []))
+            while self._passes < n:
+                self._passes += 1
+                side = sides[self._passes - 1] if len(sides) >= self._passes else ""
+                self.record("events", {"event": "pass", "n": self._passes, "side": side}, now)
 
     def __enter__(self) -> _Aux:
         self._thread.start()
@@ -145,14 +160,7 @@ class _Aux:
                                 state=self.loop.state, counters=counters, text=text)  # fmt: skip
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
-                op = self.loop.operator
-                if op is not None:
-                    prog = op.progress()
-                    n = int(prog.get("passes_done", 0))
-                    if n > self._passes:
-                        self._passes = n
-                        side = prog.get("sides", [""])[-1]
-                        self.record("events", {"event": "pass", "n": n, "side": side}, now)
+                self.record_progress(now)
             except Exception as exc:  # a bad moment on the network must not end the program
                 LOG.warning("leader side thread: %s", exc)
 
@@ -341,6 +349,7 @@ def main(
                 ticks[0] += 1
         elapsed = time.time() - t_start
         done = loop.done
+        aux.record_progress(time.time())  # the last pass may have ended the run just now
         rec("events", {"event": "done" if done else "stop", "elapsed_s": elapsed}, time.time())
         loop.send_stop()
         summary = _summary(loop, op_name, operator, elapsed, drops, record, rt)
