@@ -7,7 +7,9 @@ Layout (the test creates both namespaces and the veth pair, and removes them)::
                     (h1 forward, h2 backward)   10.231.N.1/30 <-> 10.231.N.2/30
 
 The router requires mutual TLS (certificates from ``scripts/make-certs.sh``) and
-user/password authentication, and only the ``leader`` user may publish commands.
+user/password authentication, and only the ``leader`` user may publish commands: a client
+with the follower's valid identity that publishes stop commands is let in (it receives
+feedback) but none of its commands reaches the robot.
 
 Certificates and the delay proxy: the proxy is a plain TCP relay, so TLS runs end to end
 between the leader and the router, and the leader checks the router's certificate against
@@ -182,6 +184,14 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
         "valid": procs.start("client-valid", [*zc, *mine, "--user", "leader", "--password", "leader-pw"], raw=True, netns=pair.leader_ns),
         "wrong_password": procs.start("client-wrongpw", [*zc, *mine, "--user", "leader", "--password", "guess"], raw=True, netns=pair.leader_ns),
         "no_client_cert": procs.start("client-nocert", [*zc, "--user", "leader", "--password", "leader-pw"], raw=True, netns=pair.leader_ns),
+        # a valid identity that is not the leader tries to stop the robot: the router's
+        # access control drops its commands
+        "follower_commands": procs.start(
+            "client-rogue",
+            [*zc, "--cert", str(certs / "follower.pem"), "--key", str(certs / "follower.key"),
+             "--user", "follower", "--password", "follower-pw", "--put-cmd"],
+            raw=True, netns=pair.leader_ns,
+        ),
     }  # fmt: skip
     results = {}
     for name, c in clients.items():
@@ -189,6 +199,7 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
         results[name] = json.loads(c.log().strip().splitlines()[-1])
 
     time.sleep(3.0)  # a few seconds of teleoperation through the delayed TLS path
+    t_teleop_end = time.time()
     assert leader.stop() == 0, leader.tail()
     assert follower.stop() == 0, follower.tail()
     assert proxy.stop() == 0, proxy.tail()
@@ -201,9 +212,16 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
         assert not r["opened"] and r["feedback"] == 0, (name, r)
         assert "Unable to connect" in r["error"], (name, r)
 
+    rogue = results["follower_commands"]
+    assert rogue["opened"] and rogue["put_cmd"] > 20 and rogue["feedback"] > 10, rogue
+
     # ---- commands reached the follower, feedback reached the leader, with the emulated delays
     cmds = records(f_rec, "cmd/recv")
+    assert rogue["sid"] not in {r.data["sid"] for r in cmds}, "a non-leader's command reached the robot"
     assert len(cmds) > 100 and len({r.data["sid"] for r in cmds}) == 1
+    events = [r.data for r in records(f_rec, "events")]
+    assert not any(e["event"] == "watchdog_stop" and e["why"] == "operator released" and e["t"] < t_teleop_end
+                   for e in events), events  # fmt: skip
     fbs = [r.data for r in records(f_rec, "feedback/sent")]
     assert sum(1 for d in fbs if d["state"] == "walking") > 100
     assert not any(d["state"] == "fallen" for d in fbs)

@@ -3,9 +3,11 @@
     python tests/e2e/zclient.py --connect tls/127.0.0.1:7448 --ca ca.pem \
         [--cert c.pem --key c.key] [--user U --password P] [--seconds 2]
 
-Prints one JSON line: ``{"opened": bool, "error": str | null, "feedback": n}`` where
-``feedback`` counts the valid Feedback messages received in ``--seconds`` after the
-session opened. Used by the two-host test to show who the router refuses.
+Prints one JSON line: ``{"opened": bool, "error": str | null, "feedback": n, "put_cmd": m}``
+where ``feedback`` counts the valid Feedback messages received in ``--seconds`` after the
+session opened, and ``put_cmd`` the stop commands (``enable = false``) it published on
+``cmd`` meanwhile (``--put-cmd``; at most 50 Hz). Used by the two-host test to show whom
+the router refuses and that only the leader's identity may command the robot.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ import time
 
 from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
-from bipedtele.messages import Feedback
+from bipedtele.messages import Command, Feedback
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, MessageReceiver, open_session
+from bipedtele.transport import Keys, MessageReceiver, Publishers, Stamper, open_session
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,19 +34,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--user", default="")
     ap.add_argument("--password", default="")
     ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--put-cmd", action="store_true", help="publish stop commands while listening")
     ap.add_argument("--timeout", type=float, default=3.0, help="session open timeout [s]")
     args = ap.parse_args(argv)
     net = NetworkConfig(
         mode="client", connect=[args.connect], tls_root_ca=args.ca, tls_cert=args.cert, tls_key=args.key,
         tls_mutual=bool(args.cert), user=args.user, password=args.password, timeout_s=args.timeout,
     )  # fmt: skip
-    out: dict[str, object] = {"opened": False, "error": None, "feedback": 0}
+    out: dict[str, object] = {"opened": False, "error": None, "feedback": 0, "put_cmd": 0}
     try:
         with open_session(net) as session:
             out["opened"] = True
-            with MessageReceiver(session, Keys(args.robot_id).feedback, Feedback, DropCounter("zclient")) as rx:
-                time.sleep(args.seconds)
+            keys = Keys(args.robot_id)
+            with MessageReceiver(session, keys.feedback, Feedback, DropCounter("zclient")) as rx, Publishers(
+                session, keys
+            ) as pubs:
+                stamper, n = Stamper(), 0
+                end = time.monotonic() + args.seconds
+                while time.monotonic() < end:
+                    if args.put_cmd:
+                        pubs.cmd.put(stamper.make(Command, enable=False))
+                        n += 1
+                    time.sleep(0.02)
                 out["feedback"] = len(rx.drain())
+                out["put_cmd"] = n
+                out["sid"] = stamper.sid
     except ConfigError as exc:
         out["error"] = str(exc)
     sys.stdout.write(json.dumps(out) + "\n")
