@@ -35,6 +35,7 @@ import argparse
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import statistics
@@ -144,6 +145,8 @@ def stack(keep: bool) -> Iterator[Stack]:
         s.close()
         if keep:
             print(f"  (logs and recordings kept in {folder})")
+        else:
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------- bare ping-pong
