@@ -228,15 +228,16 @@ def overhead(rate_hz: float, seconds: float, keep: bool) -> dict[str, list[float
             stop.set()
             pinger.join()
         st.stop("follower")
+        leader_recs, follower_recs = list(read_records(l_rec)), list(read_records(f_rec))
 
-    sent = {r.data["seq"]: r.t_recv for r in read_records(l_rec) if r.topic == "cmd/sent"}
+    sent = {r.data["seq"]: r.t_recv for r in leader_recs if r.topic == "cmd/sent"}
     first_fb: dict[int, float] = {}
-    for r in read_records(l_rec):
+    for r in leader_recs:
         if r.topic == "feedback/recv":
             first_fb.setdefault(r.data["cmd_seq"], r.t_recv)
-    f_cmd = {r.data["seq"]: r.t_recv for r in read_records(f_rec) if r.topic == "cmd/recv"}
+    f_cmd = {r.data["seq"]: r.t_recv for r in follower_recs if r.topic == "cmd/recv"}
     f_fb: dict[int, tuple[float, float]] = {}
-    for r in read_records(f_rec):
+    for r in follower_recs:
         if r.topic == "feedback/sent":
             f_fb.setdefault(r.data["cmd_seq"], (r.data["t"], r.t_recv))
     parts: dict[str, list[float]] = {k: [] for k in ("total", "forward", "tick_wait", "tick", "backward", "transport")}
@@ -367,7 +368,7 @@ def video(seconds: float, cockpit_hz: float, browser: bool, keep: bool) -> dict[
             time.sleep(seconds)
         st.stop("leader")
         st.stop("follower")
-    frames = [r for r in read_records(l_rec) if r.topic == "video/recv"]
+        frames = [r for r in read_records(l_rec) if r.topic == "video/recv"]
     res["leader"] = [r.t_recv - r.data["t_capture"] for r in frames[len(frames) // 10 :]]
     res["_kb"] = [statistics.fmean(len(r.data["jpeg"]) for r in frames if r.data["jpeg"]) / 1024] if frames else []
     return res
