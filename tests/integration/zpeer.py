@@ -29,6 +29,7 @@ import time
 from typing import Any
 
 import msgpack
+import zenoh
 from bipedtele.clock import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
@@ -46,6 +47,7 @@ from bipedtele.sections import NetworkConfig
 from bipedtele.transport import (
     Keys,
     LatestReceiver,
+    MessagePublisher,
     MessageReceiver,
     Publishers,
     Stamper,
@@ -173,8 +175,14 @@ def main() -> int:
             rng = random.Random(1)
             time.sleep(0.5)  # let the subscriptions propagate
             bad = 0
+            # Block rather than drop on congestion (unlike the control publishers): a burst
+            # of garbage must reach the receivers for the counts to be checked exactly.
+            blocking = {
+                n: session.declare_publisher(getattr(keys, n), congestion_control=zenoh.CongestionControl.BLOCK)
+                for n in KEY_TYPES
+            }
             for name in KEY_TYPES:
-                pub = getattr(pubs, name)
+                pub = MessagePublisher(blocking[name], getattr(keys, name))
                 for payload in _malformed(rng, name, st):
                     pub.put_bytes(payload)
                     bad += 1
