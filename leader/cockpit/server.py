@@ -36,6 +36,7 @@ same browser must not drive the robot).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import json
 import logging
@@ -114,6 +115,7 @@ class _Client:
         self.ws = ws
         self.last_sample = -1
         self.last_frame: dict[str, int] = {}
+        self.wake = asyncio.Event()  # set when a new video frame is there
 
 
 class CockpitServer:
@@ -245,6 +247,15 @@ class CockpitServer:
         """Offer the latest JPEG of ``camera`` captured at ``t`` [s]; older frames are
         replaced (latest only)."""
         self._frames[camera] = (next(self._frame_n), float(t), bytes(jpeg))
+        loop = self._loop
+        if loop is not None and self._clients:
+            # Wake the pushers now instead of at the next telemetry period (video latency).
+            with contextlib.suppress(RuntimeError):  # the loop closed while stopping
+                loop.call_soon_threadsafe(self._wake_clients)
+
+    def _wake_clients(self) -> None:
+        for client in list(self._clients):
+            client.wake.set()
 
     def joystick(self) -> tuple[float, float, float] | None:
         """``(x, y, t)``: the virtual joystick (x right, y up, each in [-1, 1]) and when it
@@ -399,17 +410,23 @@ class CockpitServer:
         return True
 
     async def _push(self, client: _Client) -> None:
-        """Send a browser what is new, once per telemetry period (latest video only)."""
+        """Send a browser what is new: telemetry once per telemetry period, video frames as
+        soon as they arrive (latest only per camera)."""
         ws = client.ws
+        loop = asyncio.get_running_loop()
+        next_samples = loop.time()
         try:
             while not ws.closed:
-                new = [s for n, s in self._history if n > client.last_sample]
-                if new:
-                    client.last_sample = self._history[-1][0]
-                    await ws.send_str(
-                        json.dumps({"type": "samples", "samples": new}, allow_nan=False)
-                    )
-                    self._counters["samples_pushed"] += len(new)
+                if loop.time() >= next_samples:
+                    next_samples = loop.time() + self._period
+                    new = [s for n, s in self._history if n > client.last_sample]
+                    if new:
+                        client.last_sample = self._history[-1][0]
+                        await ws.send_str(
+                            json.dumps({"type": "samples", "samples": new}, allow_nan=False)
+                        )
+                        self._counters["samples_pushed"] += len(new)
+                client.wake.clear()
                 for camera, (n, t, jpeg) in list(self._frames.items()):
                     if n > client.last_frame.get(camera, 0):
                         client.last_frame[camera] = n
@@ -417,6 +434,7 @@ class CockpitServer:
                         head = _VIDEO_MAGIC + bytes([len(name)]) + name
                         await ws.send_bytes(head + struct.pack("<dI", t, n & 0xFFFFFFFF) + jpeg)
                         self._counters["frames_pushed"] += 1
-                await asyncio.sleep(self._period)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(client.wake.wait(), max(0.0, next_samples - loop.time()))
         except (ConnectionError, RuntimeError) as exc:  # client went away mid-send
             LOG.debug("cockpit: client push ended: %s", exc)
