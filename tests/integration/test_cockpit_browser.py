@@ -114,6 +114,7 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             assert box is not None
             cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
             radius = 0.4 * box["width"]
+            t_before_drag = time.time()
             page.mouse.move(cx, cy)
             page.mouse.down()
             page.mouse.move(cx + 0.3 * radius, cy - 0.6 * radius, steps=8)
@@ -122,7 +123,7 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             assert joy is not None
             x, y, t_joy = joy
             assert x == pytest.approx(0.3, abs=0.05) and y == pytest.approx(0.6, abs=0.05)
-            assert abs(time.time() - t_joy) < 30  # a server-clock time stamp
+            assert t_before_drag <= t_joy <= time.time()  # stamped by the server, during the drag
             ARTIFACTS.mkdir(exist_ok=True)
             page.screenshot(path=str(ARTIFACTS / "cockpit.png"))
             # Held still: the page keeps re-sending the position (a heartbeat).
