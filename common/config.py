@@ -59,6 +59,8 @@ def param(
     unit: str = "",
     doc: str = "",
     default_factory: Any = dataclasses.MISSING,
+    path: bool = False,
+    secret: bool = False,
 ) -> Any:
     """Declare a config field with its allowed range.
 
@@ -74,8 +76,13 @@ def param(
         Physical unit, shown in error messages and in docs.
     doc : str
         One-line description.
+    path : bool
+        The value is a file or folder path (a relative one in a profile file is read
+        relative to that file's folder).
+    secret : bool
+        The value is a secret (a password): never printed or recorded.
     """
-    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit, "doc": doc}
+    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit, "doc": doc, "path": path, "secret": secret}
     if default_factory is not dataclasses.MISSING:
         return field(default_factory=default_factory, metadata=meta)
     return field(default=default, metadata=meta)
