@@ -10,6 +10,23 @@ follower, yet every section of a profile is validated by every process that load
 Errors are :class:`ConfigError`; their message is one line naming the file, the key,
 the value and what is allowed. The CLI turns them into exit code 2.
 
+Relative paths
+--------------
+A field declared with ``param(path=True)`` holds a file or folder. A relative path written
+in a profile *file* given by its path (``--config host/bipedtele.toml``) is read relative to
+that file's folder, so a folder holding a profile and the files it names can be copied
+anywhere and used from any working folder. Paths in the profiles shipped in ``configs/``
+(``--config intercontinental``) and in ``--set`` overrides stay relative to the working
+folder of the process. ``~`` at the start of a path in a profile file is expanded.
+
+Secrets
+-------
+:meth:`Config.to_dict` replaces secrets by ``"***"`` unless asked not to: fields declared
+with ``param(secret=True)`` and any key whose name contains ``password``, ``passwd``,
+``secret`` or ``token`` (except names of files, ``*_file``/``*_path``/``*_dir``, and fields
+declared ``path=True``: a path to a secret is not the secret). ``bipedtele config`` and
+the recordings' metadata use it, so neither ever carries a password.
+
 Examples
 --------
 >>> cfg = load_config("default")            # a profile shipped in configs/
@@ -22,6 +39,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import re
 import tomllib
 import types
 import typing
@@ -32,6 +51,7 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, get_origin, get_type_hints
 
 __all__ = [
+    "REDACTED",
     "Config",
     "ConfigError",
     "load_config",
@@ -39,6 +59,7 @@ __all__ = [
     "parse_section",
     "profile_names",
     "register_section",
+    "resolve_paths",
     "resolve_section",
     "section_classes",
 ]
@@ -278,10 +299,13 @@ def profile_names() -> list[str]:
     return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
 
 
-def _read_profile(name_or_path: str | Path) -> tuple[str, dict[str, Any]]:
+def _read_profile(name_or_path: str | Path) -> tuple[str, dict[str, Any], Path | None]:
+    """``(label, data, folder)``: ``folder`` is the file's folder, None for a shipped profile."""
     path = Path(name_or_path)
+    folder: Path | None
     if path.suffix == ".toml" or path.is_file():
         label = str(path)
+        folder = path.parent
         try:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
@@ -295,12 +319,101 @@ def _read_profile(name_or_path: str | Path) -> tuple[str, dict[str, Any]]:
                 f"config {name!r}: no such file or profile; profiles: {allowed}, or a path to a .toml file"
             )
         label = f"configs/{name}.toml"
+        folder = None
         text = res.read_text(encoding="utf-8")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{label}: invalid TOML: {exc}") from None
-    return label, data
+    return label, data, folder
+
+
+def _resolve_path(value: Any, folder: Path | None) -> Any:
+    """A path string with ``~`` expanded and, if relative and ``folder`` is given, under it."""
+    if not isinstance(value, str) or not value:
+        return value
+    expanded = os.path.expanduser(value)
+    if folder is None or os.path.isabs(expanded):
+        return expanded
+    return os.path.normpath(os.path.join(folder, expanded))
+
+
+def _dataclass_of(tp: Any) -> type | None:
+    """The dataclass a field holds, directly or as list elements (for nested tables)."""
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        return tp
+    if get_origin(tp) in (list, tuple, Sequence):
+        args = [a for a in get_args(tp) if a is not Ellipsis]
+        if args and dataclasses.is_dataclass(args[0]) and isinstance(args[0], type):
+            return args[0]
+    return None
+
+
+def resolve_paths(cls: type, data: Mapping[str, Any], folder: Path | None) -> dict[str, Any]:
+    """Raw section ``data`` with the values of ``path=True`` fields resolved.
+
+    Relative paths are joined to ``folder`` (the profile file's folder; None keeps them
+    relative to the working folder) and ``~`` is expanded. Values of a wrong type are left
+    as they are for :func:`parse_section` to reject.
+    """
+    try:
+        hints = get_type_hints(cls)
+    except Exception:  # an unresolvable annotation: parse_section will say so
+        return dict(data)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    out = dict(data)
+    for key, value in data.items():
+        f = fields.get(key)
+        if f is None:
+            continue
+        if f.metadata.get("path"):
+            if isinstance(value, list):
+                out[key] = [_resolve_path(v, folder) for v in value]
+            else:
+                out[key] = _resolve_path(value, folder)
+            continue
+        inner = _dataclass_of(hints.get(key))
+        if inner is None:
+            continue
+        if isinstance(value, Mapping):
+            out[key] = resolve_paths(inner, value, folder)
+        elif isinstance(value, list):
+            out[key] = [resolve_paths(inner, v, folder) if isinstance(v, Mapping) else v for v in value]
+    return out
+
+
+REDACTED = "***"
+_SECRET_NAME = re.compile(r"password|passwd|secret|token", re.IGNORECASE)
+_FILE_NAME = re.compile(r"(_file|_path|_dir|_folder)$", re.IGNORECASE)
+
+
+def _is_secret_name(name: str) -> bool:
+    return bool(_SECRET_NAME.search(name)) and not _FILE_NAME.search(name)
+
+
+def _is_set(value: Any) -> bool:
+    return value is not None and value != "" and value != [] and value != {}
+
+
+def _plain(value: Any, redact: bool) -> Any:
+    """A dataclass (or container) as plain dicts/lists, secrets replaced when ``redact``."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(value):
+            v = getattr(value, f.name)
+            secret = bool(f.metadata.get("secret")) or (
+                not f.metadata.get("path") and _is_secret_name(f.name)
+            )
+            out[f.name] = REDACTED if redact and secret and _is_set(v) else _plain(v, redact)
+        return out
+    if isinstance(value, Mapping):
+        return {
+            k: REDACTED if redact and _is_secret_name(str(k)) and _is_set(v) else _plain(v, redact)
+            for k, v in value.items()
+        }
+    if isinstance(value, list | tuple):
+        return type(value)(_plain(v, redact) for v in value)
+    return value
 
 
 @dataclass(frozen=True)
@@ -341,9 +454,18 @@ class Config:
         new = parse_section(type(self.section(name)), current, f"{self.source}: {name}")
         return Config(self.source, {**self.sections, name: new})
 
-    def to_dict(self) -> dict[str, Any]:
-        """Plain nested dict (for recordings and the cockpit)."""
-        return {k: dataclasses.asdict(v) for k, v in self.sections.items()}
+    def to_dict(self, redact: bool = True) -> dict[str, Any]:
+        """Plain nested dict (for recordings, ``bipedtele config`` and the cockpit).
+
+        Parameters
+        ----------
+        redact : bool
+            Replace secrets by ``"***"`` (the default): fields declared ``secret=True`` and
+            keys named like a password, secret or token (see the module docstring). Only a
+            caller that must rebuild the configuration passes False; never print, send or
+            record that form.
+        """
+        return {k: _plain(v, redact) for k, v in self.sections.items()}
 
 
 def load_config(
@@ -369,12 +491,25 @@ def load_config(
     ------
     ConfigError
         One line naming the file, the key, the value and what is allowed.
+
+    Notes
+    -----
+    Relative paths (fields declared ``path=True``) written in a profile file are resolved
+    relative to that file's folder; those of shipped profiles and of ``overrides`` stay
+    relative to the working folder.
     """
-    label, data = _read_profile(profile)
-    data = apply_overrides(data, overrides)
+    label, data, folder = _read_profile(profile)
     classes = section_classes()
     if extra_sections:
         classes.update(extra_sections)
+    if folder is not None:  # before the overrides: theirs stay relative to the working folder
+        data = {
+            name: resolve_paths(classes[name], raw, folder)
+            if name in classes and isinstance(raw, Mapping)
+            else raw
+            for name, raw in data.items()
+        }
+    data = apply_overrides(data, overrides)
     unknown = sorted(set(data) - set(classes))
     if unknown:
         raise ConfigError(

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError, load_config, profile_names
+from bipedtele.config import ConfigError, load_config, param, profile_names
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -93,3 +95,98 @@ def test_missing_file_and_bad_toml(tmp_path: Path) -> None:
         load_config(f)
     with pytest.raises(ConfigError, match=r"no such file or profile; profiles: .*default"):
         load_config("no-such-profile")
+
+
+# ----------------------------------------------------------------- profile-relative paths
+
+
+@dataclass(frozen=True)
+class _Inner:
+    cert: str = param("", path=True, doc="a file")
+    label: str = param("", doc="not a path")
+
+
+@dataclass(frozen=True)
+class _Files:
+    ca: str = param("", path=True, doc="a file")
+    many: list[str] = param(default_factory=list, path=True, doc="files")
+    note: str = param("", doc="not a path")
+    inner: list[_Inner] = param(default_factory=list, doc="nested tables")
+    api_credential: str = param("", secret=True, doc="a secret with an innocent name")
+    token: str = param("", doc="a secret by its name")
+    token_file: str = param("", path=True, doc="where the token is: not a secret")
+
+
+_EXTRA = {"files": _Files}
+
+
+def test_profile_file_paths_are_relative_to_its_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    host = tmp_path / "copied" / "robot"
+    (host / "certs").mkdir(parents=True)
+    (host / "certs" / "ca.pem").write_text("ca")
+    absolute = tmp_path / "abs.pem"
+    (host / "bipedtele.toml").write_text(
+        "[files]\n"
+        'ca = "certs/ca.pem"\n'
+        f'many = ["certs/a.pem", "{absolute}", ""]\n'
+        'note = "certs/not-a-path"\n'
+        '[[files.inner]]\ncert = "../sibling/x.pem"\nlabel = "certs/y"\n'
+    )
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    for given in (host / "bipedtele.toml", Path("..", "copied", "robot", "bipedtele.toml")):
+        f = load_config(given, extra_sections=_EXTRA).section("files")
+        assert Path(f.ca).resolve() == (host / "certs" / "ca.pem").resolve()
+        assert Path(f.ca).read_text() == "ca"  # readable from the other working folder
+        assert Path(f.many[0]).resolve() == (host / "certs" / "a.pem").resolve()
+        assert f.many[1:] == [str(absolute), ""]  # absolute and empty: unchanged
+        assert f.note == "certs/not-a-path"  # fields that are not paths: unchanged
+        assert Path(f.inner[0].cert).resolve() == (tmp_path / "copied" / "sibling" / "x.pem").resolve()
+        assert f.inner[0].label == "certs/y"
+
+
+def test_override_and_shipped_profile_paths_stay_relative_to_the_working_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "p.toml").write_text('[files]\nca = "certs/ca.pem"\n')
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config(tmp_path / "p.toml", ["files.many=['mine/a.pem']"], extra_sections=_EXTRA)
+    assert cfg.section("files").many == ["mine/a.pem"]
+    cfg = load_config(tmp_path / "p.toml", ["files.ca=mine/ca.pem"], extra_sections=_EXTRA)
+    assert cfg.section("files").ca == "mine/ca.pem"  # the override replaces the file's value
+    net = load_config("intercontinental").section("network")
+    assert net.tls_root_ca == "certs/ca.pem"
+
+
+# ----------------------------------------------------------------- redaction
+
+
+def test_to_dict_redacts_secrets_by_default(tmp_path: Path) -> None:
+    (tmp_path / "p.toml").write_text(
+        '[files]\napi_credential = "c0ffee"\ntoken = "t0ken"\ntoken_file = "secrets/t"\n'
+    )
+    cfg = load_config(tmp_path / "p.toml", ['network.password="hunter2"'], extra_sections=_EXTRA)
+    shown = cfg.to_dict()
+    assert shown["files"]["api_credential"] == "***"  # marked secret=True
+    assert shown["files"]["token"] == "***"  # named like a secret
+    assert shown["files"]["token_file"] == str(tmp_path / "secrets" / "t")  # a path, kept
+    assert shown["network"]["password"] == "***"
+    assert shown["network"]["user"] == ""  # not a secret, shown
+    for secret in ("c0ffee", "t0ken", "hunter2"):
+        assert secret not in json.dumps(shown)
+    unset = load_config("default").to_dict()
+    assert unset["network"]["password"] == ""  # nothing to hide: shown as unset
+    raw = cfg.to_dict(redact=False)
+    assert raw["network"]["password"] == "hunter2" and raw["files"]["api_credential"] == "c0ffee"
+
+
+def test_config_command_never_prints_an_inline_password() -> None:
+    """Issue 10 item 11: a password set inline was printed by ``bipedtele config``."""
+    res = _config_cmd("--set", 'network.password="hunter2"', "--set", 'network.user="leader"')
+    assert res.returncode == 0, res.stderr
+    assert "hunter2" not in res.stdout and "hunter2" not in res.stderr
+    data = json.loads(res.stdout)
+    assert data["network"]["password"] == "***" and data["network"]["user"] == "leader"
