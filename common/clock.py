@@ -53,7 +53,16 @@ class DelayEstimator:
     non-decreasing (a sample received earlier than the previous one is treated as
     received at the same time as it) and ``value`` is assumed to be queried with a
     non-decreasing ``now``: samples that left the window are forgotten. Thread-safe.
+
+    Time sanity: each delay sample is clamped to ``[0, MAX_SAMPLE_S]`` (a message
+    apparently received before it was sent, through a clock offset error, has delay 0;
+    the upper bound only keeps the running sum finite), so the mean is never negative,
+    whatever the running-sum rounding; :meth:`value` never returns a negative number.
+    Samples with a non-finite time are ignored (they say nothing about the link).
     """
+
+    #: Largest delay sample kept [s] (larger ones are clamped; keeps the sum finite).
+    MAX_SAMPLE_S = 1.0e9
 
     def __init__(self, window_s: float = 1.0, max_samples: int = 65536) -> None:
         if not (window_s > 0 and math.isfinite(window_s)):
@@ -84,7 +93,7 @@ class DelayEstimator:
         with self._lock:
             t_recv = max(t_recv, self._last_recv)
             self._last_recv = t_recv
-            delay = t_recv - t_sent
+            delay = min(max(t_recv - t_sent, 0.0), self.MAX_SAMPLE_S)
             self._samples.append((t_recv, delay))
             self._sum += delay
             if len(self._samples) > self._max:
@@ -94,7 +103,13 @@ class DelayEstimator:
                 self._sum = math.fsum(d for _, d in self._samples)
 
     def value(self, now: float) -> float | None:
-        """Mean one-way delay [s] of the samples received in ``(now - window_s, now]``."""
+        """Mean one-way delay [s] of the samples received in ``(now - window_s, now]``.
+
+        Returns
+        -------
+        float or None
+            The mean, ``>= 0`` and finite; None if no sample is in the window.
+        """
         with self._lock:
             samples = self._samples
             start = now - self.window_s
@@ -110,7 +125,10 @@ class DelayEstimator:
                 total -= samples[i][1]
                 n -= 1
                 i -= 1
-            return total / n if n else None
+            if not n:
+                return None
+            mean = total / n
+            return mean if mean > 0.0 else 0.0  # rounding of the running sum: never < 0
 
     def count(self, now: float) -> int:
         """Number of samples in the window ending at ``now``."""

@@ -21,6 +21,15 @@ relative margin ``m`` on the delay terms, bounded below::
 
 With ``m = 0`` the result lies on the boundary (``lambda = 0``) unless a lower bound is
 active; ``m > 0`` makes the inequalities strict: ``lambda_m >= m (h1 + h2/4)``.
+
+Time sanity. The scheduler never raises on a delay: each one passes through
+:func:`sanitize_delay` first. A negative delay (a message apparently received before it
+was sent: clock offset error, running-sum rounding such as h = -1.4e-14) is read as 0 s.
+A non-finite delay (NaN, +-inf) says nothing about the link, so it is read as
+:data:`SAFE_DELAY_S`, the largest delay a message may carry: the safe side, since the
+damping that (40) requires grows with the delays. Finite large delays are used as they are
+(a real measurement), bounded by :data:`MAX_SCHEDULED_DELAY_S`, the largest difference of
+two valid message times, only so that the products stay finite.
 """
 
 from __future__ import annotations
@@ -30,8 +39,43 @@ from dataclasses import dataclass
 
 import numpy as np
 from bipedtele.control.config import ControlConfig
+from bipedtele.messages import MAX_DELAY_S, MAX_TIME, MIN_TIME
 
-__all__ = ["Damping", "schedule_damping", "schedule_damping_array"]
+__all__ = ["MAX_SCHEDULED_DELAY_S", "SAFE_DELAY_S", "Damping", "sanitize_delay", "schedule_damping", "schedule_damping_array"]
+
+#: Delay [s] used in place of a non-finite one: the largest a message may carry.
+SAFE_DELAY_S: float = float(MAX_DELAY_S)
+#: Upper bound of a finite delay [s]: no two valid message times differ by more.
+MAX_SCHEDULED_DELAY_S: float = float(MAX_TIME - MIN_TIME)
+
+
+def sanitize_delay(h_s: float) -> float:
+    """A delay the control laws can use [s]: ``>= 0`` and finite.
+
+    Parameters
+    ----------
+    h_s : float
+        Measured or received delay [s], possibly negative or not finite.
+
+    Returns
+    -------
+    float
+        For a finite value ``h_s`` clipped to ``[0, MAX_SCHEDULED_DELAY_S]``;
+        :data:`SAFE_DELAY_S` for NaN or +-inf (the safe side: more damping). Never raises
+        (anything ``float()`` cannot read is treated as NaN).
+    """
+    try:
+        h = float(h_s)
+    except (TypeError, ValueError, OverflowError):
+        return SAFE_DELAY_S
+    if not math.isfinite(h):
+        return SAFE_DELAY_S
+    return min(h, MAX_SCHEDULED_DELAY_S) if h > 0.0 else 0.0
+
+
+def _sanitize_array(h_s: np.ndarray) -> np.ndarray:
+    h = np.asarray(h_s, dtype=float)
+    return np.where(np.isfinite(h), np.clip(h, 0.0, MAX_SCHEDULED_DELAY_S), SAFE_DELAY_S)
 
 
 @dataclass(frozen=True, eq=False)  # array fields: compare fields explicitly
@@ -63,33 +107,35 @@ def schedule_damping(h1_s: float, h2_s: float, cfg: ControlConfig) -> Damping:
     ----------
     h1_s, h2_s : float
         Forward (leader -> follower) and backward delays [s], e.g. the 1 s moving averages.
+        Any value is accepted: each is read through :func:`sanitize_delay` (negative ->
+        0 s, NaN or +-inf -> :data:`SAFE_DELAY_S`).
     cfg : ControlConfig
         Gains ``k_m``, ``k_g``, ``k_s``, ``D``, the relative ``margin`` and the lower bounds
         ``alpha_m_min``, ``s_e_min``.
 
-    Raises
-    ------
-    ValueError
-        If a delay is negative or not finite.
+    Notes
+    -----
+    Never raises on a delay value: a tick must not end on a timestamp.
     """
-    for name, h in (("h1_s", h1_s), ("h2_s", h2_s)):
-        if not (math.isfinite(h) and h >= 0.0):
-            raise ValueError(f"{name} = {h!r}: allowed: a finite delay >= 0 s")
-    return Damping(*schedule_damping_array(np.asarray(h1_s, dtype=float), np.asarray(h2_s, dtype=float), cfg))
+    h1, h2 = sanitize_delay(h1_s), sanitize_delay(h2_s)
+    return Damping(*schedule_damping_array(np.asarray(h1, dtype=float), np.asarray(h2, dtype=float), cfg))
 
 
 def schedule_damping_array(
     h1_s: np.ndarray, h2_s: np.ndarray, cfg: ControlConfig
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Vectorised :func:`schedule_damping` for delay arrays of shape ``(n,)`` [s] (unchecked).
+    """Vectorised :func:`schedule_damping` for delay arrays of shape ``(n,)`` [s].
+
+    Delays are sanitised element-wise as in :func:`sanitize_delay` (negative -> 0 s,
+    non-finite -> :data:`SAFE_DELAY_S`).
 
     Returns
     -------
     (alpha_m, s_e, lambda_m, lambda_se)
         Arrays of shape ``(n, 2)`` (``(2,)`` for scalar delays).
     """
-    h1_s = np.asarray(h1_s, dtype=float)[..., None]
-    h2_s = np.asarray(h2_s, dtype=float)[..., None]
+    h1_s = _sanitize_array(h1_s)[..., None]
+    h2_s = _sanitize_array(h2_s)[..., None]
     k_pos = np.asarray(cfg.k_m, dtype=float) * np.asarray(cfg.k_g, dtype=float)
     k_s = np.asarray(cfg.k_s, dtype=float)
     d = np.asarray(cfg.D, dtype=float)
