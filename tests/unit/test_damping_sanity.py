@@ -75,11 +75,11 @@ def test_message_future_stamp_delay_is_zero() -> None:
 
 def test_array_version_sanitises_the_same_way() -> None:
     h = np.array([-1.0, 0.0, 0.3, math.nan, math.inf, 2.0 * MAX_SCHEDULED_DELAY_S])
-    a, s, lm, ls = schedule_damping_array(h, h[::-1], CFG)
+    got = schedule_damping_array(h, h[::-1], CFG)
     for k in range(len(h)):
         d = schedule_damping(h[k], h[::-1][k], CFG)
-        np.testing.assert_array_equal(a[k], d.alpha_m)
-        np.testing.assert_array_equal(s[k], d.s_e)
+        for arr, f in zip(got, ("alpha_m", "s_e", "lambda_m", "lambda_se"), strict=True):
+            np.testing.assert_array_equal(arr[k], getattr(d, f))
 
 
 @settings(max_examples=400, deadline=None)
