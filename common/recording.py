@@ -1,10 +1,10 @@
-"""Run recordings: every message sent and received, estimates, parameters and events, in MCAP.
+"""Run recordings: every message sent and received, the leader's loop state and events, in MCAP.
 
 File format
 -----------
 An MCAP file (https://mcap.dev) written with the ``mcap`` library:
 
-- one channel per topic (``cmd/sent``, ``feedback/recv``, ``estimates``, ...), message
+- one channel per topic (``cmd/sent``, ``feedback/recv``, ``leader/state``, ...), message
   encoding ``msgpack`` (no schema); each payload is a msgpack map;
 - a wire message (:class:`bipedtele.messages.Message`) is stored as its fields plus
   ``"v"`` (schema version) and ``"k"`` (kind), i.e. the same map that went over the wire;
@@ -15,6 +15,15 @@ An MCAP file (https://mcap.dev) written with the ``mcap`` library:
 - zstd-compressed chunks, closed and flushed to the OS at least every ``flush_s`` seconds so
   that a killed process loses at most about ``flush_s`` seconds; :func:`read_records` reads a
   truncated file up to the last complete chunk.
+
+File names and life
+-------------------
+:func:`new_recording_path` gives ``FOLDER/ROLE-YYYYmmdd-HHMMSS-mmm.mcap`` (local time to the
+millisecond; ``-1``, ``-2``, ... appended when taken). :class:`Recorder` creates its file
+exclusively (it never overwrites one) and, when closed without a single message recorded,
+removes it, so a run that failed at start leaves no empty file behind.
+:func:`open_recording` combines the two and retries with the next name if another process
+took the same one in between.
 
 Topics and fields used by the leader, the follower and ``bipedtele report`` are listed in
 ``docs/recording.md``.
@@ -27,6 +36,8 @@ import dataclasses
 import json
 import logging
 import math
+import os
+import re
 import threading
 import time
 from collections.abc import Iterator, Mapping
@@ -50,6 +61,8 @@ __all__ = [
     "Record",
     "Recorder",
     "RecordingError",
+    "new_recording_path",
+    "open_recording",
     "read_metadata",
     "read_records",
 ]
@@ -121,6 +134,78 @@ def _ns(t: float) -> int:
     return max(0, round(t * 1e9))
 
 
+_ROLE = re.compile(r"^[A-Za-z0-9_]+(?:-[A-Za-z0-9_]+)*$")
+_MAX_SUFFIX = 10_000
+
+
+def new_recording_path(folder: str | Path, role: str, *, now: float | None = None) -> Path:
+    """A recording file name in ``folder`` that no file has yet.
+
+    ``FOLDER/ROLE-YYYYmmdd-HHMMSS-mmm.mcap`` (local time, milliseconds); when that name
+    is taken, ``-1``, ``-2``, ... is appended before ``.mcap``. The file is not created:
+    :class:`Recorder` creates it exclusively, so two processes that got the same name
+    cannot overwrite each other (the second gets ``FileExistsError``; see
+    :func:`open_recording`, which then takes the next name).
+
+    Parameters
+    ----------
+    folder : str or Path
+        Folder of the recordings (need not exist yet).
+    role : str
+        ``leader``, ``follower``, ...: letters, digits, ``_`` and inner ``-``.
+    now : float, optional
+        The time to stamp [s since the epoch]; ``time.time()`` when omitted.
+
+    Raises
+    ------
+    ValueError
+        ``role`` is not a plain name.
+    """
+    if not _ROLE.match(role):
+        raise ValueError(f"role {role!r}: allowed: letters, digits, '_' and inner '-'")
+    t = time.time() if now is None else now
+    ms = int((t % 1.0) * 1000)
+    stem = f"{role}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(t))}-{ms:03d}"
+    folder = Path(folder)
+    path = folder / f"{stem}.mcap"
+    n = 0
+    while path.exists():
+        n += 1
+        if n > _MAX_SUFFIX:
+            raise FileExistsError(f"{folder}: {_MAX_SUFFIX} recordings named {stem}-*.mcap")
+        path = folder / f"{stem}-{n}.mcap"
+    return path
+
+
+def open_recording(folder: str | Path, role: str, **kwargs: Any) -> Recorder:
+    """A :class:`Recorder` on a new file :func:`new_recording_path` names in ``folder``.
+
+    Creates ``folder`` if needed. If another process creates the same name between the
+    choice and the exclusive creation, the next free name is taken.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Folder of the recordings.
+    role : str
+        The file name's prefix (``leader``, ``follower``).
+    **kwargs
+        :class:`Recorder` parameters (``flush_s``, ``metadata``, ``jpeg_every``, ...).
+
+    Raises
+    ------
+    OSError
+        The folder or the file cannot be created.
+    """
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    for _ in range(100):
+        try:
+            return Recorder(new_recording_path(folder, role), **kwargs)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{folder}: no free recording name for {role!r} after 100 tries")
+
+
 class Recorder:
     """Thread-safe MCAP writer of everything a leader or follower sends and receives.
 
@@ -131,7 +216,9 @@ class Recorder:
     Parameters
     ----------
     path : str or Path
-        Output file (created or truncated).
+        Output file; created exclusively: an existing file is never overwritten
+        (``FileExistsError``). Use :func:`new_recording_path` or :func:`open_recording`
+        for a fresh name. Removed again by :meth:`close` when nothing was recorded.
     flush_s : float
         Longest time between two flushes [s]; a killed process loses at most about this
         much (plus 0.1 s).
@@ -148,6 +235,8 @@ class Recorder:
 
     Raises
     ------
+    FileExistsError
+        ``path`` exists already.
     OSError
         The file cannot be created.
     ValueError
@@ -178,21 +267,28 @@ class Recorder:
         self.flush_s = float(flush_s)
         self.jpeg_every = int(jpeg_every)
         self.max_pending = int(max_pending)
-        self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._writer = Writer(
-            self._file,
-            chunk_size=_CHUNK_BYTES,
-            compression=CompressionType.ZSTD,
-        )
-        self._writer.start(profile=PROFILE, library=f"bipedtele {__version__}")
-        meta = {
-            str(k): v if isinstance(v, str) else json.dumps(v, default=str)
-            for k, v in (metadata or {}).items()
-        }
-        meta.setdefault("bipedtele_version", __version__)
-        meta.setdefault("created_unix_s", repr(time.time()))
-        self._writer.add_metadata(METADATA_NAME, meta)
-        self._file.flush()
+        #: True once :meth:`close` removed the file because nothing was recorded.
+        self.removed = False
+        self._file: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 - closed in close()
+        try:
+            self._writer = Writer(
+                self._file,
+                chunk_size=_CHUNK_BYTES,
+                compression=CompressionType.ZSTD,
+            )
+            self._writer.start(profile=PROFILE, library=f"bipedtele {__version__}")
+            meta = {
+                str(k): v if isinstance(v, str) else json.dumps(v, default=str)
+                for k, v in (metadata or {}).items()
+            }
+            meta.setdefault("bipedtele_version", __version__)
+            meta.setdefault("created_unix_s", repr(time.time()))
+            self._writer.add_metadata(METADATA_NAME, meta)
+            self._file.flush()
+        except BaseException:  # a failed start leaves no file
+            self._file.close()
+            self.path.unlink(missing_ok=True)
+            raise
         self._channels: dict[str, int] = {}
         self._pending: collections.deque[tuple[str, bytes, int, int]] = collections.deque()
         self._lock = threading.Lock()  # counters and the video frame counts
@@ -234,8 +330,8 @@ class Recorder:
         Parameters
         ----------
         topic : str
-            Channel name (``cmd/sent``, ``feedback/recv``, ``video/recv``, ``estimates``,
-            ``params``, ``events``, ...).
+            Channel name (``cmd/sent``, ``feedback/recv``, ``video/recv``, ``leader/state``,
+            ``events``, ...; ``docs/recording.md`` lists those the programs write).
         msg : Message or dict
             A wire message or a map of msgpack-able values (numbers, strings, bytes, lists,
             dicts; numpy values are converted). The map is serialised at once, so the caller
@@ -272,8 +368,18 @@ class Recorder:
         self._pending.append(item)
         return True
 
+    @property
+    def written(self) -> int:
+        """Messages written to the file so far."""
+        with self._lock:
+            return self._stats["written"]
+
     def close(self) -> None:
-        """Write what is queued, finish the MCAP summary and close the file. Idempotent."""
+        """Write what is queued, finish the MCAP summary and close the file. Idempotent.
+
+        A recording in which no message was written is removed (:attr:`removed` becomes
+        True): a run that ended before recording anything leaves no file behind.
+        """
         if self._closed:
             return
         self._closed = True
@@ -287,6 +393,13 @@ class Recorder:
             LOG.exception("recorder: finishing %s failed", self.path)
         finally:
             self._file.close()
+            if self.written == 0:
+                try:
+                    os.unlink(self.path)
+                    self.removed = True
+                    LOG.info("recorder: nothing recorded, removed %s", self.path)
+                except OSError as exc:
+                    LOG.warning("recorder: cannot remove the empty %s (%s)", self.path, exc)
 
     def __enter__(self) -> Recorder:
         return self

@@ -1,8 +1,10 @@
-"""The MCAP recorder: round trip, thread safety, video thinning, truncation and SIGKILL."""
+"""The MCAP recorder: round trip, thread safety, video thinning, truncation and SIGKILL,
+unique never-overwritten file names, no empty files, no secrets in the metadata."""
 
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -13,10 +15,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bipedtele.config import load_config
 from bipedtele.messages import Command, Feedback, VideoFrame
 from bipedtele.recording import (
     Recorder,
     RecordingError,
+    new_recording_path,
+    open_recording,
     read_metadata,
     read_records,
 )
@@ -159,3 +164,123 @@ def test_sigkilled_writer_keeps_all_but_the_last_flush_interval(tmp_path: Path) 
     lost_s = t_kill - records[-1].t_recv
     assert 0 <= lost_s < 2.0  # flush_s=0.5: at most one flush interval (+ scheduling) is lost
     assert read_metadata(path)["role"] == "child"
+
+
+# ----------------------------------------------------------------- names, no overwrite, no empties
+
+
+def _write_run(rec: Recorder, who: int, n: int = 20) -> None:
+    for i in range(n):
+        rec.write("cmd/sent", {"who": who, "i": i}, 1000.0 + i)
+
+
+def test_recordings_started_in_the_same_second_do_not_overwrite_each_other(tmp_path: Path) -> None:
+    """Issue 15 item 7: three leaders started in one second; the survivor read back 0 records."""
+    t = time.time()
+    recs = [Recorder(new_recording_path(tmp_path, "leader", now=t)) for _ in range(3)]
+    for who, rec in enumerate(recs):
+        _write_run(rec, who)
+    for rec in recs:
+        rec.close()
+    paths = [rec.path for rec in recs]
+    assert len(set(paths)) == 3
+    for who, path in enumerate(paths):
+        data = [r.data for r in read_records(path)]
+        assert data == [{"who": who, "i": i} for i in range(20)]
+
+
+def test_an_existing_file_is_never_overwritten(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with Recorder(path) as rec:
+        _write_run(rec, 1)
+    before = path.read_bytes()
+    with pytest.raises(FileExistsError):
+        Recorder(path)
+    assert path.read_bytes() == before
+    assert [r.data["who"] for r in read_records(path)] == [1] * 20
+
+
+def test_recording_names_have_milliseconds_and_a_counter(tmp_path: Path) -> None:
+    t = time.mktime((2026, 3, 4, 5, 6, 7, 0, 0, -1)) + 0.0891
+    first = new_recording_path(tmp_path / "runs", "leader", now=t)
+    assert first == tmp_path / "runs" / "leader-20260304-050607-089.mcap"
+    assert re.fullmatch(r"follower-\d{8}-\d{6}-\d{3}\.mcap", new_recording_path(tmp_path, "follower").name)
+    (tmp_path / "runs").mkdir()
+    first.write_bytes(b"taken")
+    second = new_recording_path(tmp_path / "runs", "leader", now=t)
+    assert second.name == "leader-20260304-050607-089-1.mcap"
+    second.write_bytes(b"taken")
+    assert new_recording_path(tmp_path / "runs", "leader", now=t).name == "leader-20260304-050607-089-2.mcap"
+    for bad in ("", "../x", "a/b", "leader.mcap", "-x"):
+        with pytest.raises(ValueError, match="role"):
+            new_recording_path(tmp_path, bad)
+
+
+def test_a_recorder_that_recorded_nothing_leaves_no_file(tmp_path: Path) -> None:
+    path = tmp_path / "failed-start.mcap"
+    rec = Recorder(path, metadata={"role": "leader"})
+    assert path.exists()  # created (exclusively) at once
+    rec.close()
+    assert not path.exists() and rec.removed
+    with Recorder(tmp_path / "all-dropped.mcap") as rec:
+        assert not rec.write("events", {"x": object()}, 1.0)  # dropped: nothing recorded
+    assert not (tmp_path / "all-dropped.mcap").exists()
+    with Recorder(tmp_path / "one.mcap") as rec:
+        assert rec.write("events", {"event": "start"}, 1.0)
+    assert not rec.removed and rec.written == 1
+    assert [r.data for r in read_records(tmp_path / "one.mcap")] == [{"event": "start"}]
+    assert list(tmp_path.iterdir()) == [tmp_path / "one.mcap"]
+
+
+SAME_MOMENT = textwrap.dedent(
+    """
+    import sys, time
+    from bipedtele.recording import open_recording
+    folder, who, start = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+    time.sleep(max(0.0, start - time.time()))
+    with open_recording(folder, "leader", metadata={"role": "leader"}) as rec:
+        for i in range(50):
+            rec.write("cmd/sent", {"who": who, "i": i}, time.time())
+    print(rec.path, flush=True)
+    """
+)
+
+
+@pytest.mark.timeout(60)
+def test_three_processes_starting_together_leave_three_readable_recordings(tmp_path: Path) -> None:
+    folder = tmp_path / "runs"
+    start = time.time() + 1.5  # all three open their recording at this moment
+    procs = [
+        subprocess.Popen([sys.executable, "-c", SAME_MOMENT, str(folder), str(k), repr(start)],
+                         stdout=subprocess.PIPE, text=True)
+        for k in range(3)
+    ]  # fmt: skip
+    outs = [p.communicate(timeout=30)[0].strip() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0, 0]
+    files = sorted(folder.iterdir())
+    assert len(files) == 3 and sorted(Path(o) for o in outs) == files
+    seen = set()
+    for f in files:
+        data = [r.data for r in read_records(f)]
+        who = data[0]["who"]
+        assert data == [{"who": who, "i": i} for i in range(50)]
+        seen.add(who)
+    assert seen == {0, 1, 2}
+
+
+def test_open_recording_creates_the_folder_and_a_fresh_name(tmp_path: Path) -> None:
+    with open_recording(tmp_path / "a" / "b", "follower", flush_s=0.5) as rec:
+        rec.write("events", {"event": "start"}, 1.0)
+    assert rec.path.parent == tmp_path / "a" / "b" and rec.path.name.startswith("follower-")
+    assert read_metadata(rec.path)["bipedtele_version"]
+
+
+def test_inline_password_never_reaches_the_metadata(tmp_path: Path) -> None:
+    """Issue 10 item 11: a password set inline was written into every MCAP's metadata."""
+    cfg = load_config("default", ['network.password="hunter2"', 'network.user="leader"'])
+    path = tmp_path / "run.mcap"
+    with Recorder(path, metadata={"role": "leader", "config": cfg.to_dict()}) as rec:
+        rec.write("events", {"event": "start"}, 1.0)
+    assert b"hunter2" not in path.read_bytes()
+    meta = read_metadata(path)
+    assert '"password": "***"' in meta["config"] and '"user": "leader"' in meta["config"]
