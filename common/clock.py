@@ -10,7 +10,9 @@ Two clock modes (``[clock] mode``):
     (:class:`ClockSync`) estimates the offset (remote minus local) from the exchanges
     with the smallest round trip; the receiver converts the sender's send time to its
     own clock with :meth:`ClockSync.to_local` before feeding the
-    :class:`DelayEstimator`.
+    :class:`DelayEstimator`. The exchange is bound to the peer: ``t1`` is kept locally
+    per ping, answers must match a ping we sent, come from the bound peer and show a
+    short responder hold time (see :class:`ClockSync`).
 
     Caveat: the offset estimate assumes a symmetric path. If the forward and backward
     delays differ by ``a = h_fwd - h_bwd``, the estimated offset is wrong by ``a / 2``,
@@ -180,42 +182,217 @@ class ClockSync:
     are therefore only known up to the path asymmetry; only their sum is exact. See
     :func:`conservative_delays` for a bound that does not depend on the split.
 
+    Bound to the peer (use :meth:`sent` and :meth:`on_answer`; :class:`~bipedtele.clocklink.ClockLink`
+    does it for the apps):
+
+    * ``t1`` is kept *locally* per outstanding ping sequence number and never read from
+      the answer. An answer is accepted only for an outstanding ping (each answered once;
+      a ping expires ``expire_s`` after it was sent; at most ``max_outstanding`` are
+      kept, the oldest forgotten first), otherwise dropped as ``pong_unmatched``.
+    * Only answers of one peer session are used: the one given as ``peer`` (the session
+      the app's sequence gate is bound to) or, while none is given, the first session
+      whose answer was accepted. Others: ``foreign_session``. When the given peer
+      changes, the samples of the previous one are forgotten.
+    * The responder's hold time ``t3 - t2`` must be at most ``hold_max_s`` (an honest
+      responder answers at once), else ``pong_hold``. So a forged answer cannot make the
+      round trip shorter than ``(t4 - t1) - hold_max_s``, ``t4 - t1`` being measured
+      locally: it cannot lower the delay-scheduled damping (eq. 40 with
+      :func:`conservative_delays`) by more than what ``hold_max_s`` of delay requires.
+    * Non-finite times, ``t4 < t1`` or ``t3 < t2``: ``pong_inconsistent``.
+
+    Residual risk: whoever can publish on the clock key with the peer's sid and sees our
+    pings (an on-path party: the router, or a user the router's ACL lets subscribe to
+    the clock key) can answer a ping before the peer does. It cannot shorten the round
+    trip (see above), but it can choose ``t2`` and so shift the offset (hence the
+    converted send times of the peer's messages) by any amount; too old commands are
+    then dropped (the robot stops, fail-safe), too young ones lower the *split* delay
+    estimates, which is why the stability conditions use :func:`conservative_delays`
+    in ntp mode. With ``network.message_key_file`` set, a forged answer does not even
+    decode (it carries no valid MAC): such a party can then only delay answers, which
+    only raises the round trip (more damping).
+
     Parameters
     ----------
     window : int
         Number of recent exchanges kept (>= 1).
+    hold_max_s : float
+        Largest responder hold time ``t3 - t2`` accepted [s] (> 0).
+    expire_s : float
+        An outstanding ping not answered within this time is forgotten [s] (> 0).
+    max_outstanding : int
+        Most outstanding pings kept (>= 1).
+
+    Notes
+    -----
+    Thread-safe: the ClockLink thread feeds it while the control loop reads the offset.
     """
 
-    def __init__(self, window: int = 16) -> None:
+    def __init__(
+        self,
+        window: int = 16,
+        *,
+        hold_max_s: float = 0.05,
+        expire_s: float = 5.0,
+        max_outstanding: int = 64,
+    ) -> None:
         if window < 1:
             raise ValueError(f"window = {window!r}: allowed: an integer >= 1")
+        if not (math.isfinite(hold_max_s) and hold_max_s > 0):
+            raise ValueError(f"hold_max_s = {hold_max_s!r}: allowed: a finite number of seconds > 0")
+        if not (math.isfinite(expire_s) and expire_s > 0):
+            raise ValueError(f"expire_s = {expire_s!r}: allowed: a finite number of seconds > 0")
+        if max_outstanding < 1:
+            raise ValueError(f"max_outstanding = {max_outstanding!r}: allowed: an integer >= 1")
+        self.hold_max_s = float(hold_max_s)
+        self.expire_s = float(expire_s)
+        self.max_outstanding = int(max_outstanding)
         self._hist: deque[SyncSample] = deque(maxlen=window)
         self._best: SyncSample | None = None
         self._lock = threading.Lock()
-        self.rejected = 0
+        self._outstanding: dict[int, float] = {}  # ping seq -> t1 (local), oldest first
+        self._peer: int | None = None
+        self._rejections: dict[str, int] = {}
+
+    # ------------------------------------------------------------------ peer-bound API
+
+    def sent(self, seq: int, t1: float) -> None:
+        """Record a ping we sent: sequence number ``seq`` at local time ``t1`` [s]."""
+        with self._lock:
+            out = self._outstanding
+            out.pop(seq, None)
+            out[seq] = t1
+            # forget expired pings and keep the number bounded (oldest first)
+            while out:
+                oldest_seq, oldest_t1 = next(iter(out.items()))
+                if len(out) > self.max_outstanding or not t1 - oldest_t1 <= self.expire_s:
+                    if oldest_seq == seq:
+                        break
+                    del out[oldest_seq]
+                else:
+                    break
+
+    def on_answer(
+        self, sid: int, ping_seq: int, t2: float, t3: float, t4: float, *, peer: int | None = None
+    ) -> str | None:
+        """Add the answer to one of our pings, if it is acceptable.
+
+        Parameters
+        ----------
+        sid : int
+            Session id of the answering process.
+        ping_seq : int
+            Which of our pings it answers (its sequence number as given to :meth:`sent`).
+        t2, t3 : float
+            Receive and answer times on the responder's clock [s].
+        t4 : float
+            Local time the answer arrived [s].
+        peer : int, optional
+            The peer session bound by the caller (e.g. its sequence gate's ``bound_sid``);
+            None: bind to the first answering session.
+
+        Returns
+        -------
+        str or None
+            None if accepted (the exchange is added), otherwise the reason it was dropped
+            (``foreign_session``, ``pong_unmatched``, ``pong_hold``,
+            ``pong_inconsistent``), also counted in :attr:`rejections`.
+        """
+        with self._lock:
+            if peer is not None and peer != self._peer:
+                if self._peer is not None:  # the peer changed: its clock may be another one
+                    self._hist.clear()
+                    self._best = None
+                self._peer = peer
+            if self._peer is not None and sid != self._peer:
+                return self._reject("foreign_session")
+            t1 = self._outstanding.get(ping_seq)
+            if t1 is None:
+                return self._reject("pong_unmatched")
+            if math.isfinite(t4) and not t4 - t1 <= self.expire_s:
+                del self._outstanding[ping_seq]
+                return self._reject("pong_unmatched")
+            reason = self._check(t1, t2, t3, t4)
+            if reason is not None:
+                return self._reject(reason)
+            del self._outstanding[ping_seq]
+            self._peer = sid
+            self._add(t1, t2, t3, t4)
+            return None
+
+    @property
+    def peer(self) -> int | None:
+        """Session id whose answers the estimate comes from (None before any)."""
+        with self._lock:
+            return self._peer
+
+    @property
+    def outstanding(self) -> int:
+        """Number of pings sent and not yet answered nor expired."""
+        with self._lock:
+            return len(self._outstanding)
+
+    @property
+    def rejections(self) -> dict[str, int]:
+        """Rejected answers per reason (a copy)."""
+        with self._lock:
+            return dict(self._rejections)
+
+    @property
+    def rejected(self) -> int:
+        """Rejected answers in all."""
+        with self._lock:
+            return sum(self._rejections.values())
+
+    def clear(self) -> None:
+        """Forget the samples and the peer (outstanding pings stay valid)."""
+        with self._lock:
+            self._hist.clear()
+            self._best = None
+            self._peer = None
+
+    # ------------------------------------------------------------------ exchanges
 
     def on_pong(self, t1: float, t2: float, t3: float, t4: float) -> SyncSample | None:
-        """Add one exchange (times in seconds: t1, t4 local; t2, t3 remote).
+        """Add one exchange given all four times (t1, t4 local; t2, t3 remote) [s].
+
+        Low-level: the caller vouches for ``t1`` (prefer :meth:`sent` and
+        :meth:`on_answer`, which never take ``t1`` from the answer). The same consistency
+        and hold-time checks apply.
 
         Returns
         -------
         SyncSample or None
             The exchange, or None if it is inconsistent (non-finite times, negative
-            round trip or responder time) and was rejected.
+            round trip or responder time, hold time above ``hold_max_s``) and was
+            rejected.
         """
-        vals = (t1, t2, t3, t4)
-        if not all(math.isfinite(v) for v in vals) or t4 < t1 or t3 < t2:
-            self.rejected += 1
-            return None
-        rtt = (t4 - t1) - (t3 - t2)
-        if rtt < 0:
-            self.rejected += 1
-            return None
-        s = SyncSample(offset=((t2 - t1) + (t3 - t4)) / 2.0, rtt=rtt, t4=t4)
         with self._lock:
-            self._hist.append(s)
-            self._best = min(self._hist, key=lambda x: x.rtt)
+            reason = self._check(t1, t2, t3, t4)
+            if reason is not None:
+                self._reject(reason)
+                return None
+            return self._add(t1, t2, t3, t4)
+
+    def _check(self, t1: float, t2: float, t3: float, t4: float) -> str | None:
+        if not all(math.isfinite(v) for v in (t1, t2, t3, t4)) or t4 < t1 or t3 < t2:
+            return "pong_inconsistent"
+        if t3 - t2 > self.hold_max_s:
+            return "pong_hold"
+        if (t4 - t1) - (t3 - t2) < 0:
+            return "pong_inconsistent"
+        return None
+
+    def _add(self, t1: float, t2: float, t3: float, t4: float) -> SyncSample:
+        s = SyncSample(offset=((t2 - t1) + (t3 - t4)) / 2.0, rtt=(t4 - t1) - (t3 - t2), t4=t4)
+        self._hist.append(s)
+        self._best = min(self._hist, key=lambda x: x.rtt)
         return s
+
+    def _reject(self, reason: str) -> str:
+        self._rejections[reason] = self._rejections.get(reason, 0) + 1
+        return reason
+
+    # ------------------------------------------------------------------ estimate
 
     @property
     def ready(self) -> bool:

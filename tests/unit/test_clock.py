@@ -124,3 +124,104 @@ def test_clock_sync_rejects_inconsistent() -> None:
 
 def test_conservative_delays() -> None:
     assert conservative_delays(0.37) == (0.37, 0.37)
+
+
+# --------------------------------------------------------------------------- bound to the peer
+
+OFFSET, H = 7.25, 0.05  # remote = local + 7.25 s; 50 ms each way
+
+
+def honest(cs: ClockSync, seq: int, t1: float, sid: int = 9, peer: int | None = None) -> str | None:
+    """Send ping ``seq`` at t1 and feed the honest answer of ``sid``."""
+    cs.sent(seq, t1)
+    t2 = t1 + H + OFFSET
+    t3 = t2 + 0.001
+    return cs.on_answer(sid, seq, t2, t3, t3 - OFFSET + H, peer=peer)
+
+
+def test_answer_must_match_an_outstanding_ping_and_counts_once() -> None:
+    cs = ClockSync(window=4)
+    assert honest(cs, 1, 100.0) is None
+    assert cs.offset == pytest.approx(OFFSET) and cs.rtt == pytest.approx(2 * H)
+    # a forged answer to a ping never sent: 5 s offset shift in the old API
+    assert cs.on_answer(9, 77, 200.0, 200.0, 100.2) == "pong_unmatched"
+    # the same ping answered twice
+    assert cs.on_answer(9, 1, 107.3, 107.3, 100.2) == "pong_unmatched"
+    assert cs.offset == pytest.approx(OFFSET)
+    assert cs.rejections == {"pong_unmatched": 2} and cs.rejected == 2
+
+
+def test_t1_is_local_so_a_fast_forged_answer_cannot_shrink_the_round_trip() -> None:
+    """Attack (issue 10, item 4): the forger answers ping 1 claiming t1 = t4 - 1 ms and a
+    zero hold; t1 is not in the API any more, the measured t4 - t1 stands."""
+    cs = ClockSync(window=16)
+    cs.sent(1, 100.0)
+    t4 = 100.2  # the forged answer arrives 200 ms after the ping left
+    assert cs.on_answer(9, 1, 50.0, 50.0, t4) is None
+    assert cs.rtt == pytest.approx(0.2)
+
+
+def test_hold_time_is_bounded() -> None:
+    cs = ClockSync(window=16, hold_max_s=0.05)
+    cs.sent(1, 100.0)
+    # forged hold of 0.19 s would turn a 0.2 s round trip into 0.01 s
+    assert cs.on_answer(9, 1, 500.0, 500.19, 100.2) == "pong_hold"
+    assert not cs.ready
+    assert cs.outstanding == 1  # a rejected answer does not consume the ping
+    assert cs.on_answer(9, 1, 500.0, 500.04, 100.2) is None  # within the bound: accepted
+    assert cs.rtt is not None and cs.rtt >= (100.2 - 100.0) - 0.05 - 1e-12
+
+
+def test_forged_hold_rejected_in_the_low_level_api_too() -> None:
+    """The old on_pong accepted any hold: with t3 - t2 = 5 s a 5.1 s round trip read as 0.1 s."""
+    cs = ClockSync(window=4)
+    assert cs.on_pong(100.0, 300.0, 305.0, 105.1) is None
+    assert cs.rtt is None
+    assert cs.rejected == 1
+
+
+def test_only_the_bound_peer_is_used() -> None:
+    cs = ClockSync(window=4)
+    # no peer given: the first accepted answerer binds the estimate
+    assert honest(cs, 1, 100.0, sid=9) is None
+    assert cs.peer == 9
+    cs.sent(2, 101.0)
+    assert cs.on_answer(5, 2, 0.0, 0.0, 101.1) == "foreign_session"
+    # the app's gate binds peer 9 explicitly: same thing
+    assert cs.on_answer(5, 2, 0.0, 0.0, 101.1, peer=9) == "foreign_session"
+    assert cs.offset == pytest.approx(OFFSET)
+    # the peer changed (a restarted follower on another host): old samples are forgotten
+    assert cs.on_answer(9, 2, 108.3, 108.3, 101.1, peer=5) == "foreign_session"
+    assert not cs.ready and cs.peer == 5
+    assert cs.on_answer(5, 2, 101.05, 101.051, 101.1, peer=5) is None
+    assert cs.peer == 5 and cs.offset == pytest.approx(0.0005, abs=1e-9)
+    assert cs.rejections == {"foreign_session": 3}
+
+
+def test_outstanding_pings_expire_and_are_bounded() -> None:
+    cs = ClockSync(window=4, expire_s=2.0, max_outstanding=8)
+    cs.sent(1, 100.0)
+    assert cs.on_answer(9, 1, 100.0, 100.0, 102.5) == "pong_unmatched"  # 2.5 s > 2 s
+    assert cs.outstanding == 0
+    for k in range(100):
+        cs.sent(10 + k, 200.0 + 0.01 * k)
+    assert cs.outstanding == 8
+    assert cs.on_answer(9, 10, 0.0, 0.0, 201.0) == "pong_unmatched"  # forgotten (oldest)
+    cs.sent(500, 203.5)  # 2.5 s later: all earlier ones expire
+    assert cs.outstanding == 1
+    assert honest(cs, 501, 203.6) is None
+
+
+def test_inconsistent_answers() -> None:
+    cs = ClockSync(window=4)
+    cs.sent(1, 100.0)
+    assert cs.on_answer(9, 1, float("nan"), 5.0, 100.1) == "pong_inconsistent"
+    assert cs.on_answer(9, 1, 5.0, 4.0, 100.1) == "pong_inconsistent"  # t3 < t2
+    assert cs.on_answer(9, 1, 5.0, 5.0, 99.0) == "pong_inconsistent"  # t4 < t1
+    assert cs.on_answer(9, 1, 5.0, 5.04, 100.01) == "pong_inconsistent"  # negative rtt
+    with pytest.raises(ValueError, match="allowed"):
+        ClockSync(hold_max_s=0.0)
+    with pytest.raises(ValueError, match="allowed"):
+        ClockSync(expire_s=float("inf"))
+    with pytest.raises(ValueError, match="allowed"):
+        ClockSync(max_outstanding=0)
