@@ -9,11 +9,20 @@ Every control period ``dt`` the loop
 3. turns the sonar ranges into the fictitious force f_v (Sec. 3.2.1);
 4. runs the reference model (28) with the observer (12) on the measured speeds to get the
    commanded walking speed, clamps it and sends it to the robot with T and eps;
-5. runs the equivalent follower (29), whose smooth output z_e is what the leader feels;
+5. runs the equivalent follower (29) with the fictitious-force term of (33): it gets the
+   same held tangential force ``k_z f_v`` as the reference model (while the robot is
+   asked to walk), so z_e, what the leader feels, falls near an obstacle;
 6. publishes feedback, status and (at its own rate) camera frames.
 
 Safety: with no new command for ``watchdog_s`` (local receive time) or ``enable`` false,
-the robot stops and stands; a fall (torso tilt) stops it and is reported in the state.
+the robot stops and stands. A fall (torso tilt) stops it, is counted (every fall) and
+**latches**: the robot walks again only after the operator re-arms (a command with
+``enable`` false, then true) once it stands again. A command stamped ahead of the local
+clock by more than ``max_future_s`` is ignored and counted (``cmd_future``); every delay
+is clamped at >= 0 before the estimators and control laws see it, so no timestamp can
+make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a tick or a
+robot call failed: the robot is stopped if it can be reached and the walk state is
+forgotten, so walking resumes smoothly once the robot answers again.
 
 The loop is transport-agnostic: it gets callables for the latest command and for
 publishing, so it runs in simulated time in tests and over Zenoh in the program.
@@ -37,14 +46,19 @@ from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
-from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand
+from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
 from bipedtele.messages import Command, Feedback, Status, new_session_id
 
-__all__ = ["FollowerLoop", "FollowerTelemetry"]
+__all__ = ["DEFAULT_MAX_FUTURE_S", "FollowerLoop", "FollowerTelemetry"]
 
 LOG = logging.getLogger(__name__)
 
 CM = 100.0  # cm per m
+#: Commands stamped further ahead of the local clock than this are ignored [s]
+#: (the ``[clock] max_future_s`` default).
+DEFAULT_MAX_FUTURE_S = 0.25
+#: Largest delay the loop passes on to (40) and (30) [s] (as the messages allow).
+_MAX_DELAY_S = 60.0
 
 
 @dataclass
@@ -98,6 +112,14 @@ class FollowerLoop:
     conservative_rtt : callable, optional
         ntp clock mode: ``() -> rtt [s] | None``. When it gives a value, (40) and (30) use
         ``h1 = h2 = rtt``: across two clocks the round trip is exact but its split is not.
+    max_future_s : float
+        A command stamped more than this ahead of the local clock [s] (after
+        ``to_local``) is ignored and counted as ``cmd_future``.
+    on_new_leader : callable, optional
+        ``on_new_leader(sid) -> bool``, called when a command of a new leader session is
+        accepted (before the robot is observed in that tick). It returns True when it put
+        the robot back on its start pose (``--reset-on-leader``, simulator only): the
+        loop then forgets its walk state and any fall latch.
     """
 
     def __init__(
@@ -113,6 +135,8 @@ class FollowerLoop:
         delay_window_s: float = 1.0,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
         conservative_rtt: Callable[[], float | None] | None = None,
+        max_future_s: float = DEFAULT_MAX_FUTURE_S,
+        on_new_leader: Callable[[int], bool] | None = None,
     ) -> None:
         self.robot = robot
         self.control = control
@@ -124,11 +148,13 @@ class FollowerLoop:
         self._to_local = to_local
         self._on_event = on_event or (lambda name, detail: None)
         self._conservative_rtt = conservative_rtt
+        self.max_future_s = float(max_future_s)
+        self._on_new_leader = on_new_leader
         self.sid = new_session_id()
         self.h1 = DelayEstimator(delay_window_s)
         self.chooser = OnlineChooser(control)
         self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
-        self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt)
+        self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt, k_z=control.k_z)
         self.fictitious = FictitiousForce(
             d_safe=cfg.sonar_d_safe_m,
             d_stop=cfg.sonar_d_stop_m,
@@ -139,7 +165,8 @@ class FollowerLoop:
         self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
         self.telemetry = FollowerTelemetry()
         self.counters: dict[str, int] = {
-            "cmd_accepted": 0, "cmd_too_old": 0, "watchdog_stops": 0, "falls": 0, "collisions": 0,
+            "cmd_accepted": 0, "cmd_too_old": 0, "cmd_future": 0, "watchdog_stops": 0, "falls": 0,
+            "collisions": 0, "robot_faults": 0, "walk_refused": 0, "leader_sessions": 0, "resets": 0,
         }
         self._cmd: Command | None = None
         self._cmd_key: tuple[int, int] | None = None
@@ -152,7 +179,13 @@ class FollowerLoop:
         clamped = WalkCommand(cycle_s=self._T, eps_s=self._eps).clamped(robot.limits)
         self._T_sent, self._eps_sent = clamped.cycle_s, clamped.eps_s
         self._walking_cmd = False
+        self._stop_pending = False
+        self._refused = False
         self._fallen = False
+        self._fall_latched = False
+        self._rearm_off = False
+        self._leader_sid: int | None = None
+        self._next_future_log = -math.inf
         self._in_contact = False
         self._fb_seq = 0
         self._st_seq = 0
@@ -164,6 +197,7 @@ class FollowerLoop:
 
     def _update_parameters(self, h1: float, h2: float) -> None:
         """V.2 and V.3 of the cascade: sigma_e from (40), then (sigma_r, T, eps) from (30)."""
+        h1, h2 = _delay(h1), _delay(h2)
         if self._h_used is not None:
             moved = max(abs(h1 - self._h_used[0]), abs(h2 - self._h_used[1]))
             if moved <= self.cfg.param_update_s:
@@ -188,13 +222,69 @@ class FollowerLoop:
             return
         self._cmd_key = key
         t_sent = self._to_local(msg.t)
-        self.h1.update(t_sent, t_recv)
+        if not (math.isfinite(t_sent) and math.isfinite(t_recv)) or t_sent - now > self.max_future_s:
+            self.counters["cmd_future"] += 1
+            if now >= self._next_future_log:
+                self._next_future_log = now + 5.0
+                LOG.warning(
+                    "ignoring a command stamped %.3f s ahead of this clock (tolerance %.3f s; %d so far): clocks not in sync, or a forged time",
+                    t_sent - now, self.max_future_s, self.counters["cmd_future"],
+                )
+            return
+        # A send time a little after the receive time (clock jitter within the tolerance)
+        # is a zero delay, never a negative one.
+        self.h1.update(min(t_sent, t_recv), t_recv)
         if now - t_sent > self.cfg.max_cmd_age_s:
             self.counters["cmd_too_old"] += 1
             return
         self._cmd = msg
         self._cmd_recv = t_recv
         self.counters["cmd_accepted"] += 1
+        if msg.sid != self._leader_sid:
+            self._leader_sid = msg.sid
+            self.counters["leader_sessions"] += 1
+            if self._on_new_leader is not None and self._on_new_leader(msg.sid):
+                self._after_reset(now)
+
+    def _after_reset(self, now: float) -> None:
+        """The robot was put back on its start pose: forget the walk state and the latch."""
+        self.counters["resets"] += 1
+        self.reference.reset()
+        self.equivalent.reset()
+        self._walking_cmd = self._stop_pending = False
+        self._fall_latched = self._fallen = self._rearm_off = False
+        LOG.info("new leader session: robot back on its start pose")
+        self._on_event("reset", {"t": now})
+
+    # ------------------------------------------------------------------ faults
+
+    def fault(self, exc: BaseException) -> None:
+        """A tick or a robot call failed: stop the robot if it can be reached, forget the walk.
+
+        Counted as ``robot_faults``; the state becomes ``error`` and a Status says so.
+        Never raises. The next successful tick stops the robot again before anything else
+        unless a fresh command makes it walk (the first stop may not have reached it).
+        """
+        self.counters["robot_faults"] += 1
+        self.reference.reset()
+        self._walking_cmd = False
+        self._stop_pending = True
+        self.telemetry.state = "error"
+        try:
+            self.robot.stop()
+        except Exception as stop_exc:  # the robot may be unreachable: logged by the caller
+            LOG.debug("stop after a fault failed: %s", stop_exc)
+        self.publish_status()
+
+    def publish_status(self) -> None:
+        """Publish a Status now if one is due (used while ticks cannot run). Never raises."""
+        try:
+            now = self._now()
+            if now >= self._next_status:
+                self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
+                self._publish(self.status(now))
+        except Exception as exc:
+            LOG.debug("publishing a status failed: %s", exc)
 
     # ------------------------------------------------------------------ tick
 
@@ -202,12 +292,12 @@ class FollowerLoop:
         """Run one control period (the caller advances the robot by ``dt`` afterwards)."""
         now = self._now()
         tel = self.telemetry
+        self._take_command(now)  # first: a new leader may put the robot back on its start
         obs = self.robot.observe()
-        self._take_command(now)
 
         h1 = self.h1.value(now)
-        h1 = tel.h1_s if h1 is None else h1
-        h2 = self._cmd.h2_s if self._cmd is not None else 0.0
+        h1 = _delay(tel.h1_s if h1 is None else h1)
+        h2 = _delay(self._cmd.h2_s) if self._cmd is not None else 0.0
         rtt = self._conservative_rtt() if self._conservative_rtt is not None else None
         if rtt is not None:
             self._update_parameters(rtt, rtt)
@@ -222,49 +312,52 @@ class FollowerLoop:
         eta_meas = np.array([obs.v_hip_m_s * CM, math.degrees(obs.turn_rate_rad_s)])
         f_v = self.fictitious(*obs.sonar_m)
         ref = np.clip(np.asarray(self._cmd.ref), -self.eta_max, self.eta_max) if fresh and self._cmd else np.zeros(2)
+        # The tangential force acting on the forward channel, held over the period: the
+        # reference model (28) and the equivalent follower (33) get the same one.
+        f_hold = np.zeros(2)
 
         if obs.in_contact and not self._in_contact:
             self.counters["collisions"] += 1
             self._on_event("collision", {"t": now, "pose": list(obs.pose)})
         self._in_contact = obs.in_contact
 
-        if obs.fallen:
-            if not self._fallen:
-                self.counters["falls"] += 1
-                LOG.error("robot fell (tilt %.1f deg): stopping", math.degrees(obs.tilt_rad))
-                self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad})
-                self.robot.stop()
-            self._fallen = True
+        if obs.fallen and not self._fallen:  # every fall: stop, count, latch
+            self.counters["falls"] += 1
+            LOG.error(
+                "robot fell (tilt %.1f deg, fall %d): stopping; it walks again after it stands "
+                "and the operator re-arms (release, then enable)",
+                math.degrees(obs.tilt_rad), self.counters["falls"],
+            )
+            self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self.counters["falls"]})
+            self.robot.stop()
+            self._fall_latched = True
+            self._walking_cmd = self._stop_pending = False
+        self._fallen = obs.fallen
+        if self._fall_latched:
+            self._update_latch(obs, fresh)
+
+        if self._fall_latched:
             state = "fallen"
             self.reference.reset()
             sent = None
         elif fresh:
-            self._walking_cmd = True
-            eta_cmd = self.reference.step(
-                ref, eta_meas, self._choice_s_r, np.array([f_v[0], 0.0]), eta_max=self.eta_max
-            )
-            sent = self.robot.send_walk(
-                WalkCommand(
-                    forward_m_s=eta_cmd[0] / CM,
-                    turn_rad_s=math.radians(eta_cmd[1]),
-                    cycle_s=self._T,
-                    eps_s=self._eps,
-                )
-            )
-            state = "walking"
+            sent, state = self._walk(ref, eta_meas, f_v, now)
+            if sent is not None:
+                f_hold = np.array([f_v[0], 0.0])
         else:
-            if self._walking_cmd:
-                self._walking_cmd = False
-                self.counters["watchdog_stops"] += 1
-                why = "operator released" if self._cmd is not None and not self._cmd.enable else "no fresh command"
-                LOG.warning("stopping: %s", why)
-                self._on_event("watchdog_stop", {"t": now, "why": why})
+            if self._walking_cmd or self._stop_pending:
+                if self._walking_cmd:
+                    self.counters["watchdog_stops"] += 1
+                    why = "operator released" if self._cmd is not None and not self._cmd.enable else "no fresh command"
+                    LOG.warning("stopping: %s", why)
+                    self._on_event("watchdog_stop", {"t": now, "why": why})
+                self._walking_cmd = self._stop_pending = False
                 self.robot.stop()
             self.reference.reset(z_r=self.reference.z_r)
             sent = None
             state = "stopping" if obs.walking else "standing"
 
-        z_e = self.equivalent.step(ref, self._s_e)
+        z_e = self.equivalent.step(ref, self._s_e, f_hold)
 
         tel.t, tel.state, tel.ref, tel.eta_meas = now, state, ref, eta_meas
         tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = self.reference.eta.copy(), self.reference.z_r.copy(), np.asarray(z_e), f_v
@@ -281,6 +374,44 @@ class FollowerLoop:
             self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
             self._publish(self.status(now))
         return tel
+
+    def _walk(self, ref: np.ndarray, eta_meas: np.ndarray, f_v: np.ndarray, now: float) -> tuple[WalkCommand | None, str]:
+        """Reference model (28) and one walk command; a robot refusing to walk stands."""
+        eta_cmd = self.reference.step(ref, eta_meas, self._choice_s_r, np.array([f_v[0], 0.0]), eta_max=self.eta_max)
+        try:
+            sent = self.robot.send_walk(
+                WalkCommand(
+                    forward_m_s=eta_cmd[0] / CM,
+                    turn_rad_s=math.radians(eta_cmd[1]),
+                    cycle_s=self._T,
+                    eps_s=self._eps,
+                )
+            )
+        except WalkRefusedError as exc:
+            # The robot stopped itself and said why (once); do not wind the model up.
+            if not self._refused:
+                self._refused = True
+                self._on_event("walk_refused", {"t": now, "why": str(exc)})
+            self.counters["walk_refused"] += 1
+            self.reference.reset()
+            self._walking_cmd = self._stop_pending = False
+            return None, "standing"
+        self._refused = False
+        self._walking_cmd = True
+        self._stop_pending = False
+        return sent, "walking"
+
+    def _update_latch(self, obs: RobotObservation, fresh: bool) -> None:
+        """Fall latch: released by enable false, then a fresh enable true, while standing."""
+        if obs.fallen:
+            self._rearm_off = False  # the re-arm counts only once the robot stands again
+        elif self._cmd is not None and not self._cmd.enable:
+            self._rearm_off = True
+        elif self._rearm_off and fresh:
+            self._fall_latched = self._rearm_off = False
+            self.reference.reset()
+            LOG.info("operator re-armed after the fall: walking again")
+            self._on_event("rearmed", {"t": self._now()})
 
     # ------------------------------------------------------------------ messages
 
@@ -318,8 +449,24 @@ class FollowerLoop:
             role="follower",
             state=self.telemetry.state,
             counters=dict(self.counters),
-            text=f"robot={self.robot.name} T={self._T:.2f}s",
+            text=f"robot={self.robot.name} T={self._T:.2f}s{self._status_note()}",
         )
+
+    def _status_note(self) -> str:
+        if self._fall_latched:
+            return " fall latched: stand the robot up, then release and re-enable"
+        if self._refused:
+            return " robot refuses to walk (see the follower log)"
+        if self.telemetry.state == "error":
+            return " robot fault (see the follower log)"
+        return ""
+
+
+def _delay(h: float | None) -> float:
+    """A delay sample made safe for the control laws: finite, in [0, 60] s."""
+    if h is None or not math.isfinite(h):
+        return 0.0
+    return min(max(float(h), 0.0), _MAX_DELAY_S)
 
 
 def _pair(v: np.ndarray, lim: float) -> list[float]:

@@ -9,7 +9,8 @@ Contract (checked by :func:`bipedtele.follower.check.check_robot`):
 
 - ``connect()`` then ``observe()``/``send_walk()``/``stop()``/``advance()``; calling them
   before ``connect()`` raises :class:`RobotNotConnectedError`.
-- ``send_walk(cmd)`` clamps to :attr:`limits` and returns what was actually sent.
+- ``send_walk(cmd)`` clamps to :attr:`limits` and returns what was actually sent; a robot
+  that must not walk now raises :class:`WalkRefusedError` after stopping itself.
 - ``stop()`` decelerates and stands; it is safe to call at any time, repeatedly.
 - ``advance(dt)`` lets robot time move on by ``dt`` seconds: a simulator steps its
   physics, a real robot returns at once (its time passes by itself; the loop paces).
@@ -35,6 +36,7 @@ __all__ = [
     "RobotObservation",
     "WalkCommand",
     "WalkLimits",
+    "WalkRefusedError",
     "make_robot",
     "register_robot",
 ]
@@ -48,6 +50,11 @@ class RobotError(RuntimeError):
 
 class RobotNotConnectedError(RobotError):
     """A method was called before ``connect()`` or after ``disconnect()``."""
+
+
+class WalkRefusedError(RobotError):
+    """``send_walk`` refused on purpose (e.g. no watchdog guards a real NAO): the robot
+    stopped itself and stands; the message says why and what to do. Not a fault."""
 
 
 @dataclass(frozen=True)

@@ -156,3 +156,153 @@ def test_conservative_split_uses_the_round_trip_for_both_delays() -> None:
     loop._update_parameters = spy  # type: ignore[method-assign]
     loop.tick()
     assert seen == [(0.4, 0.4)]
+
+
+# ---------------------------------------------------------------- time sanity (issue 10 item 3)
+
+
+def test_a_command_stamped_in_the_future_is_ignored_and_counted_never_raises() -> None:
+    h = Harness(KinematicRobot())
+    h.command(5.0, 0.0, sent_at=h.t + 1.0)  # forged, or a clock 1 s ahead
+    h.sent[-1] = (h.t, h.sent[-1][1])  # it arrives now
+    h.run(1.0)
+    assert h.loop.counters["cmd_future"] == 1
+    assert h.loop.counters["cmd_accepted"] == 0 and h.robot.sent == []
+    assert h.loop.telemetry.h1_s == 0.0
+    st = [m for m in h.published if isinstance(m, Status)][-1]
+    assert st.counters["cmd_future"] == 1
+
+
+def test_a_command_slightly_ahead_within_the_tolerance_is_a_zero_delay() -> None:
+    h = Harness(KinematicRobot())
+    for _ in range(100):  # every command stamped 0.1 s (jitter) ahead of its arrival
+        h.command(5.0, 0.0, sent_at=h.t + 0.1)
+        h.sent[-1] = (h.t, h.sent[-1][1])
+        tel = h.loop.tick()
+        h.robot.advance(h.loop.dt)
+        h.t += h.loop.dt
+    assert h.loop.counters["cmd_future"] == 0
+    assert h.loop.counters["cmd_accepted"] == 100
+    assert tel.h1_s == 0.0 and tel.state == "walking"
+
+
+def test_the_tolerance_follows_max_future_s() -> None:
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    t = [100.0]
+    cmd = Command(sid=1, seq=1, t=100.05, ref=[5.0, 0.0])
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmd, t[0]),
+                        lambda m: None, now=lambda: t[0], max_future_s=0.01)  # fmt: skip
+    loop.tick()
+    assert loop.counters["cmd_future"] == 1
+
+
+# ---------------------------------------------------------------- falls latch (issue 10 item 5)
+
+
+def _release(h: Harness, seconds: float) -> None:
+    for _ in range(round(seconds / h.loop.dt)):
+        h.command(0.0, 0.0, enable=False)
+        h.loop.tick()
+        h.robot.advance(h.loop.dt)
+        h.t += h.loop.dt
+
+
+def test_every_fall_stops_the_robot_is_counted_and_latches_until_the_operator_rearms() -> None:
+    robot = KinematicRobot(fall_at=5.0)  # robot time [s] starts at 0
+    h = Harness(robot)
+    h.run(8.0, v=5.0)
+    assert h.loop.counters["falls"] == 1 and robot.stops == 1
+    robot.fall_at = math.inf  # stood up again
+    n_sent = len(robot.sent)
+    tels = h.run(5.0, v=5.0)  # the operator still holds forward: no walking without a re-arm
+    assert all(t.state == "fallen" for t in tels) and robot.v == 0.0
+    assert len(robot.sent) == n_sent
+    _release(h, 0.5)  # re-arm: release ...
+    assert len(robot.sent) == n_sent
+    h.run(5.0, v=5.0)  # ... then enable again
+    assert h.loop.telemetry.state == "walking" and robot.v > 0.03
+    stops = robot.stops
+    robot.fall_at = robot.t + 1.0  # a second fall
+    h.run(3.0, v=5.0)
+    assert h.loop.counters["falls"] == 2
+    assert robot.stops == stops + 1
+    assert [e for e, _ in h.events].count("fall") == 2
+    assert h.loop.telemetry.state == "fallen"
+
+
+def test_a_release_while_the_robot_lies_does_not_rearm() -> None:
+    robot = KinematicRobot(fall_at=2.0)
+    h = Harness(robot)
+    h.run(3.0, v=5.0)
+    _release(h, 0.5)  # released while lying on the floor ...
+    h.run(1.0, v=5.0)  # ... and enabled again, still lying
+    robot.fall_at = math.inf  # now it is stood up: it must not walk off by itself
+    tels = h.run(3.0, v=5.0)
+    assert all(t.state == "fallen" for t in tels) and robot.v == 0.0
+    _release(h, 0.5)
+    h.run(3.0, v=5.0)
+    assert h.loop.telemetry.state == "walking"
+
+
+# ---------------------------------------------------------------- faults (issue 10 item 1)
+
+
+def test_a_fault_stops_the_robot_reports_an_error_and_walking_resumes() -> None:
+    robot = KinematicRobot()
+    h = Harness(robot)
+    h.run(8.0, v=5.0)
+    assert robot.v > 0.03
+    stops = robot.stops
+    h.loop.fault(RuntimeError("getRobotVelocity timed out"))
+    assert robot.stops == stops + 1
+    assert h.loop.counters["robot_faults"] == 1 and h.loop.telemetry.state == "error"
+    assert np.all(h.loop.reference.eta == 0.0)
+    h.run(8.0, v=5.0)
+    assert h.loop.telemetry.state == "walking" and robot.v > 0.03
+
+
+def test_after_a_fault_the_robot_is_stopped_again_when_no_command_is_fresh() -> None:
+    robot = KinematicRobot()
+    h = Harness(robot)
+    h.run(5.0, v=5.0)
+    h.loop.fault(RuntimeError("the stop may not have reached the robot"))
+    stops = robot.stops
+    h.t += 2.0  # commands went stale while the robot did not answer
+    h.loop.tick()
+    assert robot.stops == stops + 1
+    h.loop.tick()
+    assert robot.stops == stops + 1  # once
+
+
+# ---------------------------------------------------------------- eq. (33) (issue 11 item 1)
+
+
+def test_the_equivalent_follower_feels_the_fictitious_force() -> None:
+    h = Harness(KinematicRobot(wall_x=1.2))
+    tels = h.run(60.0, v=5.0)
+    f_t = tels[-1].f_v[0]
+    assert f_t > 1.0
+    cfg = load_config("default").section("control")
+    # At rest (33) gives z_e = ref - k_z f_v / k_s, like the robot's own speed.
+    assert tels[-1].z_e[0] == pytest.approx(5.0 - cfg.k_z[0] * f_t / cfg.k_s[0], abs=0.2)
+    assert tels[-1].z_e[0] == pytest.approx(h.robot.v * 100, abs=0.3)
+
+
+def test_new_leader_sessions_call_the_hook_once_each() -> None:
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    t = [0.0]
+    cmds = [Command(sid=1, seq=1, t=0.0, ref=[5.0, 0.0])]
+    seen: list[int] = []
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmds[-1], t[0]),
+                        lambda m: None, now=lambda: t[0], on_new_leader=lambda sid: seen.append(sid) or True)  # fmt: skip
+    for k in range(2, 6):
+        loop.tick()
+        t[0] += loop.dt
+        cmds.append(Command(sid=1 if k < 4 else 2, seq=k, t=t[0], ref=[5.0, 0.0]))
+    loop.tick()
+    assert seen == [1, 2]
+    assert loop.counters["leader_sessions"] == 2 and loop.counters["resets"] == 2
