@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -158,6 +159,22 @@ def test_override_and_shipped_profile_paths_stay_relative_to_the_working_folder(
     assert cfg.section("files").ca == "mine/ca.pem"  # the override replaces the file's value
     net = load_config("intercontinental").section("network")
     assert net.tls_root_ca == "certs/ca.pem"
+
+
+def test_network_paths_in_a_profile_file_follow_the_file(tmp_path: Path) -> None:
+    """The real [network] files (marked path=True in common/sections.py) follow the profile."""
+    from bipedtele.sections import NetworkConfig
+
+    marked = {f.name for f in dataclasses.fields(NetworkConfig) if f.metadata.get("path")}
+    assert {"tls_root_ca", "tls_cert", "tls_key", "password_file", "credentials_file"} <= marked
+    folder = tmp_path / "operator"
+    folder.mkdir()
+    (folder / "p.toml").write_text(
+        '[network]\ntls_root_ca = "certs/ca.pem"\npassword_file = "secrets/leader.pw"\n'
+    )
+    net = load_config(folder / "p.toml").section("network")
+    assert net.tls_root_ca == str(folder / "certs" / "ca.pem")
+    assert net.password_file == str(folder / "secrets" / "leader.pw")
 
 
 # ----------------------------------------------------------------- redaction
