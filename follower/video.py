@@ -5,6 +5,11 @@ grabs an RGB image from the robot (on the loop's thread: pybullet is single-thre
 client) and hands it to a worker thread that encodes JPEG and publishes. The hand-over is
 a slot of one: if the worker is still busy with the previous frame, the new one replaces
 it and the older is dropped (counted). Latest-only, like the video key's QoS.
+
+A camera fault costs frames, never the control loop: a capture that raises (a robot
+answer the bridge cannot decode, a camera that is busy or gone) or returns something that
+is not an H x W x 3 uint8 image is skipped and counted (``errors``), and logged at most
+every ``_LOG_EVERY_S`` seconds; an encoding failure is counted the same way.
 """
 
 from __future__ import annotations
@@ -23,6 +28,8 @@ from bipedtele.messages import VideoFrame, new_session_id
 __all__ = ["VideoStreamer"]
 
 LOG = logging.getLogger(__name__)
+
+_LOG_EVERY_S = 10.0  # at most one camera-error line per this many seconds
 
 
 class VideoStreamer:
@@ -67,7 +74,11 @@ class VideoStreamer:
         self._cv = threading.Condition()
         self._stop = False
         self._thread: threading.Thread | None = None
-        self.stats: dict[str, Any] = {"captured": 0, "published": 0, "dropped": 0, "capture_s": 0.0, "encode_s": 0.0}
+        self.stats: dict[str, Any] = {
+            "captured": 0, "published": 0, "dropped": 0, "errors": 0, "capture_s": 0.0, "encode_s": 0.0,
+        }
+        self._next_log = -float("inf")
+        self._unlogged = 0
 
     def __enter__(self) -> VideoStreamer:
         self.start()
@@ -100,7 +111,14 @@ class VideoStreamer:
                 continue
             self._next[cam] = max(t, self._next[cam] + self.period)
             t0 = time.perf_counter()
-            image = self.robot.capture(cam)
+            try:
+                image = self.robot.capture(cam)
+                if image is not None:
+                    _check_image(image)
+            except Exception as exc:  # a camera fault costs this frame, never the loop
+                self.stats["capture_s"] += time.perf_counter() - t0
+                self._error(cam, exc)
+                continue
             self.stats["capture_s"] += time.perf_counter() - t0
             if image is None:
                 continue
@@ -110,6 +128,18 @@ class VideoStreamer:
                     self.stats["dropped"] += 1
                 self._slot = (cam, image, self._now())
                 self._cv.notify()
+
+    def _error(self, cam: str, exc: BaseException) -> None:
+        """Count a lost frame; log the first and then at most one line per ``_LOG_EVERY_S``."""
+        self.stats["errors"] += 1
+        now = time.monotonic()
+        if now < self._next_log:
+            self._unlogged += 1
+            return
+        self._next_log = now + _LOG_EVERY_S
+        more = f" (+{self._unlogged} more since the last line)" if self._unlogged else ""
+        self._unlogged = 0
+        LOG.warning("camera %s: frame skipped: %s%s; %d frames lost so far", cam, exc, more, self.stats["errors"])
 
     def _run(self) -> None:
         while True:
@@ -122,12 +152,16 @@ class VideoStreamer:
                 cam, image, t_capture = self._slot
                 self._slot = None
             t0 = time.perf_counter()
-            ok, buf = cv2.imencode(
-                ".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self._quality]
-            )
+            try:
+                ok, buf = cv2.imencode(
+                    ".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self._quality]
+                )
+            except cv2.error as exc:
+                ok, buf = False, None
+                LOG.debug("JPEG encoding: %s", exc)
             self.stats["encode_s"] += time.perf_counter() - t0
-            if not ok:
-                LOG.warning("JPEG encoding failed for a %s frame", cam)
+            if not ok or buf is None:
+                self._error(cam, RuntimeError("JPEG encoding failed"))
                 continue
             self._seq += 1
             frame = VideoFrame(
@@ -145,3 +179,10 @@ class VideoStreamer:
                 self.stats["published"] += 1
             except Exception:  # a transport hiccup must not kill the video thread
                 LOG.exception("publishing a video frame failed")
+
+
+def _check_image(image: Any) -> None:
+    """Raise ValueError unless ``image`` is an H x W x 3 uint8 array."""
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3 or 0 in image.shape:
+        what = f"{type(image).__name__} {getattr(image, 'shape', '')} {getattr(image, 'dtype', '')}".strip()
+        raise ValueError(f"the robot gave {what}: expected an H x W x 3 uint8 image")

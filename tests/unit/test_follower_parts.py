@@ -1,13 +1,19 @@
-"""Reference model (28)+(12) and the fictitious force (Sec. 3.2.1)."""
+"""Reference model (28)+(12), the fictitious force (Sec. 3.2.1) and the video streamer's fault handling."""
 
 from __future__ import annotations
 
+import logging
 import math
+import time
 
 import numpy as np
 import pytest
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.follower.fictitious import FictitiousForce
+from bipedtele.follower.robot import RobotError
+from bipedtele.follower.video import VideoStreamer
+from bipedtele.messages import VideoFrame
+from fakes.kinematic_robot import KinematicRobot
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -65,3 +71,40 @@ def test_fictitious_force_profile() -> None:
 def test_fictitious_force_rejects_inverted_ranges() -> None:
     with pytest.raises(ValueError, match="d_stop"):
         FictitiousForce(d_safe=0.3, d_stop=0.5)
+
+
+class _BadCamera(KinematicRobot):
+    """A robot whose camera fails in the ways a bridge sees: an undecodable answer, a
+    wrong array, then a good frame."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.answers: list[object] = []
+
+    def capture(self, camera: str = "head") -> np.ndarray | None:
+        answer = self.answers.pop(0)
+        if isinstance(answer, Exception):
+            raise answer
+        return answer  # type: ignore[return-value]
+
+
+def test_camera_faults_cost_frames_never_the_loop(caplog: pytest.LogCaptureFixture) -> None:
+    robot = _BadCamera()
+    robot.connect()
+    robot.answers = [
+        RobotError("ALVideoDevice image data is str: expected raw bytes"),
+        RobotError("ALVideoDevice image data is str: expected raw bytes"),
+        np.zeros((4, 4), dtype=np.float64),  # not an RGB image
+        np.full((24, 32, 3), 7, dtype=np.uint8),
+    ]
+    frames: list[VideoFrame] = []
+    with caplog.at_level(logging.WARNING), VideoStreamer(robot, ["head"], 10.0, frames.append, now=lambda: 0.0) as video:
+        for k in range(4):
+            video.maybe_capture(k * 0.1)  # must not raise
+        deadline = time.monotonic() + 5.0
+        while not frames and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert video.stats["errors"] == 3 and video.stats["captured"] == 1
+    assert len(frames) == 1 and frames[0].width == 32
+    lines = [r for r in caplog.records if "frame skipped" in r.getMessage()]
+    assert len(lines) == 1  # rate-limited
