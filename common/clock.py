@@ -189,10 +189,12 @@ class ClockSync:
       the answer. An answer is accepted only for an outstanding ping (each answered once;
       a ping expires ``expire_s`` after it was sent; at most ``max_outstanding`` are
       kept, the oldest forgotten first), otherwise dropped as ``pong_unmatched``.
-    * Only answers of one peer session are used: the one given as ``peer`` (the session
-      the app's sequence gate is bound to) or, while none is given, the first session
-      whose answer was accepted. Others: ``foreign_session``. When the given peer
-      changes, the samples of the previous one are forgotten.
+    * Only answers of the peer session are used: the one given as ``peer`` (the session
+      the app's sequence gate follows); others are dropped as ``foreign_session``. While
+      no peer is given (none followed yet), any session's answer is used. The estimate
+      always comes from one session: an accepted answer of another session than the
+      previous samples' (:attr:`peer`), or :meth:`bind` to another session, forgets them
+      (another process may run on another clock).
     * The responder's hold time ``t3 - t2`` must be at most ``hold_max_s`` (an honest
       responder answers at once), else ``pong_hold``. So a forged answer cannot make the
       round trip shorter than ``(t4 - t1) - hold_max_s``, ``t4 - t1`` being measured
@@ -287,8 +289,8 @@ class ClockSync:
         t4 : float
             Local time the answer arrived [s].
         peer : int, optional
-            The peer session bound by the caller (e.g. its sequence gate's ``bound_sid``);
-            None: bind to the first answering session.
+            The peer session followed by the caller (e.g. its sequence gate's
+            ``live_sid``); None: any session (none is followed yet).
 
         Returns
         -------
@@ -298,12 +300,7 @@ class ClockSync:
             ``pong_inconsistent``), also counted in :attr:`rejections`.
         """
         with self._lock:
-            if peer is not None and peer != self._peer:
-                if self._peer is not None:  # the peer changed: its clock may be another one
-                    self._hist.clear()
-                    self._best = None
-                self._peer = peer
-            if self._peer is not None and sid != self._peer:
+            if peer is not None and sid != peer:
                 return self._reject("foreign_session")
             t1 = self._outstanding.get(ping_seq)
             if t1 is None:
@@ -315,9 +312,24 @@ class ClockSync:
             if reason is not None:
                 return self._reject(reason)
             del self._outstanding[ping_seq]
-            self._peer = sid
+            self._bind(sid)
             self._add(t1, t2, t3, t4)
             return None
+
+    def bind(self, peer: int | None) -> None:
+        """The caller now follows session ``peer``: forget samples of any other session.
+
+        Call it when the followed peer changes, so that the estimate of the previous one
+        is not used until the new one answers (None: no change).
+        """
+        with self._lock:
+            self._bind(peer)
+
+    def _bind(self, peer: int | None) -> None:
+        if peer is not None and peer != self._peer:
+            self._hist.clear()
+            self._best = None
+            self._peer = peer
 
     @property
     def peer(self) -> int | None:

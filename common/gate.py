@@ -135,6 +135,18 @@ class SequenceGate:
         with self._lock:
             return self._sid
 
+    @property
+    def live_sid(self) -> int | None:
+        """The bound session while it is live (a message accepted within
+        ``takeover_after_s``), else None: the session another may not take over from.
+
+        Meant for peer binding elsewhere (``ClockLink(peer_sid=lambda: gate.live_sid)``):
+        when the followed session falls silent, whoever takes over is followed there too.
+        """
+        now = self._clock()
+        with self._lock:
+            return self._sid if now - self._t_accept <= self.takeover_after_s else None
+
     def release(self) -> None:
         """Let any session take over at its next message (e.g. the operator released).
 

@@ -182,20 +182,24 @@ def test_forged_hold_rejected_in_the_low_level_api_too() -> None:
 
 def test_only_the_bound_peer_is_used() -> None:
     cs = ClockSync(window=4)
-    # no peer given: the first accepted answerer binds the estimate
+    # no peer followed yet: any answerer is used
     assert honest(cs, 1, 100.0, sid=9) is None
     assert cs.peer == 9
     cs.sent(2, 101.0)
-    assert cs.on_answer(5, 2, 0.0, 0.0, 101.1) == "foreign_session"
-    # the app's gate binds peer 9 explicitly: same thing
+    # the app's gate follows session 9: another session's answer is dropped
     assert cs.on_answer(5, 2, 0.0, 0.0, 101.1, peer=9) == "foreign_session"
     assert cs.offset == pytest.approx(OFFSET)
     # the peer changed (a restarted follower on another host): old samples are forgotten
     assert cs.on_answer(9, 2, 108.3, 108.3, 101.1, peer=5) == "foreign_session"
+    cs.bind(5)
     assert not cs.ready and cs.peer == 5
     assert cs.on_answer(5, 2, 101.05, 101.051, 101.1, peer=5) is None
     assert cs.peer == 5 and cs.offset == pytest.approx(0.0005, abs=1e-9)
-    assert cs.rejections == {"foreign_session": 3}
+    assert cs.rejections == {"foreign_session": 2}
+    # unbound again (no live peer): an answer of another session replaces the samples
+    assert honest(cs, 3, 102.0, sid=9) is None
+    assert cs.peer == 9 and cs.offset == pytest.approx(OFFSET)
+    assert cs.rtt == pytest.approx(2 * H)  # not min-filtered with session 5's samples
 
 
 def test_outstanding_pings_expire_and_are_bounded() -> None:

@@ -121,6 +121,22 @@ def test_silent_bound_session_recovers_from_a_big_jump() -> None:
     assert g.accept(m(4, 2)) == "stale"  # replays stay dropped
 
 
+def test_live_sid_follows_silence() -> None:
+    clk = FakeClock()
+    g = SequenceGate(takeover_after_s=0.5, clock=clk)
+    assert g.live_sid is None
+    assert g.accept(m(1, 1)) is None
+    assert g.live_sid == 1
+    clk.t += 0.5
+    assert g.live_sid == 1
+    clk.t += 0.01
+    assert g.live_sid is None and g.bound_sid == 1
+    assert g.accept(m(1, 2)) is None
+    assert g.live_sid == 1
+    g.release()
+    assert g.live_sid is None and g.bound_sid == 1
+
+
 def test_release_lets_another_session_take_over_at_once() -> None:
     clk = FakeClock()
     g = SequenceGate(clock=clk)
