@@ -14,7 +14,10 @@ Every haptic tick (1 kHz by default) the loop
 5. scales it by the *link gain*: 1 while feedback is fresh; once no new feedback arrived
    for ``feedback_timeout_s`` it falls linearly to 0 over ``fade_s`` (and rises the same
    way when feedback returns), so a lost link never leaves the operator pushed by a
-   frozen error; the device clamps the result (8 N);
+   frozen error; the device's clamp (8 N) bounds it, and a *slew limit* bounds how fast
+   the force on the handle may change (``force_rate_max_n_s`` per axis, 80 N/s: the full
+   8 N takes at least 0.1 s), so no received value (a corrupted or forged ``z_e``, a jump
+   of the delay estimate and thus of alpha_m) can give the hand a step;
 6. lets the device time pass (a simulated device integrates eq. 1 with the operator's
    hand attached);
 7. at ``cmd_rate_hz`` updates the operator model and sends a :class:`Command`
@@ -145,6 +148,8 @@ class LeaderLoop:
         self.alpha_m = np.asarray(schedule_damping(0.0, 0.0, control).alpha_m, dtype=float)
         self.force = np.zeros(2)
         self.force_cmd = np.zeros(2)
+        self._force_t: float | None = None
+        self.slew_limited_ticks = 0
         self.x_m = np.zeros(2)
         self.dx_m = np.zeros(2)
         self.enable = True
@@ -214,6 +219,18 @@ class LeaderLoop:
         else:
             self.state = "running" if fresh else "feedback_stale"
 
+    def _slew(self, now: float, target: np.ndarray) -> np.ndarray:
+        """``target`` [N] moved from the force applied last by at most
+        ``force_rate_max_n_s`` times the clock time since the previous tick (one nominal
+        period at the first tick, at most 50 ms after a stall), per axis."""
+        step = self.dt if self._force_t is None else min(max(now - self._force_t, 0.0), 0.05)
+        self._force_t = now
+        limit = self.cfg.force_rate_max_n_s * step
+        out = np.clip(target, self.force - limit, self.force + limit)
+        if not np.array_equal(out, target):
+            self.slew_limited_ticks += 1
+        return out
+
     def tick(self, now: float | None = None, dt: float | None = None) -> None:
         """One haptic period: read, force, (command), advance the device by ``dt`` [s].
 
@@ -236,7 +253,7 @@ class LeaderLoop:
             self.x_m, self.dx_m, z_e, k_m=self._k_m, k_g=self._k_g, alpha_m=self.alpha_m, g_m=self._g_m
         )
         self.force_cmd = self.gain * f
-        self.force = self.device.apply_force(self.force_cmd)
+        self.force = self.device.apply_force(self._slew(now, self.device.clamp_force(self.force_cmd)))
         if self.ticks % self._cmd_every == 0:
             self._command(now, hs.t, hs.buttons)
         self.device.advance(self.dt if dt is None else dt)

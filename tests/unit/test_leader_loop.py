@@ -130,6 +130,40 @@ def test_alpha_m_follows_the_delay_estimate():
     assert loop.h1 == 0.2
 
 
+def test_forged_feedback_gives_no_force_step():
+    """A received z_e of +999 then -999 (forged or corrupted feedback) after normal
+    feedback: the force on the handle still goes to the clamp, but never faster than
+    leader.force_rate_max_n_s (no 8 N step in one tick, as the clamp alone allowed)."""
+    forged_at, reversed_at = T0 + 2.0, T0 + 3.0
+
+    def z(s: float) -> np.ndarray:
+        if s < forged_at:
+            return np.zeros(2)
+        return np.array([999.0, -999.0]) if s < reversed_at else np.array([-999.0, 999.0])
+
+    loop, _, cfg = make_loop(z, lambda s: 0.05)
+    loop.device.set_operator(Hand(stiffness_n_m=2000.0, damping_n_s_m=30.0))  # holds the handle
+    rate, dt = cfg.leader.force_rate_max_n_s, loop.dt
+    loop.run_for(2.0)
+    assert np.abs(loop.force).max() < 0.1 and loop.gain == 1.0
+    t, f = [loop.now], [loop.force.copy()]
+    for _ in range(2000):
+        loop.tick(now=loop.now + dt)
+        t.append(loop.now)
+        f.append(loop.force.copy())
+    times, forces = np.array(t), np.array(f)
+    assert np.abs(np.diff(forces, axis=0)).max() <= rate * dt * (1 + 1e-9)
+    # The forged value is still felt (clamped), only ramped: 8 N after 8 N / rate.
+    arrive = forged_at + 0.05
+    at_clamp = times[np.argmax(forces[:, 0] >= 8.0)]
+    assert forces[-1].tolist() == [-8.0, 8.0] and forces[:, 0].max() == 8.0
+    assert at_clamp >= arrive + 8.0 / rate - 2 * dt
+    flip = reversed_at + 0.05
+    at_other = times[np.argmax(forces[:, 0] <= -8.0)]
+    assert at_other >= flip + 16.0 / rate - 2 * dt
+    assert loop.slew_limited_ticks >= 0.9 * 24.0 / rate / dt
+
+
 def test_stale_feedback_fades_the_force_to_zero_and_back():
     z = lambda s: np.array([5.0, -5.0])  # noqa: E731  (error on the handle at rest: force != 0)
     loop, _, cfg = make_loop(z, lambda s: 0.1, stop_at=T0 + 2.0)
