@@ -54,6 +54,10 @@ class LeaderConfig:
         0.5, lo=0.01, hi=30.0, unit="s", doc="no new feedback for this long -> fade the force out"
     )
     fade_s: float = param(0.2, lo=0.0, hi=10.0, unit="s", doc="duration of the force fade out/in")
+    force_rate_max_n_s: float = param(
+        80.0, lo=1.0, hi=100000.0, unit="N/s",
+        doc="largest change of the handle force per axis (8 N in 0.1 s: no step the hand cannot meet)",
+    )  # fmt: skip
     g_m: list[float] = param(
         default_factory=lambda: [0.0, 0.0], unit="N", doc="gravity compensation g_m of eq. (31) per axis"
     )
@@ -92,6 +96,11 @@ class LeaderConfig:
     cockpit_host: str = param("127.0.0.1", doc="cockpit listen address")
     cockpit_port: int = param(8080, lo=0, hi=65535, doc="cockpit port (0: any free port)")
     cockpit_rate_hz: float = param(20.0, lo=1.0, hi=100.0, unit="Hz", doc="cockpit sample rate")
+    cockpit_allowed_hosts: list[str] = param(
+        default_factory=list,
+        doc="names accepted in the cockpit's Host header besides cockpit_host, localhost, 127.0.0.1, [::1]",
+    )
+    cockpit_max_clients: int = param(4, lo=1, hi=100, doc="most browser connections to the cockpit at once")
 
     def __post_init__(self) -> None:
         for name in ("g_m", "gravity_n"):
@@ -109,5 +118,8 @@ class LeaderConfig:
         for i, ob in enumerate(self.pilot_obstacles):
             if len(ob) != 3 or ob[2] < 0:
                 raise ValueError(f"pilot_obstacles[{i}] = {ob!r}: allowed: [x m, y m, radius m >= 0]")
+        for i, name in enumerate(self.cockpit_allowed_hosts):
+            if not isinstance(name, str) or not name.strip() or any(c in name for c in "/?#@ "):
+                raise ValueError(f"cockpit_allowed_hosts[{i}] = {name!r}: allowed: a host name or address")
         if self.viscous_n_s_m * 0.001 / self.mass_kg >= 1.0:
             raise ValueError("viscous_n_s_m / mass_kg: allowed: below 1000 1/s (1 ms integration)")

@@ -29,23 +29,50 @@ Browser to server: text ``{"type": "joy", "x": x, "y": y}`` with x, y in [-1, 1]
 right-positive, y is up-positive (up = forward). The page re-sends the held position every
 100 ms and sends (0, 0) on release. Anything else (binary, not JSON, unknown type, bad or
 out-of-range numbers, over 1 KiB) is dropped and counted (:attr:`CockpitServer.stats`).
-A websocket whose ``Origin`` is not this server is refused (another web site open in the
-same browser must not drive the robot).
+
+Access
+------
+The cockpit shows the robot's camera and, with the browser operator, drives the robot, so
+every request is checked (``docs/cockpit.md``):
+
+- **Host allow-list.** The ``Host`` header must name this server: the listen address,
+  ``localhost``, ``127.0.0.1``, ``[::1]`` or one of ``allowed_hosts``. A web page whose
+  name an attacker re-points at this machine (DNS rebinding) sends its own name as Host
+  and is refused (403).
+- **Per-run token.** A random token (``secrets.token_urlsafe``) is part of the printed
+  address, ``http://HOST:PORT/?token=TOKEN``, as notebook servers do. Every request must
+  carry it: the ``token`` query parameter, else the cookie the first page load sets
+  (``HttpOnly``, ``SameSite=Strict``; the page's scripts, style sheet and websocket then
+  carry it). Compared in constant time (:func:`hmac.compare_digest`); missing or wrong: 403.
+- **Origin.** A websocket upgrade must carry an ``Origin`` (every browser sends one) whose
+  scheme is http(s) and whose host and port are the request's (allowed) ``Host``; no Origin,
+  ``null`` or another site's: 403.
+- **Client cap.** At most ``max_clients`` websockets at once (each gets every frame, in
+  the process that runs the haptic loop); the next one is accepted only to be told
+  ``{"type": "refused", "reason": ...}`` and closed with code 1013 ("try again later").
+- **Framing and headers.** Every response carries ``Content-Security-Policy`` (same-origin
+  scripts, styles and connections, ``frame-ancestors 'none'``), ``X-Frame-Options: DENY``,
+  ``X-Content-Type-Options: nosniff`` and ``Referrer-Policy: no-referrer``.
+
+Refusals are counted (:attr:`CockpitServer.stats`) and logged at most once per reason
+per 5 s.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import hmac
 import itertools
 import json
 import logging
 import math
+import secrets
 import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from importlib import resources
 from typing import Any
 from urllib.parse import urlsplit
@@ -53,7 +80,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from bipedtele.drops import DropCounter
 
-__all__ = ["SAMPLE_KEYS", "CockpitServer"]
+__all__ = ["LOCAL_HOSTS", "SAMPLE_KEYS", "CockpitServer"]
 
 LOG = logging.getLogger("bipedtele.leader.cockpit")
 
@@ -68,6 +95,46 @@ _MAX_IN_TEXT = 1024
 _VIDEO_MAGIC = b"VF"
 _STATIC = ("index.html", "app.js", "plot.js", "style.css")
 _CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
+
+#: Host names always allowed in the ``Host`` header (loopback).
+LOCAL_HOSTS: tuple[str, ...] = ("localhost", "127.0.0.1", "::1")
+#: Listen addresses that are not a name a browser uses.
+_WILDCARDS = ("", "0.0.0.0", "::")
+#: Sent with every response: the page may load only its own files and talk only to this
+#: server, and no other site may frame it (clickjacking the joystick).
+_SECURITY_HEADERS = {
+    "Content-Security-Policy": (
+        "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob:; "
+        "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+    ),
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+_MIN_TOKEN_LEN = 16
+_TOKEN_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
+_Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+def _hostname(value: str) -> tuple[str, int | None] | None:
+    """``(name, port)`` of a ``Host`` header or URL netloc (name lower case, IPv6 without
+    brackets); None when it does not parse."""
+    try:
+        parts = urlsplit("//" + value)
+        name, port = parts.hostname, parts.port
+    except ValueError:
+        return None
+    if not name or parts.username is not None or parts.path or parts.query:
+        return None
+    return name.lower(), port
+
+
+def check_token(token: str) -> str:
+    """``token`` if it can be a cockpit token (URL-safe characters, at least 16), else
+    ValueError naming what is allowed."""
+    if len(token) < _MIN_TOKEN_LEN or not set(token) <= _TOKEN_CHARS:
+        raise ValueError(f"allowed: at least {_MIN_TOKEN_LEN} characters of A-Z a-z 0-9 - _")
+    return token
 
 
 def _clean(value: Any) -> Any:
@@ -131,6 +198,15 @@ class CockpitServer:
         Rate at which the latest sample is taken and pushed to browsers [Hz].
     history_s : float
         Telemetry kept for browsers that connect late [s].
+    token : str, optional
+        The access token (URL-safe, at least 16 characters); a random one
+        (``secrets.token_urlsafe(24)``) when omitted. See :attr:`url`.
+    allowed_hosts : iterable of str
+        Host names (or addresses) accepted in the ``Host`` header besides the listen
+        address and :data:`LOCAL_HOSTS` (e.g. the machine's name when listening on all
+        interfaces behind a tunnel).
+    max_clients : int
+        Most websocket clients at once (>= 1).
 
     Notes
     -----
@@ -145,6 +221,9 @@ class CockpitServer:
         *,
         telemetry_hz: float = 25.0,
         history_s: float = 30.0,
+        token: str | None = None,
+        allowed_hosts: Iterable[str] = (),
+        max_clients: int = 4,
     ) -> None:
         if not (math.isfinite(telemetry_hz) and 1.0 <= telemetry_hz <= 100.0):
             raise ValueError(f"telemetry_hz must be in [1, 100] Hz, got {telemetry_hz!r}")
@@ -152,7 +231,25 @@ class CockpitServer:
             raise ValueError(f"history_s must be in [0, 600] s, got {history_s!r}")
         if not 0 <= port <= 65535:
             raise ValueError(f"port must be in [0, 65535], got {port!r}")
+        if not 1 <= max_clients <= 1000:
+            raise ValueError(f"max_clients must be in [1, 1000], got {max_clients!r}")
+        if token is not None:
+            try:
+                check_token(token)
+            except ValueError as exc:
+                raise ValueError(f"token: {exc}") from None
         self.host = host
+        self.token = token if token is not None else secrets.token_urlsafe(24)
+        self._token_bytes = self.token.encode("ascii")
+        self.max_clients = int(max_clients)
+        names = {host.strip("[]").lower()} - set(_WILDCARDS)
+        names.update(LOCAL_HOSTS)
+        for name in allowed_hosts:
+            parsed = _hostname(name.strip())
+            if parsed is None:
+                raise ValueError(f"allowed_hosts: {name!r} is not a host name or address")
+            names.add(parsed[0])
+        self.allowed_hosts: frozenset[str] = frozenset(names)
         self._req_port = port
         self.telemetry_hz = float(telemetry_hz)
         self._period = 1.0 / self.telemetry_hz
@@ -168,8 +265,9 @@ class CockpitServer:
         )
         self._clients: set[_Client] = set()
         self._drops = DropCounter("cockpit/ws")
-        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0,
-                          "connections": 0, "refused_origin": 0}  # fmt: skip
+        self._refusals = DropCounter("cockpit/http")
+        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "connections": 0,
+                          "refused_host": 0, "refused_token": 0, "refused_origin": 0, "refused_full": 0}  # fmt: skip
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
@@ -186,10 +284,22 @@ class CockpitServer:
         return self._port
 
     @property
-    def url(self) -> str:
-        """``http://host:port/`` of the page."""
-        host = f"[{self.host}]" if ":" in self.host else self.host
+    def base_url(self) -> str:
+        """``http://host:port/`` (without the token; a wildcard listen address is shown as
+        ``127.0.0.1``)."""
+        host = "127.0.0.1" if self.host in _WILDCARDS else self.host
+        host = f"[{host}]" if ":" in host else host
         return f"http://{host}:{self._port}/"
+
+    @property
+    def url(self) -> str:
+        """The address to open: ``http://host:port/?token=TOKEN``."""
+        return f"{self.base_url}?token={self.token}"
+
+    @property
+    def cookie_name(self) -> str:
+        """Name of the token cookie (per port: cookies do not tell ports apart)."""
+        return f"bipedtele_cockpit_{self._port}"
 
     def start(self, timeout_s: float = 10.0) -> CockpitServer:
         """Start the server thread and wait until it listens.
@@ -215,7 +325,7 @@ class CockpitServer:
             self._thread.join()
             self._thread = None
             raise failure[0]
-        LOG.info("cockpit at %s", self.url)
+        LOG.debug("cockpit listening on %s", self.base_url)
         return self
 
     def stop(self, timeout_s: float = 10.0) -> None:
@@ -266,7 +376,8 @@ class CockpitServer:
     @property
     def stats(self) -> dict[str, Any]:
         """Counters: ``clients``, ``frames_pushed``, ``samples_pushed``,
-        ``joystick_messages``, ``connections``, ``refused_origin``, ``bad_messages`` and
+        ``joystick_messages``, ``connections``, refusals (``refused_host``,
+        ``refused_token``, ``refused_origin``, ``refused_full``), ``bad_messages`` and
         ``bad_by_reason``."""
         out: dict[str, Any] = dict(self._counters)
         out["clients"] = len(self._clients)
@@ -293,7 +404,8 @@ class CockpitServer:
 
     async def _serve(self, ready: threading.Event, failure: list[BaseException]) -> None:
         self._stopping = asyncio.Event()
-        app = web.Application()
+        app = web.Application(middlewares=[self._guard])
+        app.on_response_prepare.append(self._add_headers)
         app.router.add_get("/", self._page)
         app.router.add_get("/static/{name}", self._static_file)
         app.router.add_get("/ws", self._websocket)
@@ -326,6 +438,68 @@ class CockpitServer:
             if latest is not None and latest[0] != last:
                 last = latest[0]
                 self._history.append((last, {str(k): _clean(v) for k, v in latest[1].items()}))
+
+    # ------------------------------------------------------------------ access
+
+    def _refuse(self, counter: str, reason: str, detail: str, text: str) -> web.HTTPForbidden:
+        self._counters[counter] += 1
+        self._refusals.drop(reason, detail)
+        return web.HTTPForbidden(text=f"bipedtele cockpit: {text}\n")
+
+    def _host_ok(self, host: str | None) -> bool:
+        parsed = _hostname(host) if host else None
+        return parsed is not None and parsed[0] in self.allowed_hosts
+
+    def _token_ok(self, given: str) -> bool:
+        try:
+            data = given.encode("ascii")
+        except UnicodeEncodeError:
+            return False
+        return hmac.compare_digest(data, self._token_bytes)
+
+    @web.middleware
+    async def _guard(self, request: web.Request, handler: _Handler) -> web.StreamResponse:
+        """Host allow-list and token on every request; sets the token cookie."""
+        host = request.headers.get("Host")
+        if not self._host_ok(host):
+            raise self._refuse(
+                "refused_host", "bad_host", f"Host {str(host)[:80]!r} from {request.remote}",
+                "this Host is not allowed (allowed: the listen address, localhost, 127.0.0.1, [::1] "
+                "and leader.cockpit_allowed_hosts)",
+            )  # fmt: skip
+        in_query = request.query.get("token")
+        given = in_query if in_query is not None else request.cookies.get(self.cookie_name)
+        if not given or not self._token_ok(given):
+            raise self._refuse(
+                "refused_token", "bad_token" if given else "no_token", f"{request.path} from {request.remote}",
+                "open the address the leader printed: http://HOST:PORT/?token=TOKEN",
+            )  # fmt: skip
+        response = await handler(request)
+        if in_query is not None and not response.prepared:
+            response.set_cookie(self.cookie_name, self.token, httponly=True, samesite="Strict", path="/")
+        return response
+
+    async def _add_headers(self, request: web.Request, response: web.StreamResponse) -> None:
+        for key, value in _SECURITY_HEADERS.items():
+            response.headers.setdefault(key, value)
+
+    def _origin_ok(self, request: web.Request) -> bool:
+        """The websocket's Origin is this very server as the browser reached it (the Host
+        header, already on the allow-list): scheme http(s), same host and port."""
+        origin = request.headers.get("Origin")
+        if not origin:
+            return False
+        try:
+            parts = urlsplit(origin)
+        except ValueError:
+            return False
+        if parts.scheme not in ("http", "https") or parts.path not in ("", "/") or parts.query:
+            return False
+        got, want = _hostname(parts.netloc), _hostname(request.headers.get("Host", ""))
+        if got is None or want is None or got[0] not in self.allowed_hosts:
+            return False
+        default = 443 if parts.scheme == "https" else 80
+        return got[0] == want[0] and (got[1] or default) == (want[1] or default)
 
     # ------------------------------------------------------------------ handlers
 
@@ -363,28 +537,37 @@ class CockpitServer:
             body=frame[2], content_type="image/jpeg", headers={"Cache-Control": "no-store"}
         )
 
-    def _origin_ok(self, request: web.Request) -> bool:
-        origin = request.headers.get("Origin")
-        if origin is None:  # not a browser (tests, tools)
-            return True
-        return urlsplit(origin).netloc.lower() == request.host.lower()
-
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._origin_ok(request):
-            self._counters["refused_origin"] += 1
-            LOG.warning("cockpit: refused websocket from origin %r", request.headers.get("Origin"))
-            raise web.HTTPForbidden(text="cross-origin websocket refused")
+            origin = request.headers.get("Origin")
+            raise self._refuse(
+                "refused_origin", "bad_origin" if origin else "no_origin", f"Origin {str(origin)[:80]!r}",
+                "websocket refused: it needs the Origin of this page (a browser sends it)",
+            )  # fmt: skip
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=64 * 1024)
-        await ws.prepare(request)
         client = _Client(ws)
-        self._clients.add(client)
+        if len(self._clients) >= self.max_clients:
+            self._counters["refused_full"] += 1
+            self._refusals.drop("too_many_clients", f"{request.remote}")
+            reason = f"too many cockpit clients (at most {self.max_clients}); close another tab and reload"
+            await ws.prepare(request)
+            await ws.send_str(json.dumps({"type": "refused", "reason": reason}))
+            await ws.close(code=1013, message=reason.encode()[:120])
+            return ws
+        self._clients.add(client)  # before any await: the cap holds for concurrent upgrades
+        try:
+            await ws.prepare(request)
+        except BaseException:
+            self._clients.discard(client)
+            raise
         self._counters["connections"] += 1
-        await ws.send_str(
-            json.dumps({"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS})
-        )
-        pusher = asyncio.create_task(self._push(client))
+        pusher: asyncio.Task[None] | None = None
         moved_joystick = False
         try:
+            await ws.send_str(
+                json.dumps({"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS})
+            )
+            pusher = asyncio.create_task(self._push(client))
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
                     moved_joystick |= self._on_text(msg.data)
@@ -393,7 +576,8 @@ class CockpitServer:
                 elif msg.type == WSMsgType.ERROR:
                     self._drops.drop("ws_error", str(ws.exception()))
         finally:
-            pusher.cancel()
+            if pusher is not None:
+                pusher.cancel()
             self._clients.discard(client)
             if moved_joystick and not any(True for _ in self._clients):
                 self._joy = (0.0, 0.0, time.time())  # the driver left: centre the stick

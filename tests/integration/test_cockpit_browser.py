@@ -1,8 +1,10 @@
 """The cockpit in a real headless browser (Debian's chromium driven by playwright).
 
 Video frames (real JPEGs) and telemetry are published from a thread as the leader loop
-would; the page must show the frames, move its plots and drive the server-side joystick.
-A screenshot is kept in ``artifacts/cockpit.png``.
+would; the page, opened at the printed address with its token, must show the frames, move
+its plots and drive the server-side joystick. Without the token the browser gets 403; the
+cookie set by the first load lets the page reload without it. A screenshot is kept in
+``artifacts/cockpit.png``.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -48,6 +51,17 @@ def _jpeg(i: int) -> bytes:
     ok, buf = cv2.imencode(".jpg", img)
     assert ok
     return buf.tobytes()
+
+
+def _wait_for(page: Any, expression: str, timeout_ms: float) -> None:
+    """Poll ``expression`` in the page until it is true (playwright's own
+    ``wait_for_function`` evaluates strings with ``eval``, which the page's
+    Content-Security-Policy forbids, as it should)."""
+    deadline = time.monotonic() + timeout_ms / 1000.0
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            pytest.fail(f"page: {expression!r} still false after {timeout_ms / 1000:g} s")
+        page.wait_for_timeout(50)
 
 
 @pytest.fixture
@@ -89,18 +103,17 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
         try:
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             page.on("pageerror", lambda e: errors.append(str(e)))
+            # The page runs under its own Content-Security-Policy: it must not break it.
+            page.on("console", lambda m: errors.append(m.text) if "Content Security Policy" in m.text else None)
+            refused = page.goto(server.base_url)  # the address without its token
+            assert refused is not None and refused.status == 403
             page.goto(server.url)
+            assert server.url == f"{server.base_url}?token={server.token}"
 
             # Video frames arrive and are decoded; plots receive points.
-            page.wait_for_function(
-                "window.cockpit.framesShown >= 3 && window.cockpit.plotPoints > 50",
-                timeout=20_000,
-            )
+            _wait_for(page, "window.cockpit.framesShown >= 3 && window.cockpit.plotPoints > 50", 20_000)
             first = page.evaluate("({f: cockpit.framesShown, p: cockpit.plotPoints})")
-            page.wait_for_function(
-                f"cockpit.framesShown > {first['f'] + 2} && cockpit.plotPoints > {first['p'] + 50}",
-                timeout=20_000,
-            )
+            _wait_for(page, f"cockpit.framesShown > {first['f'] + 2} && cockpit.plotPoints > {first['p'] + 50}", 20_000)
             assert page.locator("img[data-camera=head]").count() == 1
             natural = page.evaluate("document.querySelector('img[data-camera=head]').naturalWidth")
             assert natural == 320
@@ -152,7 +165,13 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             page.wait_for_timeout(200)
             assert server.stats["bad_messages"] == bad_before + 4
             shown = page.evaluate("cockpit.framesShown")
-            page.wait_for_function(f"cockpit.framesShown > {shown}", timeout=10_000)
+            _wait_for(page, f"cockpit.framesShown > {shown}", 10_000)
+
+            # Reload without the token in the address: the cookie of the first load serves.
+            connections = server.stats["connections"]
+            page.goto(server.base_url)
+            _wait_for(page, "window.cockpit.wsOpen && window.cockpit.framesShown >= 1", 20_000)
+            assert server.stats["connections"] > connections
         finally:
             browser.close()
     assert errors == []

@@ -146,18 +146,28 @@ function onFrame(buf) {
 // ------------------------------------------------------------------ websocket
 
 let ws = null;
+// The access token: from the address the leader printed (?token=...); the server also set
+// it as a cookie at the first page load, which the websocket carries as well.
+const token = new URLSearchParams(location.search).get("token");
+state.refused = null;
 
 function connect() {
   const proto = location.protocol === "https:" ? "wss" : "ws";
-  ws = new WebSocket(`${proto}://${location.host}/ws`);
+  const query = token ? `?token=${encodeURIComponent(token)}` : "";
+  ws = new WebSocket(`${proto}://${location.host}/ws${query}`);
   ws.binaryType = "arraybuffer";
   ws.onopen = () => {
     state.wsOpen = true;
     state.connects += 1;
     setPill("st-ws", "connected", "ok");
   };
-  ws.onclose = () => {
+  ws.onclose = (ev) => {
     state.wsOpen = false;
+    if (ev.code === 1013) {  // refused: too many clients; try again later
+      setPill("st-ws", state.refused || "refused: too many clients", "bad");
+      setTimeout(connect, 5000);
+      return;
+    }
     setPill("st-ws", "disconnected", "down");
     setTimeout(connect, 1000);
   };
@@ -165,6 +175,7 @@ function connect() {
     if (typeof ev.data === "string") {
       let msg;
       try { msg = JSON.parse(ev.data); } catch (e) { return; }
+      if (msg.type === "refused") state.refused = `refused: ${msg.reason}`;
       if (msg.type === "samples" && Array.isArray(msg.samples)) onSamples(msg.samples);
     } else {
       onFrame(ev.data);
