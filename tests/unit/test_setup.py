@@ -14,6 +14,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from bipedtele.auth import load_message_auth
 from bipedtele.config import ConfigError, load_config
 from bipedtele.setup import make_certs, task_course, write_two_hosts
 
@@ -127,6 +128,7 @@ def test_each_profile_loads_from_any_working_folder(hosts: Path, tmp_path: Path,
                 assert Path(value).is_file(), (host, field, value)
         if host != "router":
             assert cfg.section("world").obstacles == course
+            assert load_message_auth(net) is not None  # the key file passes the loader's checks
     assert load_config(hosts / "operator" / "bipedtele.toml").section("leader").operator == "pilot"
 
 
