@@ -221,6 +221,21 @@ def start_leader(procs: Procs, endpoint: str, extra: list[str] | None = None, *,
     return p
 
 
+def start_delay_proxy(procs: Procs, listen_port: int, target_port: int, forward: str, backward: str,
+                      *, name: str = "proxy") -> Proc:  # fmt: skip
+    """Start ``bipedtele delay-proxy`` from 127.0.0.1:LISTEN_PORT to 127.0.0.1:TARGET_PORT.
+
+    ``forward`` delays what flows towards the target (h1 for a leader behind the proxy),
+    ``backward`` what flows back (h2); delay models as on the command line (``const:100ms``).
+    """
+    p = procs.start(name, [
+        "delay-proxy", "--listen", f"127.0.0.1:{listen_port}", "--target", f"127.0.0.1:{target_port}",
+        "--forward", forward, "--backward", backward,
+    ])  # fmt: skip
+    p.wait_log(r"delay-proxy: listening on", 30.0)
+    return p
+
+
 # --------------------------------------------------------------------------- monitor
 
 
@@ -228,10 +243,12 @@ class Monitor:
     """A Zenoh client session in the test that watches one robot's feedback and status.
 
     Every valid Feedback and Status is kept with its receive time (``time.time()``).
+    ``user`` and ``password`` log it in where the router requires it.
     """
 
-    def __init__(self, endpoint: str, robot_id: str = "nao1") -> None:
+    def __init__(self, endpoint: str, robot_id: str = "nao1", *, user: str = "", password: str = "") -> None:
         self.endpoint = endpoint
+        self.user, self.password = user, password
         self.keys = Keys(robot_id)
         self.drops = DropCounter("monitor")
         self.feedback: list[Received[Feedback]] = []
@@ -239,7 +256,9 @@ class Monitor:
         self._stack = contextlib.ExitStack()
 
     def __enter__(self) -> Monitor:
-        net = NetworkConfig(mode="client", connect=[self.endpoint], timeout_s=10.0)
+        net = NetworkConfig(
+            mode="client", connect=[self.endpoint], timeout_s=10.0, user=self.user, password=self.password
+        )
         session = self._stack.enter_context(open_session(net))
         self._fb = self._stack.enter_context(
             MessageReceiver(session, self.keys.feedback, Feedback, self.drops, maxlen=1_000_000)
