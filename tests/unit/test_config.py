@@ -206,3 +206,16 @@ def test_config_command_never_prints_an_inline_password() -> None:
     assert "hunter2" not in res.stdout and "hunter2" not in res.stderr
     data = json.loads(res.stdout)
     assert data["network"]["password"] == "***" and data["network"]["user"] == "leader"
+
+
+def test_intercontinental_profile_carries_the_task_course_and_the_security_settings() -> None:
+    """Issue 15 item 9: the intercontinental profile had no [world] course for the pilot."""
+    cfg = load_config("intercontinental")
+    assert cfg.section("world").obstacles == load_config("localhost-delay").section("world").obstacles
+    assert len(cfg.section("world").obstacles) == 5
+    assert cfg.section("leader").operator == "pilot"
+    net = cfg.section("network")
+    assert net.message_key_file == "secrets/message.key"
+    assert net.publishers_allowed == ["leader"] and net.followers_allowed == ["follower"]
+    assert net.tls_mutual and net.password_file and not net.password
+    assert cfg.section("clock").mode == "ntp"
