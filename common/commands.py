@@ -14,13 +14,16 @@ __all__ = ["add_config_parser"]
 
 def _run_config(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
-    json.dump(cfg.to_dict(), sys.stdout, indent=2, sort_keys=True)
+    # Secrets (passwords, tokens, fields marked secret) are shown as "***": output like this
+    # ends up in terminals, logs and issue reports.
+    json.dump(cfg.to_dict(redact=True), sys.stdout, indent=2, sort_keys=True)
     sys.stdout.write("\n")
     return 0
 
 
 def add_config_parser(sub: Any) -> None:
-    """``bipedtele config [--config F] [--set K=V]``: validate a profile and print it as JSON."""
-    p = sub.add_parser("config", help="validate a config profile and print it as JSON")
+    """``bipedtele config [--config F] [--set K=V]``: validate a profile and print it as JSON
+    (secrets shown as ``"***"``; paths as resolved, see :mod:`bipedtele.config`)."""
+    p = sub.add_parser("config", help="validate a config profile and print it as JSON (secrets shown as ***)")
     add_config_args(p)
     p.set_defaults(func=_run_config)
