@@ -7,6 +7,10 @@ declared, every message recorded to MCAP. With ``--realtime off`` (simulator onl
 runs as fast as the CPU allows, for tests and batch runs.
 
 Stops cleanly on SIGINT/SIGTERM: the robot stops and stands, then everything closes.
+A robot fault never ends the program: :class:`~bipedtele.follower.supervisor.RobotSupervisor`
+stops the robot if it can be reached, logs, and goes on (reconnecting a lost robot);
+camera faults cost frames only (:class:`~bipedtele.follower.video.VideoStreamer`).
+Nothing is written (recording) before the configuration is valid.
 """
 
 from __future__ import annotations
@@ -18,12 +22,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bipedtele import recording as _recording
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.clock import ClockSync
 from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import DEFAULT_MAX_FUTURE_S, FollowerLoop
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot
+from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import ClockPing, ClockPong, Command, Feedback, Message, Status, VideoFrame
@@ -48,6 +54,28 @@ def _robot_from_config(cfg: Config, name: str) -> FollowerRobot:
         return make_robot(name, config=cfg)
     except ValueError as exc:
         raise ConfigError(f"--robot: {exc}") from None
+
+
+def _recording_path(folder: Path) -> Path:
+    """A new recording name in ``folder`` (unique, never overwriting, where the core has it)."""
+    new_path = getattr(_recording, "new_recording_path", None)
+    if new_path is not None:
+        return Path(new_path(folder, "follower"))
+    return folder / f"follower-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+
+
+def _reset_hook(robot: FollowerRobot) -> Any:
+    """``on_new_leader`` for ``--reset-on-leader``: the robot back on its start pose."""
+
+    def on_new_leader(sid: int) -> bool:
+        reset = getattr(robot, "reset_pose", None)
+        if reset is None:
+            return False
+        LOG.info("new leader session %d: putting the robot back on the course start", sid)
+        reset()
+        return True
+
+    return on_new_leader
 
 
 class _Pacer:
@@ -75,6 +103,7 @@ def main(
     realtime: bool | None = None,
     duration_s: float | None = None,
     record: Path | None = None,
+    reset_on_leader: bool = False,
 ) -> int:
     """Run the follower until a signal or ``duration_s`` of robot time.
 
@@ -89,17 +118,25 @@ def main(
     duration_s : float, optional
         Stop after this much robot time [s].
     record : Path, optional
-        MCAP file (default: ``[record] dir``/follower-<time>.mcap when recording is enabled).
+        MCAP file (default: a new file in ``[record] dir`` when recording is enabled).
+    reset_on_leader : bool
+        Put the robot back on its start pose whenever a new leader session begins
+        (simulator only).
     """
     fcfg = cfg.section("follower")
     name = robot_name or fcfg.robot
     rt = fcfg.realtime if realtime is None else realtime
     if not rt and name != "sim":
         raise ConfigError(f"--realtime off with robot {name!r}: allowed: only with the simulator (robot 'sim')")
+    if reset_on_leader and name != "sim":
+        raise ConfigError(f"--reset-on-leader with robot {name!r}: allowed: only with the simulator (robot 'sim')")
     keys = Keys(cfg.section("robot").id)
+    # Every setting is checked (the robot's section too) before anything is written.
+    robot_obj = _robot_from_config(cfg, name)
+    max_future_s = float(getattr(cfg.section("clock"), "max_future_s", DEFAULT_MAX_FUTURE_S))
     rec_cfg = cfg.section("record")
     if record is None and rec_cfg.enabled:
-        record = Path(rec_cfg.dir) / f"follower-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+        record = _recording_path(Path(rec_cfg.dir))
     if record is not None:
         try:
             record.parent.mkdir(parents=True, exist_ok=True)
@@ -122,7 +159,7 @@ def main(
             MessageReceiver(session, keys.clock, (ClockPing, ClockPong), drops)
         )
         try:
-            robot = stack.enter_context(_robot_from_config(cfg, name))
+            robot = stack.enter_context(robot_obj)
         except RobotError as exc:
             LOG.error("robot %s: %s", name, exc)
             return 1
@@ -165,7 +202,11 @@ def main(
             now=clock, to_local=sync.to_local if ntp else (lambda t: t),
             delay_window_s=cfg.section("clock").delay_window_s, on_event=on_event,
             conservative_rtt=(lambda: sync.rtt) if ntp and cfg.section("clock").conservative_split else None,
+            max_future_s=max_future_s, on_new_leader=_reset_hook(robot) if reset_on_leader else None,
         )
+        naoqi_cfg = getattr(robot, "config", None)
+        backoff = tuple(getattr(naoqi_cfg, "reconnect_backoff_s", (0.2, 5.0)))
+        supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
         video = stack.enter_context(
             VideoStreamer(robot, fcfg.cameras, fcfg.camera_fps, pubs.video.put, now=clock, jpeg_quality=fcfg.jpeg_quality)
         )
@@ -182,24 +223,22 @@ def main(
                 next_ping = time.monotonic() + ping_period
                 ping_seq += 1
                 pubs.clock.put(ClockPing(sid=loop.sid, seq=ping_seq, t=clock()))
-            tel = loop.tick()
+            tel = supervisor.tick()
             got_cmd = cmd_rx.latest()
             if recorder is not None and got_cmd is not None and (got_cmd.msg.sid, got_cmd.msg.seq) != last_cmd_seen:
                 last_cmd_seen = (got_cmd.msg.sid, got_cmd.msg.seq)
                 recorder.write("cmd/recv", got_cmd.msg, got_cmd.t_recv)
-            video.maybe_capture(tel.t)
-            try:
-                robot.advance(loop.dt)
-            except RobotError as exc:
-                LOG.error("robot failed: %s", exc)
-                return 1
-            if duration_s is not None and tel.t - start_t >= duration_s:
+            if tel is not None:
+                video.maybe_capture(tel.t)
+            supervisor.advance(loop.dt)
+            if duration_s is not None and clock() - start_t >= duration_s:
                 break
             if rt:
                 pacer.wait()
             else:
                 ticks[0] += 1
-        LOG.info("follower stopping: %s", dict(loop.counters))
+        LOG.info("follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
+                 dict(loop.counters), supervisor.faults, supervisor.reconnects, video.stats["errors"])
     return 0
 
 
@@ -214,11 +253,16 @@ def _answer_clock(msg: Message, t_recv: float, pubs: Publishers, sid: int, sync:
 def _run(args: argparse.Namespace) -> int:
     if args.naoqi_url:
         args.overrides.append(f"naoqi.url={args.naoqi_url!r}".replace("'", '"'))
+    if args.unguarded_robot_may_keep_walking:
+        args.overrides.append("naoqi.allow_unguarded=true")
     cfg = config_from_args(args)
     if args.duration is not None and args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
     realtime = None if args.realtime is None else args.realtime == "on"
-    return main(cfg, robot_name=args.robot, realtime=realtime, duration_s=args.duration, record=Path(args.record) if args.record else None)
+    return main(
+        cfg, robot_name=args.robot, realtime=realtime, duration_s=args.duration,
+        record=Path(args.record) if args.record else None, reset_on_leader=args.reset_on_leader,
+    )
 
 
 def add_follower_parser(sub: Any) -> None:
@@ -230,4 +274,13 @@ def add_follower_parser(sub: Any) -> None:
     p.add_argument("--realtime", choices=["on", "off"], default=None, help="pace in real time (off: simulator only)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds of robot time")
     p.add_argument("--record", default=None, metavar="F.mcap", help="recording file")
+    p.add_argument(
+        "--reset-on-leader", action="store_true",
+        help="simulator only: put the robot back on the course start when a new leader session begins",
+    )
+    p.add_argument(
+        "--unguarded-robot-may-keep-walking", action="store_true",
+        help="real NAO: walk even when no BipedteleGuard answers (sets naoqi.allow_unguarded = true). "
+        "Without a guard, a follower that dies or loses the robot's network leaves the NAO walking",
+    )
     p.set_defaults(func=_run)

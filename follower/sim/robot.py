@@ -183,6 +183,26 @@ class SimNao(FollowerRobot):
             self._obstacles.append(pb.createMultiBody(0, col, vis, list(ob.position), physicsClientId=c))
         self._qref = q0.copy()
 
+    def reset_pose(self) -> None:
+        """Put the robot back on its start pose (the origin facing +x), standing.
+
+        The world is rebuilt as at ``connect()`` and the robot settles on its feet; robot
+        time goes on from where it was (it never runs backwards). Used by the follower's
+        ``--reset-on-leader`` so that each leader session starts on the course start.
+        """
+        c = self._need()
+        t_keep, steps_keep = self._t, self._steps
+        pb.resetSimulation(physicsClientId=c)
+        self._build_world()
+        self._reset_state()
+        self.gait.reset(0.0)
+        self._run_physics(round(_SETTLE_S / self._dt))
+        self._t, self._steps = t_keep, steps_keep
+        self._last_obs_t = t_keep
+        self.gait.reset(t_keep)
+        self._last_yaw = self._yaw_unwrapped = self._base()[2]
+        LOG.info("sim NAO back on its start pose")
+
     def disconnect(self) -> None:
         if self._client is None:
             return

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 from bipedtele.config import load_config
 from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.robot import RobotError
+from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.messages import Command, Feedback, Status
 from fakes.kinematic_robot import KinematicRobot
 
@@ -306,3 +308,79 @@ def test_new_leader_sessions_call_the_hook_once_each() -> None:
     loop.tick()
     assert seen == [1, 2]
     assert loop.counters["leader_sessions"] == 2 and loop.counters["resets"] == 2
+
+
+# ---------------------------------------------------------------- supervisor (issue 10 item 1)
+
+
+class FlakyRobot(KinematicRobot):
+    """Observations time out while ``timeouts`` is set; the link drops while ``down`` is set."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.timeouts = False
+        self.down = False
+        self.connects = 0
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected and not self.down
+
+    def connect(self) -> None:
+        if self.down:
+            raise RobotError("cannot reach the robot")
+        self.connects += 1
+        self.stop()  # as the NAOqi bridge does first thing
+        super().connect()
+
+    def observe(self):  # type: ignore[no-untyped-def]
+        if self.timeouts:
+            raise RobotError("NAOqi call ALMotion.getRobotVelocity timed out after 2000 ms")
+        return super().observe()
+
+
+def test_the_supervisor_stops_the_robot_on_a_fault_and_walks_again_when_it_answers() -> None:
+    robot = FlakyRobot()
+    h = Harness(robot)
+    mono = [0.0]
+    sup = RobotSupervisor(robot, h.loop, backoff_s=(0.2, 1.0), monotonic=lambda: mono[0])
+
+    def run(seconds: float) -> list:
+        out = []
+        for _ in range(round(seconds / h.loop.dt)):
+            h.command(5.0, 0.0)
+            out.append(sup.tick())
+            sup.advance(h.loop.dt)
+            h.t += h.loop.dt
+            mono[0] += h.loop.dt
+        return out
+
+    run(8.0)
+    assert robot.v > 0.03
+    robot.timeouts = True
+    tels = run(3.0)
+    assert all(t is None for t in tels) and sup.faults == len(tels)
+    assert robot.stopping and robot.v == 0.0  # stopped, and the process goes on
+    robot.timeouts = False
+    tels = run(8.0)
+    assert tels[-1] is not None and tels[-1].state == "walking" and robot.v > 0.03
+    # the link drops: reconnect tries with back-off, then walking again
+    robot.down, robot._connected = True, False
+    tels = run(3.0)
+    assert all(t is None for t in tels)
+    robot.down = False
+    tels = run(8.0)
+    assert sup.reconnects == 1 and robot.connects == 2
+    assert tels[-1] is not None and tels[-1].state == "walking"
+    st = [m for m in h.published if isinstance(m, Status)]
+    assert any(m.state == "error" for m in st)
+
+
+def test_an_unexpected_error_in_a_tick_is_a_fault_too() -> None:
+    robot = KinematicRobot()
+    h = Harness(robot)
+    sup = RobotSupervisor(robot, h.loop)
+    h.run(5.0, v=5.0)
+    h.loop.equivalent = None  # type: ignore[assignment]  # a bug
+    assert sup.tick() is None
+    assert sup.faults == 1 and robot.stopping

@@ -137,3 +137,45 @@ def test_disconnect_is_idempotent_and_releases_pybullet() -> None:
     robot.disconnect()
     robot.disconnect()
     assert not pb.isConnected(physicsClientId=client)
+
+
+@pytest.mark.timeout(120)
+def test_reset_pose_puts_a_walked_or_fallen_robot_back_on_the_start_standing() -> None:
+    world = WorldConfig(obstacles=[Obstacle(shape="box", position=[2.0, 0.0, 0.25], size=[0.2, 0.3, 0.5])])
+    with SimNao(world=world) as robot:
+        start = robot.observe()
+        robot.send_walk(WalkCommand(forward_m_s=0.06, turn_rad_s=0.2, cycle_s=1.0))
+        robot.advance(6.0)
+        moved = robot.observe()
+        assert moved.pose[0] > 0.15 and abs(moved.pose[2]) > 0.3
+        robot.reset_pose()
+        back = robot.observe()
+        assert back.t >= moved.t  # robot time never runs backwards
+        assert back.pose == pytest.approx(start.pose, abs=0.01)
+        assert not back.fallen and not back.walking
+        assert back.sonar_m == pytest.approx(start.sonar_m, abs=0.01)  # the same world
+        pb.resetBasePositionAndOrientation(robot._robot, [0, 0, 0.2], pb.getQuaternionFromEuler([1.2, 0, 0]),
+                                           physicsClientId=robot._client)
+        robot.advance(1.0)
+        assert robot.observe().fallen
+        robot.reset_pose()
+        assert not robot.observe().fallen
+        robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))  # and it walks again
+        robot.advance(5.0)
+        again = robot.observe()
+        assert 0.1 < again.pose[0] < 0.4 and not again.fallen
+
+
+def test_reset_on_leader_is_refused_for_a_real_nao(tmp_path) -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "follower", "--robot", "naoqi", "--reset-on-leader",
+         "--set", f'record.dir="{tmp_path}"'],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--reset-on-leader" in lines[0] and "simulator" in lines[0], proc.stderr
+    assert list(tmp_path.iterdir()) == []  # nothing written
