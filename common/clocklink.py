@@ -25,12 +25,19 @@ increasing ``seq`` (pings and answers share the counter). The ``sid`` must be th
 the peer's sequence gate binds to (the node's command or feedback sid), so that
 ``peer_sid`` on the other side names this process.
 
-Usage (see :class:`ClockLink`)::
+Usage (follower; the leader passes its feedback receiver's gate)::
 
-    with ClockLink(pubs.clock.put, loop.sid, sync=sync, drops=drops,
-                   peer_sid=lambda: cmd_gate.live_sid) as link:
-        MessageReceiver/LatestReceiver(session, keys.clock, (ClockPing, ClockPong), drops,
-                                       ignore_sid=loop.sid, on_message=link.on_message)
+    cmd_gate = SequenceGate(takeover_after_s=fcfg.watchdog_s)
+    link = stack.enter_context(ClockLink(
+        pubs.clock.put, loop.sid, sync=sync if ntp else None, drops=drops,
+        answer_rate_hz=ck.answer_rate_hz, ping_rate_hz=ck.ping_rate_hz,
+        peer_sid=lambda: cmd_gate.live_sid))
+    stack.enter_context(LatestReceiver(
+        session, keys.clock, (ClockPing, ClockPong), drops,
+        ignore_sid=loop.sid, on_message=link.on_message))
+
+The clock receiver gets no ``clock_sync``, ``max_future_s`` nor gate: a ping is stamped
+on the peer's clock (ntp mode), and the link does its own matching.
 """
 
 from __future__ import annotations

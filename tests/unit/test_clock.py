@@ -6,6 +6,8 @@ import random
 
 import pytest
 from bipedtele.clock import ClockSync, DelayEstimator, conservative_delays
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 
 def test_empty_window_is_none() -> None:
@@ -229,3 +231,26 @@ def test_inconsistent_answers() -> None:
         ClockSync(expire_s=float("inf"))
     with pytest.raises(ValueError, match="allowed"):
         ClockSync(max_outstanding=0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(0.0, 1e9), st.floats(-1e9, 1e9), st.floats(0.0, 1.0), st.floats(0.0, 10.0),
+    st.integers(0, 2**63 - 1), st.integers(0, 2**32 - 1),
+)
+def test_no_answer_makes_the_round_trip_shorter_than_measured_minus_hold(
+    t2: float, hold: float, t1_frac: float, elapsed: float, seq: int, sid: int
+) -> None:
+    """Whatever t2, t3, seq and sid a forger picks, an accepted answer's round trip is at
+    least the locally measured t4 - t1 minus hold_max_s (so the damping of (40) scheduled
+    from it is at least the one for that)."""
+    cs = ClockSync(hold_max_s=0.05)
+    t1 = 1000.0 + t1_frac
+    cs.sent(5, t1)
+    t4 = t1 + elapsed
+    reason = cs.on_answer(sid, seq, t2, t2 + hold, t4)
+    if reason is None:
+        assert seq == 5
+        assert cs.rtt is not None and cs.rtt >= (t4 - t1) - 0.05 - 1e-9
+    else:
+        assert not cs.ready
