@@ -6,6 +6,14 @@ status and video, serves the browser cockpit, records everything to MCAP and run
 1 kHz :class:`~bipedtele.leader.loop.LeaderLoop` in the main thread until the operator
 model is done, ``--duration`` passed, or SIGINT/SIGTERM. On the way out it sends
 ``enable = false`` commands so the robot stops at once, then prints a one-line summary.
+
+Order: arguments and configuration are checked first (one line, exit 2), then the session
+opens and the device connects; only then does the cockpit serve (its address, with the
+run's access token, is logged as ``cockpit: open http://HOST:PORT/?token=TOKEN``) and the
+recording start. While the follower is present, :class:`~bipedtele.leader.reach.CommandReach`
+watches that its feedback acknowledges our commands: if none does for 1.5 s a WARNING says
+``commands not reaching the robot: refused by the router's ACL?``, and a run in which none
+ever got through ends with exit code :data:`EXIT_NOT_REACHED` (3).
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ import argparse
 import contextlib
 import logging
 import math
+import os
 import sys
 import threading
 import time
@@ -31,6 +40,7 @@ from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
 from bipedtele.leader.devices import SimFalcon, SimFalconParams
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, make_operator
+from bipedtele.leader.reach import CommandReach
 from bipedtele.messages import (
     ClockPing,
     ClockPong,
@@ -81,7 +91,9 @@ class _Aux:
         self, loop: LeaderLoop, pubs: Publishers, cfg: Config, sync: ClockSync | None,
         clock_rx: MessageReceiver[Message] | None, status_rx: LatestReceiver[Status],
         presence: PresenceWatcher, drops: DropCounter, record: Callable[[str, Any, float], None],
+        reach: CommandReach | None = None,
     ) -> None:  # fmt: skip
+        self.reach = reach
         self.loop, self.pubs, self.cfg, self.sync = loop, pubs, cfg, sync
         self.clock_rx, self.status_rx, self.presence = clock_rx, status_rx, presence
         self.drops, self.record = drops, record
@@ -161,8 +173,40 @@ class _Aux:
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
                 self.record_progress(now)
+                if self.reach is not None:
+                    self.reach.check(self.presence.alive)
             except Exception as exc:  # a bad moment on the network must not end the program
                 LOG.warning("leader side thread: %s", exc)
+
+
+#: Exit code of a run in which the follower was there but none of our commands reached it.
+EXIT_NOT_REACHED = 3
+#: Environment variable that sets the cockpit token instead of a random one (a launcher
+#: that opens the page itself); URL-safe, at least 16 characters.
+COCKPIT_TOKEN_ENV = "BIPEDTELE_COCKPIT_TOKEN"
+
+
+def _cockpit_token() -> str | None:
+    value = os.environ.get(COCKPIT_TOKEN_ENV)
+    if value is None:
+        return None
+    from bipedtele.leader.cockpit.server import check_token
+
+    try:
+        return check_token(value)
+    except ValueError as exc:
+        raise ConfigError(f"{COCKPIT_TOKEN_ENV}: {exc}") from None
+
+
+def _recording_path(folder: Path) -> Path:
+    """A new recording file in ``folder``: unique, never an existing one."""
+    from bipedtele import recording
+
+    new_path = getattr(recording, "new_recording_path", None)
+    if new_path is not None:
+        return Path(new_path(folder, "leader"))
+    stamp = time.strftime("%Y%m%d-%H%M%S")  # until the core has new_recording_path
+    return folder / f"leader-{stamp}-{int(time.time() * 1000) % 1000:03d}-{os.getpid()}.mcap"
 
 
 def main(
@@ -175,7 +219,11 @@ def main(
     record: Path | None = None,
     stats: dict[str, Any] | None = None,
 ) -> int:
-    """Run the leader program. Returns the exit code (0: clean end).
+    """Run the leader program. Returns the exit code (0: clean end; 1: the device failed;
+    :data:`EXIT_NOT_REACHED`: the follower was there but none of our commands reached it).
+
+    Nothing is served or recorded before the configuration is valid and the Zenoh session
+    is open: the cockpit and the recording start after both.
 
     Parameters
     ----------
@@ -184,13 +232,15 @@ def main(
     operator_name, device_name : str, optional
         Override ``[leader] operator`` / ``device``.
     duration_s : float, optional
-        Stop after this long [s] (``[leader] duration_s`` when omitted; 0 = no limit).
+        Stop after this long [s] (``[leader] duration_s`` when omitted; 0 = no limit). With
+        a duration the scripted operator holds its last point's speed until the end
+        instead of ending the run.
     realtime : bool, optional
         Override ``[leader] realtime``. Off runs the loop as fast as possible with message
         times on a virtual clock (tests and tools only: a real-time follower sees it as
         time passing faster).
     record : Path, optional
-        MCAP file (default ``[record] dir``/leader-<time>.mcap when recording is enabled).
+        MCAP file (default: a new file in ``[record] dir`` when recording is enabled).
     stats : dict, optional
         Filled at the end with the loop's figures (period statistics, counters, progress).
     """
@@ -204,16 +254,32 @@ def main(
     if op_name == "browser" and not lc.cockpit:
         raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
     device = _make_device(cfg, dev_name)  # a bad name fails here, before any I/O
+    token = _cockpit_token() if lc.cockpit else None
+    cockpit_ref: list[Any] = []  # the cockpit, once it runs (the browser operator reads it)
+
+    def joystick() -> tuple[float, float, float] | None:
+        return cockpit_ref[0].joystick() if cockpit_ref else None
+
+    try:
+        operator: Operator | None = make_operator(
+            op_name, cfg, workspace_m=device.limits.workspace_m,
+            joystick=joystick if lc.cockpit else None, hold_script=bool(duration),
+        )  # fmt: skip
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    if not isinstance(device, SimFalcon):
+        operator = None  # a person holds a physical device
+        LOG.info("device %s is held by a person: operator model %s not used", dev_name, op_name)
     keys = Keys(cfg.section("robot").id)
     ck = cfg.section("clock")
     ntp = ck.mode == "ntp"
     sync = ClockSync(ck.ping_window) if ntp else None
     rec_cfg = cfg.section("record")
-    if record is None and rec_cfg.enabled:
-        record = Path(rec_cfg.dir) / f"leader-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
     drops = DropCounter("leader")
     estimator = DelayEstimator(ck.delay_window_s)
     sid = new_session_id()
+    loop_ref: list[LeaderLoop] = []
+    reach = CommandReach(lambda: loop_ref[0].seq if loop_ref else 0)
 
     with contextlib.ExitStack() as stack:
         stop = stack.enter_context(shutdown_on_signals())
@@ -221,6 +287,36 @@ def main(
         # haptic loop sooner than the default 5 ms.
         stack.callback(sys.setswitchinterval, sys.getswitchinterval())
         sys.setswitchinterval(0.0005)
+
+        session = stack.enter_context(open_session(cfg.section("network")))
+        pubs = stack.enter_context(Publishers(session, keys))
+        stack.enter_context(declare_presence(session, keys, "leader"))
+        presence = stack.enter_context(PresenceWatcher(session, keys, "follower"))
+        try:
+            stack.enter_context(device)
+        except DeviceError as exc:
+            LOG.error("device %s: %s", dev_name, exc)
+            return 1
+
+        # Configuration, session and device are good: now the cockpit and the recording.
+        cockpit = None
+        if lc.cockpit:
+            from bipedtele.leader.cockpit import CockpitServer
+
+            try:
+                cockpit = CockpitServer(
+                    lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=token,
+                    allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
+                ).start()  # fmt: skip
+            except OSError as exc:
+                raise ConfigError(
+                    f"leader.cockpit_port = {lc.cockpit_port}: cannot serve on {lc.cockpit_host} "
+                    f"({exc.strerror or exc}); allowed: a free port, or 0 for any"
+                ) from None
+            stack.callback(cockpit.stop)
+            cockpit_ref.append(cockpit)
+        if record is None and rec_cfg.enabled:
+            record = _recording_path(Path(rec_cfg.dir))
         recorder = None
         if record is not None:
             from bipedtele.recording import Recorder
@@ -235,25 +331,8 @@ def main(
             if recorder is not None:
                 recorder.write(topic, msg, t)
 
-        cockpit = None
-        if lc.cockpit:
-            from bipedtele.leader.cockpit import CockpitServer
-
-            try:
-                cockpit = CockpitServer(lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz).start()
-            except OSError as exc:
-                raise ConfigError(
-                    f"leader.cockpit_port = {lc.cockpit_port}: cannot serve on {lc.cockpit_host} "
-                    f"({exc.strerror or exc}); allowed: a free port, or 0 for any"
-                ) from None
-            stack.callback(cockpit.stop)
-
-        session = stack.enter_context(open_session(cfg.section("network")))
-        pubs = stack.enter_context(Publishers(session, keys))
-        stack.enter_context(declare_presence(session, keys, "leader"))
-        presence = stack.enter_context(PresenceWatcher(session, keys, "follower"))
-
         def on_feedback(r: Received[Any]) -> None:
+            reach.on_feedback(r.msg)
             rec("feedback/recv", r.msg, r.t_recv)
 
         def on_video(r: Received[Any]) -> None:
@@ -278,22 +357,6 @@ def main(
             clock_rx = stack.enter_context(
                 MessageReceiver(session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=sid)
             )
-
-        try:
-            stack.enter_context(device)
-        except DeviceError as exc:
-            LOG.error("device %s: %s", dev_name, exc)
-            return 1
-        try:
-            operator: Operator | None = make_operator(
-                op_name, cfg, workspace_m=device.limits.workspace_m,
-                joystick=cockpit.joystick if cockpit is not None else None,
-            )  # fmt: skip
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
-        if not isinstance(device, SimFalcon):
-            operator = None  # a person holds a physical device
-            LOG.info("device %s is held by a person: operator model %s not used", dev_name, op_name)
 
         def latest_feedback() -> tuple[Feedback, float] | None:
             got = fb_rx.latest()
@@ -331,13 +394,16 @@ def main(
             device, operator, cfg.section("control"), send_command, latest_feedback, cfg=lc,
             clock=clock, estimator=estimator, conservative_rtt=rtt_fn, on_sample=on_sample, sid=sid,
         )  # fmt: skip
-        aux = stack.enter_context(_Aux(loop, pubs, cfg, sync, clock_rx, status_rx, presence, drops, rec))
+        loop_ref.append(loop)
+        aux = stack.enter_context(_Aux(loop, pubs, cfg, sync, clock_rx, status_rx, presence, drops, rec, reach))
         aux_holder.append(aux)
         LOG.info(
             "leader ready: robot %s, device %s, operator %s, %s%s", cfg.section("robot").id, dev_name,
             op_name if operator is not None else "(person)", "real time" if rt else "as fast as possible",
             f", cockpit {cockpit.url}" if cockpit is not None else "",
         )  # fmt: skip
+        if cockpit is not None:
+            LOG.info("cockpit: open %s", cockpit.url)
         rec("events", {"event": "start", "operator": op_name}, time.time())
         t_start = time.time()
         if rt:
@@ -352,7 +418,10 @@ def main(
         aux.record_progress(time.time())  # the last pass may have ended the run just now
         rec("events", {"event": "done" if done else "stop", "elapsed_s": elapsed}, time.time())
         loop.send_stop()
-        summary = _summary(loop, op_name, operator, elapsed, drops, record, rt)
+        never_reached = reach.never_reached
+        if never_reached:
+            rec("events", {"event": "commands_not_reaching", "commands": loop.seq}, time.time())
+        summary = _summary(loop, op_name, operator, elapsed, drops, record, rt, reach)
         if stats is not None:
             stats.update(loop.period_stats.summary(loop.dt))
             stats.update(
@@ -360,14 +429,16 @@ def main(
                 drops=drops.total, done=done, elapsed_s=elapsed,
                 progress=operator.progress() if operator is not None else {},
                 cockpit=cockpit.stats if cockpit is not None else {},
+                acknowledged=reach.acknowledged, never_reached=never_reached,
+                slew_limited_ticks=loop.slew_limited_ticks,
             )  # fmt: skip
     print(summary, flush=True)  # noqa: T201 - the program's one-line result
-    return 0
+    return EXIT_NOT_REACHED if never_reached else 0
 
 
 def _summary(
     loop: LeaderLoop, op_name: str, operator: Operator | None, elapsed: float,
-    drops: DropCounter, record: Path | None, rt: bool,
+    drops: DropCounter, record: Path | None, rt: bool, reach: CommandReach | None = None,
 ) -> str:  # fmt: skip
     parts = [f"leader: operator {op_name}"]
     prog = operator.progress() if operator is not None else {}
@@ -385,6 +456,8 @@ def _summary(
             parts.append(f"loop {st['rate_hz']:.1f} Hz, p99 period error {1000 * st['err_p99_s']:.2f} ms")
     if record is not None:
         parts.append(f"recording {record}")
+    if reach is not None and reach.never_reached:
+        parts.append("NO COMMAND REACHED THE ROBOT (refused by the router's ACL? log in as a leader user)")
     return ", ".join(parts)
 
 
@@ -407,5 +480,5 @@ def add_leader_parser(sub: Any) -> None:
     p.add_argument("--device", help="leader device, e.g. sim-falcon (default: [leader] device)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (0: no limit)")
     p.add_argument("--realtime", choices=["on", "off"], help="pace in real time (default: [leader] realtime)")
-    p.add_argument("--record", metavar="FILE", help="MCAP file (default: [record] dir/leader-<time>.mcap)")
+    p.add_argument("--record", metavar="FILE", help="MCAP file (default: a new leader-<time>.mcap in [record] dir)")
     p.set_defaults(func=_run)

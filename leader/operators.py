@@ -153,9 +153,11 @@ class ScriptedOperator(Operator):
 
     ``interp="linear"`` interpolates between points, ``"step"`` holds each point's value
     until the next. Before the first point and after the last, the end values hold; the
-    operator is done once ``t`` passes the last point. With ``wait_for_feedback`` (the
-    default) the profile's time starts at the first update with feedback, as an operator
-    waits for the robot to appear before driving it; before that the intent is zero.
+    operator is done once ``t`` passes the last point, unless ``hold_last``: then it is
+    never done and keeps the last point's speed (the program's ``--duration`` ends the
+    run). With ``wait_for_feedback`` (the default) the profile's time starts at the first
+    update with feedback, as an operator waits for the robot to appear before driving it;
+    before that the intent is zero.
     """
 
     name = "scripted"
@@ -168,9 +170,11 @@ class ScriptedOperator(Operator):
         workspace_m: float = 0.05,
         hand: Hand | None = None,
         wait_for_feedback: bool = True,
+        hold_last: bool = False,
     ) -> None:
         super().__init__(k_g, workspace_m, hand)
         self.wait_for_feedback = wait_for_feedback
+        self.hold_last = hold_last
         self.t_start: float | None = None
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
         if len(pts) == 0 or np.any(np.diff(pts[:, 0]) < 0) or not np.all(np.isfinite(pts)):
@@ -196,7 +200,7 @@ class ScriptedOperator(Operator):
 
     @property
     def done(self) -> bool:
-        return self._t > self.points[-1, 0]
+        return not self.hold_last and self._t > self.points[-1, 0]
 
 
 # --------------------------------------------------------------------------- browser
@@ -567,6 +571,7 @@ def make_operator(
     *,
     workspace_m: float = 0.05,
     joystick: Callable[[], tuple[float, float, float] | None] | None = None,
+    hold_script: bool = False,
 ) -> Operator:
     """Build the operator ``name`` (``scripted``, ``pilot``, ``browser``) from a config.
 
@@ -580,11 +585,14 @@ def make_operator(
         The device's workspace half-width [m].
     joystick : callable, optional
         The cockpit's joystick reader (required for ``browser``).
+    hold_script : bool
+        ``scripted``: hold the last point's speed instead of finishing (the run has a
+        duration that ends it).
     """
     lc = cfg.sections["leader"]
     k_g = cfg.sections["control"].k_g
     if name == "scripted":
-        return ScriptedOperator(lc.script, k_g, lc.script_interp, workspace_m, _hand(lc))
+        return ScriptedOperator(lc.script, k_g, lc.script_interp, workspace_m, _hand(lc), hold_last=hold_script)
     if name == "pilot":
         return PilotOperator(
             course_from_config(cfg),

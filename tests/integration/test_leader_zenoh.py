@@ -157,6 +157,46 @@ def test_leader_exits_on_its_own_when_the_operator_is_done(tmp_path):
     assert events[0] == "start" and events[-1] == "done"
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+def test_duration_governs_a_shorter_script(tmp_path):
+    """--duration 4 with a script that ends after 1 s: the run lasts the duration and the
+    last point's speed is held to the end (it used to end when the script did)."""
+    port = free_port()
+    robot = f"lh{os.getpid()}"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    stub = subprocess.Popen(
+        [sys.executable, str(HERE / "leader_stub_follower.py"), robot, f"tcp/127.0.0.1:{port}",
+         "0.02", "0.02", "100", "100", "20"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    try:
+        leader = subprocess.run(
+            [
+                sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "leader",
+                "--operator", "scripted", "--duration", "4", "--record", str(tmp_path / "l.mcap"),
+                "--set", f'robot.id="{robot}"', "--set", f'network.listen=["tcp/127.0.0.1:{port}"]',
+                "--set", "leader.cockpit=false", "--set", "leader.script=[[0, 3, 2], [1.0, 3, 2]]",
+                "--set", 'leader.script_interp="step"',
+            ],
+            capture_output=True, text=True, env=env, timeout=40,
+        )  # fmt: skip
+    finally:
+        stub.kill()
+        stub.communicate(timeout=10)
+    assert leader.returncode == 0, leader.stderr
+    assert ", stopped, 4." in leader.stdout, leader.stdout
+    recs = list(read_records(tmp_path / "l.mcap"))
+    events = [r.data["event"] for r in recs if r.topic == "events"]
+    assert events[0] == "start" and events[-1] == "stop"
+    cmds = [r.data for r in recs if r.topic == "cmd/sent"]
+    t_end = cmds[-1]["t"]
+    held = [c for c in cmds if t_end - 1.5 < c["t"] < t_end - 0.1]
+    assert len(held) > 50 and all(c["enable"] for c in held)  # still driving, 3 s after the script
+    snaps = [r.data for r in recs if r.topic == "leader/state" and r.data["t"] > t_end - 1.5]
+    assert snaps and all(s["intended_v"] == 3.0 and s["intended_w"] == 2.0 for s in snaps)
+
+
 @pytest.mark.parametrize(
     ("args", "needle"),
     [

@@ -61,6 +61,21 @@ def test_scripted_linear_and_step():
     assert step.done
 
 
+def test_scripted_with_a_duration_holds_its_last_speed():
+    pts = [[0, 0, 0], [2, 4, -2]]
+    held = ScriptedOperator(pts, K_G, "linear", wait_for_feedback=False, hold_last=True)
+    held.intended_speed(0.0, None)
+    for t in (2.5, 30.0, 59.9):
+        assert held.intended_speed(t, None).tolist() == [4.0, -2.0]
+        assert not held.done
+    cfg = load_config("default")
+    assert make_operator("scripted", cfg, hold_script=True).done is False
+    op = make_operator("scripted", cfg)
+    op.intended_speed(0.0, Feedback())
+    op.intended_speed(cfg.leader.script[-1][0] + 0.1, Feedback())
+    assert op.done  # without a duration the script ends the run
+
+
 def test_scripted_waits_for_the_robot_and_targets_ref_over_k_g():
     op = ScriptedOperator([[0, 4, -5], [10, 4, -5]], K_G, "step")
     op.update(5.0, None)

@@ -1,0 +1,97 @@
+"""CommandReach: the leader tells whether the follower applies its commands (cmd_seq)."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+from bipedtele.leader.reach import CommandReach
+from bipedtele.messages import Feedback
+
+FOLLOWER = 77
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def run(reach: CommandReach, clock: Clock, sent: list[int], seconds: float, fb: dict | None, present: bool = True) -> None:
+    """``seconds`` of a leader at 100 Hz commands, 50 Hz feedback built from ``fb``
+    (``cmd_seq`` a callable of our last seq), the side thread checking at 20 Hz."""
+    for k in range(round(seconds * 100)):
+        clock.t += 0.01
+        sent[0] += 1
+        if fb is not None and k % 2 == 0:
+            fields = dict(fb)
+            fields["cmd_seq"] = fields["cmd_seq"](sent[0])
+            reach.on_feedback(Feedback(sid=FOLLOWER, seq=k + 1, **fields))
+        if k % 5 == 0:
+            reach.check(present)
+
+
+def make() -> tuple[CommandReach, Clock, list[int]]:
+    clock, sent = Clock(), [0]
+    return CommandReach(lambda: sent[0], window_s=1.5, clock=clock), clock, sent
+
+
+def warnings(caplog: pytest.LogCaptureFixture) -> list[str]:
+    return [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+
+
+def test_acknowledged_commands_give_no_warning(caplog: pytest.LogCaptureFixture) -> None:
+    reach, clock, sent = make()
+    # The follower applies our commands with a 0.2 s round trip.
+    run(reach, clock, sent, 10.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    assert reach.ever_reached and not reach.never_reached and warnings(caplog) == []
+
+
+def test_refused_commands_are_told_within_2_s_once(caplog: pytest.LogCaptureFixture) -> None:
+    reach, clock, sent = make()
+    t0 = clock.t
+    # Feedback arrives (the router forwards it) but the follower applies none of ours.
+    for _ in range(50):
+        run(reach, clock, sent, 0.1, {"cmd_seq": lambda s: 0, "state": "standing"})
+        if warnings(caplog):
+            break
+    assert clock.t - t0 <= 2.0
+    run(reach, clock, sent, 8.0, {"cmd_seq": lambda s: 0, "state": "standing"})
+    (line,) = warnings(caplog)  # one line, not one per check
+    assert line.startswith("commands not reaching the robot: refused by the router's ACL?")
+    assert reach.never_reached and reach.warnings == 1
+
+
+def test_no_feedback_at_all_while_present_is_told(caplog: pytest.LogCaptureFixture) -> None:
+    reach, clock, sent = make()
+    run(reach, clock, sent, 3.0, None)
+    (line,) = warnings(caplog)
+    assert "no feedback arrives" in line and reach.never_reached
+
+
+def test_an_earlier_leaders_last_command_does_not_count() -> None:
+    # The follower still shows seq 500 of a leader that left; ours pass 500 after 5 s.
+    reach, clock, sent = make()
+    run(reach, clock, sent, 8.0, {"cmd_seq": lambda s: 500, "state": "standing"})
+    assert sent[0] > 500 and reach.never_reached
+
+
+def test_no_follower_no_verdict(caplog: pytest.LogCaptureFixture) -> None:
+    reach, clock, sent = make()
+    run(reach, clock, sent, 5.0, None, present=False)
+    assert not reach.exposed and not reach.never_reached and warnings(caplog) == []
+
+
+def test_commands_that_get_through_again_are_told(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO, logger="bipedtele.leader")
+    reach, clock, sent = make()
+    run(reach, clock, sent, 3.0, {"cmd_seq": lambda s: 0, "state": "standing"})
+    run(reach, clock, sent, 1.0, {"cmd_seq": lambda s: s - 10, "state": "walking"})
+    assert len(warnings(caplog)) == 1 and reach.ever_reached and not reach.never_reached
+    assert any("reach the robot again" in r.getMessage() for r in caplog.records)
+    # A follower that does not fill cmd_seq acknowledges by walking.
+    legacy, clock2, sent2 = make()
+    run(legacy, clock2, sent2, 3.0, {"cmd_seq": lambda s: 0, "state": "walking"})
+    assert legacy.ever_reached
