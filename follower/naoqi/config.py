@@ -50,6 +50,13 @@ class NaoqiConfig:
     fall_tilt_rad: float = param(0.8, lo=0.1, hi=1.6, unit="rad", doc="torso tilt beyond this counts as fallen")
     camera_fps: float = param(15.0, lo=1.0, hi=30.0, unit="Hz", doc="frame rate asked of ALVideoDevice (top camera, QVGA RGB)")
     client_name: str = param("bipedtele", doc="name used for ALSonar / ALVideoDevice subscriptions")
+    # ---- watchdog beside the robot (follower/naoqi/nao_guard.py, docs/hardware.md)
+    allow_unguarded: bool = param(
+        False,
+        doc="walk even when no BipedteleGuard answers (--unguarded-robot-may-keep-walking): a follower that dies "
+        "or loses the robot's network then leaves the NAO walking its last move",
+    )
+    guard_heartbeat_hz: float = param(20.0, lo=10.0, hi=100.0, unit="Hz", doc="heartbeat rate to the BipedteleGuard")
 
     def __post_init__(self) -> None:
         scheme = self.url.partition("://")[0]

@@ -15,15 +15,26 @@ Services used (NAOqi 2.x names and signatures):
   kRGBColorSpace), ``getImageRemote(handle)``, ``unsubscribe(handle)``.
 
 Every call waits at most ``call_timeout_s``; a call that fails or answers garbage raises
-:class:`RobotError` with a message saying what happened and what to do. ``stop()`` never
-raises once connected (a vanished robot cannot be stopped from here: NAO keeps the last
-``move`` until the link returns, and ``connect()`` / ``reconnect()`` stop it first thing).
+:class:`RobotError` with a message saying what happened and what to do. A call that
+*times out* is not a lost link (NAOqi may be busy, the network slow): the link counts as
+lost only when the qi session says it is disconnected. ``stop()`` never raises once
+connected. A vanished robot cannot be stopped through the dead session: ``disconnect()``
+then tries ``stopMove`` over a fresh session, and ``connect()`` / ``reconnect()`` stop it
+first thing when the link is back.
+
+NAO keeps its last ``move`` when nobody stops it (NAOqi has no client watchdog), so the
+bridge heartbeats the ``BipedteleGuard`` service (:mod:`.guardlink`, :mod:`.nao_guard`),
+which calls ``stopMove`` when the heartbeats stop, and refuses to walk
+(:class:`WalkRefusedError`, the robot stands) while no guard answers, unless
+``allow_unguarded`` (``--unguarded-robot-may-keep-walking``).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
+import socket
 import threading
 import time
 from typing import Any
@@ -33,6 +44,7 @@ from bipedtele.config import Config, resolve_section
 from bipedtele.follower.naoqi.answers import as_bool, as_floats, decode_image
 from bipedtele.follower.naoqi.config import NaoqiConfig
 from bipedtele.follower.naoqi.gait import move_config_for, walk_limits
+from bipedtele.follower.naoqi.guardlink import GuardLink
 from bipedtele.follower.naoqi.session import open_session
 from bipedtele.follower.robot import (
     Camera,
@@ -41,6 +53,7 @@ from bipedtele.follower.robot import (
     RobotNotConnectedError,
     RobotObservation,
     WalkCommand,
+    WalkRefusedError,
     register_robot,
 )
 
@@ -91,6 +104,10 @@ class NaoqiRobot(FollowerRobot):
         self._video_handle: str | None = None
         self._sonar_subscribed = False
         self._warned: set[str] = set()
+        self._guard: GuardLink | None = None
+        self._refusing = False
+        self._activity = time.monotonic()
+        self.owner = f"{socket.gethostname()}:{os.getpid()}"
 
     # ------------------------------------------------------------------ connection
 
@@ -134,10 +151,41 @@ class NaoqiRobot(FollowerRobot):
                     self._warn_once("sonar", "NAOqi has no ALSonar service: sonar values may be stale")
                 pos = as_floats(self._call("ALMotion", "getRobotPosition", cfg.use_sensors), 3, "ALMotion.getRobotPosition")
                 self._origin = pos
+                self._start_guard()
             except BaseException:
                 self._release(quiet=True)
                 raise
             LOG.info("connected to NAO at %s (standing, sonar %s m)", cfg.url, cfg.sonar_range_m)
+
+    def _start_guard(self) -> None:
+        cfg = self.config
+        self._activity = time.monotonic()
+        guard = GuardLink(
+            self._session, self.owner, 1.0 / cfg.guard_heartbeat_hz, min(cfg.call_timeout_s, 0.25),
+            lambda: self._activity,
+        )
+        self._guard = guard
+        if guard.probe():
+            LOG.info("NAO guard answers (%s): it stops NAO %.2f s after the last heartbeat", guard.version, guard.lapse_s or 0.0)
+        elif cfg.allow_unguarded:
+            LOG.warning("no BipedteleGuard answers on %s and allow_unguarded is set: if this follower dies or loses "
+                        "the robot's network, NAO keeps walking its last move", cfg.url)
+        else:
+            LOG.error("%s", self._refusal_text())
+        guard.start()
+
+    def _refusal_text(self) -> str:
+        url = self.config.url
+        return (
+            f"refusing to walk NAO at {url}: no BipedteleGuard answers (the watchdog beside the robot that stops it "
+            f"if this follower dies); start one with `bipedtele nao-guard --naoqi-url {url}` or put "
+            "nao_guard.py on the robot (docs/hardware.md), or accept the risk with --unguarded-robot-may-keep-walking"
+        )
+
+    @property
+    def guarded(self) -> bool:
+        """True while a BipedteleGuard acknowledges the heartbeats."""
+        return self._guard is not None and self._guard.answered
 
     def reconnect(self, timeout_s: float | None = None, stop: threading.Event | None = None) -> None:
         """Try ``connect()`` until it works, waiting longer between tries (doubling).
@@ -183,11 +231,38 @@ class NaoqiRobot(FollowerRobot):
                 return
             if not self._lost:
                 self.stop()
+            else:
+                self._stop_over_new_session()
             self._release(quiet=False)
+
+    def _stop_over_new_session(self) -> None:
+        """The link is down at exit: try once to reach NAOqi again just to ``stopMove``."""
+        cfg = self.config
+        try:
+            session = open_session(cfg.url, cfg.user, cfg.resolved_password(), min(cfg.connect_timeout_s, 2.0))
+        except RobotError as exc:
+            LOG.error("cannot stop NAO at %s at exit: %s; a running BipedteleGuard stops it", cfg.url, exc)
+            return
+        try:
+            motion = session.service("ALMotion", _async=True).value(int(cfg.call_timeout_s * 1000))
+            motion.stopMove(_async=True).value(int(cfg.call_timeout_s * 1000))
+            LOG.info("NAO at %s stopped at exit over a new session", cfg.url)
+        except RuntimeError as exc:
+            LOG.error("cannot stop NAO at %s at exit: %s", cfg.url, exc)
+        finally:
+            try:
+                session.close()
+            except RuntimeError as exc:
+                LOG.debug("closing the stop session: %s", exc)
 
     def _release(self, quiet: bool) -> None:
         if self._session is None:
             return
+        if self._guard is not None:
+            # A clean goodbye releases the guard (we stopped the robot ourselves); a lost
+            # link does not: the guard stops the robot.
+            self._guard.close(release=not self._lost and not quiet)
+            self._guard = None
         if not self._lost:
             if self._video_handle is not None:
                 self._try("ALVideoDevice", "unsubscribe", self._video_handle)
@@ -214,6 +289,7 @@ class NaoqiRobot(FollowerRobot):
         """
         with self._lock:
             self._require()
+            self._activity = time.monotonic()
             t = time.time()
             futs = {
                 "vel": self._start("ALMotion", "getRobotVelocity"),
@@ -249,6 +325,16 @@ class NaoqiRobot(FollowerRobot):
         """
         with self._lock:
             self._require()
+            self._activity = time.monotonic()
+            if not self.config.allow_unguarded and not self.guarded:
+                if not self._refusing:
+                    self._refusing = True
+                    LOG.error("%s", self._refusal_text())
+                    self._try("ALMotion", "stopMove")
+                raise WalkRefusedError(self._refusal_text())
+            if self._refusing:
+                self._refusing = False
+                LOG.warning("NAO guard answers: walking allowed again")
             move, sent = move_config_for(cmd, self.config)
             self._call("ALMotion", "move", move.x_m_s, move.y_m_s, move.theta_rad_s, move.as_naoqi())
             return sent
@@ -326,7 +412,7 @@ class NaoqiRobot(FollowerRobot):
         try:
             return fut.value(ms)
         except RuntimeError as exc:
-            raise self._failure(service, method, exc) from None
+            raise self._failure(service, method, exc, ms) from None
 
     def _call(self, service: str, method: str, *args: Any, timeout_s: float | None = None) -> Any:
         return self._wait(self._start(service, method, *args), service, method, timeout_s)
@@ -338,16 +424,27 @@ class NaoqiRobot(FollowerRobot):
         except RobotError as exc:
             LOG.warning("%s", exc)
 
-    def _failure(self, service: str, method: str, exc: Exception) -> RobotError:
+    def _failure(self, service: str, method: str, exc: Exception, timeout_ms: int | None = None) -> RobotError:
         text = str(exc) or type(exc).__name__
-        gone = self._session is None or not self._session.isConnected() or "timeout" in text.lower()
-        if gone:
+        if not self._session_connected():
             self._lost = True
             return RobotError(
                 f"NAO at {self.config.url} is gone ({service}.{method}: {text}); it keeps its last walk command "
                 "until the link returns: stop() is safe, call connect() or reconnect() when it is back"
             )
+        if "timeout" in text.lower():
+            # Slow is not gone: the link stays up and the next call tries again.
+            waited = f" after {timeout_ms} ms" if timeout_ms is not None else ""
+            return RobotError(f"NAOqi call {service}.{method} timed out{waited} (NAO at {self.config.url} is slow or busy; the link is up)")
         return RobotError(f"NAOqi refused {service}.{method}: {text}")
+
+    def _session_connected(self) -> bool:
+        if self._session is None:
+            return False
+        try:
+            return bool(self._session.isConnected())
+        except RuntimeError:
+            return False
 
     def _relative_pose(self, pos: tuple[float, ...]) -> tuple[float, float, float]:
         x0, y0, th0 = self._origin

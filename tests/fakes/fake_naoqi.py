@@ -11,8 +11,16 @@ by the move config like NAO's walk (speed <= MaxStepX / step period, step period
 MaxStepFrequency between 0.6 s and 0.4 s); odometry integrates that velocity in wall time;
 the sonars see cylinders (``set_obstacles``) inside 60-degree cones yawed +-22 degrees,
 and update only while ALSonar has a subscriber, as on the real robot. Every call is
-recorded; ``FakeNaoControl`` (test-only, not a NAOqi service) sets the world, injects
-bad answers and returns the record.
+recorded with its wall-clock time (``time.time()``, the same clock as the test's and the
+other processes'); ``FakeNaoControl`` (test-only, not a NAOqi service) sets the world,
+injects bad answers and returns the record.
+
+Like NAOqi's own modules the services answer calls concurrently (``qi.multiThreaded``):
+a hung ``getRobotVelocity`` does not hold up ``stopMove``. A ``hang`` fault holds the
+answer until the fault is cleared (at most 30 s). ``--image-data string`` serves
+``getImageRemote`` with a dynamic signature, so the image data reaches the client as a
+string instead of raw bytes (as a NAOqi service that typed it so did). Other programs
+(the NAO guard) can register their own services on it, as on a robot.
 """
 
 from __future__ import annotations
@@ -120,8 +128,8 @@ def _plain(value: Any) -> Any:
     return repr(value)
 
 
-def _bad(kind: str, good: Any) -> Any:
-    """A bad answer of ``kind`` in place of ``good``."""
+def _bad(kind: str, good: Any, still: Any = None) -> Any:
+    """A bad answer of ``kind`` in place of ``good`` (``still()``: the fault is still set)."""
     if kind == "string":
         return "garbage"
     if kind == "short":
@@ -129,13 +137,16 @@ def _bad(kind: str, good: Any) -> Any:
     if kind == "nan":
         return [float("nan")] * len(good)
     if kind == "hang":
-        time.sleep(30.0)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and (still is None or still()):
+            time.sleep(0.02)
         return good
     if kind == "error":
         raise RuntimeError("injected failure")
     return good
 
 
+@qi.multiThreaded()
 class ALMotion:
     def __init__(self, world: World) -> None:
         self.w = world
@@ -188,7 +199,7 @@ class ALMotion:
         with self.w.lock:
             good = list(self.w.vel)
         kind = self.w.fault("getRobotVelocity")
-        return good if kind is None else _bad(kind, good)
+        return good if kind is None else _bad(kind, good, lambda: self.w.fault("getRobotVelocity") == "hang")
 
     def getRobotPosition(self, useSensors: bool) -> Any:
         with self.w.lock:
@@ -198,6 +209,7 @@ class ALMotion:
         return good if kind is None else _bad(kind, good)
 
 
+@qi.multiThreaded()
 class ALRobotPosture:
     POSTURES = ("StandInit", "StandZero", "Stand", "Crouch", "Sit", "SitRelax", "LyingBelly", "LyingBack")
 
@@ -218,6 +230,7 @@ class ALRobotPosture:
         return "Standing" if self.w.posture.startswith("Stand") else "Crouching"
 
 
+@qi.multiThreaded()
 class ALMemory:
     def __init__(self, world: World) -> None:
         self.w = world
@@ -256,6 +269,7 @@ class ALSonar:
             self.w.sonar_subscribers.discard(name)
 
 
+@qi.multiThreaded()
 class ALVideoDevice:
     RESOLUTIONS: ClassVar[dict[int, tuple[int, int]]] = {0: (160, 120), 1: (320, 240), 2: (640, 480)}
     LAYERS: ClassVar[dict[int, int]] = {0: 1, 9: 2, 10: 3, 11: 3, 13: 3}  # kYuv, kYUV422, kYUV, kRGB, kBGR
@@ -279,6 +293,9 @@ class ALVideoDevice:
     # NAOqi answers a raw buffer for the data, so the method is bound to that signature.
     @qi.bind("(iiiiiiriffff)", ["s"])
     def getImageRemote(self, handle: str) -> Any:
+        return self._image(handle)
+
+    def _image(self, handle: str) -> Any:
         self.w.record("ALVideoDevice", "getImageRemote", handle)
         with self.w.lock:
             if handle not in self.w.video_subscribers:
@@ -304,6 +321,14 @@ class ALVideoDevice:
         self.w.record("ALVideoDevice", "unsubscribe", handle)
         with self.w.lock:
             return self.w.video_subscribers.pop(handle, None) is not None
+
+
+class StringImageVideoDevice(ALVideoDevice):
+    """ALVideoDevice whose ``getImageRemote`` has a dynamic signature: bytes go out as a string."""
+
+    @qi.bind("m", ["s"])
+    def getImageRemote(self, handle: str) -> Any:
+        return self._image(handle)
 
 
 class FakeNaoControl:
@@ -346,10 +371,10 @@ class FakeNaoControl:
             return json.dumps(self.w.calls)
 
 
-def serve(port: int, ready_file: str = "") -> None:
+def serve(port: int, ready_file: str = "", image_data: str = "raw") -> None:
     """Serve the fake robot on ``tcp://127.0.0.1:port`` until killed."""
     world = World()
-    video = ALVideoDevice(world)
+    video = StringImageVideoDevice(world) if image_data == "string" else ALVideoDevice(world)
     session = qi.Session()
     session.listenStandalone(f"tcp://127.0.0.1:{port}")
     for name, obj in (
@@ -385,9 +410,12 @@ class FakeNaoqi:
     ----------
     port : int, optional
         Port to listen on (the same across restarts); a free one by default.
+    image_data : str
+        ``raw`` (NAOqi's type) or ``string`` (image data typed as a string).
     """
 
-    def __init__(self, port: int | None = None) -> None:
+    def __init__(self, port: int | None = None, image_data: str = "raw") -> None:
+        self.image_data = image_data
         self.port = port or free_port()
         self.url = f"tcp://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen[bytes] | None = None
@@ -401,7 +429,8 @@ class FakeNaoqi:
             while True:
                 # libqi logs to stdout/stderr: to /dev/null, so a full pipe never blocks it.
                 self.proc = subprocess.Popen(
-                    [sys.executable, __file__, "--port", str(self.port), "--ready-file", str(ready)],
+                    [sys.executable, __file__, "--port", str(self.port), "--ready-file", str(ready),
+                     "--image-data", self.image_data],
                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                 )
                 while time.monotonic() < deadline and self.proc.poll() is None and not ready.exists():
@@ -453,5 +482,6 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--port", type=int, default=0)
     parser.add_argument("--ready-file", default="", help="write the URL here once serving")
+    parser.add_argument("--image-data", choices=["raw", "string"], default="raw", help="type of getImageRemote's data")
     args = parser.parse_args()
-    serve(args.port, args.ready_file)
+    serve(args.port, args.ready_file, args.image_data)

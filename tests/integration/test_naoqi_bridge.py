@@ -1,7 +1,14 @@
-"""NaoqiRobot against the fake NAO served over real libqi in a separate process."""
+"""NaoqiRobot against the fake NAO served over real libqi in a separate process.
+
+Tests that only check how walk commands map to ALMotion run the bridge with
+``allow_unguarded``; the guard's own tests start the real guard (nao_guard.py) beside the
+fake robot.
+"""
 
 from __future__ import annotations
 
+import logging
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -11,7 +18,14 @@ import pytest
 from bipedtele.config import ConfigError, load_config
 from bipedtele.follower.naoqi import NaoqiConfig, NaoqiRobot, move_config_for
 from bipedtele.follower.naoqi.session import UserTokenAuthenticatorFactory
-from bipedtele.follower.robot import RobotError, RobotNotConnectedError, WalkCommand, make_robot
+from bipedtele.follower.robot import (
+    RobotError,
+    RobotNotConnectedError,
+    WalkCommand,
+    WalkRefusedError,
+    make_robot,
+)
+from bipedtele.follower.video import VideoStreamer
 
 pytest.importorskip("qi")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -29,7 +43,7 @@ def fake():
 @pytest.fixture
 def robot(fake):
     fake.control().set_obstacles([])
-    r = NaoqiRobot(url=fake.url, call_timeout_s=2.0)
+    r = NaoqiRobot(url=fake.url, call_timeout_s=2.0, allow_unguarded=True)
     r.connect()
     yield r
     r.disconnect()
@@ -171,7 +185,8 @@ def test_bad_answers_raise_robot_error_and_the_bridge_survives(fake, robot):
 
 def test_robot_vanishing_mid_walk_then_reconnect():
     with FakeNaoqi() as fake:
-        robot = NaoqiRobot(url=fake.url, call_timeout_s=1.0, connect_timeout_s=1.0, reconnect_backoff_s=[0.1, 0.5])
+        robot = NaoqiRobot(url=fake.url, call_timeout_s=1.0, connect_timeout_s=1.0, reconnect_backoff_s=[0.1, 0.5],
+                           allow_unguarded=True)
         robot.connect()
         robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
         fake.kill()
@@ -232,4 +247,128 @@ def test_registered_robot_and_config_section():
 def test_contract_checker(fake):
     check = pytest.importorskip("bipedtele.follower.check", reason="the contract checker (follower/check.py) is not there yet")
     fake.control().set_obstacles([])
-    check.check_robot(lambda: NaoqiRobot(url=fake.url))
+    check.check_robot(lambda: NaoqiRobot(url=fake.url, allow_unguarded=True))
+
+
+# ---------------------------------------------------------------- faults (issue 10 items 1, 10)
+
+
+def test_a_timed_out_call_is_not_a_lost_link_the_robot_stops_and_walks_again(fake, robot):
+    robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+    robot.config = robot.config.__class__(**{**robot.config.__dict__, "call_timeout_s": 0.3})
+    ctl = fake.control()
+    ctl.set_fault("getRobotVelocity", "hang")
+    try:
+        with pytest.raises(RobotError, match="timed out") as info:
+            robot.observe()
+        assert "gone" not in str(info.value)
+        assert robot.is_connected  # slow is not gone
+        t_stop = time.time()
+        robot.stop()  # reaches NAO: the other calls still answer
+        assert any(c[3] >= t_stop for c in fake.calls("stopMove"))
+        assert fake.state()["vel"] == [0.0, 0.0, 0.0]
+    finally:
+        ctl.set_fault("getRobotVelocity", "")
+    robot.observe()
+    robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+    assert fake.state()["vel"][0] > 0.0
+
+
+def test_disconnect_after_the_link_dropped_stops_nao_over_a_new_session():
+    with FakeNaoqi() as fake:
+        robot = NaoqiRobot(url=fake.url, call_timeout_s=1.0, connect_timeout_s=1.0, allow_unguarded=True)
+        robot.connect()
+        robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+        fake.kill()
+        with pytest.raises(RobotError, match="gone"):
+            robot.observe()
+        fake.start()  # NAO reachable again (same port), the old session is dead
+        robot.disconnect()
+        assert [c[1] for c in fake.calls()] == ["stopMove"]  # only a stop: no wake-up, no posture
+
+
+def test_camera_data_typed_as_a_string_costs_frames_not_the_follower():
+    with FakeNaoqi(image_data="string") as fake, NaoqiRobot(url=fake.url, allow_unguarded=True) as robot:
+        with pytest.raises(RobotError, match="str"):
+            robot.capture("head")
+        with VideoStreamer(robot, ["head"], 10.0, lambda f: None) as video:
+            for k in range(5):
+                video.maybe_capture(k * 0.1)  # never raises
+        assert video.stats["errors"] == 5 and video.stats["captured"] == 0
+        robot.observe()  # the robot is fine
+        robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+
+
+# ---------------------------------------------------------------- the NAO guard (issue 10)
+
+GUARD = Path(__file__).resolve().parents[2] / "follower" / "naoqi" / "nao_guard.py"
+
+
+def _start_guard(url: str, log: Path) -> subprocess.Popen[bytes]:
+    with open(log, "wb") as fh:
+        proc = subprocess.Popen([sys.executable, str(GUARD), "--url", url], stdout=fh, stderr=subprocess.STDOUT)
+    _until(lambda: "registered" in log.read_text(), 20.0)
+    return proc
+
+
+def test_without_a_guard_the_bridge_refuses_to_walk_in_one_line(fake, caplog):
+    fake.control().set_obstacles([])
+    with caplog.at_level(logging.ERROR), NaoqiRobot(url=fake.url) as robot:
+        n_moves = len(fake.calls("move"))
+        for _ in range(5):
+            with pytest.raises(WalkRefusedError, match="--unguarded-robot-may-keep-walking") as info:
+                robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+        assert "bipedtele nao-guard --naoqi-url " + fake.url in str(info.value)
+        assert "\n" not in str(info.value)
+        assert len(fake.calls("move")) == n_moves and fake.state()["vel"] == [0.0, 0.0, 0.0]
+    refusals = [r for r in caplog.records if "refusing to walk" in r.getMessage()]
+    assert len(refusals) == 2  # once at connect, once when a walk was refused; not per tick
+
+
+def test_with_a_guard_the_bridge_walks_and_a_vanished_guard_makes_it_stand(tmp_path):
+    with FakeNaoqi() as fake:
+        guard = _start_guard(fake.url, tmp_path / "guard.log")
+        try:
+            with NaoqiRobot(url=fake.url, call_timeout_s=1.0) as robot:
+                assert robot.guarded
+                for _ in range(20):  # the loop's ticks keep the heartbeats going
+                    robot.observe()
+                    robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+                    time.sleep(0.05)
+                assert fake.state()["vel"][0] > 0.0
+                guard.kill()  # the guard dies: the bridge must not walk unguarded
+                guard.wait(10)
+                t_kill = time.time()
+
+                def refused() -> bool:
+                    robot.observe()
+                    try:
+                        robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+                    except WalkRefusedError:
+                        return True
+                    time.sleep(0.02)
+                    return False
+
+                _until(refused, 3.0)
+                assert any(c[3] >= t_kill for c in fake.calls("stopMove"))
+                assert fake.state()["vel"] == [0.0, 0.0, 0.0]
+                guard = _start_guard(fake.url, tmp_path / "guard2.log")
+
+                def walks() -> bool:
+                    robot.observe()
+                    try:
+                        robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
+                    except WalkRefusedError:
+                        time.sleep(0.05)
+                        return False
+                    return True
+
+                _until(walks, 10.0)
+                assert fake.state()["vel"][0] > 0.0
+            # a clean disconnect releases the guard: only the bridge's own stop
+            n_stops = len(fake.calls("stopMove"))
+            time.sleep(1.0)
+            assert len(fake.calls("stopMove")) == n_stops
+        finally:
+            guard.kill()
+            guard.wait(10)
