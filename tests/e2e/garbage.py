@@ -1,6 +1,6 @@
 """Publish invalid payloads on every key of one robot (an e2e test's hostile peer).
 
-    python tests/e2e/garbage.py --connect tcp/127.0.0.1:7447 --count 200
+    python tests/e2e/garbage.py --connect tcp/127.0.0.1:7447 --count 200 [--user U --password P]
 
 Publishes ``--count`` payloads on each of ``cmd``, ``feedback``, ``video``, ``clock`` and
 ``status`` (bounded count, paced over at most ``--seconds``), cycling through kinds of
@@ -92,18 +92,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--connect", required=True, help="router endpoint, e.g. tcp/127.0.0.1:7447")
     ap.add_argument("--robot-id", default="nao1")
     ap.add_argument("--count", type=int, default=200, help="payloads per key (1-10000)")
-    ap.add_argument("--seconds", type=float, default=2.0, help="spread them over this long (at most)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="spread them over this long (at most, 0-60)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--keys", default="cmd,feedback,video,clock,status")
+    ap.add_argument("--user", default="", help="log in as this user (routers with authentication)")
+    ap.add_argument("--password", default="")
     args = ap.parse_args(argv)
-    if not 1 <= args.count <= 10_000 or not 0 <= args.seconds <= 30:
-        ap.error("--count: 1-10000, --seconds: 0-30")
+    if not 1 <= args.count <= 10_000 or not 0 <= args.seconds <= 60:
+        ap.error("--count: 1-10000, --seconds: 0-60")
     rng = random.Random(args.seed)
     keys = Keys(args.robot_id)
     names = args.keys.split(",")
     sent: Counter[str] = Counter()
     kinds: Counter[str] = Counter()
-    net = NetworkConfig(mode="client", connect=[args.connect], timeout_s=10.0)
+    net = NetworkConfig(
+        mode="client", connect=[args.connect], timeout_s=10.0, user=args.user, password=args.password
+    )
     with open_session(net) as session:
         # Block rather than drop on congestion: every payload must reach the receivers
         # so that the test can compare counts.

@@ -434,8 +434,9 @@ def test_a_huge_sequence_number_does_not_lock_out_the_leader(procs: Procs, tmp_p
     (SIGTERM: it sends ``enable = false``).
 
     Before (measured): the poisoned command was accepted, every later leader command was
-    dropped as ``stale``; the robot stopped on its watchdog ("no fresh command") and the
-    leader could no longer drive it, nor stop it: its final ``enable = false`` was stale too.
+    dropped as ``stale``; the robot stopped on its watchdog ("no fresh command") 0.5 s later
+    and the leader could no longer drive it; its final ``enable = false`` would have been
+    stale as well.
 
     Now: the jump is dropped (``seq_jump``); the robot keeps walking under the leader's
     later commands, and stops on the leader's own ``enable = false`` ("operator released").
@@ -468,3 +469,114 @@ def test_a_huge_sequence_number_does_not_lock_out_the_leader(procs: Procs, tmp_p
     events = [r.data for r in records(f_rec, "events") if r.data["t"] >= t_stop - 0.1]
     stops = [e for e in events if e["event"] == "watchdog_stop"]
     assert stops and stops[0]["why"] == "operator released", events
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Procs, tmp_path: Path) -> None:
+    """Issue 10, "Done when" 3: a non-leader identity and a router that forwards garbage or
+    replays, during a 60 s run with the pilot walking the course.
+
+    Setup: router with user/password, ``publishers_allowed = ["leader", "relay"]`` and
+    ``followers_allowed = ["follower", "relay"]``; leader and follower share a message key
+    (``network.message_key_file``, 64 hex chars, mode 0600) that neither attacker has. The
+    follower builds the course of ``localhost-delay``; the leader runs its pilot operator
+    for 60 s. For 45 s of it:
+
+    - an intruder logged in as ``follower`` puts Commands (6 cm/s) on every wildcard form
+      and the exact command key, 20 Hz, 9 s per key;
+    - ``relay``, an identity the router lets publish and subscribe everything (what a
+      compromised router can do), replays recorded command and feedback payloads verbatim
+      (valid MACs, old sequence numbers), sends copies of them with a fresh time patched in
+      (MAC no longer valid) and unsigned forged commands with the leader's sid, 20 Hz each;
+    - ``garbage.py`` as ``relay`` puts 900 invalid payloads on each of the five keys.
+
+    Before (measured on the old code, without the key it did not know and with
+    ``followers_allowed`` left out): 841 commands the leader never sent were the robot's
+    command at a tick, interleaved with the pilot's 2006: 291 of the intruder's wildcard
+    commands and 550 of the relay's unsigned forgeries with the leader's sid (the
+    sequence gate took them as the leader's next).
+
+    Now: 0 commands other than the leader's own reach the robot (every ``cmd/recv`` is a
+    command the leader sent, in order, unmodified), no process crashes, every payload the
+    attackers got to a node is counted in its drop counters (``bad_mac``, ``no_mac``,
+    ``stale``/``duplicate`` among them), and the robot walks the course under the pilot
+    (no fall, no watchdog stop, at least one obstacle pass).
+    """
+    users = make_users(tmp_path / "auth", ["leader", "follower", "relay"])
+    prof = router_profile(tmp_path, users, leaders=["leader", "relay"], followers=["follower", "relay"])
+    key = make_key_file(tmp_path / "message.key")
+    signed = ["--config", "localhost-delay", "--set", f'network.message_key_file="{key}"', *NO_VIDEO]
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    f_rec, l_rec = tmp_path / "follower.mcap", tmp_path / "leader.mcap"
+    router = start_router(procs, ep, ["--config", str(prof)])
+    follower = start_follower(procs, ep, [*signed, *users.client_args("follower")], record=f_rec)
+    leader = start_leader(procs, ep, [
+        *signed, *users.client_args("leader"), "--operator", "pilot", "--duration", "60",
+        "--set", "leader.cockpit=false",
+    ], record=l_rec)  # fmt: skip
+    wait_recorded_state(f_rec, "walking", time.time() - 60, timeout_s=30.0, hold_s=1.0)
+
+    t0 = time.time()
+    attack_s = 45
+    attackers = {
+        "intruder": procs.start("intruder", [
+            ATTACKER, "commands", "--connect", ep, *users.attacker_args("follower"), "--keys", ",".join(WILDCARDS),
+            "--seconds", str(attack_s / len(WILDCARDS)), "--rate", "20", "--forward", "6",
+        ], raw=True),
+        "relay": procs.start("relay", [
+            ATTACKER, "compromised", "--connect", ep, *users.attacker_args("relay"), "--seconds", str(attack_s),
+            "--rate", "20", "--forward", "6", "--turn", "-9",
+        ], raw=True),
+        "garbage": procs.start("garbage", [
+            str(HERE / "garbage.py"), "--connect", ep, *users.attacker_args("relay"), "--count", "900",
+            "--seconds", str(attack_s),
+        ], raw=True),
+    }  # fmt: skip
+    reports = {}
+    for name, p in attackers.items():
+        assert p.popen.wait(timeout=attack_s + 60) == 0, p.tail()
+        reports[name] = last_json(p.log())
+    t1 = time.time()
+    _no_crash(router, follower)
+    assert leader.popen.wait(timeout=90) == 0, leader.tail()
+    time.sleep(1.0)  # the follower's last status counts the last drops
+    _no_crash(router, follower)
+    assert follower.stop() == 0, follower.tail()
+    for p in (leader, router):
+        assert "Traceback" not in p.log(), p.tail()
+
+    intr, relay, garbage = reports["intruder"], reports["relay"]["sent"], reports["garbage"]["sent"]
+    assert intr["opened"] and sum(intr["sent"].values()) > 500, intr
+    assert min(relay.get(k, 0) for k in ("replay_cmd", "restamped_cmd", "unsigned_cmd", "replay_feedback",
+                                          "restamped_feedback")) > 300, relay  # fmt: skip
+    assert set(garbage.values()) == {900}, garbage
+
+    # ---- 0 foreign commands reached the robot: only the leader's, unmodified, in order
+    l_recs, f_recs = list(records(l_rec)), list(records(f_rec))
+    sent = {(r.data["sid"], r.data["seq"]): r.data for r in l_recs if r.topic == "cmd/sent"}
+    recv = [r.data for r in f_recs if r.topic == "cmd/recv"]
+    assert len(recv) > 1000, len(recv)
+    foreign = [d for d in recv if sent.get((d["sid"], d["seq"])) != d]
+    assert not foreign, f"{len(foreign)} commands the leader did not send reached the robot, e.g. {foreign[:2]}"
+    seqs = [d["seq"] for d in recv]
+    assert seqs == sorted(set(seqs)), "a replayed command reached the robot"
+
+    # ---- every payload that reached a node was dropped and counted
+    fc, lc = counters(f_recs)[-1][1], counters(l_recs)[-1][1]
+    to_follower = relay["replay_cmd"] + relay["restamped_cmd"] + relay["unsigned_cmd"] + garbage["cmd"]
+    to_leader = relay["replay_feedback"] + relay["restamped_feedback"] + garbage["feedback"] + garbage["video"]
+    assert drops(fc) >= to_follower, (to_follower, fc)
+    assert drops(lc) >= to_leader, (to_leader, lc)
+    for who, c in (("follower", fc), ("leader", lc)):
+        assert drops(c, "bad_mac") > 0 and drops(c, "no_mac") > 0 and drops(c, "stale", "duplicate") > 0, (who, c)
+    assert "bad_mac" in follower.log() and "no_mac" in follower.log()
+
+    # ---- the robot walked the course under the pilot all along
+    during = [r.data for r in f_recs if r.topic == "feedback/sent" and t0 <= r.data["t"] <= t1]
+    walking = sum(d["state"] == "walking" for d in during) / max(1, len(during))
+    assert walking > 0.95, f"walking {100 * walking:.0f} % of the attack"
+    assert fc["falls"] == 0 and _status_at(f_recs, t1)["watchdog_stops"] == _status_at(f_recs, t0)["watchdog_stops"], fc
+    passes = [r.data for r in l_recs if r.topic == "events" and r.data.get("event") == "pass"]
+    assert len(passes) >= 1, "the pilot did not pass a single obstacle in 60 s"
