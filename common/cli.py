@@ -6,7 +6,9 @@ entry point is a function ``add_parser(subparsers)`` that adds one sub-parser an
 programs without importing them.
 
 Every bad argument or config value ends the program with one line on stderr naming what is
-wrong and what is allowed, and exit code 2.
+wrong and what is allowed, and exit code 2. A network link that cannot be set up (no
+router, TLS or user/password refused: :class:`bipedtele.linkcheck.LinkError`) is not a
+config error: one line saying which failure it is, and exit code 1.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any, NoReturn
 
 from bipedtele import __version__
 from bipedtele.config import Config, ConfigError, load_config
+from bipedtele.linkcheck import LinkError
 
 __all__ = ["OneLineParser", "add_config_args", "config_from_args", "main"]
 
@@ -91,6 +94,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         sys.stderr.write(f"bipedtele {args.command}: config error: {exc}\n")
         return 2
+    except LinkError as exc:
+        sys.stderr.write(f"bipedtele {args.command}: link error: {exc}\n")
+        return 1
     except KeyboardInterrupt:
         return 130
 

@@ -2,13 +2,15 @@
 
 Used by the docker compose healthchecks and handy by hand. Opens a short-lived Zenoh
 session from the profile's ``[network]`` section (as a client when it names endpoints to
-connect to) and checks:
+connect to, with the client settings of the profile: its certificate and login; a shared
+profile's router-only settings are ignored) and checks:
 
 - ``--role router``: the session opens, i.e. the router answers on the configured
   endpoints (a Zenoh client cannot open a session without one);
 - ``--role leader|follower``: a liveliness token of that role appears within ``--timeout``.
 
-Exit code 0 when healthy, 1 when not (one line says why), 2 for bad arguments.
+Exit code 0 when healthy, 1 when not (one line says why: for an unreachable or refusing
+router, which failure it is), 2 for bad arguments or configuration.
 """
 
 from __future__ import annotations
@@ -19,13 +21,19 @@ from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
-from bipedtele.transport import Keys, PresenceWatcher, open_session
+from bipedtele.transport import Keys, LinkError, PresenceWatcher, open_session
 
 __all__ = ["add_health_parser", "check_health"]
 
 
 def check_health(cfg: Any, role: str, timeout_s: float) -> tuple[bool, str]:
-    """``(healthy, reason)`` for ``role`` on the network of profile ``cfg``."""
+    """``(healthy, reason)`` for ``role`` on the network of profile ``cfg``.
+
+    Raises
+    ------
+    ConfigError
+        The profile's files or settings are bad (not a health verdict).
+    """
     net = cfg.section("network")
     mode = "client" if net.connect else "peer"
     keys = Keys(cfg.section("robot").id)
@@ -37,7 +45,7 @@ def check_health(cfg: Any, role: str, timeout_s: float) -> tuple[bool, str]:
                 if watcher.wait(alive=True, timeout=timeout_s):
                     return True, f"{role} present on {keys.presence(role)}"
                 return False, f"no {role} present on {keys.presence(role)} within {timeout_s:g} s"
-    except ConfigError as exc:
+    except LinkError as exc:
         return False, str(exc)
 
 

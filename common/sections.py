@@ -33,29 +33,50 @@ class RobotConfig:
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    """Zenoh session settings (see DESIGN section 6).
+    """Zenoh session settings (see docs/network.md).
 
     Endpoints are Zenoh locators such as ``tcp/127.0.0.1:7447`` or ``tls/host:7447``.
     Multicast scouting is off by default: endpoints are always explicit.
+
+    One profile can serve all three roles: each reads only its own settings. A router
+    (``mode = "router"``, or ``bipedtele router``) reads ``listen``, the TLS server
+    certificate, ``credentials_file`` and the ACL lists, and ignores the client login
+    (``user``, ``password``, ``password_file``, ``message_key_file``); a client or peer
+    reads ``connect``, its TLS certificate, ``user`` and ``password``/``password_file``
+    and ignores ``credentials_file``, ``publishers_allowed`` and ``followers_allowed``.
     """
 
     mode: Literal["peer", "client", "router"] = param("peer", doc="Zenoh session mode")
     connect: list[str] = param(default_factory=list, doc="endpoints to connect to")
     listen: list[str] = param(default_factory=list, doc="endpoints to listen on")
     multicast_scouting: bool = param(False, doc="enable UDP multicast discovery")
-    tls_root_ca: str = param("", doc="PEM file of the CA that signs the router's certificate")
-    tls_cert: str = param("", doc="PEM certificate of this process (for mutual TLS or a router)")
-    tls_key: str = param("", doc="PEM private key matching tls_cert")
+    tls_root_ca: str = param("", path=True, doc="PEM file of the CA that signs the router's certificate")
+    tls_cert: str = param(
+        "", path=True, doc="PEM certificate of this process (the router's server certificate, or a client's for mutual TLS)"
+    )
+    tls_key: str = param("", path=True, doc="PEM private key matching tls_cert")
     tls_mutual: bool = param(False, doc="require and present client certificates")
-    user: str = param("", doc="user name for Zenoh user/password authentication")
-    password: str = param("", doc="password (prefer password_file)")
-    password_file: str = param("", doc="file holding the password")
+    user: str = param("", doc="clients: user name for Zenoh user/password authentication")
+    password: str = param("", secret=True, doc="clients: password (prefer password_file)")
+    password_file: str = param("", path=True, doc="clients: file holding the password")
+    message_key_file: str = param(
+        "",
+        path=True,
+        doc="clients: file of 64 hex characters (a 32-byte key, mode 0600) shared by leader and "
+        "follower: every message is signed (HMAC-SHA256) and must be; empty = off",
+    )
     credentials_file: str = param(
-        "", doc="router only: file of 'user:password' lines accepted by the router"
+        "", path=True, doc="router only: file of 'user:password' lines accepted by the router"
     )
     publishers_allowed: list[str] = param(
         default_factory=list,
-        doc="router only: user names allowed to publish commands (access control); empty = all",
+        doc="router only: users with the leader role (may publish commands); "
+        "with followers_allowed, turns on the deny-by-default ACL",
+    )
+    followers_allowed: list[str] = param(
+        default_factory=list,
+        doc="router only: users with the follower role (may publish feedback, video); "
+        "with publishers_allowed, turns on the deny-by-default ACL",
     )
     timeout_s: float = param(10.0, lo=0.1, hi=600.0, unit="s", doc="session open timeout")
 
@@ -70,11 +91,16 @@ class NetworkConfig:
             raise ValueError("tls_cert and tls_key: allowed: both set or both empty")
         if self.password and self.password_file:
             raise ValueError("password and password_file: allowed: at most one of them")
+        both = sorted(set(self.publishers_allowed) & set(self.followers_allowed))
+        if both:
+            raise ValueError(
+                f"user {both[0]!r} is in publishers_allowed and followers_allowed: allowed: each user in at most one role"
+            )
 
 
 @dataclass(frozen=True)
 class ClockConfig:
-    """How each side estimates one-way delays (DESIGN section 3)."""
+    """How each side estimates one-way delays and checks send times (see docs/network.md)."""
 
     mode: Literal["synced", "ntp"] = param(
         "synced", doc="synced: one clock (same host, chrony/PTP); ntp: ping exchange estimates the offset"
@@ -87,6 +113,17 @@ class ClockConfig:
     conservative_split: bool = param(
         True,
         doc="ntp mode: use h1 = h2 = round trip for the stability conditions (the split is unknown)",
+    )
+    max_future_s: float = param(
+        0.25,
+        lo=0.001,
+        hi=10.0,
+        unit="s",
+        doc="a received message stamped more than this ahead of the local clock (after ntp "
+        "conversion) is dropped (counted as 'future')",
+    )
+    answer_rate_hz: float = param(
+        20.0, lo=1.0, hi=1000.0, unit="Hz", doc="most clock pings answered per second (excess dropped)"
     )
 
 

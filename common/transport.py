@@ -1,6 +1,6 @@
 """Zenoh transport: session from ``[network]``, key expressions, QoS, receivers, presence.
 
-Key expressions (DESIGN section 6)::
+Key expressions (docs/network.md)::
 
     bipedtele/<robot_id>/cmd         leader -> follower  Command
     bipedtele/<robot_id>/feedback    follower -> leader  Feedback
@@ -14,17 +14,27 @@ congestion; the video publisher has a low priority and drops too. Loops read the
 message only (:class:`LatestReceiver`, a ring of one); clock pongs, where every message
 matters, go through the queue-style :class:`MessageReceiver`.
 
-Receivers never raise on bad input: payloads that fail :func:`bipedtele.messages.decode`
-are dropped and counted in a :class:`~bipedtele.drops.DropCounter` under the
-:class:`~bipedtele.messages.MessageError` reason; stale and duplicated messages are
-dropped by an optional :class:`~bipedtele.gate.SequenceGate`.
+Receivers never raise on bad input. In order, a payload is dropped and counted in a
+:class:`~bipedtele.drops.DropCounter` when: it fails authentication (``no_mac``,
+``bad_mac``; with a :class:`~bipedtele.auth.MessageAuth`, checked before anything is
+decoded), it fails :func:`bipedtele.messages.decode` (the
+:class:`~bipedtele.messages.MessageError` reason), its send time is more than
+``max_future_s`` ahead of the local clock (``future``) or the peer clock's offset is not
+known yet (``clock_not_synced``), or an optional :class:`~bipedtele.gate.SequenceGate`
+refuses it. Delay estimators never see a negative delay.
+
+Sessions: :func:`open_session` reads only the settings of the process's role; a client
+that cannot reach its router raises :class:`LinkError` saying which failure it is
+(:mod:`bipedtele.linkcheck`).
 
 Examples
 --------
 >>> with open_session(cfg.network) as session:                        # doctest: +SKIP
 ...     keys = Keys(cfg.robot.id)
-...     pubs = Publishers(session, keys)
-...     with LatestReceiver(session, keys.cmd, Command, DropCounter("cmd"), SequenceGate()) as rx:
+...     auth = load_message_auth(cfg.network)
+...     pubs = Publishers(session, keys, auth=auth)
+...     with LatestReceiver(session, keys.cmd, Command, DropCounter("cmd"), SequenceGate(),
+...                         auth=auth, max_future_s=cfg.clock.max_future_s) as rx:
 ...         pubs.feedback.put(fb)
 ...         got = rx.take()
 """
@@ -46,10 +56,13 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import zenoh
+from bipedtele.acl import access_control_json, credential_users
+from bipedtele.auth import MacError, MessageAuth
 from bipedtele.clock import ClockSync, DelayEstimator
 from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
+from bipedtele.linkcheck import STEP_TIMEOUT_S, LinkError, check_endpoint
 from bipedtele.messages import Message, MessageError, decode, encode, new_session_id
 from bipedtele.sections import NetworkConfig
 
@@ -57,12 +70,14 @@ __all__ = [
     "ROLES",
     "Keys",
     "LatestReceiver",
+    "LinkError",
     "MessagePublisher",
     "MessageReceiver",
     "PresenceWatcher",
     "Publishers",
     "Received",
     "Stamper",
+    "access_control_json",
     "declare_control_publisher",
     "declare_presence",
     "declare_video_publisher",
@@ -74,6 +89,11 @@ LOG = logging.getLogger("bipedtele.transport")
 
 ROLES = ("leader", "follower", "router", "monitor")
 M = TypeVar("M", bound=Message)
+
+#: A client's session must open within this many round trips of its router...
+OPEN_RTTS = 8.0
+#: ...and at least this long [s] (after the endpoint checks passed).
+OPEN_MIN_S = 3.0
 
 
 # --------------------------------------------------------------------------- keys
@@ -166,63 +186,6 @@ def _check_file(key: str, path: str) -> str:
     return path
 
 
-def _credential_users(path: str) -> list[str]:
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise ConfigError(
-            f"network.credentials_file = {path!r}: cannot read ({exc.strerror}); allowed: a file of user:password lines"
-        ) from None
-    users = []
-    for i, line in enumerate(lines, 1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        user, sep, pwd = line.partition(":")
-        if not sep or not user or not pwd:
-            raise ConfigError(
-                f"network.credentials_file = {path!r}: line {i} is not user:password"
-            )
-        users.append(user.strip())
-    return users
-
-
-def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
-    """The Zenoh ``access_control`` section for a router, or None if not restricted.
-
-    Only the users in ``publishers_allowed`` may put on ``bipedtele/*/cmd``: every other
-    user of ``credentials_file`` is denied ``put``/``delete`` there (ingress). Clients
-    must be authenticated (user/password) for this to be meaningful, so a credentials
-    file is required.
-    """
-    if not net.publishers_allowed:
-        return None
-    if not net.credentials_file:
-        raise ConfigError(
-            "network.publishers_allowed: needs network.credentials_file (users must authenticate); allowed: set both or neither"
-        )
-    users = _credential_users(net.credentials_file)
-    unknown = [u for u in net.publishers_allowed if u not in users]
-    if unknown:
-        raise ConfigError(
-            f"network.publishers_allowed = {unknown[0]!r}: not a user of {net.credentials_file}; allowed: {', '.join(users)}"
-        )
-    others = [u for u in users if u not in net.publishers_allowed]
-    acl: dict[str, Any] = {"enabled": True, "default_permission": "allow"}
-    if others:
-        acl["rules"] = [
-            {
-                "id": "deny_cmd_put",
-                "permission": "deny",
-                "flows": ["ingress"],  # what they send; they still receive commands
-                "messages": ["put", "delete"],
-                "key_exprs": ["bipedtele/*/cmd"],
-            }
-        ]
-        acl["subjects"] = [{"id": "not_leaders", "usernames": others}]
-        acl["policies"] = [{"rules": ["deny_cmd_put"], "subjects": ["not_leaders"]}]
-    return acl
-
-
 def zenoh_config(
     net: NetworkConfig,
     *,
@@ -231,6 +194,13 @@ def zenoh_config(
     connect: list[str] | None = None,
 ) -> zenoh.Config:
     """Build a :class:`zenoh.Config` from the ``[network]`` section.
+
+    Each role reads only its own settings, so one profile serves all three: a router
+    reads ``listen``, its TLS server certificate, ``credentials_file`` and the ACL
+    lists and ignores the client login (``user``, ``password``, ``password_file``); a
+    client or peer reads ``connect``, its TLS certificate and the login and ignores
+    ``credentials_file``, ``publishers_allowed`` and ``followers_allowed``.
+    (``message_key_file`` is read by :func:`bipedtele.auth.load_message_auth`, never here.)
 
     Parameters
     ----------
@@ -242,9 +212,10 @@ def zenoh_config(
     Raises
     ------
     ConfigError
-        Unreadable password/credentials/PEM files.
+        Unreadable password/credentials/PEM files of this role.
     """
     mode = mode or net.mode
+    router = mode == "router"
     listen = list(net.listen if listen is None else listen)
     connect = list(net.connect if connect is None else connect)
     conf = zenoh.Config()
@@ -273,12 +244,9 @@ def zenoh_config(
     if net.tls_cert:
         cert = _check_file("tls_cert", net.tls_cert)
         key = _check_file("tls_key", net.tls_key)
-        tls.update(
-            listen_certificate=cert,
-            listen_private_key=key,
-            connect_certificate=cert,
-            connect_private_key=key,
-        )
+        tls.update(connect_certificate=cert, connect_private_key=key)
+        if mode != "client":  # a client never listens: its certificate is a client one
+            tls.update(listen_certificate=cert, listen_private_key=key)
     if net.tls_mutual:
         if not net.tls_cert:
             raise ConfigError(
@@ -287,21 +255,58 @@ def zenoh_config(
         tls["enable_mtls"] = True
     for k, v in tls.items():
         put(f"transport/link/tls/{k}", v)
-    password = _read_password(net)
-    if net.user or password:
-        if not (net.user and password):
-            raise ConfigError(
-                "network.user/password: allowed: both a user and a password (or password_file), or neither"
-            )
-        put("transport/auth/usrpwd/user", net.user)
-        put("transport/auth/usrpwd/password", password)
-    if net.credentials_file:
-        _credential_users(net.credentials_file)
-        put("transport/auth/usrpwd/dictionary_file", net.credentials_file)
-    acl = access_control_json(net) if mode == "router" else None
-    if acl is not None:
-        put("access_control", acl)
+    if not router:
+        password = _read_password(net)
+        if net.user or password:
+            if not (net.user and password):
+                raise ConfigError(
+                    "network.user/password: allowed: both a user and a password (or password_file), or neither"
+                )
+            put("transport/auth/usrpwd/user", net.user)
+            put("transport/auth/usrpwd/password", password)
+    else:
+        if net.credentials_file:
+            credential_users(net.credentials_file)
+            put("transport/auth/usrpwd/dictionary_file", net.credentials_file)
+        acl = access_control_json(net)
+        if acl is not None:
+            put("access_control", acl)
     return conf
+
+
+def _zenoh_reason(exc: BaseException) -> str:
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return re.sub(r"\s+at \S+\.rs:\d+\.?$", "", first)  # Zenoh's Rust source location
+
+
+def _preflight(net: NetworkConfig, connect: list[str]) -> float:
+    """Check a client's endpoints before Zenoh does; the longest round trip seen [s].
+
+    Raises
+    ------
+    LinkError
+        When no endpoint passes: which failure each one had.
+    """
+    cert, key = (net.tls_cert, net.tls_key) if net.tls_mutual else ("", "")
+    step = min(STEP_TIMEOUT_S, net.timeout_s)
+    checks = [
+        check_endpoint(ep, root_ca=net.tls_root_ca, cert=cert, key=key, timeout_s=step) for ep in connect
+    ]
+    passed = [c for c in checks if c.ok]
+    if not passed:
+        first = checks[0].kind
+        kind = first if all(c.kind == first for c in checks) else "unreachable"
+        raise LinkError(kind, "; ".join(f"{c.endpoint}: {c.detail}" for c in checks))
+    return max(c.rtt_s for c in passed)
+
+
+def _open_timeout_s(net: NetworkConfig, rtt_s: float) -> float:
+    """How long Zenoh may take to open a client session whose links were checked [s].
+
+    A Zenoh session needs about 4 round trips after TCP (TLS, then its own handshake);
+    beyond OPEN_RTTS round trips (at least OPEN_MIN_S) the router has refused it.
+    """
+    return min(net.timeout_s, max(OPEN_MIN_S, OPEN_RTTS * rtt_s))
 
 
 @contextmanager
@@ -314,28 +319,49 @@ def open_session(
 ) -> Iterator[zenoh.Session]:
     """Open a Zenoh session from the ``[network]`` section; close it on exit.
 
-    Parameters are as in :func:`zenoh_config`.
+    Parameters are as in :func:`zenoh_config`. A client first checks its endpoints
+    (:mod:`bipedtele.linkcheck`: name, TCP, TLS) so that a refusal says which one it is,
+    then gives Zenoh a few round trips to open the session: when the links were fine
+    and Zenoh still fails, the router refused the session (user/password).
 
     Raises
     ------
     ConfigError
-        Bad files, or Zenoh refused the configuration (e.g. an endpoint cannot be bound).
+        Bad files or settings, or Zenoh refused the configuration (e.g. a listen
+        endpoint cannot be bound).
+    LinkError
+        A client cannot reach or is refused by its router: one line saying which.
     """
+    mode = mode or net.mode
+    connect = list(net.connect if connect is None else connect)
     conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
+    client = mode == "client" and bool(connect)
+    if client:
+        rtt = _preflight(net, connect)
+        timeout = _open_timeout_s(net, rtt)
+        conf.insert_json5("connect/timeout_ms", json.dumps(int(timeout * 1000)))
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        first = re.sub(r"\s+at \S+\.rs:\d+\.?$", "", first)  # Zenoh's Rust source location
-        if "Unable to connect" in first:
-            # A router that refuses a client (TLS certificate, user/password) looks the
-            # same to the client as no router at all: say both.
-            first += (
-                f" (no router answered within {net.timeout_s:g} s, or it refused this client's"
-                " TLS certificate or user/password)"
-            )
+        first = _zenoh_reason(exc)
+        if client and "Unable to connect" in first:
+            tls = any(ep.startswith("tls/") for ep in connect)
+            checked = "TCP and TLS were accepted" if tls else "TCP was accepted"
+            if net.user:
+                raise LinkError(
+                    "credentials",
+                    f"the router refused the session: user/password refused for user {net.user!r} ({checked}; "
+                    f"no session within {timeout:g} s); check network.user and network.password_file "
+                    "against the router's credentials_file",
+                ) from None
+            raise LinkError(
+                "credentials",
+                f"the router refused the session ({checked}; no session within {timeout:g} s): "
+                "it may require a user/password (network.user, network.password_file)"
+                + ("" if tls else " or TLS (a tls/ endpoint)"),
+            ) from None
         raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
-    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode or net.mode)
+    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
     try:
         yield session
     finally:
@@ -379,21 +405,27 @@ class Stamper:
 class MessagePublisher:
     """A declared Zenoh publisher that sends :class:`Message` objects.
 
-    Use :func:`declare_control_publisher` or :func:`declare_video_publisher`.
+    Use :func:`declare_control_publisher` or :func:`declare_video_publisher`. With a
+    :class:`~bipedtele.auth.MessageAuth`, every message is signed (HMAC-SHA256 over the
+    encoded message and the key expression).
     """
 
-    def __init__(self, publisher: zenoh.Publisher, key: str) -> None:
+    def __init__(self, publisher: zenoh.Publisher, key: str, auth: MessageAuth | None = None) -> None:
         self._pub = publisher
         self.key = key
+        self.auth = auth
         self.sent = 0
 
     def put(self, msg: Message) -> None:
-        """Encode and send one message (never blocks: dropped on congestion)."""
-        self._pub.put(encode(msg))
+        """Encode (and sign) and send one message (never blocks: dropped on congestion)."""
+        payload = encode(msg)
+        if self.auth is not None:
+            payload = self.auth.sign(payload, self.key)
+        self._pub.put(payload)
         self.sent += 1
 
     def put_bytes(self, payload: bytes) -> None:
-        """Send raw bytes (tests and tools)."""
+        """Send raw bytes as they are, unsigned (tests and tools)."""
         self._pub.put(payload)
 
     def close(self) -> None:
@@ -407,7 +439,7 @@ class MessagePublisher:
         self.close()
 
 
-def declare_control_publisher(session: zenoh.Session, key: str) -> MessagePublisher:
+def declare_control_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
     """Publisher for control traffic: express, real-time priority, drop on congestion."""
     pub = session.declare_publisher(
         key,
@@ -415,17 +447,17 @@ def declare_control_publisher(session: zenoh.Session, key: str) -> MessagePublis
         priority=zenoh.Priority.REAL_TIME,
         congestion_control=zenoh.CongestionControl.DROP,
     )
-    return MessagePublisher(pub, key)
+    return MessagePublisher(pub, key, auth)
 
 
-def declare_video_publisher(session: zenoh.Session, key: str) -> MessagePublisher:
+def declare_video_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
     """Publisher for video: low priority, drop on congestion (latest-only by nature)."""
     pub = session.declare_publisher(
         key,
         priority=zenoh.Priority.DATA_LOW,
         congestion_control=zenoh.CongestionControl.DROP,
     )
-    return MessagePublisher(pub, key)
+    return MessagePublisher(pub, key, auth)
 
 
 class Publishers:
@@ -434,13 +466,22 @@ class Publishers:
     Attributes ``cmd``, ``feedback``, ``clock``, ``status`` (control QoS) and ``video``
     (video QoS) are :class:`MessagePublisher` objects. ``close()`` (or leaving the
     ``with`` block) undeclares the ones that were declared.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+    keys : Keys
+    auth : MessageAuth, optional
+        Signs every message (``[network] message_key_file``, see
+        :func:`bipedtele.auth.load_message_auth`).
     """
 
     _CONTROL = ("cmd", "feedback", "clock", "status")
 
-    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, auth: MessageAuth | None = None) -> None:
         self._session = session
         self.keys = keys
+        self.auth = auth
         self._pubs: dict[str, MessagePublisher] = {}
         self._lock = threading.Lock()
 
@@ -450,9 +491,9 @@ class Publishers:
             if pub is None:
                 key = getattr(self.keys, name)
                 if name == "video":
-                    pub = declare_video_publisher(self._session, key)
+                    pub = declare_video_publisher(self._session, key, self.auth)
                 else:
-                    pub = declare_control_publisher(self._session, key)
+                    pub = declare_control_publisher(self._session, key, self.auth)
                 self._pubs[name] = pub
             return pub
 
@@ -510,7 +551,7 @@ class Received(Generic[M]):
 
 
 class _Receiver(Generic[M]):
-    """Shared decoding/validation/gating for the receivers."""
+    """Shared authentication/decoding/validation/gating for the receivers."""
 
     def __init__(
         self,
@@ -525,7 +566,11 @@ class _Receiver(Generic[M]):
         clock: Callable[[], float] = time.time,
         ignore_sid: int | None = None,
         on_message: Callable[[Received[M]], None] | None = None,
+        auth: MessageAuth | None = None,
+        max_future_s: float | None = None,
     ) -> None:
+        if max_future_s is not None and not max_future_s > 0:
+            raise ValueError(f"max_future_s = {max_future_s!r}: allowed: None or a number > 0 s")
         self.key = key
         self._on_message = on_message
         self._expect: tuple[type[M], ...] = expect if isinstance(expect, tuple) else (expect,)
@@ -533,6 +578,10 @@ class _Receiver(Generic[M]):
         self.gate = gate
         self.estimator = estimator
         self.clock_sync = clock_sync
+        self.auth = auth
+        self.max_future_s = max_future_s
+        # the key expression the sender signed: ours when exact, else the sample's
+        self._mac_topic = None if any(c in key for c in "*$") else key
         self._clock = clock
         self._ignore_sid = ignore_sid
         self._lock = threading.Lock()
@@ -544,6 +593,12 @@ class _Receiver(Generic[M]):
         t_recv = self._clock()
         try:
             payload = sample.payload.to_bytes()
+            if self.auth is not None:
+                try:
+                    payload = self.auth.verify(payload, self._mac_topic or str(sample.key_expr))
+                except MacError as exc:
+                    self.drops.drop(exc.reason, f"{self.key}: {exc.detail}")
+                    return
             try:
                 msg = decode(payload, self._expect[0] if len(self._expect) == 1 else None)
             except MessageError as exc:
@@ -554,14 +609,27 @@ class _Receiver(Generic[M]):
                 return
             if self._ignore_sid is not None and msg.sid == self._ignore_sid:
                 return  # our own message on a shared key (clock, status)
+            t_sent = msg.t
+            sync = self.clock_sync
+            if sync is not None:
+                if not sync.ready:
+                    self.drops.drop("clock_not_synced", f"{self.key}: the peer's clock offset is not known yet")
+                    return
+                t_sent = sync.to_local(t_sent)
+            if self.max_future_s is not None and t_sent - t_recv > self.max_future_s:
+                self.drops.drop(
+                    "future", f"{self.key}: sid={msg.sid} seq={msg.seq} stamped {t_sent - t_recv:.3f} s ahead"
+                )
+                return
             if self.gate is not None:
                 reason = self.gate.accept(msg)
                 if reason is not None:
                     self.drops.drop(reason, f"sid={msg.sid} seq={msg.seq}")
                     return
             if self.estimator is not None:
-                t_sent = self.clock_sync.to_local(msg.t) if self.clock_sync else msg.t
-                self.estimator.update(t_sent, t_recv)
+                # a delay is never negative: a message seemingly received before it was
+                # sent (clock offset error, rounding) counts as delay 0
+                self.estimator.update(t_sent if t_sent < t_recv else t_recv, t_recv)
             rec = Received(msg, t_recv)
             self._deliver(rec)
             if self._on_message is not None:
@@ -605,7 +673,10 @@ class LatestReceiver(_Receiver[M]):
         Fed with every accepted message (send time, receive time) at reception, so the
         delay estimate sees every message, not only those the loop takes.
     clock_sync : ClockSync, optional
-        ntp mode: converts the sender's send time to the local clock first.
+        ntp mode: converts the sender's send time to the local clock first; until it
+        is ready (no clock answer yet, so the peer's clock may differ by anything) every
+        message is dropped as ``clock_not_synced``. Never give it to the receiver of
+        the clock answers themselves.
     clock : callable
         Local receive-time source [s] (``time.time``).
     ignore_sid : int, optional
@@ -614,6 +685,13 @@ class LatestReceiver(_Receiver[M]):
         Called with each accepted :class:`Received` in Zenoh's callback thread (keep
         it short: answer a ping, wake a loop). Exceptions are counted as
         ``receiver_error`` drops.
+    auth : MessageAuth, optional
+        Every payload must carry a valid tag: unsigned ones are dropped as ``no_mac``,
+        wrong tags as ``bad_mac``, before anything is decoded.
+    max_future_s : float, optional
+        A message whose send time (on the local clock, after ``clock_sync``) is more
+        than this ahead of its receive time [s] is dropped as ``future``
+        (``[clock] max_future_s``). None: no check.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:

@@ -1,8 +1,10 @@
 """`bipedtele router` with user/password authentication and access control: only the
-users in `publishers_allowed` may put on bipedtele/*/cmd."""
+users in `publishers_allowed` may put on bipedtele/*/cmd; a wrong password is refused,
+says so, and the router logs the refusal with the client's address."""
 
 from __future__ import annotations
 
+import re
 import signal
 import socket
 import subprocess
@@ -11,11 +13,10 @@ import time
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.messages import Command, Status
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, MessageReceiver, Publishers, Stamper, open_session
+from bipedtele.transport import Keys, LinkError, MessageReceiver, Publishers, Stamper, open_session
 
 
 def free_port() -> int:
@@ -36,6 +37,7 @@ def test_router_auth_and_command_acl(tmp_path: Path) -> None:
     profile = tmp_path / "router.toml"
     profile.write_text(
         f'[network]\nmode = "router"\ncredentials_file = "{creds}"\npublishers_allowed = ["leader"]\n'
+        'followers_allowed = ["follower"]\n'
     )
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
@@ -58,27 +60,39 @@ def test_router_auth_and_command_acl(tmp_path: Path) -> None:
                 ls, keys
             ) as lp, Publishers(fs, keys) as fp:
                 time.sleep(0.5)
-                for _ in range(3):
+                # control traffic drops on congestion: on a loaded machine a message can be
+                # lost, so publish until 3 of each went through (bounded)
+                follower_view: list[int] = []
+                leader_view: list[int] = []
+                statuses = 0
+                deadline = time.monotonic() + 10.0
+                while follower_view.count(lead.sid) < 3 or statuses < 3:
+                    assert time.monotonic() < deadline, (follower_view, statuses)
                     lp.cmd.put(lead.make(Command))
                     fp.cmd.put(foll.make(Command))  # denied by the router
                     fp.status.put(foll.make(Status))  # allowed
-                deadline = time.monotonic() + 3.0
-                while len(l_status) < 3:
-                    assert time.monotonic() < deadline, len(l_status)
-                    time.sleep(0.05)
+                    time.sleep(0.1)
+                    follower_view += [r.msg.sid for r in f_cmd.drain()]
+                    leader_view += [r.msg.sid for r in l_cmd.drain()]
+                    statuses += len(l_status.drain())
                 time.sleep(0.3)
-                follower_view = [r.msg.sid for r in f_cmd.drain()]
-                leader_view = [r.msg.sid for r in l_cmd.drain()]
+                leader_view += [r.msg.sid for r in l_cmd.drain()]
         # the leader's commands cross the router; the follower's are denied there (they
         # only reach the follower's own session, locally)
-        assert follower_view.count(lead.sid) == 3
-        assert leader_view.count(lead.sid) == 3
+        assert follower_view.count(lead.sid) >= 3
+        assert leader_view.count(lead.sid) >= 3
         assert foll.sid not in leader_view
-        # a wrong password is refused
-        with pytest.raises(ConfigError), open_session(_client(ep, "follower", "wrong", 1.0)):
+        # a wrong password is refused, and the client is told so
+        with (
+            pytest.raises(LinkError, match="user/password refused for user 'follower'") as info,
+            open_session(_client(ep, "follower", "wrong", 1.0)),
+        ):
             pass
+        assert info.value.kind == "credentials"
     finally:
         router.send_signal(signal.SIGTERM)
         _, err = router.communicate(timeout=15)
     assert router.returncode == 0, err[-2000:]
     assert "router shutting down" in err
+    # the router logged the refusal: the reason and the client's address
+    assert re.search(r"refused a session from 127\.0\.0\.1:\d+: user/password refused: wrong password", err), err[-3000:]

@@ -6,7 +6,8 @@ import json
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError
+import zenoh
+from bipedtele.config import ConfigError, load_config
 from bipedtele.sections import NetworkConfig
 from bipedtele.transport import Keys, access_control_json, zenoh_config
 
@@ -68,18 +69,151 @@ def test_zenoh_config_errors(tmp_path: Path) -> None:
         zenoh_config(NetworkConfig(tls_mutual=True))
 
 
-def test_access_control(tmp_path: Path) -> None:
+def _allowed(acl: dict, user: str, flow: str, message: str, key: str) -> bool:
+    """Zenoh's decision for a deny-by-default ACL: some allow rule of the user's policy,
+    for this flow and message kind, has a key expression that includes ``key``."""
+    subjects = {s["id"] for s in acl["subjects"] if user in s["usernames"]}
+    rule_ids = {r for p in acl["policies"] if subjects & set(p["subjects"]) for r in p["rules"]}
+    return any(
+        zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key))
+        for r in acl["rules"]
+        if r["id"] in rule_ids and flow in r["flows"] and message in r["messages"] and r["permission"] == "allow"
+        for k in r["key_exprs"]
+    )
+
+
+WILDCARD_CMD = ["**", "bipedtele/**", "bipedtele/*/*", "bipedtele/nao1/*", "bipedtele/*/cmd", "bipedtele/nao1/cmd"]
+
+
+def test_access_control_roles_deny_by_default(tmp_path: Path) -> None:
     assert access_control_json(NetworkConfig()) is None
     creds = tmp_path / "c.txt"
     creds.write_text("# users\nleader:a\nfollower:b\nviewer:c\n")
-    acl = access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["leader"]))
-    assert acl is not None and acl["enabled"] is True
-    assert acl["subjects"] == [{"id": "not_leaders", "usernames": ["follower", "viewer"]}]
-    assert acl["rules"][0]["key_exprs"] == ["bipedtele/*/cmd"] and acl["rules"][0]["flows"] == ["ingress"]
-    with pytest.raises(ConfigError, match=r"needs network\.credentials_file"):
+    net = NetworkConfig(credentials_file=str(creds), publishers_allowed=["leader"], followers_allowed=["follower"])
+    acl = access_control_json(net)
+    assert acl is not None and acl["enabled"] is True and acl["default_permission"] == "deny"
+    # every key expression in a rule is valid for Zenoh (exact or a wildcard pattern)
+    for r in acl["rules"]:
+        for k in r["key_exprs"]:
+            zenoh.KeyExpr(k)
+    root = "bipedtele/nao1"
+    # only the leader may put a command, and only on the command keys (of one robot or
+    # of every robot), never on a wildcard that also covers the follower's keys
+    for key in WILDCARD_CMD:
+        assert _allowed(acl, "leader", "ingress", "put", key) == key.endswith("/cmd"), key
+        for user in ("follower", "viewer", "nobody"):
+            assert not _allowed(acl, user, "ingress", "put", key), (user, key)
+    roles = {
+        "leader": (("cmd", "clock", "status"), ("feedback", "video", "status", "clock")),
+        "follower": (("feedback", "video", "status", "clock"), ("cmd", "clock", "status")),
+    }
+    for user, (pub, sub) in roles.items():
+        for name in ("cmd", "feedback", "video", "clock", "status"):
+            key = f"{root}/{name}"
+            assert _allowed(acl, user, "ingress", "put", key) == (name in pub), (user, name)
+            assert _allowed(acl, user, "ingress", "declare_subscriber", key) == (name in sub), (user, name)
+            assert _allowed(acl, user, "egress", "put", key) == (name in sub), (user, name)
+            assert not _allowed(acl, user, "ingress", "delete", key)
+        other = "follower" if user == "leader" else "leader"
+        assert _allowed(acl, user, "ingress", "liveliness_token", f"{root}/presence/{user}/abc")
+        assert not _allowed(acl, user, "ingress", "liveliness_token", f"{root}/presence/{other}/abc")
+        assert _allowed(acl, user, "ingress", "declare_liveliness_subscriber", f"{root}/presence/{other}/*")
+        assert _allowed(acl, user, "egress", "liveliness_token", f"{root}/presence/{other}/abc")
+    for flow, message in (("ingress", "put"), ("ingress", "declare_subscriber"), ("egress", "put"),
+                          ("ingress", "liveliness_token"), ("ingress", "declare_liveliness_subscriber")):
+        for key in ("**", f"{root}/feedback", f"{root}/presence/leader/x", f"{root}/presence/*/*"):
+            assert not _allowed(acl, "viewer", flow, message, key), (flow, message, key)  # fmt: skip
+    # a leader-only ACL: the follower user has no role at all
+    only = access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["leader"]))
+    assert only is not None and not _allowed(only, "follower", "ingress", "put", f"{root}/feedback")
+
+
+def test_access_control_errors(tmp_path: Path) -> None:
+    creds = tmp_path / "c.txt"
+    creds.write_text("leader:a\nfollower:b\n")
+    with pytest.raises(ConfigError, match=r"need network\.credentials_file"):
         access_control_json(NetworkConfig(publishers_allowed=["leader"]))
-    with pytest.raises(ConfigError, match="'boss': not a user"):
+    with pytest.raises(ConfigError, match=r"need network\.credentials_file"):
+        access_control_json(NetworkConfig(followers_allowed=["follower"]))
+    with pytest.raises(ConfigError, match="publishers_allowed = 'boss': not a user"):
         access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["boss"]))
+    with pytest.raises(ConfigError, match="followers_allowed = 'robot': not a user"):
+        access_control_json(NetworkConfig(credentials_file=str(creds), followers_allowed=["robot"]))
+    with pytest.raises(ValueError, match="at most one role"):
+        NetworkConfig(publishers_allowed=["leader"], followers_allowed=["leader"])
     creds.write_text("leader-without-password\n")
     with pytest.raises(ConfigError, match="line 1 is not user:password"):
         access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["leader"]))
+
+
+def _same(got: object, want: Path) -> bool:
+    """Same file (profile paths may be resolved relative to the profile's folder)."""
+    return isinstance(got, str) and Path(got).resolve() == want.resolve()
+
+
+def _shared_profile(tmp_path: Path) -> Path:
+    """The intercontinental profile's shape: one [network] for all three roles, with
+    files that exist only on the host of the role that reads them."""
+    text = (
+        '[network]\nmode = "client"\nconnect = ["tls/router.example.org:7447"]\n'
+        'tls_root_ca = "ca.pem"\ntls_cert = "me.pem"\ntls_key = "me.key"\ntls_mutual = true\n'
+        'user = "leader"\npassword_file = "secrets/leader.pw"\nmessage_key_file = "secrets/message.key"\n'
+        'credentials_file = "secrets/router-credentials.txt"\npublishers_allowed = ["leader"]\n'
+        'followers_allowed = ["follower"]\n'
+    )
+    prof = tmp_path / "shared.toml"
+    prof.write_text(text)
+    return prof
+
+
+def test_each_role_reads_only_its_settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    prof = _shared_profile(tmp_path)
+    for name in ("ca.pem", "me.pem", "me.key"):
+        (tmp_path / name).write_text("x")
+    (tmp_path / "secrets").mkdir()
+    monkeypatch.chdir(tmp_path)
+    net = load_config(prof).section("network")
+
+    # router host: no client password file, no message key; its credentials file only
+    (tmp_path / "secrets" / "router-credentials.txt").write_text("leader:a\nfollower:b\n")
+    router = zenoh_config(net, mode="router", listen=["tls/0.0.0.0:7447"])
+    assert _same(_get(router, "transport/auth/usrpwd/dictionary_file"), tmp_path / "secrets/router-credentials.txt")
+    assert _get(router, "transport/auth/usrpwd/user") is None
+    assert _same(_get(router, "transport/link/tls/listen_certificate"), tmp_path / "me.pem")
+    assert _get(router, "access_control")["default_permission"] == "deny"
+
+    # client hosts: no credentials file (router only), a password file of their own
+    (tmp_path / "secrets" / "router-credentials.txt").unlink()
+    (tmp_path / "secrets" / "leader.pw").write_text("a\n")
+    client = zenoh_config(net)
+    assert _get(client, "transport/auth/usrpwd/user") == "leader"
+    assert _get(client, "transport/auth/usrpwd/password") == "a"
+    assert _get(client, "transport/auth/usrpwd/dictionary_file") is None
+    assert _get(client, "access_control/enabled") is False
+    assert _same(_get(client, "transport/link/tls/connect_certificate"), tmp_path / "me.pem")
+    assert _get(client, "transport/link/tls/listen_certificate") is None
+    peer = zenoh_config(net, mode="peer", listen=[])
+    assert _get(peer, "transport/auth/usrpwd/dictionary_file") is None
+    assert _get(peer, "transport/auth/usrpwd/user") == "leader"
+
+    # and each still reads its own: a router without its credentials file, a client
+    # without its password file, fail on exactly that
+    with pytest.raises(ConfigError, match=r"credentials_file.*cannot read"):
+        zenoh_config(net, mode="router")
+    (tmp_path / "secrets" / "leader.pw").unlink()
+    with pytest.raises(ConfigError, match=r"password_file.*cannot read"):
+        zenoh_config(net)
+
+
+def test_router_listens_on_loopback_by_default_and_warns_when_exposed() -> None:
+    from bipedtele.router import DEFAULT_LISTEN, exposure_warnings, router_endpoints
+
+    assert router_endpoints(NetworkConfig(), None) == DEFAULT_LISTEN == ["tcp/127.0.0.1:7447"]
+    assert router_endpoints(NetworkConfig(listen=["tls/0.0.0.0:7447"]), None) == ["tls/0.0.0.0:7447"]
+    assert router_endpoints(NetworkConfig(), ["tcp/[::1]:7447"]) == ["tcp/[::1]:7447"]
+    assert exposure_warnings(NetworkConfig(), ["tcp/127.0.0.1:7447", "tcp/localhost:1", "tcp/[::1]:7447"]) == []
+    plain = exposure_warnings(NetworkConfig(), ["tcp/0.0.0.0:7447"])
+    assert len(plain) == 1 and "without TLS or user/password" in plain[0]
+    tls_only = exposure_warnings(NetworkConfig(), ["tls/10.0.0.2:7447"])
+    assert len(tls_only) == 1 and "TLS" not in tls_only[0].split("without")[1].split("(")[0]
+    assert exposure_warnings(NetworkConfig(credentials_file="c.txt"), ["tls/router.example.org:7447"]) == []

@@ -1,0 +1,143 @@
+"""The router's access control: who may publish and subscribe what (deny by default).
+
+Roles (``[network]`` on the router; see docs/network.md):
+
+- users in ``publishers_allowed`` are **leaders**: they may put on
+  ``bipedtele/<id>/{cmd,clock,status}`` and declare the liveliness token
+  ``bipedtele/<id>/presence/leader/<zid>``, and receive feedback, video, status, clock and
+  presence;
+- users in ``followers_allowed`` are **followers**: they may put on
+  ``bipedtele/<id>/{feedback,video,status,clock}`` and declare
+  ``.../presence/follower/<zid>``, and receive cmd, clock, status and presence;
+- every other session (another user of ``credentials_file``, or one matching no
+  subject) may do nothing: Zenoh's ``default_permission`` is ``deny``.
+
+Zenoh checks a message's key expression against a rule with "the rule's key expression
+*includes* the message's": an allow rule on ``bipedtele/*/cmd`` does not include a put on
+``bipedtele/**`` or ``**``, so wildcard puts by a leader are denied too, and nobody else
+reaches the command key at all (a deny rule on the exact key, by contrast, does not
+include the wildcard forms, which is how a deny-only ACL is bypassed).
+
+Each rule lists the message kinds and flows it allows: a user's own puts and
+declarations go *ingress* (client to router); what the router forwards to the user goes
+*egress*, filtered by the receiving user's rules. A subscriber's declaration is also
+forwarded (egress) to the publishers of its key, so the publishing role is allowed
+``declare_subscriber`` egress on its own keys (that is what lets its publishers know that
+someone listens). ``<id>`` is ``*``: one router may serve several robots.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from bipedtele.config import ConfigError
+from bipedtele.sections import NetworkConfig
+
+__all__ = ["ROLE_KEYS", "access_control_json", "credential_users"]
+
+_ROOT = "bipedtele/*"
+
+#: role -> (keys it publishes, keys it subscribes to), relative to bipedtele/<id>/
+ROLE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "leader": (("cmd", "clock", "status"), ("feedback", "video", "status", "clock")),
+    "follower": (("feedback", "video", "status", "clock"), ("cmd", "clock", "status")),
+}
+
+
+def credential_users(path: str) -> list[str]:
+    """The user names of a router credentials file (``user:password`` lines).
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read or a line is not ``user:password``.
+    """
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise ConfigError(
+            f"network.credentials_file = {path!r}: cannot read ({exc.strerror}); allowed: a file of user:password lines"
+        ) from None
+    users = []
+    for i, line in enumerate(lines, 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        user, sep, pwd = line.partition(":")
+        if not sep or not user or not pwd:
+            raise ConfigError(f"network.credentials_file = {path!r}: line {i} is not user:password")
+        users.append(user.strip())
+    return users
+
+
+def _rules(role: str) -> list[dict[str, Any]]:
+    pub, sub = ROLE_KEYS[role]
+    pub_keys = [f"{_ROOT}/{k}" for k in pub]
+    sub_keys = [f"{_ROOT}/{k}" for k in sub]
+    presence_all = f"{_ROOT}/presence/*/*"
+
+    def rule(name: str, flows: list[str], messages: list[str], keys: list[str]) -> dict[str, Any]:
+        return {
+            "id": f"{role}_{name}",
+            "permission": "allow",
+            "flows": flows,
+            "messages": messages,
+            "key_exprs": keys,
+        }
+
+    return [
+        rule("put", ["ingress"], ["put"], pub_keys),
+        rule("matching", ["egress"], ["declare_subscriber"], pub_keys),
+        rule("subscribe", ["ingress"], ["declare_subscriber"], sub_keys),
+        rule("receive", ["egress"], ["put"], sub_keys),
+        rule("token", ["ingress"], ["liveliness_token"], [f"{_ROOT}/presence/{role}/*"]),
+        rule("watch", ["ingress"], ["declare_liveliness_subscriber", "liveliness_query"], [presence_all]),
+        rule("presence", ["egress"], ["liveliness_token"], [presence_all]),
+    ]
+
+
+def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
+    """The Zenoh ``access_control`` section for a router, or None if no role is set.
+
+    When ``publishers_allowed`` or ``followers_allowed`` is set, the ACL is deny by
+    default with the per-role allow rules of this module's docstring. Users must
+    authenticate (user/password) for roles to mean anything, so a credentials file naming
+    every user of the lists is required.
+
+    Raises
+    ------
+    ConfigError
+        No ``credentials_file``, an unreadable one, or a role user it does not name.
+    """
+    roles = {"leader": list(net.publishers_allowed), "follower": list(net.followers_allowed)}
+    if not any(roles.values()):
+        return None
+    if not net.credentials_file:
+        raise ConfigError(
+            "network.publishers_allowed/followers_allowed: need network.credentials_file (users must "
+            "authenticate); allowed: set credentials_file, or leave both lists empty"
+        )
+    users = credential_users(net.credentials_file)
+    for key, names in (("publishers_allowed", roles["leader"]), ("followers_allowed", roles["follower"])):
+        unknown = [u for u in names if u not in users]
+        if unknown:
+            raise ConfigError(
+                f"network.{key} = {unknown[0]!r}: not a user of {net.credentials_file}; allowed: {', '.join(users)}"
+            )
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for role, names in roles.items():
+        if not names:
+            continue
+        role_rules = _rules(role)
+        rules += role_rules
+        subjects.append({"id": f"{role}s", "usernames": names})
+        policies.append({"id": f"{role}_role", "rules": [r["id"] for r in role_rules], "subjects": [f"{role}s"]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }

@@ -1,0 +1,186 @@
+"""End-to-end message authentication: HMAC-SHA256 with a key the router never sees.
+
+Leader and follower share a 32-byte key (``[network] message_key_file``: 64 hex
+characters, mode 0600). Every payload a process sends is framed as::
+
+    MAGIC (4 bytes: c1 'B' 'T' 01) | tag (32 bytes) | body (the msgpack message)
+
+with ``tag = HMAC-SHA256(key, MAGIC | key expression | 0x00 | body)``: the tag covers the
+whole encoded message (envelope ``sid``, ``seq``, ``t`` and every field) and the key
+expression it was published on, so a message cannot be altered, forged, or moved to
+another key or robot by anyone without the key (a compromised router included). Replays
+of whole valid messages are stopped by the receivers' sequence gate and send-time
+checks, not by the tag.
+
+The first byte 0xc1 is the one byte msgpack never uses, so a signed payload is never
+taken for a message by a receiver without the key (it fails as ``not_msgpack``) and an
+unsigned one is never taken for a signed one (``no_mac``). Tags are checked in constant
+time (:func:`hmac.compare_digest`) before anything is decoded. See docs/network.md.
+
+Examples
+--------
+>>> auth = MessageAuth(bytes(32))
+>>> signed = auth.sign(b"\\x80", "bipedtele/nao1/cmd")
+>>> auth.verify(signed, "bipedtele/nao1/cmd")
+b'\\x80'
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import os
+import stat
+from pathlib import Path
+from typing import Final
+
+from bipedtele.config import ConfigError
+from bipedtele.sections import NetworkConfig
+
+__all__ = [
+    "KEY_BYTES",
+    "MAC_MAGIC",
+    "MAC_OVERHEAD",
+    "MacError",
+    "MessageAuth",
+    "load_message_auth",
+    "write_message_key",
+]
+
+MAC_MAGIC: Final = b"\xc1BT\x01"
+TAG_BYTES: Final = 32
+MAC_OVERHEAD: Final = len(MAC_MAGIC) + TAG_BYTES
+KEY_BYTES: Final = 32
+_MAX_TOPICS: Final = 256  # cached per-key-expression HMAC states (a robot uses about 5)
+
+
+class MacError(ValueError):
+    """A payload failed authentication.
+
+    Attributes
+    ----------
+    reason : str
+        ``no_mac`` (not a signed payload) or ``bad_mac`` (signed, but the tag is wrong:
+        another key, another key expression, or altered bytes).
+    """
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+class MessageAuth:
+    """Signs and verifies payloads with one shared key.
+
+    Parameters
+    ----------
+    key : bytes
+        The 32-byte shared key.
+
+    Notes
+    -----
+    Thread-safe: the per-key-expression HMAC states are only copied, never updated.
+    ``repr`` never shows the key.
+    """
+
+    __slots__ = ("_base", "_topics")
+
+    def __init__(self, key: bytes) -> None:
+        if not isinstance(key, bytes | bytearray) or len(key) != KEY_BYTES:
+            raise ValueError(f"key: allowed: {KEY_BYTES} bytes")
+        self._base = hmac.new(bytes(key), MAC_MAGIC, hashlib.sha256)
+        self._topics: dict[str, hmac.HMAC] = {}
+
+    def _state(self, topic: str) -> hmac.HMAC:
+        h = self._topics.get(topic)
+        if h is None:
+            h = self._base.copy()
+            h.update(topic.encode("utf-8") + b"\0")
+            if len(self._topics) < _MAX_TOPICS:
+                self._topics[topic] = h
+        return h
+
+    def tag(self, body: bytes | memoryview, topic: str) -> bytes:
+        """The 32-byte tag of ``body`` published on key expression ``topic``."""
+        h = self._state(topic).copy()
+        h.update(body)
+        return h.digest()
+
+    def sign(self, body: bytes, topic: str) -> bytes:
+        """The framed payload ``MAGIC | tag | body`` to publish on ``topic``."""
+        return MAC_MAGIC + self.tag(body, topic) + body
+
+    def verify(self, payload: bytes, topic: str) -> bytes:
+        """The body of a framed payload received on ``topic``, if its tag is right.
+
+        Raises
+        ------
+        MacError
+            ``no_mac`` if the payload is not framed, ``bad_mac`` if the tag is wrong.
+        """
+        if payload[:4] != MAC_MAGIC or len(payload) < MAC_OVERHEAD:
+            raise MacError("no_mac", f"unsigned payload of {len(payload)} bytes")
+        body = payload[MAC_OVERHEAD:]
+        if not hmac.compare_digest(self.tag(body, topic), payload[4:MAC_OVERHEAD]):
+            raise MacError("bad_mac", f"wrong tag on {topic}")
+        return body
+
+    def __repr__(self) -> str:
+        return "MessageAuth(<key hidden>)"
+
+
+def _key_error(path: str, why: str) -> ConfigError:
+    return ConfigError(f"network.message_key_file = {path!r}: {why}")
+
+
+def load_message_auth(net: NetworkConfig) -> MessageAuth | None:
+    """The :class:`MessageAuth` of ``[network] message_key_file``, or None when it is empty.
+
+    Raises
+    ------
+    ConfigError
+        One line if the file cannot be read, is readable or writable by group or others
+        (fix: ``chmod 600 FILE``), or does not hold exactly 64 hex characters.
+    """
+    path = net.message_key_file
+    if not path:
+        return None
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            raise _key_error(path, "not a regular file; allowed: a file of 64 hex characters")
+        if st.st_mode & 0o077:
+            raise _key_error(
+                path,
+                f"readable by group or others (mode {stat.S_IMODE(st.st_mode):04o}); fix: chmod 600 {path}",
+            )
+        text = Path(path).read_text(encoding="ascii").strip()
+    except OSError as exc:
+        raise _key_error(path, f"cannot read ({exc.strerror}); allowed: a readable file of 64 hex characters") from None
+    except UnicodeDecodeError:
+        text = ""
+    try:
+        if len(text) != 2 * KEY_BYTES:
+            raise ValueError
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise _key_error(
+            path,
+            f"not a key; allowed: exactly {2 * KEY_BYTES} hex characters (32 random bytes, e.g. "
+            f"python3 -c 'import secrets; print(secrets.token_hex(32))' > {path}; chmod 600 {path})",
+        ) from None
+    return MessageAuth(key)
+
+
+def write_message_key(path: Path) -> None:
+    """Write a new random key file (64 hex characters, mode 0600); never overwrites.
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` exists.
+    """
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="ascii") as f:
+        f.write(os.urandom(KEY_BYTES).hex() + "\n")

@@ -1,0 +1,129 @@
+"""Message authentication: framing, tags over every byte, the key file's checks."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+import pytest
+from bipedtele.auth import (
+    MAC_MAGIC,
+    MAC_OVERHEAD,
+    MacError,
+    MessageAuth,
+    load_message_auth,
+    write_message_key,
+)
+from bipedtele.config import ConfigError
+from bipedtele.messages import Command, MessageError, decode, encode
+from bipedtele.sections import NetworkConfig
+
+KEY = bytes(range(32))
+TOPIC = "bipedtele/nao1/cmd"
+
+
+def _reason(fn: object) -> str:
+    with pytest.raises(MacError) as info:
+        fn()  # type: ignore[operator]
+    return info.value.reason
+
+
+def test_sign_verify_round_trip_and_framing() -> None:
+    auth = MessageAuth(KEY)
+    body = encode(Command(sid=7, seq=3, t=1.5e9, ref=[1.0, 2.0]))
+    signed = auth.sign(body, TOPIC)
+    assert signed.startswith(MAC_MAGIC) and len(signed) == len(body) + MAC_OVERHEAD
+    assert auth.verify(signed, TOPIC) == body
+    assert decode(auth.verify(signed, TOPIC)) == decode(body)
+    # a receiver without the key never takes a signed payload for a message...
+    with pytest.raises(MessageError) as info:
+        decode(signed)
+    assert info.value.reason == "not_msgpack"
+    # ...and one with the key never takes an unsigned payload for a signed one
+    assert _reason(lambda: auth.verify(body, TOPIC)) == "no_mac"
+    assert _reason(lambda: auth.verify(b"", TOPIC)) == "no_mac"
+    assert _reason(lambda: auth.verify(signed[:MAC_OVERHEAD - 1], TOPIC)) == "no_mac"
+
+
+def test_tag_covers_every_byte_the_topic_and_the_key() -> None:
+    auth = MessageAuth(KEY)
+    body = encode(Command(sid=7, seq=3, t=1.5e9, ref=[1.0, 2.0], enable=True))
+    signed = auth.sign(body, TOPIC)
+    for i in range(len(MAC_MAGIC), len(signed)):  # every bit of the tag and of the body
+        for bit in (0x01, 0x80):
+            forged = bytearray(signed)
+            forged[i] ^= bit
+            assert _reason(lambda f=bytes(forged): auth.verify(f, TOPIC)) == "bad_mac", (i, bit)
+    assert _reason(lambda: auth.verify(signed, "bipedtele/nao2/cmd")) == "bad_mac"  # another robot
+    assert _reason(lambda: auth.verify(signed, "bipedtele/nao1/feedback")) == "bad_mac"  # another key
+    other = MessageAuth(bytes(32))
+    assert _reason(lambda: other.verify(signed, TOPIC)) == "bad_mac"
+    assert _reason(lambda: auth.verify(other.sign(body, TOPIC), TOPIC)) == "bad_mac"
+    # a payload with our magic but garbage after it is a wrong tag, not a crash
+    assert _reason(lambda: auth.verify(MAC_MAGIC + os.urandom(100), TOPIC)) == "bad_mac"
+
+
+def test_key_never_shown_and_length_checked() -> None:
+    assert KEY.hex() not in repr(MessageAuth(KEY))
+    for bad in (b"", bytes(31), bytes(33)):
+        with pytest.raises(ValueError, match="32 bytes"):
+            MessageAuth(bad)
+
+
+def _net(path: Path) -> NetworkConfig:
+    return NetworkConfig(message_key_file=str(path))
+
+
+def _one_line(exc: pytest.ExceptionInfo[ConfigError]) -> str:
+    text = str(exc.value)
+    assert "\n" not in text
+    return text
+
+
+def test_load_message_auth(tmp_path: Path) -> None:
+    assert load_message_auth(NetworkConfig()) is None
+    key_file = tmp_path / "message.key"
+    write_message_key(key_file)
+    assert stat.S_IMODE(key_file.stat().st_mode) == 0o600
+    auth = load_message_auth(_net(key_file))
+    assert isinstance(auth, MessageAuth)
+    key = bytes.fromhex(key_file.read_text().strip())
+    assert auth.verify(MessageAuth(key).sign(b"\x80", TOPIC), TOPIC) == b"\x80"
+    with pytest.raises(FileExistsError):
+        write_message_key(key_file)  # never overwrites
+    assert bytes.fromhex(key_file.read_text().strip()) == key
+
+
+@pytest.mark.parametrize("mode", [0o640, 0o604, 0o644, 0o660, 0o666])
+def test_key_file_readable_by_others_is_refused(tmp_path: Path, mode: int) -> None:
+    key_file = tmp_path / "message.key"
+    write_message_key(key_file)
+    key_file.chmod(mode)
+    with pytest.raises(ConfigError) as info:
+        load_message_auth(_net(key_file))
+    text = _one_line(info)
+    assert "network.message_key_file" in text and f"chmod 600 {key_file}" in text
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"", b"00" * 31 + b"\n", b"00" * 33, b"zz" * 32, bytes(range(256)), b"0x" + b"00" * 31],
+)
+def test_malformed_key_file_is_refused(tmp_path: Path, content: bytes) -> None:
+    key_file = tmp_path / "message.key"
+    key_file.write_bytes(content)
+    key_file.chmod(0o600)
+    with pytest.raises(ConfigError) as info:
+        load_message_auth(_net(key_file))
+    text = _one_line(info)
+    assert "64 hex characters" in text and "chmod 600" in text
+
+
+def test_missing_or_unreadable_key_file_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_message_auth(_net(tmp_path / "none.key"))
+    assert "cannot read" in _one_line(info)
+    with pytest.raises(ConfigError) as info:
+        load_message_auth(_net(tmp_path))  # a folder
+    assert "not a regular file" in _one_line(info)
