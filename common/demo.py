@@ -5,7 +5,15 @@ Starts four processes and wires them like an intercontinental run::
     leader (client) --tcp--> delay proxy (h1 forward / h2 backward) --tcp--> router <-- follower (client)
 
 Both sides are Zenoh clients of the router, so all their traffic crosses the proxy and
-nothing bypasses the delay. The demo prints the cockpit URL, waits for the operator to
+nothing bypasses the delay.
+
+``--delay-backend netem`` (root, a kernel with ``sch_netem``) replaces the proxy by the
+kernel: two network namespaces joined by a veth pair, the leader in one, the follower and
+the router in the other, h1 as netem on the leader's end and h2 on the follower's, a trace
+replayed by ``tc qdisc change`` at its own sample rate (:mod:`bipedtele.netem_trace`);
+the namespaces go on exit, also on Ctrl-C. ``auto`` takes netem where it can and the
+proxy otherwise, and says which. ``--dry-run`` prints the plan (the processes, and for
+netem every ``ip``/``tc`` command with its time) and starts nothing. The demo prints the cockpit URL, waits for the operator to
 finish the task (or ``--duration``), stops every process cleanly (SIGTERM, then SIGKILL
 after a grace period), and prints the Table 2 report computed from the leader's
 recording (the same JSON keys as ``bipedtele report``).
@@ -20,6 +28,7 @@ import contextlib
 import json
 import logging
 import os
+import shlex
 import signal
 import socket
 import subprocess
@@ -32,7 +41,10 @@ from typing import IO, Any
 
 from bipedtele.cli import OneLineParser, add_config_args
 from bipedtele.config import ConfigError, load_config
-from bipedtele.delaymodels import parse_delay_model
+from bipedtele.delaymodels import TraceDelay, parse_delay_model
+from bipedtele.netem import netem_available
+from bipedtele.netem_trace import NetemReplayer, schedule
+from bipedtele.netns import FOLLOWER, LEADER, CockpitRelay, NetnsError, VethLink
 from bipedtele.shutdown import shutdown_on_signals
 
 __all__ = ["DemoPlan", "add_demo_parser", "run_demo"]
@@ -40,6 +52,7 @@ __all__ = ["DemoPlan", "add_demo_parser", "run_demo"]
 LOG = logging.getLogger(__name__)
 
 DEFAULT_DELAY = ("trace:intercontinental:h1", "trace:intercontinental:h2")
+BACKENDS = ("proxy", "netem", "auto")
 
 
 def _say(line: str) -> None:
@@ -74,18 +87,29 @@ class DemoPlan:
     follower_args: list[str] = field(default_factory=list)
     leader_args: list[str] = field(default_factory=list)
     t0: float = field(default_factory=time.time)
+    backend: str = "proxy"
+    link: VethLink | None = None
 
     def commands(self) -> dict[str, list[str]]:
-        """Command lines of the four processes, in start order."""
+        """Command lines of the processes, in start order (four with the proxy, three with
+        netem, each prefixed by ``ip netns exec NS``)."""
         exe = [sys.executable, "-m", "bipedtele.cli"]
         common = ["--config", self.profile]
         for item in self.overrides:
             common += ["--set", item]
-        router_ep = f"tcp/127.0.0.1:{self.router_port}"
-        proxy_ep = f"tcp/127.0.0.1:{self.proxy_port}"
+        if self.backend == "netem":
+            if self.link is None:
+                raise ValueError("the netem backend needs a VethLink")
+            router_ep = f"tcp/{self.link.follower_ip}:{self.router_port}"
+            leader_ep = router_ep  # across the veth pair
+            in_l, in_f = self.link.exec_prefix(LEADER), self.link.exec_prefix(FOLLOWER)
+        else:
+            router_ep = f"tcp/127.0.0.1:{self.router_port}"
+            leader_ep = f"tcp/127.0.0.1:{self.proxy_port}"
+            in_l = in_f = []
         leader = [
-            *exe, "leader", *common,
-            "--set", 'network.mode="client"', "--set", f'network.connect=["{proxy_ep}"]',
+            *in_l, *exe, "leader", *common,
+            "--set", 'network.mode="client"', "--set", f'network.connect=["{leader_ep}"]',
             "--set", 'network.listen=[]',
             "--set", f"leader.cockpit_port={0 if self.headless else self.cockpit_port}",
             "--operator", self.operator, "--record", str(self.record),
@@ -93,21 +117,50 @@ class DemoPlan:
         ]
         if self.duration_s is not None:
             leader += ["--duration", f"{self.duration_s:g}"]
-        return {
-            "router": [*exe, "router", *common, "--listen", router_ep],
-            "proxy": [
+        out = {"router": [*in_f, *exe, "router", *common, "--listen", router_ep]}
+        if self.backend != "netem":
+            out["proxy"] = [
                 *exe, "delay-proxy", "--listen", f"127.0.0.1:{self.proxy_port}",
                 "--target", f"127.0.0.1:{self.router_port}",
                 "--forward", self.forward, "--backward", self.backward, "--t0", f"{self.t0:.6f}",
-            ],
+            ]
+        return {
+            **out,
             "follower": [
-                *exe, "follower", *common,
+                *in_f, *exe, "follower", *common,
                 "--set", 'network.mode="client"', "--set", f'network.connect=["{router_ep}"]',
                 "--set", 'network.listen=[]',
                 "--record", str(self.run_dir / "follower.mcap"), *self.follower_args,
             ],
             "leader": leader,
         }
+
+    def netem_plan(self, t_end: float) -> list[str]:
+        """The netem backend's commands as text lines: setup, ``tc`` over time, teardown.
+
+        Parameters
+        ----------
+        t_end : float
+            How far to list the trace replay [s].
+        """
+        if self.link is None:
+            raise ValueError("the netem backend needs a VethLink")
+        link = self.link
+        lines = [
+            f"# netem backend: leader in {link.ns[LEADER]} ({link.dev[LEADER]} {link.leader_ip}), "
+            f"follower and router in {link.ns[FOLLOWER]} ({link.dev[FOLLOWER]} {link.follower_ip})",
+            "# setup",
+            *(" ".join(c) for c in link.setup_commands()),
+            f"# qdiscs: h1 {self.forward} on {link.dev[LEADER]}, h2 {self.backward} on "
+            f"{link.dev[FOLLOWER]}; seconds after the start, then the command",
+        ]
+        forward, backward = parse_delay_model(self.forward), parse_delay_model(self.backward)
+        lines += [f"{s.t:.3f} {' '.join(s.command)}" for s in schedule(link, forward, backward, t_end)]
+        lines += [
+            "# teardown (after stopping the processes inside the namespaces)",
+            *(" ".join(c) for c in link.teardown_commands()),
+        ]
+        return lines
 
 
 @dataclass
@@ -157,9 +210,22 @@ def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
     plan.t0 = time.time()  # origin of trace delay models (recorded for later checks)
     (plan.run_dir / "plan.json").write_text(
         json.dumps({"t0": plan.t0, "forward": plan.forward, "backward": plan.backward,
-                    "commands": plan.commands()}, indent=2) + "\n"
+                    "backend": plan.backend, "commands": plan.commands()}, indent=2) + "\n"
     )
-    with shutdown_on_signals() as stop, _processes(plan) as procs:
+    with shutdown_on_signals() as stop, contextlib.ExitStack() as network:
+        if plan.backend == "netem" and plan.link is not None:
+            # Exits in reverse: processes stop, the replay stops, the namespaces go.
+            try:
+                network.enter_context(plan.link)
+                network.enter_context(NetemReplayer(
+                    plan.link, parse_delay_model(plan.forward), parse_delay_model(plan.backward), plan.t0,
+                ))  # fmt: skip
+            except (NetnsError, RuntimeError) as exc:
+                sys.stderr.write(f"bipedtele demo: netem backend: {exc}\n")
+                return 1
+            if not plan.headless:
+                network.enter_context(CockpitRelay(plan.link, plan.cockpit_port))
+        procs = network.enter_context(_processes(plan))
         if not plan.headless:
             _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/")
         _say(f"run folder: {plan.run_dir}  (logs and recordings)")
@@ -167,7 +233,7 @@ def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
         while not stop.is_set():
             if leader.poll() is not None:
                 break
-            dead = [n for n in ("router", "proxy", "follower") if procs[n].popen.poll() is not None]
+            dead = [n for n, p in procs.items() if n != "leader" and p.popen.poll() is not None]
             if dead:
                 LOG.error("%s exited early; see %s", dead[0], plan.run_dir / f"{dead[0]}.log")
                 break
@@ -192,6 +258,41 @@ def _parse_delay(text: str) -> tuple[str, str]:
     return parts[0], parts[1]
 
 
+def _netem_usable() -> tuple[bool, str]:
+    """Whether this machine can run the netem backend, and why (one line)."""
+    if os.geteuid() != 0:
+        return False, "network namespaces and qdiscs need root"
+    ok, why = netem_available()
+    return ok, (why if ok else f"netem unavailable: {why}")
+
+
+def _backend(requested: str, dry_run: bool) -> str:
+    """The backend to use: ``auto`` resolved (and said), ``netem`` checked."""
+    if requested == "auto":
+        ok, why = _netem_usable()
+        chosen = "netem" if ok else "proxy"
+        _say(f"delay backend: {chosen} ({why})")
+        return chosen
+    if requested == "netem" and not dry_run:
+        ok, why = _netem_usable()
+        if not ok:
+            raise ConfigError(f"--delay-backend netem: {why}; allowed here: proxy, or auto")
+    return requested
+
+
+def _dry_run(plan: DemoPlan) -> int:
+    """Print what the demo would start and, for netem, every ``ip``/``tc`` command."""
+    for name, cmd in plan.commands().items():
+        _say(f"# process {name}: {shlex.join(cmd)}")
+    if plan.backend == "netem":
+        forward, backward = parse_delay_model(plan.forward), parse_delay_model(plan.backward)
+        traces = [m for m in (forward, backward) if isinstance(m, TraceDelay)]
+        t_end = plan.duration_s if plan.duration_s is not None else max((m.period for m in traces), default=0.0)
+        for line in plan.netem_plan(t_end):
+            _say(line)
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
     if args.delay_trace and args.delay:
         raise ConfigError("--delay-trace and --delay: allowed: at most one of them")
@@ -209,6 +310,7 @@ def _run(args: argparse.Namespace) -> int:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run_dir = Path(args.run_dir or Path("runs") / f"demo-{stamp}")
     record = Path(args.record) if args.record else run_dir / "leader.mcap"
+    backend = _backend(args.delay_backend, args.dry_run)
     plan = DemoPlan(
         run_dir=run_dir,
         profile=args.config,
@@ -219,7 +321,11 @@ def _run(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         headless=args.headless,
         record=record,
+        backend=backend,
+        link=VethLink() if backend == "netem" else None,
     )
+    if args.dry_run:
+        return _dry_run(plan)
     return run_demo(plan, json_path=Path(args.json) if args.json else None)
 
 
@@ -237,4 +343,10 @@ def add_demo_parser(sub: Any) -> None:
     p.add_argument("--record", default=None, metavar="F.mcap", help="leader recording (default: RUN_DIR/leader.mcap)")
     p.add_argument("--json", default=None, metavar="F", help="write the report as JSON")
     p.add_argument("--run-dir", default=None, metavar="DIR", help="folder for logs and recordings")
+    p.add_argument(
+        "--delay-backend", default="proxy", choices=BACKENDS,
+        help="proxy (user space, default), netem (root, kernel sch_netem: two namespaces and a "
+        "veth pair) or auto (netem where available, else the proxy)",
+    )  # fmt: skip
+    p.add_argument("--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing")
     p.set_defaults(func=_run)

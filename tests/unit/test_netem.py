@@ -1,7 +1,10 @@
-"""netem: tc command construction, dry run, and detection of a kernel without sch_netem."""
+"""netem: tc command construction, dry run, detection of a kernel without sch_netem, and
+the trace replay of `bipedtele demo --delay-backend netem` (its plan, with --dry-run)."""
 
 from __future__ import annotations
 
+import os
+import re
 import shutil
 import subprocess
 import sys
@@ -81,3 +84,104 @@ def test_without_netem_exits_1_pointing_to_proxy() -> None:
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1
     assert "netem unavailable" in lines[0] and "bipedtele delay-proxy" in lines[0]
+
+
+# --------------------------------------------------------------- trace replay (demo netem)
+
+
+def _demo(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "demo", *args], capture_output=True, text=True, timeout=60, cwd=cwd
+    )
+
+
+def test_netem_args_realise_each_model() -> None:
+    from bipedtele.delaymodels import parse_delay_model
+    from bipedtele.netem_trace import netem_args
+
+    assert netem_args(parse_delay_model("const:150ms")) == ["delay", "150000us", "limit", "10000"]
+    assert netem_args(parse_delay_model("uniform:150ms:30ms")) == ["delay", "150000us", "30000us", "limit", "10000"]
+    assert netem_args(parse_delay_model("normal:150ms:20ms")) == [
+        "delay", "150000us", "20000us", "distribution", "normal", "limit", "10000",
+    ]  # fmt: skip
+    trace = parse_delay_model("trace:intercontinental:h1")
+    assert netem_args(trace, 0.0)[:2] == ["delay", "133160us"]  # first row of the shipped trace
+    assert netem_args(trace, 0.05)[:2] == ["delay", "132870us"]
+    assert netem_args(trace, 300.05)[:2] == ["delay", "132870us"]  # looped: period 300 s
+
+
+def test_replay_times_are_the_trace_rows_looped() -> None:
+    from bipedtele.delaymodels import TraceDelay, parse_delay_model
+    from bipedtele.netem_trace import replay_times
+
+    trace = TraceDelay([0.0, 0.1, 0.2], [0.1, 0.11, 0.12])  # period 0.3 s
+    assert list(replay_times(trace, 0.65)) == pytest.approx([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    shifted = TraceDelay([5.0, 5.5], [0.1, 0.2])  # rows at 5.0 and 5.5 s, period 1 s
+    assert list(replay_times(shifted, 2.0)) == pytest.approx([0.5, 1.0, 1.5, 2.0])
+    assert list(replay_times(parse_delay_model("const:100ms"), 10.0)) == []
+    shipped = parse_delay_model("trace:intercontinental:h2")
+    assert len(list(replay_times(shipped, 60.0))) == 1200  # 20 Hz, its own sample rate
+
+
+def test_demo_dry_run_prints_the_netem_plan_over_time(tmp_path: Path) -> None:
+    trace = tmp_path / "trace.csv"
+    trace.write_text("t_s,h1_ms,h2_ms\n0.0,100,200\n0.1,110,190\n0.2,120.5,180\n")
+    res = _demo("--delay-backend", "netem", "--dry-run", "--delay-trace", str(trace), "--duration", "0.45",
+                "--headless", "--run-dir", str(tmp_path / "run"))  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    head = next(line for line in lines if line.startswith("# netem backend:"))
+    m = re.search(r"leader in (bt-l-\w+) \((btl-\w+) 10\.233\.0\.1\), follower and router in (bt-f-\w+) \((btf-\w+) 10\.233\.0\.2\)", head)
+    assert m, head
+    l_ns, l_dev, f_ns, f_dev = m.groups()
+    # processes: router and follower in the follower's namespace, the leader in its own,
+    # the leader dialling the router across the veth pair; no proxy
+    procs = {line.split(":")[0][len("# process "):]: line for line in lines if line.startswith("# process ")}
+    assert set(procs) == {"router", "follower", "leader"}
+    assert f"ip netns exec {f_ns} " in procs["router"] and "--listen tcp/10.233.0.2:" in procs["router"]
+    assert f"ip netns exec {f_ns} " in procs["follower"]
+    assert f"ip netns exec {l_ns} " in procs["leader"] and "network.connect=[\"tcp/10.233.0.2:" in procs["leader"]
+    setup = lines[lines.index("# setup") + 1 : lines.index("# setup") + 12]
+    assert setup == [
+        f"ip netns add {l_ns}", f"ip netns add {f_ns}",
+        f"ip link add {l_dev} type veth peer name {f_dev}",
+        f"ip link set {l_dev} netns {l_ns}", f"ip link set {f_dev} netns {f_ns}",
+        f"ip -n {l_ns} addr add 10.233.0.1/30 dev {l_dev}", f"ip -n {f_ns} addr add 10.233.0.2/30 dev {f_dev}",
+        f"ip -n {l_ns} link set lo up", f"ip -n {f_ns} link set lo up",
+        f"ip -n {l_ns} link set {l_dev} up", f"ip -n {f_ns} link set {f_dev} up",
+    ]  # fmt: skip
+    tc = [line for line in lines if re.match(r"^\d+\.\d{3} tc ", line)]
+    L = f"tc -n {l_ns} qdisc {{}} dev {l_dev} root netem delay {{}} limit 10000"
+    F = f"tc -n {f_ns} qdisc {{}} dev {f_dev} root netem delay {{}} limit 10000"
+    assert tc == [
+        "0.000 " + L.format("add", "100000us"), "0.000 " + F.format("add", "200000us"),
+        "0.100 " + L.format("change", "110000us"), "0.100 " + F.format("change", "190000us"),
+        "0.200 " + L.format("change", "120500us"), "0.200 " + F.format("change", "180000us"),
+        "0.300 " + L.format("change", "100000us"), "0.300 " + F.format("change", "200000us"),  # looped
+        "0.400 " + L.format("change", "110000us"), "0.400 " + F.format("change", "190000us"),
+    ]  # fmt: skip
+    assert lines[-2:] == [f"ip netns del {l_ns}", f"ip netns del {f_ns}"]
+    assert not (tmp_path / "run").exists()  # a dry run starts nothing
+
+
+def test_demo_auto_backend_says_which(tmp_path: Path) -> None:
+    res = _demo("--delay-backend", "auto", "--dry-run", "--headless", "--duration", "1", "--run-dir", str(tmp_path / "r"))
+    assert res.returncode == 0, res.stderr
+    first = res.stdout.splitlines()[0]
+    ok, why = netem_available()
+    if ok and os.geteuid() == 0:
+        assert first == f"delay backend: netem ({why})"
+    else:
+        assert first.startswith("delay backend: proxy (") and ("netem unavailable" in first or "root" in first)
+        assert any(line.startswith("# process proxy: ") for line in res.stdout.splitlines())
+
+
+def test_demo_netem_backend_refused_in_one_line_where_it_cannot_run(tmp_path: Path) -> None:
+    ok, why = netem_available()
+    if ok and os.geteuid() == 0:
+        pytest.skip(f"netem can run here ({why})")
+    res = _demo("--delay-backend", "netem", "--headless", "--duration", "1", "--run-dir", str(tmp_path / "r"))
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--delay-backend netem:" in lines[0] and "allowed here: proxy, or auto" in lines[0]
+    assert not (tmp_path / "r").exists()
