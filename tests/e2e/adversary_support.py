@@ -165,30 +165,42 @@ def last_json(text: str) -> dict[str, Any]:
 
 
 class Attacker:
-    """One Zenoh client session with raw publishers and subscribers (no auth, no checks)."""
+    """Zenoh client sessions with raw publishers and subscribers (no auth, no checks).
+
+    The main session logs in with ``--user``/``--password``; with ``--user2`` a second
+    session logs in as another user (``via="b"``), so that one attacker can hold two roles.
+    """
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
         self.sid = int.from_bytes(os.urandom(4), "little") or 7
         self.out: dict[str, Any] = {"opened": False, "error": None, "sid": self.sid}
-        self._pubs: dict[str, Any] = {}
+        self.sessions: dict[str, Any] = {}
+        self._pubs: dict[tuple[str, str], Any] = {}
         self._subs: list[Any] = []
         self._lock = threading.Lock()
 
     @contextmanager
     def session(self) -> Iterator[Any]:
+        from contextlib import ExitStack
+
         from bipedtele.sections import NetworkConfig
         from bipedtele.transport import open_session
 
         a = self.args
-        net = NetworkConfig(mode="client", connect=[a.connect], user=a.user, password=a.password, timeout_s=a.timeout)
-        with open_session(net) as s:
+        logins = {"a": (a.user, a.password)}
+        if getattr(a, "user2", ""):
+            logins["b"] = (a.user2, a.password2)
+        with ExitStack() as stack:
+            for name, (user, password) in logins.items():
+                net = NetworkConfig(mode="client", connect=[a.connect], user=user, password=password,
+                                    timeout_s=a.timeout)  # fmt: skip
+                self.sessions[name] = stack.enter_context(open_session(net))
             self.out["opened"] = True
-            self.s = s
             try:
-                yield s
+                yield self.sessions["a"]
             finally:
-                time.sleep(0.3)  # let the last puts leave before the session closes
+                time.sleep(0.3)  # let the last puts leave before the sessions close
                 for sub in self._subs:
                     sub.undeclare()
                 for p in self._pubs.values():
@@ -197,18 +209,18 @@ class Attacker:
     def key(self, name: str) -> str:
         return f"bipedtele/{self.args.robot_id}/{name}"
 
-    def put(self, key: str, payload: bytes) -> None:
+    def put(self, key: str, payload: bytes, via: str = "a") -> None:
         import zenoh
 
-        pub = self._pubs.get(key)
+        pub = self._pubs.get((via, key))
         if pub is None:
             # Block rather than drop: every forged payload must reach the receivers, so
             # that what they count can be compared with what was sent.
-            pub = self.s.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-            self._pubs[key] = pub
+            pub = self.sessions[via].declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            self._pubs[(via, key)] = pub
         pub.put(payload)
 
-    def subscribe(self, key: str, cb: Any) -> None:
+    def subscribe(self, key: str, cb: Any, via: str = "a") -> None:
         def on_sample(sample: Any) -> None:
             try:
                 cb(sample.payload.to_bytes(), time.time())
@@ -218,43 +230,25 @@ class Attacker:
                     self.out["callback_errors"] += 1
                     self.out["last_callback_error"] = repr(exc)
 
-        self._subs.append(self.s.declare_subscriber(key, on_sample))
+        self._subs.append(self.sessions[via].declare_subscriber(key, on_sample))
 
 
 def _decode(payload: bytes) -> Any:
-    """Decode a payload whatever wraps it (a MAC): the first valid message inside, or None."""
+    """The message in a payload whatever frames it (a MAC before it), or None.
+
+    Tries the payload, then every suffix that starts with a msgpack map header within
+    the first 80 bytes (a signed payload carries the plain message after its tag).
+    """
     from bipedtele.messages import MessageError, decode
 
-    try:
-        return decode(payload)
-    except MessageError:
-        pass
-    # A signed message may carry the plain message followed or preceded by a tag, or nest
-    # it in a map: look for the envelope's start (a msgpack map with "v").
-    import msgpack
-
-    try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=False)
-    except Exception:  # not a single msgpack object
-        obj = None
-    if isinstance(obj, dict):
-        for v in obj.values():
-            if isinstance(v, bytes | bytearray):
-                try:
-                    return decode(bytes(v))
-                except MessageError:
-                    continue
-    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False)
-    unpacker.feed(payload)
-    try:
-        for obj in unpacker:
-            if isinstance(obj, dict) and "k" in obj:
-                try:
-                    return decode(msgpack.packb(obj, use_bin_type=True))
-                except MessageError:
-                    return None
-    except Exception:
-        return None
+    for i in range(min(len(payload), 80)):
+        b = payload[i]
+        if i and not (0x80 <= b <= 0x8F or b == 0xDE):
+            continue
+        try:
+            return decode(payload[i:])
+        except MessageError:
+            continue
     return None
 
 
@@ -535,9 +529,14 @@ def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
 
     own: set[bytes] = set()
     end = time.monotonic() + _bounded(a.seconds)
+    # With two logins, the first (a leader's role) receives feedback and puts commands, the
+    # second (a follower's role) receives commands and puts feedback.
+    two = bool(a.user2)
+    listen_via = {"cmd": "b" if two else "a", "feedback": "a"}
+    put_via = {"cmd": "a", "feedback": "b" if two else "a"}
     with att.session():
         for name in seen:
-            att.subscribe(att.key(name), keep(name))
+            att.subscribe(att.key(name), keep(name), via=listen_via[name])
         n = 0
         while time.monotonic() < end and n < 10_000:
             time.sleep(1.0 / a.rate)
@@ -549,12 +548,12 @@ def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
                     continue
                 replay = old[n % len(old)]
                 own.add(replay)
-                att.put(att.key(name), replay)
+                att.put(att.key(name), replay, via=put_via[name])
                 sent[f"replay_{name}"] += 1
                 patched = _patch_time(old[-1], now)
                 if patched is not None:
                     own.add(patched)
-                    att.put(att.key(name), patched)
+                    att.put(att.key(name), patched, via=put_via[name])
                     sent[f"restamped_{name}"] += 1
             if last_cmd:
                 real = last_cmd[0]
@@ -586,6 +585,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robot-id", default="nao1")
     ap.add_argument("--user", default="")
     ap.add_argument("--password", default="")
+    ap.add_argument("--user2", default="", help="a second login (compromised: the follower's role)")
+    ap.add_argument("--password2", default="")
     ap.add_argument("--timeout", type=float, default=5.0, help="session open timeout [s]")
     ap.add_argument("--seconds", type=float, default=2.0, help="how long (per key for `commands`)")
     ap.add_argument("--rate", type=float, default=50.0, help="messages (rounds) per second")

@@ -478,25 +478,28 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
     """Issue 10, "Done when" 3: a non-leader identity and a router that forwards garbage or
     replays, during a 60 s run with the pilot walking the course.
 
-    Setup: router with user/password, ``publishers_allowed = ["leader", "relay"]`` and
-    ``followers_allowed = ["follower", "relay"]``; leader and follower share a message key
+    Setup: router with user/password, ``publishers_allowed = ["leader", "relay_l"]`` and
+    ``followers_allowed = ["follower", "relay_f"]``; leader and follower share a message key
     (``network.message_key_file``, 64 hex chars, mode 0600) that neither attacker has. The
     follower builds the course of ``localhost-delay``; the leader runs its pilot operator
     for 60 s. For 45 s of it:
 
     - an intruder logged in as ``follower`` puts Commands (6 cm/s) on every wildcard form
       and the exact command key, 20 Hz, 9 s per key;
-    - ``relay``, an identity the router lets publish and subscribe everything (what a
-      compromised router can do), replays recorded command and feedback payloads verbatim
-      (valid MACs, old sequence numbers), sends copies of them with a fresh time patched in
-      (MAC no longer valid) and unsigned forged commands with the leader's sid, 20 Hz each;
-    - ``garbage.py`` as ``relay`` puts 900 invalid payloads on each of the five keys.
+    - the "compromised router": one attacker logged in twice, as ``relay_l`` (the leader's
+      role) and ``relay_f`` (the follower's role), so that between them it receives and
+      puts on every key, as a router can (a user may hold only one role). It replays
+      recorded command and feedback payloads verbatim (valid MACs, old sequence numbers),
+      sends copies of them with a fresh time patched in (MAC no longer valid) and unsigned
+      forged commands with the leader's sid, 20 Hz each;
+    - ``garbage.py`` puts 900 invalid payloads on each of the five keys (as ``relay_l`` on
+      cmd, clock and status, as ``relay_f`` on feedback and video).
 
     Before (measured on the old code, without the key it did not know and with
-    ``followers_allowed`` left out): 841 commands the leader never sent were the robot's
-    command at a tick, interleaved with the pilot's 2006: 291 of the intruder's wildcard
-    commands and 550 of the relay's unsigned forgeries with the leader's sid (the
-    sequence gate took them as the leader's next).
+    ``followers_allowed`` left out), two runs: 742 and 841 commands the leader never sent
+    were the robot's command at a tick, interleaved with the pilot's (about 2100): 238 and
+    291 of the intruder's wildcard commands, 504 and 550 of the relay's unsigned forgeries
+    with the leader's sid (the sequence gate took them for the leader's next).
 
     Now: 0 commands other than the leader's own reach the robot (every ``cmd/recv`` is a
     command the leader sent, in order, unmodified), no process crashes, every payload the
@@ -504,8 +507,8 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
     ``stale``/``duplicate`` among them), and the robot walks the course under the pilot
     (no fall, no watchdog stop, at least one obstacle pass).
     """
-    users = make_users(tmp_path / "auth", ["leader", "follower", "relay"])
-    prof = router_profile(tmp_path, users, leaders=["leader", "relay"], followers=["follower", "relay"])
+    users = make_users(tmp_path / "auth", ["leader", "follower", "relay_l", "relay_f"])
+    prof = router_profile(tmp_path, users, leaders=["leader", "relay_l"], followers=["follower", "relay_f"])
     key = make_key_file(tmp_path / "message.key")
     signed = ["--config", "localhost-delay", "--set", f'network.message_key_file="{key}"', *NO_VIDEO]
     ep = f"tcp/127.0.0.1:{free_port()}"
@@ -526,12 +529,17 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
             "--seconds", str(attack_s / len(WILDCARDS)), "--rate", "20", "--forward", "6",
         ], raw=True),
         "relay": procs.start("relay", [
-            ATTACKER, "compromised", "--connect", ep, *users.attacker_args("relay"), "--seconds", str(attack_s),
+            ATTACKER, "compromised", "--connect", ep, *users.attacker_args("relay_l"),
+            "--user2", "relay_f", "--password2", users.passwords["relay_f"], "--seconds", str(attack_s),
             "--rate", "20", "--forward", "6", "--turn", "-9",
         ], raw=True),
-        "garbage": procs.start("garbage", [
-            str(HERE / "garbage.py"), "--connect", ep, *users.attacker_args("relay"), "--count", "900",
-            "--seconds", str(attack_s),
+        "garbage_l": procs.start("garbage-l", [
+            str(HERE / "garbage.py"), "--connect", ep, *users.attacker_args("relay_l"), "--count", "900",
+            "--seconds", str(attack_s), "--keys", "cmd,clock,status",
+        ], raw=True),
+        "garbage_f": procs.start("garbage-f", [
+            str(HERE / "garbage.py"), "--connect", ep, *users.attacker_args("relay_f"), "--count", "900",
+            "--seconds", str(attack_s), "--keys", "feedback,video",
         ], raw=True),
     }  # fmt: skip
     reports = {}
@@ -547,11 +555,12 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
     for p in (leader, router):
         assert "Traceback" not in p.log(), p.tail()
 
-    intr, relay, garbage = reports["intruder"], reports["relay"]["sent"], reports["garbage"]["sent"]
+    intr, relay = reports["intruder"], reports["relay"]["sent"]
+    garbage = {**reports["garbage_l"]["sent"], **reports["garbage_f"]["sent"]}
     assert intr["opened"] and sum(intr["sent"].values()) > 500, intr
     assert min(relay.get(k, 0) for k in ("replay_cmd", "restamped_cmd", "unsigned_cmd", "replay_feedback",
                                           "restamped_feedback")) > 300, relay  # fmt: skip
-    assert set(garbage.values()) == {900}, garbage
+    assert garbage == dict.fromkeys(("cmd", "clock", "status", "feedback", "video"), 900), garbage
 
     # ---- 0 foreign commands reached the robot: only the leader's, unmodified, in order
     l_recs, f_recs = list(records(l_rec)), list(records(f_rec))
