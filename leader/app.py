@@ -198,17 +198,6 @@ def _cockpit_token() -> str | None:
         raise ConfigError(f"{COCKPIT_TOKEN_ENV}: {exc}") from None
 
 
-def _recording_path(folder: Path) -> Path:
-    """A new recording file in ``folder``: unique, never an existing one."""
-    from bipedtele import recording
-
-    new_path = getattr(recording, "new_recording_path", None)
-    if new_path is not None:
-        return Path(new_path(folder, "leader"))
-    stamp = time.strftime("%Y%m%d-%H%M%S")  # until the core has new_recording_path
-    return folder / f"leader-{stamp}-{int(time.time() * 1000) % 1000:03d}-{os.getpid()}.mcap"
-
-
 def main(
     cfg: Config,
     *,
@@ -253,6 +242,8 @@ def main(
         raise ConfigError(f"--operator {op_name!r}: allowed: {', '.join(OPERATORS)}")
     if op_name == "browser" and not lc.cockpit:
         raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
+    if record is not None and record.exists():
+        raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)")
     device = _make_device(cfg, dev_name)  # a bad name fails here, before any I/O
     token = _cockpit_token() if lc.cockpit else None
     cockpit_ref: list[Any] = []  # the cockpit, once it runs (the browser operator reads it)
@@ -315,17 +306,27 @@ def main(
                 ) from None
             stack.callback(cockpit.stop)
             cockpit_ref.append(cockpit)
-        if record is None and rec_cfg.enabled:
-            record = _recording_path(Path(rec_cfg.dir))
         recorder = None
-        if record is not None:
-            from bipedtele.recording import Recorder
+        if record is not None or rec_cfg.enabled:
+            from bipedtele.recording import Recorder, open_recording
 
-            record.parent.mkdir(parents=True, exist_ok=True)
-            recorder = stack.enter_context(Recorder(
-                record, rec_cfg.flush_s, jpeg_every=10,
+            rec_args: dict[str, Any] = dict(
+                flush_s=rec_cfg.flush_s, jpeg_every=10,
                 metadata={"role": "leader", "operator": op_name, "device": dev_name, "config": cfg.to_dict()},
-            ))  # fmt: skip
+            )  # fmt: skip
+            try:
+                if record is not None:
+                    record.parent.mkdir(parents=True, exist_ok=True)
+                    recorder = stack.enter_context(Recorder(record, **rec_args))
+                else:  # a new, unique name (never an earlier run's file)
+                    recorder = stack.enter_context(open_recording(rec_cfg.dir, "leader", **rec_args))
+            except FileExistsError:
+                raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)") from None
+            except OSError as exc:
+                raise ConfigError(
+                    f"recording {record or rec_cfg.dir}: cannot create ({exc.strerror or exc}); allowed: a writable folder"
+                ) from None
+            record = recorder.path
 
         def rec(topic: str, msg: Any, t: float) -> None:
             if recorder is not None:
