@@ -82,6 +82,7 @@ class GuardLink:
         self.version: str | None = None
         self.beats = 0
         self._stop = threading.Event()
+        self._beat_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._lost_logged = False
 
@@ -93,6 +94,11 @@ class GuardLink:
     def probe(self) -> bool:
         """Look the guard up and heartbeat once, now (at connect). True if it answered."""
         self._next_lookup = -math.inf
+        self._beat()
+        return self.answered
+
+    def beat_now(self) -> bool:
+        """Heartbeat once now (the loop just came back from a stall). True if it answered."""
         self._beat()
         return self.answered
 
@@ -125,6 +131,10 @@ class GuardLink:
             self._beat()
 
     def _beat(self) -> None:
+        with self._beat_lock:
+            self._beat_locked()
+
+    def _beat_locked(self) -> None:
         now = self._mono()
         if self._proxy is None:
             if now < self._next_lookup:

@@ -182,6 +182,10 @@ class NaoqiRobot(FollowerRobot):
             "nao_guard.py on the robot (docs/hardware.md), or accept the risk with --unguarded-robot-may-keep-walking"
         )
 
+    def _guard_beat_now(self) -> bool:
+        """After a stall of the loop the heartbeats paused: one now, before refusing."""
+        return self._guard is not None and self._guard.beat_now()
+
     @property
     def guarded(self) -> bool:
         """True while a BipedteleGuard acknowledges the heartbeats."""
@@ -326,7 +330,7 @@ class NaoqiRobot(FollowerRobot):
         with self._lock:
             self._require()
             self._activity = time.monotonic()
-            if not self.config.allow_unguarded and not self.guarded:
+            if not self.config.allow_unguarded and not self.guarded and not self._guard_beat_now():
                 if not self._refusing:
                     self._refusing = True
                     LOG.error("%s", self._refusal_text())
