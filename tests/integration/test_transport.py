@@ -187,3 +187,135 @@ def test_garbage_on_every_key_is_dropped_and_counted(tmp_path: Path) -> None:
 
 def test_zpeer_exists() -> None:
     assert ZPEER.is_file() and os.access(ZPEER, os.R_OK)
+
+
+# --------------------------------------------------------------------------- MAC, send times
+
+SENDER = r'''
+"""Replays a JSON spec on a real Zenoh session (blocking congestion control: nothing lost)."""
+import dataclasses, json, sys, time
+import zenoh
+from bipedtele.auth import load_message_auth
+from bipedtele.messages import Command, encode
+from bipedtele.sections import NetworkConfig
+from bipedtele.transport import Keys, Publishers, Stamper, open_session
+
+spec = json.loads(open(sys.argv[1]).read())
+net = NetworkConfig(connect=[spec["connect"]], message_key_file=spec.get("key_file", ""))
+block = zenoh.CongestionControl.BLOCK
+with open_session(net) as s:
+    time.sleep(0.5)
+    st = Stamper()
+    for key, hexpayload in spec.get("raw", []):
+        s.put(key, bytes.fromhex(hexpayload), congestion_control=block)
+        time.sleep(0.002)
+    for offset in spec.get("stamped", []):  # send time = this host's clock + offset
+        msg = dataclasses.replace(st.make(Command), t=time.time() + offset)
+        s.put("bipedtele/nao1/cmd", encode(msg), congestion_control=block)
+        time.sleep(0.002)
+    with Publishers(s, Keys("nao1"), auth=load_message_auth(net)) as pubs:
+        for _ in range(spec.get("signed", 0)):
+            pubs.cmd.put(st.make(Command, ref=[1.0, 0.0]))
+            time.sleep(0.01)
+    time.sleep(0.5)
+'''
+
+
+def run_sender(tmp_path: Path, spec: dict[str, Any]) -> None:
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    (tmp_path / "sender.py").write_text(SENDER)
+    res = subprocess.run(
+        [sys.executable, str(tmp_path / "sender.py"), str(tmp_path / "spec.json")],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_mac_drops_unsigned_and_forged_messages_before_decoding(tmp_path: Path) -> None:
+    from bipedtele.auth import MessageAuth, load_message_auth, write_message_key
+    from bipedtele.drops import DropCounter
+    from bipedtele.messages import Command, encode
+    from bipedtele.sections import NetworkConfig
+    from bipedtele.transport import Keys, MessageReceiver, Stamper, open_session
+
+    key_file = tmp_path / "message.key"
+    write_message_key(key_file)
+    auth = load_message_auth(NetworkConfig(message_key_file=str(key_file)))
+    assert auth is not None
+    wrong = MessageAuth(os.urandom(32))
+    keys, st = Keys("nao1"), Stamper()
+    rounds = 10
+    raw: list[tuple[str, str]] = []
+    for _ in range(rounds):
+        body = encode(st.make(Command, ref=[6.0, 0.0]))
+        flipped = bytearray(auth.sign(body, keys.cmd))
+        flipped[-3] ^= 0x01
+        garbage = os.urandom(40)
+        for payload in (
+            body,  # unsigned: no_mac
+            wrong.sign(body, keys.cmd),  # another key: bad_mac
+            bytes(flipped),  # altered: bad_mac
+            auth.sign(body, "bipedtele/nao2/cmd"),  # signed for another robot: bad_mac
+            wrong.sign(garbage, keys.cmd),  # garbage under a wrong tag: bad_mac, never decoded
+            auth.sign(garbage, keys.cmd),  # garbage under a right tag: decoded, not_msgpack
+            auth.sign(encode(st.make(Command, ref=[1.0, 0.0])), keys.cmd),  # valid
+        ):
+            raw.append((keys.cmd, payload.hex()))
+    port = free_port()
+    with_key, without_key = DropCounter("with-key"), DropCounter("without-key")
+    with open_session(NetworkConfig(listen=[f"tcp/127.0.0.1:{port}"])) as s, MessageReceiver(
+        s, keys.cmd, Command, with_key, auth=auth
+    ) as rx, MessageReceiver(s, keys.cmd, Command, without_key) as plain:
+        run_sender(tmp_path, {"connect": f"tcp/127.0.0.1:{port}", "key_file": str(key_file), "raw": raw, "signed": 20})
+        time.sleep(0.3)
+        got = rx.drain()
+        plain_got = plain.drain()
+    counts = with_key.counts()
+    assert counts == {"no_mac": rounds, "bad_mac": 4 * rounds, "not_msgpack": rounds}, counts
+    # valid ones: the raw signed ones, and those Publishers(auth=...) signed (control
+    # publishers drop on congestion, so at least most of the 20)
+    assert all(r.msg.ref == [1.0, 0.0] for r in got)
+    assert len(got) >= rounds + 10, len(got)
+    # a receiver without the key takes no signed payload for a message
+    assert [r.msg.ref for r in plain_got] == [[6.0, 0.0]] * rounds
+    assert without_key.counts() == {"not_msgpack": 6 * rounds + len(got) - rounds}, without_key.counts()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_send_time_sanity(tmp_path: Path) -> None:
+    from bipedtele.clock import ClockSync, DelayEstimator
+    from bipedtele.drops import DropCounter
+    from bipedtele.messages import Command
+    from bipedtele.sections import NetworkConfig
+    from bipedtele.transport import Keys, MessageReceiver, open_session
+
+    keys = Keys("nao1")
+    unsynced = ClockSync()
+    synced = ClockSync()
+    assert synced.on_pong(100.0, 110.0, 110.0, 100.0) is not None  # the peer's clock is 10 s ahead
+    est_a, est_c = DelayEstimator(30.0), DelayEstimator(30.0)
+    drops = {n: DropCounter(n) for n in "abc"}
+    port = free_port()
+    with open_session(NetworkConfig(listen=[f"tcp/127.0.0.1:{port}"])) as s, MessageReceiver(
+        s, keys.cmd, Command, drops["a"], estimator=est_a, max_future_s=0.25
+    ) as a, MessageReceiver(
+        s, keys.cmd, Command, drops["b"], clock_sync=unsynced, max_future_s=0.25
+    ) as b, MessageReceiver(
+        s, keys.cmd, Command, drops["c"], estimator=est_c, clock_sync=synced, max_future_s=0.25
+    ) as c:
+        run_sender(tmp_path, {"connect": f"tcp/127.0.0.1:{port}", "stamped": [0.2, 0.2, 1.0, 10.0, 10.2, 11.0]})
+        time.sleep(0.3)
+        got = {"a": a.drain(), "b": b.drain(), "c": c.drain()}
+        now = time.time()
+        h_a, h_c = est_a.value(now), est_c.value(now)
+    # a: one clock; 0.2 s ahead is within the tolerance (delay counted as 0), the rest is future
+    assert len(got["a"]) == 2 and drops["a"].counts() == {"future": 4}, drops["a"].counts()
+    assert h_a == 0.0  # never negative, though both messages seemed to arrive before they were sent
+    # b: the peer's clock offset is unknown yet: nothing is taken
+    assert got["b"] == [] and drops["b"].counts() == {"clock_not_synced": 6}
+    # c: converted to the local clock first (-10 s): only the one 1 s ahead is future
+    assert len(got["c"]) == 5 and drops["c"].counts() == {"future": 1}, drops["c"].counts()
+    assert h_c is not None and h_c >= 0.0
