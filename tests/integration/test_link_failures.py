@@ -158,6 +158,9 @@ def test_router_logs_refusals_and_health_says_which(certs: tuple[Path, Path], tm
             f'[network]\nmode = "client"\nconnect = ["tls/localhost:{port}"]\ntls_root_ca = "{ours}/ca.pem"\n'
             f'tls_cert = "{ours}/follower.pem"\ntls_key = "{ours}/follower.key"\ntls_mutual = true\n'
             'user = "follower"\npassword = "wrong"\n'
+            # a shared profile: the router's settings, whose files are not on this host, are ignored
+            'credentials_file = "/nonexistent/router-credentials.txt"\npublishers_allowed = ["leader"]\n'
+            'followers_allowed = ["follower"]\n'
         )
         res = subprocess.run(
             [sys.executable, "-m", "bipedtele.cli", "health", "--config", str(profile), "--role", "router"],
