@@ -43,7 +43,8 @@ def _run(cmd: list[str], timeout: float = 20.0) -> subprocess.CompletedProcess[s
 
 @dataclass
 class VethLink:
-    """Namespaces ``bt-l-TAG`` (leader side) and ``bt-f-TAG`` (follower side).
+    """Namespaces ``bt-dl-TAG`` (leader side) and ``bt-df-TAG`` (follower side), veth ends
+    ``btdl-TAG`` and ``btdf-TAG``.
 
     Parameters
     ----------
@@ -67,8 +68,8 @@ class VethLink:
     created: list[str] = field(default_factory=list, init=False)
 
     def __post_init__(self) -> None:
-        self.ns = {LEADER: f"bt-l-{self.tag}", FOLLOWER: f"bt-f-{self.tag}"}
-        self.dev = {LEADER: f"btl-{self.tag}", FOLLOWER: f"btf-{self.tag}"}
+        self.ns = {LEADER: f"bt-dl-{self.tag}", FOLLOWER: f"bt-df-{self.tag}"}
+        self.dev = {LEADER: f"btdl-{self.tag}", FOLLOWER: f"btdf-{self.tag}"}
 
     def ip(self, side: str) -> str:
         """Address of one side's veth end."""
@@ -120,6 +121,8 @@ class VethLink:
                     raise NetnsError(f"`{' '.join(cmd)}`: {err}")
                 if cmd[:3] == ["ip", "netns", "add"]:
                     self.created.append(cmd[3])
+                elif cmd[:3] == ["ip", "link", "add"]:
+                    self.created.append(f"veth:{self.dev[LEADER]}")
         except BaseException:
             self.remove()
             raise
@@ -129,10 +132,14 @@ class VethLink:
         )
         return self
 
+    def namespaces(self) -> list[str]:
+        """The namespaces made so far (and not yet deleted)."""
+        return [n for n in self.created if not n.startswith("veth:")]
+
     def pids(self) -> list[int]:
         """Processes inside the two namespaces."""
         out: list[int] = []
-        for ns in self.created:
+        for ns in self.namespaces():
             res = _run(["ip", "netns", "pids", ns])
             out += [int(p) for p in res.stdout.split() if p.isdigit()]
         return out
@@ -150,12 +157,18 @@ class VethLink:
                 pids = self.pids()
             if not pids:
                 break
-        for ns in list(self.created):
+        for ns in self.namespaces():
             res = _run(["ip", "netns", "del", ns])
             if res.returncode != 0:
                 LOG.warning("netns: cannot delete %s: %s", ns, res.stderr.strip())
             else:
                 self.created.remove(ns)
+        veth = f"veth:{self.dev[LEADER]}"
+        if veth in self.created:
+            # gone with its namespace, unless a step failed before it was moved there
+            if _run(["ip", "link", "show", "dev", self.dev[LEADER]]).returncode == 0:
+                _run(["ip", "link", "del", "dev", self.dev[LEADER]])
+            self.created.remove(veth)
         LOG.info("netns: removed %s and %s", self.ns[LEADER], self.ns[FOLLOWER])
 
     def __enter__(self) -> VethLink:

@@ -120,3 +120,47 @@ def test_demo_netem_backend_without_netem_fails_in_one_line_and_cleans_up(tmp_pa
     assert "qdisc add" in lines[0]
     assert not (names & _namespaces())
     assert not list(tmp_path.glob("*.log"))  # no process was started
+
+
+def test_a_failed_setup_step_is_one_line_and_leaves_nothing() -> None:
+    from bipedtele.netns import NetnsError
+
+    link = VethLink(leader_ip="10.233.0.300")  # refused by `ip addr add`, after the veth was made
+    with pytest.raises(NetnsError, match=r"^`ip -n bt-dl-\w+ addr add 10\.233\.0\.300/30 dev btdl-\w+`: ") as err:
+        link.create()
+    assert "\n" not in str(err.value)
+    assert not ({link.ns[LEADER], link.ns[FOLLOWER]} & _namespaces())
+    host = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, timeout=20).stdout
+    assert link.dev[LEADER] not in host and link.dev[FOLLOWER] not in host
+    assert link.created == []
+
+
+def test_cockpit_relay_reaches_a_server_inside_the_leader_namespace(tmp_path: Path) -> None:
+    import socket
+    import time
+    import urllib.request
+
+    from bipedtele.netns import CockpitRelay
+
+    (tmp_path / "index.html").write_text("cockpit inside bt-dl\n")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with VethLink() as link:
+        server = subprocess.Popen(
+            [*link.exec_prefix(LEADER), sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1",
+             "--directory", str(tmp_path)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        with CockpitRelay(link, port) as relay:
+            body, deadline = "", time.monotonic() + 30.0
+            while time.monotonic() < deadline:
+                try:
+                    with urllib.request.urlopen(f"http://127.0.0.1:{port}/index.html", timeout=5) as r:
+                        body = r.read().decode()
+                    break
+                except OSError:
+                    time.sleep(0.2)
+            assert body == "cockpit inside bt-dl\n"
+        assert relay.proc is not None and relay.proc.poll() is not None  # stopped on exit
+    server.wait(timeout=10)

@@ -131,7 +131,7 @@ def test_demo_dry_run_prints_the_netem_plan_over_time(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     head = next(line for line in lines if line.startswith("# netem backend:"))
-    m = re.search(r"leader in (bt-l-\w+) \((btl-\w+) 10\.233\.0\.1\), follower and router in (bt-f-\w+) \((btf-\w+) 10\.233\.0\.2\)", head)
+    m = re.search(r"leader in (bt-dl-\w+) \((btdl-\w+) 10\.233\.0\.1\), follower and router in (bt-df-\w+) \((btdf-\w+) 10\.233\.0\.2\)", head)
     assert m, head
     l_ns, l_dev, f_ns, f_dev = m.groups()
     # processes: router and follower in the follower's namespace, the leader in its own,
