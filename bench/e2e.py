@@ -35,6 +35,7 @@ import argparse
 import contextlib
 import json
 import os
+import secrets
 import shutil
 import signal
 import socket
@@ -50,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+from bipedtele.leader.app import COCKPIT_TOKEN_ENV
 from bipedtele.messages import Command, Feedback, encode
 from bipedtele.recording import read_records
 from bipedtele.sections import NetworkConfig
@@ -343,6 +345,8 @@ def video(seconds: float, cockpit_hz: float, browser: bool, keep: bool) -> dict[
     with stack(keep) as st:
         l_rec = st.folder / "leader.mcap"
         port = free_port()
+        token = secrets.token_urlsafe(24)
+        os.environ[COCKPIT_TOKEN_ENV] = token  # inherited by the leader started below
         st.start("follower", [*CLI, "follower", *client_args(st.router_ep), "--set", "follower.camera_fps=10",
                               "--set", 'follower.cameras=["head"]', "--record", str(st.folder / "follower.mcap")],
                  "ready")  # fmt: skip
@@ -358,7 +362,7 @@ def video(seconds: float, cockpit_hz: float, browser: bool, keep: bool) -> dict[
                 b = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
                 page = b.new_page(viewport={"width": 1280, "height": 900})
                 page.add_init_script(INIT_JS)
-                page.goto(f"http://127.0.0.1:{port}/")
+                page.goto(f"http://127.0.0.1:{port}/?token={token}")
                 time.sleep(seconds)
                 g = page.evaluate("window.__g2g")
                 b.close()

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import secrets
 import socket
 import subprocess
 import sys
@@ -32,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 from bipedtele.config import load_config
+from bipedtele.leader.app import COCKPIT_TOKEN_ENV
 from bipedtele.leader.app import main as leader_main
 from bipedtele.leader.devices import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
@@ -70,14 +72,14 @@ PEER = textwrap.dedent(
 BROWSER = textwrap.dedent(
     """
     import asyncio, sys, time, aiohttp
-    port, seconds = int(sys.argv[1]), float(sys.argv[2])
+    port, seconds, token = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
     async def main():
         url = f"http://127.0.0.1:{port}"
         n_text = n_bin = 0
         for _ in range(100):
             try:
                 async with aiohttp.ClientSession() as s:
-                    async with s.ws_connect(url + "/ws", origin=url) as ws:
+                    async with s.ws_connect(url + "/ws?token=" + token, origin=url) as ws:
                         t0 = time.time()
                         while time.time() - t0 < seconds:
                             try:
@@ -132,7 +134,9 @@ def run_alone(seconds: float) -> dict:
 def run_full(seconds: float, rt_priority: int) -> dict:
     zport, cport = free_port(), free_port()
     robot = f"bench{os.getpid()}"
+    token = secrets.token_urlsafe(24)
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    os.environ[COCKPIT_TOKEN_ENV] = token  # the leader below runs in this process
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config("default", [
             f"robot.id={robot!r}".replace("'", '"'),
@@ -143,7 +147,7 @@ def run_full(seconds: float, rt_priority: int) -> dict:
             f'record.dir="{tmp}"',
         ])  # fmt: skip
         peer = subprocess.Popen([sys.executable, "-c", PEER, str(zport), robot, str(seconds + 3)], env=env)
-        browser = subprocess.Popen([sys.executable, "-c", BROWSER, str(cport), str(seconds + 2)], env=env)
+        browser = subprocess.Popen([sys.executable, "-c", BROWSER, str(cport), str(seconds + 2), token], env=env)
         stats: dict = {}
         try:
             leader_main(cfg, operator_name="scripted", duration_s=seconds, realtime=True,
