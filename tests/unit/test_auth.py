@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import os
 import stat
 from pathlib import Path
@@ -62,6 +64,16 @@ def test_tag_covers_every_byte_the_topic_and_the_key() -> None:
     assert _reason(lambda: auth.verify(other.sign(body, TOPIC), TOPIC)) == "bad_mac"
     # a payload with our magic but garbage after it is a wrong tag, not a crash
     assert _reason(lambda: auth.verify(MAC_MAGIC + os.urandom(100), TOPIC)) == "bad_mac"
+
+
+def test_tag_is_hmac_sha256_of_magic_topic_and_body() -> None:
+    for key in (KEY, os.urandom(32)):
+        auth = MessageAuth(key)
+        for body in (b"", b"\x80", os.urandom(317), os.urandom(70_000)):
+            for topic in (TOPIC, "bipedtele/nao1/video", "bipedtele/\u00e9t\u00e9/status"):
+                want = hmac.new(key, MAC_MAGIC + topic.encode() + b"\0" + body, hashlib.sha256).digest()
+                assert auth.tag(body, topic) == want
+                assert auth.sign(body, topic) == MAC_MAGIC + want + body
 
 
 def test_key_never_shown_and_length_checked() -> None:
