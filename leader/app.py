@@ -31,8 +31,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bipedtele.auth import load_message_auth
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.clock import ClockSync, DelayEstimator
+from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
@@ -46,7 +48,6 @@ from bipedtele.messages import (
     ClockPong,
     Command,
     Feedback,
-    Message,
     Status,
     VideoFrame,
     new_session_id,
@@ -55,7 +56,6 @@ from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import (
     Keys,
     LatestReceiver,
-    MessageReceiver,
     PresenceWatcher,
     Publishers,
     Received,
@@ -84,23 +84,23 @@ def _make_device(cfg: Config, name: str) -> LeaderDevice:
 
 
 class _Aux:
-    """The leader's slow duties in a side thread (about 20 Hz): status out, clock pings
-    (ntp mode), follower status in, presence, events of the operator's progress."""
+    """The leader's slow duties in a side thread (about 20 Hz): status out, follower status
+    in, presence, events of the operator's progress, the command-reach check. (Clock pings
+    run in their own :class:`~bipedtele.clocklink.ClockLink` thread.)"""
 
     def __init__(
-        self, loop: LeaderLoop, pubs: Publishers, cfg: Config, sync: ClockSync | None,
-        clock_rx: MessageReceiver[Message] | None, status_rx: LatestReceiver[Status],
+        self, loop: LeaderLoop, pubs: Publishers, cfg: Config, status_rx: LatestReceiver[Status],
         presence: PresenceWatcher, drops: DropCounter, record: Callable[[str, Any, float], None],
         reach: CommandReach | None = None,
     ) -> None:  # fmt: skip
         self.reach = reach
-        self.loop, self.pubs, self.cfg, self.sync = loop, pubs, cfg, sync
-        self.clock_rx, self.status_rx, self.presence = clock_rx, status_rx, presence
+        self.loop, self.pubs, self.cfg = loop, pubs, cfg
+        self.status_rx, self.presence = status_rx, presence
         self.drops, self.record = drops, record
         self.follower_status: Status | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="leader-aux", daemon=True)
-        self._ping_seq = 0
+        self._status_seq = 0
         self._passes = 0
         self._progress_lock = threading.Lock()
 
@@ -141,7 +141,7 @@ class _Aux:
 
     def _run(self) -> None:
         lc, ck = self.cfg.section("leader"), self.cfg.section("clock")
-        next_status = next_ping = time.monotonic()
+        next_status = time.monotonic()
         text = "clock: synced" if ck.mode == "synced" else "clock: ntp (h1+h2 exact, split estimated)"
         while not self._stop.wait(0.05):
             now_m, now = time.monotonic(), time.time()
@@ -149,26 +149,13 @@ class _Aux:
                 got = self.status_rx.take()
                 if got is not None:
                     self.follower_status = got.msg
-                if self.sync is not None and self.clock_rx is not None:
-                    for rec in self.clock_rx.drain():
-                        msg = rec.msg
-                        if isinstance(msg, ClockPing) and msg.sid != self.loop.sid:
-                            self.pubs.clock.put(ClockPong(
-                                sid=self.loop.sid, seq=msg.seq, t=time.time(), ping_sid=msg.sid,
-                                ping_seq=msg.seq, t1=msg.t, t2=rec.t_recv,
-                            ))  # fmt: skip
-                        elif isinstance(msg, ClockPong) and msg.ping_sid == self.loop.sid:
-                            self.sync.on_pong(msg.t1, msg.t2, msg.t, rec.t_recv)
-                    if now_m >= next_ping:
-                        next_ping = now_m + 1.0 / ck.ping_rate_hz
-                        self._ping_seq += 1
-                        self.pubs.clock.put(ClockPing(sid=self.loop.sid, seq=self._ping_seq, t=time.time()))
                 if now_m >= next_status:
                     next_status = now_m + 1.0 / lc.status_rate_hz
                     counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
                     counters.update(commands=self.loop.seq, feedback=self.loop.feedback_count,
                                     missed_ticks=self.loop.missed_ticks)  # fmt: skip
-                    st = Status(sid=self.loop.sid, seq=int(now * 1000) % (2**62), t=now, role="leader",
+                    self._status_seq += 1
+                    st = Status(sid=self.loop.sid, seq=self._status_seq, t=now, role="leader",
                                 state=self.loop.state, counters=counters, text=text)  # fmt: skip
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
@@ -266,9 +253,12 @@ def main(
     ntp = ck.mode == "ntp"
     sync = ClockSync(ck.ping_window) if ntp else None
     rec_cfg = cfg.section("record")
+    auth = load_message_auth(cfg.section("network"))  # a bad key file fails here, before any I/O
     drops = DropCounter("leader")
     estimator = DelayEstimator(ck.delay_window_s)
     sid = new_session_id()
+    # The feedback gate follows one follower session; its live sid binds the clock link.
+    fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s)
     loop_ref: list[LeaderLoop] = []
     reach = CommandReach(lambda: loop_ref[0].seq if loop_ref else 0)
 
@@ -280,7 +270,7 @@ def main(
         sys.setswitchinterval(0.0005)
 
         session = stack.enter_context(open_session(cfg.section("network")))
-        pubs = stack.enter_context(Publishers(session, keys))
+        pubs = stack.enter_context(Publishers(session, keys, auth=auth))
         stack.enter_context(declare_presence(session, keys, "leader"))
         presence = stack.enter_context(PresenceWatcher(session, keys, "follower"))
         try:
@@ -345,19 +335,28 @@ def main(
         def on_status(r: Received[Any]) -> None:
             rec("status/recv", r.msg, r.t_recv)
 
+        # Every stamped message: authenticated (when a key is set), converted to our clock
+        # (ntp) and dropped when stamped too far ahead of it.
+        checks: dict[str, Any] = dict(auth=auth, clock_sync=sync, max_future_s=ck.max_future_s)
         fb_rx: LatestReceiver[Feedback] = stack.enter_context(LatestReceiver(
-            session, keys.feedback, Feedback, drops, SequenceGate(), estimator=estimator,
-            clock_sync=sync, on_message=on_feedback,
+            session, keys.feedback, Feedback, drops, fb_gate, estimator=estimator,
+            on_message=on_feedback, **checks,
         ))  # fmt: skip
-        stack.enter_context(LatestReceiver(session, keys.video, VideoFrame, drops, SequenceGate(), on_message=on_video))
+        stack.enter_context(LatestReceiver(
+            session, keys.video, VideoFrame, drops, SequenceGate(), on_message=on_video, **checks,
+        ))  # fmt: skip
         status_rx: LatestReceiver[Status] = stack.enter_context(LatestReceiver(
-            session, keys.status, Status, drops, SequenceGate(), on_message=on_status, ignore_sid=sid,
+            session, keys.status, Status, drops, SequenceGate(), on_message=on_status, ignore_sid=sid, **checks,
         ))  # fmt: skip
-        clock_rx = None
-        if ntp:
-            clock_rx = stack.enter_context(
-                MessageReceiver(session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=sid)
-            )
+        # Clock pings: answered and sent off the haptic loop, bound to the followed follower.
+        link = stack.enter_context(ClockLink(
+            pubs.clock.put, sid, sync=sync, drops=drops, ping_rate_hz=ck.ping_rate_hz,
+            answer_rate_hz=ck.answer_rate_hz, peer_sid=lambda: fb_gate.live_sid,
+        ))  # fmt: skip
+        stack.enter_context(LatestReceiver(
+            session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=sid, auth=auth,
+            on_message=link.on_message,
+        ))  # fmt: skip
 
         def latest_feedback() -> tuple[Feedback, float] | None:
             got = fb_rx.latest()
@@ -396,7 +395,7 @@ def main(
             clock=clock, estimator=estimator, conservative_rtt=rtt_fn, on_sample=on_sample, sid=sid,
         )  # fmt: skip
         loop_ref.append(loop)
-        aux = stack.enter_context(_Aux(loop, pubs, cfg, sync, clock_rx, status_rx, presence, drops, rec, reach))
+        aux = stack.enter_context(_Aux(loop, pubs, cfg, status_rx, presence, drops, rec, reach))
         aux_holder.append(aux)
         LOG.info(
             "leader ready: robot %s, device %s, operator %s, %s%s", cfg.section("robot").id, dev_name,
