@@ -279,8 +279,15 @@ def _zenoh_reason(exc: BaseException) -> str:
     return re.sub(r"\s+at \S+\.rs:\d+\.?$", "", first)  # Zenoh's Rust source location
 
 
-def _preflight(net: NetworkConfig, connect: list[str]) -> float:
-    """Check a client's endpoints before Zenoh does; the longest round trip seen [s].
+def _preflight(net: NetworkConfig, connect: list[str]) -> tuple[float, set[str]]:
+    """Check a client's endpoints before Zenoh does.
+
+    Returns
+    -------
+    rtt_s : float
+        The longest round trip seen [s].
+    checked : set of str
+        The protocols (``tcp``, ``tls``) of the endpoints that passed a check.
 
     Raises
     ------
@@ -297,16 +304,48 @@ def _preflight(net: NetworkConfig, connect: list[str]) -> float:
         first = checks[0].kind
         kind = first if all(c.kind == first for c in checks) else "unreachable"
         raise LinkError(kind, "; ".join(f"{c.endpoint}: {c.detail}" for c in checks))
-    return max(c.rtt_s for c in passed)
+    checked = {c.endpoint.partition("/")[0] for c in passed} & {"tcp", "tls"}
+    return max(c.rtt_s for c in passed), checked
 
 
-def _open_timeout_s(net: NetworkConfig, rtt_s: float) -> float:
+def _open_timeout_s(net: NetworkConfig, rtt_s: float, checked: set[str]) -> float:
     """How long Zenoh may take to open a client session whose links were checked [s].
 
     A Zenoh session needs about 4 round trips after TCP (TLS, then its own handshake);
-    beyond OPEN_RTTS round trips (at least OPEN_MIN_S) the router has refused it.
+    a router that has not accepted it after OPEN_RTTS round trips (at least OPEN_MIN_S)
+    refused the login. Without TLS and without a login there is nothing to refuse (and
+    a relay such as the delay proxy hides the round trip from the TCP check): the
+    profile's ``timeout_s`` then applies unchanged.
     """
+    if "tls" not in checked and not net.user:
+        return net.timeout_s
     return min(net.timeout_s, max(OPEN_MIN_S, OPEN_RTTS * rtt_s))
+
+
+def _refusal(net: NetworkConfig, checked: set[str], timeout_s: float, zenoh_reason: str) -> LinkError:
+    """The LinkError of a client whose endpoint checks passed but whose session did not open."""
+    within = f"no session within {timeout_s:g} s"
+    if not checked:  # udp, quic, ws...: not checked beforehand
+        return LinkError(
+            "open",
+            f"cannot open the Zenoh session: {zenoh_reason} (no router answered within {timeout_s:g} s, "
+            "or it refused this client's certificate or user/password)",
+        )
+    if "tls" in checked:
+        seen = "TCP and TLS were accepted"
+    else:
+        seen = "TCP was accepted, by the router or by a relay in front of it"
+    if net.user:
+        return LinkError(
+            "credentials",
+            f"the router refused the session: user/password refused for user {net.user!r} ({seen}; {within}); "
+            "check network.user and network.password_file against the router's credentials_file",
+        )
+    return LinkError(
+        "credentials",
+        f"the router refused the session ({seen}; {within}): it may require a user/password "
+        "(network.user, network.password_file)" + ("" if "tls" in checked else " or TLS (a tls/ endpoint)"),
+    )
 
 
 @contextmanager
@@ -336,30 +375,17 @@ def open_session(
     connect = list(net.connect if connect is None else connect)
     conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
     client = mode == "client" and bool(connect)
+    timeout, checked = net.timeout_s, set[str]()
     if client:
-        rtt = _preflight(net, connect)
-        timeout = _open_timeout_s(net, rtt)
+        rtt, checked = _preflight(net, connect)
+        timeout = _open_timeout_s(net, rtt, checked)
         conf.insert_json5("connect/timeout_ms", json.dumps(int(timeout * 1000)))
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
         first = _zenoh_reason(exc)
         if client and "Unable to connect" in first:
-            tls = any(ep.startswith("tls/") for ep in connect)
-            checked = "TCP and TLS were accepted" if tls else "TCP was accepted"
-            if net.user:
-                raise LinkError(
-                    "credentials",
-                    f"the router refused the session: user/password refused for user {net.user!r} ({checked}; "
-                    f"no session within {timeout:g} s); check network.user and network.password_file "
-                    "against the router's credentials_file",
-                ) from None
-            raise LinkError(
-                "credentials",
-                f"the router refused the session ({checked}; no session within {timeout:g} s): "
-                "it may require a user/password (network.user, network.password_file)"
-                + ("" if tls else " or TLS (a tls/ endpoint)"),
-            ) from None
+            raise _refusal(net, checked, timeout, first) from None
         raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
     LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
     try:

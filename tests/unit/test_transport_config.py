@@ -217,3 +217,41 @@ def test_router_listens_on_loopback_by_default_and_warns_when_exposed() -> None:
     tls_only = exposure_warnings(NetworkConfig(), ["tls/10.0.0.2:7447"])
     assert len(tls_only) == 1 and "TLS" not in tls_only[0].split("without")[1].split("(")[0]
     assert exposure_warnings(NetworkConfig(credentials_file="c.txt"), ["tls/router.example.org:7447"]) == []
+
+
+def test_split_endpoint() -> None:
+    from bipedtele.linkcheck import split_endpoint
+
+    assert split_endpoint("tls/router.example.org:7447") == ("tls", "router.example.org", 7447)
+    assert split_endpoint("tcp/[::1]:7447#iface=lo") == ("tcp", "::1", 7447)
+    assert split_endpoint("tcp/10.0.0.1:7447?prio=1") == ("tcp", "10.0.0.1", 7447)
+    assert split_endpoint("unixsock-stream//tmp/sock") is None
+
+
+@pytest.mark.timeout(30)
+def test_check_endpoint_tls_to_a_plain_tcp_server() -> None:
+    """A tls/ endpoint whose server does not speak TLS (a loopback socket answering bytes)."""
+    import socket
+    import threading
+
+    from bipedtele.linkcheck import check_endpoint
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def answer() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(4096)
+            conn.sendall(b"HTTP/1.0 400 not a zenoh router\r\n\r\n" * 4)
+
+    t = threading.Thread(target=answer, daemon=True)
+    t.start()
+    try:
+        got = check_endpoint(f"tls/127.0.0.1:{port}", timeout_s=5.0)
+        assert got.kind == "not_tls", got
+        plain = check_endpoint(f"tcp/127.0.0.1:{port}", timeout_s=5.0)  # TCP alone is accepted
+        assert plain.ok, plain
+    finally:
+        server.close()
+        t.join(5)
