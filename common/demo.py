@@ -28,6 +28,7 @@ import contextlib
 import json
 import logging
 import os
+import secrets
 import shlex
 import signal
 import socket
@@ -53,6 +54,8 @@ LOG = logging.getLogger(__name__)
 
 DEFAULT_DELAY = ("trace:intercontinental:h1", "trace:intercontinental:h2")
 BACKENDS = ("proxy", "netem", "auto")
+#: The leader reads its cockpit token from this variable (see docs/cockpit.md).
+COCKPIT_TOKEN_ENV = "BIPEDTELE_COCKPIT_TOKEN"
 
 
 def _say(line: str) -> None:
@@ -88,6 +91,8 @@ class DemoPlan:
     leader_args: list[str] = field(default_factory=list)
     t0: float = field(default_factory=time.time)
     backend: str = "proxy"
+    #: The cockpit's per-run access token (given to the leader in its environment).
+    cockpit_token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
     link: VethLink | None = None
 
     def commands(self) -> dict[str, list[str]]:
@@ -178,7 +183,8 @@ def _processes(plan: DemoPlan) -> Iterator[dict[str, _Proc]]:
         for name, cmd in plan.commands().items():
             log = open(plan.run_dir / f"{name}.log", "wb")  # noqa: SIM115 - closed below
             LOG.debug("starting %s: %s", name, " ".join(cmd))
-            popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+            env = {**os.environ, COCKPIT_TOKEN_ENV: plan.cockpit_token} if name == "leader" else None
+            popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env)
             procs[name] = _Proc(name, popen, log)
             time.sleep(0.3 if name in ("router", "proxy") else 0.0)
         yield procs
@@ -227,7 +233,7 @@ def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
                 network.enter_context(CockpitRelay(plan.link, plan.cockpit_port))
         procs = network.enter_context(_processes(plan))
         if not plan.headless:
-            _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/")
+            _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/?token={plan.cockpit_token}")
         _say(f"run folder: {plan.run_dir}  (logs and recordings)")
         leader = procs["leader"].popen
         while not stop.is_set():
