@@ -94,6 +94,8 @@ M = TypeVar("M", bound=Message)
 OPEN_RTTS = 8.0
 #: ...and at least this long [s] (after the endpoint checks passed).
 OPEN_MIN_S = 3.0
+#: A refused connection (a router still starting) is retried this long [s].
+REFUSED_RETRY_S = 4.0
 
 
 # --------------------------------------------------------------------------- keys
@@ -296,10 +298,16 @@ def _preflight(net: NetworkConfig, connect: list[str]) -> tuple[float, set[str]]
     """
     cert, key = (net.tls_cert, net.tls_key) if net.tls_mutual else ("", "")
     step = min(STEP_TIMEOUT_S, net.timeout_s)
-    checks = [
-        check_endpoint(ep, root_ca=net.tls_root_ca, cert=cert, key=key, timeout_s=step) for ep in connect
-    ]
-    passed = [c for c in checks if c.ok]
+    # a router that is starting refuses connections for a moment: retry those (only)
+    retry_until = time.monotonic() + min(REFUSED_RETRY_S, net.timeout_s)
+    while True:
+        checks = [
+            check_endpoint(ep, root_ca=net.tls_root_ca, cert=cert, key=key, timeout_s=step) for ep in connect
+        ]
+        passed = [c for c in checks if c.ok]
+        if passed or any(c.kind != "refused" for c in checks) or time.monotonic() + 0.25 > retry_until:
+            break
+        time.sleep(0.25)
     if not passed:
         first = checks[0].kind
         kind = first if all(c.kind == first for c in checks) else "unreachable"

@@ -19,6 +19,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -55,7 +56,7 @@ def certs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 
 
 @contextmanager
-def tls_router(ours: Path, d: Path) -> Iterator[tuple[int, list[str]]]:
+def tls_router(ours: Path, d: Path, port: int = 0) -> Iterator[tuple[int, list[str]]]:
     """A TLS + mutual TLS + user/password router on 127.0.0.1; yields (port, its log,
     filled once it stopped)."""
     creds = d / "creds.txt"
@@ -65,7 +66,7 @@ def tls_router(ours: Path, d: Path) -> Iterator[tuple[int, list[str]]]:
         f'[network]\nmode = "router"\ntls_root_ca = "{ours}/ca.pem"\ntls_cert = "{ours}/router.pem"\n'
         f'tls_key = "{ours}/router.key"\ntls_mutual = true\ncredentials_file = "{creds}"\n'
     )
-    port = free_port()
+    port = port or free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "bipedtele.cli", "router", "--config", str(profile), "--listen", f"tls/127.0.0.1:{port}"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -180,6 +181,31 @@ def test_router_logs_refusals_and_health_says_which(certs: tuple[Path, Path], tm
     assert "refused a TLS connection: no client certificate presented" in text, text[-3000:]
     assert "refused a TLS connection: client certificate not signed by this router's CA" in text, text[-3000:]
     assert re.search(r"router shutting down \([1-9]\d* session\(s\) refused\)", text), text[-3000:]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(60)
+def test_client_started_just_before_its_router_connects(certs: tuple[Path, Path], tmp_path: Path) -> None:
+    """A refused connection is retried for a few seconds: a router that starts a moment
+    after its client is found (as Zenoh itself did before the link checks)."""
+    port = free_port()
+    result: list[object] = []
+
+    def client() -> None:
+        try:
+            with open_session(_client(certs, port)):
+                result.append("opened")
+        except Exception as exc:
+            result.append(exc)
+
+    t = threading.Thread(target=client, daemon=True)
+    t.start()
+    time.sleep(0.3)
+    assert not result  # still trying: no router process exists yet
+    # (the router starts in about 2 s on a loaded 2-core machine; the client retries 4 s)
+    with tls_router(certs[0], tmp_path, port):
+        t.join(20)
+    assert result == ["opened"], result
 
 
 def test_cli_maps_link_error_to_one_line_and_exit_1(
