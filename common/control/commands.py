@@ -51,27 +51,82 @@ def _run_surfaces(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_study(args: argparse.Namespace) -> int:
-    from bipedtele.control.study import StudyParams, plot_study, run_study
+def _write_text(path: str, text: str, flag: str) -> None:
+    if path == "-":
+        sys.stdout.write(text)
+        return
+    try:
+        Path(path).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{flag} {path}: cannot write ({exc.strerror})") from None
 
-    if args.runs < 1:
-        raise ConfigError(f"--runs {args.runs}: allowed: >= 1")
-    if not args.duration >= 1.0:
-        raise ConfigError(f"--duration {args.duration}: allowed: >= 1 s")
-    cfg = config_from_args(args).section("control")
-    result = run_study(args.runs, args.seed, cfg, StudyParams(duration_s=args.duration))
+
+def _walker_backend() -> Any:
+    """The walker study, registered by the follower package (the core never imports it)."""
+    from importlib import metadata
+
+    for ep in metadata.entry_points(group="bipedtele.study_backends"):
+        if ep.name == "walker":
+            return ep.load()
+    raise ConfigError("--walker: no walker backend installed; allowed: with the follower package (bipedtele.follower)")
+
+
+def _run_study(args: argparse.Namespace) -> int:
+    from bipedtele.control.study import (
+        StudyParams,
+        plot_study,
+        run_sensitivity,
+        run_study,
+        sensitivity_markdown,
+    )
+
+    runs = args.runs if args.runs is not None else (3 if args.walker else 100 if args.sensitivity else 500)
+    if runs < 1:
+        raise ConfigError(f"--runs {runs}: allowed: >= 1")
+    duration = args.duration if args.duration is not None else (30.0 if args.walker else 60.0)
+    if not duration >= 1.0:
+        raise ConfigError(f"--duration {duration}: allowed: >= 1 s")
+    if args.walker and args.sensitivity:
+        raise ConfigError("--walker with --sensitivity: allowed: one of them")
+    if args.markdown and not (args.sensitivity or args.walker):
+        raise ConfigError("--markdown: allowed only with --sensitivity or --walker")
+    cfg = config_from_args(args)
+    control = cfg.section("control")
+    if args.walker:
+        result = _walker_backend()(cfg, runs=runs, seed=args.seed, duration_s=duration)
+    elif args.sensitivity:
+        result = run_sensitivity(runs, args.seed, control, StudyParams(duration_s=duration))
+    else:
+        result = run_study(runs, args.seed, control, StudyParams(duration_s=duration))
     if args.json:
         _write_json(args.json, result)
+    if args.sensitivity:
+        table = sensitivity_markdown(result)
+        if args.markdown:
+            _write_text(args.markdown, table, "--markdown")
+        if args.json != "-" and args.markdown != "-":
+            sys.stdout.write(table)
+        return 0
+    if args.walker:
+        from bipedtele.control.study import study_markdown
+
+        table = study_markdown(result)
+        if args.markdown:
+            _write_text(args.markdown, table, "--markdown")
+        if args.json != "-" and args.markdown != "-":
+            sys.stdout.write(table)
+        return 0
     if args.plot:
         _save_fig(plot_study(result), args.plot)
     if args.json != "-":
-        sys.stdout.write(f"study: {args.runs} runs per scheme, {args.duration:g} s each, seed {args.seed}\n")
+        sys.stdout.write(f"study: {runs} runs per scheme, {duration:g} s each, seed {args.seed}\n")
         for c in result["cases"]:
             for s in ("cp", "vp"):
                 r = c[s]
                 sys.stdout.write(
-                    f"  {c['name']:<16} h1={c['h1_ms']:6.1f} ms h2={c['h2_ms']:6.1f} ms {s.upper()}: "
-                    f"forward {r['forward_error']:.3f} cm/s [{r['forward_ci95'][0]:.3f}, {r['forward_ci95'][1]:.3f}]  "
+                    f"  {c['name']:<20} h1={c['h1_ms']:7.1f} ms h2={c['h2_ms']:7.1f} ms {s.upper()}: "
+                    f"forward {r['forward_error']:.3f} cm/s [{r['forward_ci95'][0]:.3f}, {r['forward_ci95'][1]:.3f}] "
+                    f"(orbit offset {r['forward_orbit_offset']:.3f})  "
                     f"turn {r['turn_error']:.3f} deg/s [{r['turn_ci95'][0]:.3f}, {r['turn_ci95'][1]:.3f}]  "
                     f"diverged {r['diverged']}\n"
                 )
@@ -91,12 +146,20 @@ def add_surfaces_parser(sub: Any) -> None:
 
 
 def add_study_parser(sub: Any) -> None:
-    """``bipedtele study [--runs 500] [--seed S] [--json F] [--plot F.png]`` (Fig. 8, Sec. 4)."""
-    p = sub.add_parser("study", help="CP vs VP numerical study over 4 delay cases (Fig. 8)")
-    p.add_argument("--runs", type=int, default=500, help="runs per scheme and case (default 500)")
+    """``bipedtele study [--runs N] [--seed S] [--json F] [--plot F.png] [--sensitivity | --walker]
+    [--markdown F]`` (Fig. 8, Sec. 4)."""
+    p = sub.add_parser("study", help="CP vs VP numerical study over the delay cases (Fig. 8)")
+    p.add_argument("--runs", type=int, default=None,
+                   help="runs per scheme and case (default 500; 100 with --sensitivity; 3 with --walker)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run (default 60)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="simulated seconds per run (default 60; 30 with --walker)")
     p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-' for stdout)")
     p.add_argument("--plot", metavar="FILE.png", help="write Fig. 8")
+    p.add_argument("--sensitivity", action="store_true",
+                   help="repeat CP vs VP over the settings the paper leaves open and print one table")
+    p.add_argument("--walker", action="store_true",
+                   help="CP vs VP on the pybullet follower in simulated time (needs the follower package)")
+    p.add_argument("--markdown", metavar="FILE", help="with --sensitivity or --walker: write the table ('-' for stdout)")
     add_config_args(p)
     p.set_defaults(func=_run_study)

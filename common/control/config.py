@@ -7,8 +7,8 @@ them (Sec. 3.2.2, eq. 27) and documented choices elsewhere (docs/method.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, Literal
 
 from bipedtele.config import param
 
@@ -62,6 +62,25 @@ class ControlConfig:
     k_wt: float = param(1.0, lo=0.0, unit="1/s", doc="weight of T in (30)")
     k_eps: float = param(1.0, lo=0.0, unit="1/s", doc="weight of eps in (30)")
     tolerance: float = param(0.01, lo=0.0, lo_open=True, hi=1.0, doc="tolerance of the equality constraint in (30)")
+    equivalent_period: Literal["cycle", "fixed"] = param(
+        "cycle",
+        doc="period over which (29) is discretised in (30): the candidate walking cycle T, or equivalent_period_s",
+    )
+    equivalent_period_s: float = param(
+        0.01, lo=0.001, hi=20.0, unit="s",
+        doc="the fixed period of (29) in (30) when equivalent_period = 'fixed' (0.01 s: the follower's control period)",
+    )
+    hybrid_model: Literal["paper", "calibrated"] = param(
+        "paper",
+        doc="reduced model in the online choice (30): the paper's dp and k_v, or calibrated_dp and calibrated_k_v",
+    )
+    calibrated_dp: float = param(
+        0.7, lo=0.0, hi=1.0, lo_open=True,
+        doc="reset factor identified on the simulated walker (bipedtele calibrate)",
+    )
+    calibrated_k_v: float = param(
+        1.0, lo=0.0, lo_open=True, doc="forward gain k_v identified on the simulated walker (bipedtele calibrate)",
+    )
 
     def __post_init__(self) -> None:
         for name in ("D", "k_s", "k_m", "k_g", "beta_r", "beta_e", "k_z", "s_r_range", "T_range", "eps_range"):
@@ -72,3 +91,14 @@ class ControlConfig:
             lo, hi = getattr(self, name)
             if not lo < hi:
                 raise ValueError(f"{name} = {[lo, hi]!r}: allowed: [low, high] with low < high")
+
+    def hybrid(self) -> ControlConfig:
+        """The parameters of the reduced model (20)-(23) that the online choice (30) uses.
+
+        ``hybrid_model = "paper"``: this config. ``"calibrated"``: ``dp`` and the forward
+        gain ``k_s[0]`` replaced by ``calibrated_dp`` and ``calibrated_k_v`` (the
+        equivalent follower (29) and the servo keep ``k_s``).
+        """
+        if self.hybrid_model == "paper":
+            return self
+        return replace(self, dp=self.calibrated_dp, k_s=[self.calibrated_k_v, self.k_s[1]], hybrid_model="paper")

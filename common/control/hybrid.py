@@ -52,6 +52,7 @@ __all__ = [
     "continuous_matrix",
     "fixed_point",
     "jacobian_central",
+    "orbit_speed_deficit",
     "perturbation_sizes",
     "poincare_map",
     "reset_map",
@@ -242,6 +243,32 @@ def rho_speed_block(sigma: ArrayLike, T: ArrayLike, D: float, k: float, beta_r: 
     r = np.array([[dp, 0.0], [1.0 - dp, 1.0]])
     l1, l2 = eig2(r @ phi)
     return np.maximum(np.abs(l1), np.abs(l2))
+
+
+def orbit_speed_deficit(sigma: ArrayLike, T: ArrayLike, D: float, k: float, beta_r: float, dp: float) -> np.ndarray:
+    """Mean speed deficit of the periodic orbit, as a fraction of a constant reference.
+
+    For a constant reference ``r`` one speed channel (``[eta, z_r]`` with (20), (12)) walks
+    on a periodic orbit: it loses ``(1 - dp)`` of its speed at every impact and regains
+    it towards ``r`` between impacts. The returned ``d`` is ``1 - mean(eta)/r`` over one
+    cycle of that orbit (the offset the resets cause even without delay or command
+    changes); it does not depend on ``r`` (the model is linear). Broadcast over
+    ``sigma`` and ``T`` [s].
+
+    In deviations ``y = [eta, z_r] - [r, r]`` (``y' = A y`` between impacts) the reset is
+    ``y+ = R y- + [(dp - 1) r, 0]``, so the post-impact fixed point is
+    ``y* = (I - R Phi(T))^{-1} [(dp - 1) r, 0]`` and the cycle mean of ``eta - r`` is
+    ``[A^{-1} (Phi(T) - I) y*]_0 / T``.
+    """
+    s, t = np.broadcast_arrays(np.asarray(sigma, dtype=float), np.asarray(T, dtype=float))
+    a = mat2(-k / D - s / (D * beta_r), s / (D * beta_r), 1.0 / beta_r + 0.0 * s, -1.0 / beta_r + 0.0 * s)
+    phi = expm2(a, t)
+    eye = np.eye(2)
+    r = np.array([[dp, 0.0], [0.0, 1.0]])
+    c = np.broadcast_to(np.array([[dp - 1.0], [0.0]]), (*s.shape, 2, 1))
+    y_star = np.linalg.solve(eye - r @ phi, c)
+    integral = np.linalg.solve(a, (phi - eye) @ y_star)
+    return np.asarray(-integral[..., 0, 0] / t)
 
 
 def rho_joint(T: ArrayLike, eps: ArrayLike) -> np.ndarray:

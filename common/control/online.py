@@ -8,9 +8,12 @@ Problem (30), for the current equivalent damping ``s_e = [s_e_v, s_e_d]``::
 
 ``T`` and ``eps`` are shared by both channels (one walking cycle), ``sigma_r = [sigma, tau]``
 is per channel. ``max|l_equivalent|`` is the spectral radius of (29) discretised over the
-same walking cycle ``T`` (both sides of the equality are then contractions per cycle; with
-the control period instead, ``max|l_equivalent|`` is about 0.997 and the equality has no
-solution in the bounds; docs/method.md).
+same walking cycle ``T`` by default (both sides of the equality are then contractions per
+cycle); ``control.equivalent_period = "fixed"`` discretises it over
+``equivalent_period_s`` instead (with the control period, 0.01 s, ``max|l_equivalent|`` is
+about 0.997 and the equality has no solution in the bounds; docs/method.md). The hybrid
+side uses ``cfg.hybrid()``: the paper's ``dp`` and ``k_v``, or those calibrated on the
+simulated walker (``control.hybrid_model``); the chooser logs which.
 
 Structure used by both solvers: ``max|l_hybrid| = max(r_v(sigma, T), r_d(tau, T), r_j(eps, T))``
 where each block radius is continuous and increasing in its own variable (checked when the
@@ -46,7 +49,7 @@ from bipedtele.control.hybrid import rho_blocks, rho_joint, rho_speed_block
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
 
-__all__ = ["Choice", "OnlineChooser", "choice_cost", "solve_exact"]
+__all__ = ["Choice", "OnlineChooser", "choice_cost", "equivalent_period", "solve_exact"]
 
 LOG = logging.getLogger(__name__)
 
@@ -91,13 +94,25 @@ def choice_cost(s_r: ArrayLike, T: float, eps: float, s_e: ArrayLike, cfg: Contr
     return float(cfg.k_sigma * d + cfg.k_wt * T + cfg.k_eps * eps)
 
 
+def equivalent_period(T: ArrayLike, cfg: ControlConfig) -> np.ndarray:
+    """The period over which (29) is discretised in (30) for candidate cycles ``T`` [s].
+
+    ``cfg.equivalent_period = "cycle"``: ``T`` itself; ``"fixed"``: ``equivalent_period_s``.
+    """
+    t = np.asarray(T, dtype=float)
+    if cfg.equivalent_period == "cycle":
+        return t
+    return np.full(t.shape, cfg.equivalent_period_s)
+
+
 def _target(s_e: np.ndarray, T: np.ndarray, cfg: ControlConfig) -> np.ndarray:
-    return np.exp(T * float(np.max(equivalent_max_real(s_e, cfg))))
+    return np.exp(equivalent_period(T, cfg) * float(np.max(equivalent_max_real(s_e, cfg))))
 
 
 def _finish(s_e: np.ndarray, x: np.ndarray, T: float, cfg: ControlConfig, feasible: bool) -> Choice:
     sig, tau, eps = (float(v) for v in x)
-    f, t, j = rho_blocks(sig, tau, T, eps, cfg.dp, cfg)
+    hm = cfg.hybrid()
+    f, t, j = rho_blocks(sig, tau, T, eps, hm.dp, hm)
     rh = float(max(f, t, j))
     re = float(_target(s_e, np.asarray(T), cfg))
     return Choice(
@@ -209,6 +224,7 @@ def _joint_inv(y: np.ndarray, T: np.ndarray) -> np.ndarray:
 
 
 def _exact_blocks(cfg: ControlConfig, lo: np.ndarray, hi: np.ndarray) -> tuple[RhoFn, InvFn]:
+    cfg = cfg.hybrid()
     (m, i_), (kv, kd), (bv, bd) = (np.asarray(v, dtype=float) for v in (cfg.D, cfg.k_s, cfg.beta_r))
 
     def rho(b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -294,17 +310,25 @@ class OnlineChooser:
         self.T = np.linspace(cfg.T_range[0], cfg.T_range[1], n_T)
         self.sigma = np.linspace(cfg.s_r_range[0], cfg.s_r_range[1], n_sigma)
         self._ds = self.sigma[1] - self.sigma[0]
-        (m, i_), (kv, kd), (bv, bd) = (np.asarray(v, dtype=float) for v in (cfg.D, cfg.k_s, cfg.beta_r))
+        hm = cfg.hybrid()
+        self.model = cfg.hybrid_model
+        (m, i_), (kv, kd), (bv, bd) = (np.asarray(v, dtype=float) for v in (hm.D, hm.k_s, hm.beta_r))
+        LOG.info(
+            "online choice (30): %s reduced model (dp %.3f, dp_turn %.3f, k_v %.3f, k_delta %.3f); "
+            "(29) discretised over %s",
+            cfg.hybrid_model, hm.dp, hm.dp_turn, kv, kd,
+            "the walking cycle T" if cfg.equivalent_period == "cycle" else f"{cfg.equivalent_period_s:g} s",
+        )
         sg, tg = self.sigma[:, None], self.T[None, :]
         self._tab = np.stack(
-            [rho_speed_block(sg, tg, m, kv, bv, cfg.dp), rho_speed_block(sg, tg, i_, kd, bd, cfg.dp_turn)]
+            [rho_speed_block(sg, tg, m, kv, bv, hm.dp), rho_speed_block(sg, tg, i_, kd, bd, hm.dp_turn)]
         )
         if not np.all(np.diff(self._tab, axis=1) > 0):
             raise ValueError("max|l_hybrid| of a speed block is not increasing in sigma_r: the solver does not apply")
         # Interpolation error of the table (at the midpoints), to keep the exact residual in band.
         mid = 0.5 * (sg[1:] + sg[:-1])
         exact_mid = np.stack(
-            [rho_speed_block(mid, tg, m, kv, bv, cfg.dp), rho_speed_block(mid, tg, i_, kd, bd, cfg.dp_turn)]
+            [rho_speed_block(mid, tg, m, kv, bv, hm.dp), rho_speed_block(mid, tg, i_, kd, bd, hm.dp_turn)]
         )
         self.interp_error = float(np.max(np.abs(exact_mid - 0.5 * (self._tab[:, 1:] + self._tab[:, :-1]))))
         self.band = cfg.tolerance - 2.0 * self.interp_error

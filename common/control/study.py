@@ -34,7 +34,14 @@ Reported per case and scheme: the mean over runs of the time-mean absolute coord
 errors, eqs. (6) and (10): forward ``|k_gv x_mv(t - h1) - v_hip|`` [cm/s] and turn
 ``|k_gd x_md(t - h1) - v_delta|`` [deg/s], with 95 % confidence intervals (Student t over
 runs), and the number of diverged runs (non-finite state or a speed above 1e4), which are
-left out of the means.
+left out of the means. Separately, the **periodic-orbit offset**: the time mean of
+``d(sigma_r, T) |k_g x_m(t - h1)|``, where ``d`` is the mean speed deficit of the reduced
+model's periodic orbit at the parameters in use (:func:`orbit_deficit`): what the resets
+alone cost at a constant command, with no delay. Where the error and the offset are close,
+the error is the resets' doing, not the delays'.
+
+:func:`run_sensitivity` repeats the comparison over a small grid of the settings the paper
+leaves open (:data:`SENSITIVITY`) and :func:`sensitivity_markdown` writes its table.
 """
 
 from __future__ import annotations
@@ -49,7 +56,8 @@ from typing import Any
 import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping_array
-from bipedtele.control.equivalent import equivalent_zoh
+from bipedtele.control.equivalent import equivalent_matrices
+from bipedtele.control.hybrid import orbit_speed_deficit
 from bipedtele.control.linalg import mat2, zoh2
 from bipedtele.control.online import Choice, OnlineChooser
 from bipedtele.delaymodels import parse_delay_model
@@ -57,12 +65,20 @@ from scipy import stats
 
 __all__ = [
     "CASES",
+    "SENSITIVITY",
+    "CaseInputs",
     "DelayCase",
+    "SimulatedLeader",
     "StudyParams",
+    "case_inputs",
     "delay_sampler",
+    "orbit_deficit",
     "plot_study",
     "run_case",
+    "run_sensitivity",
     "run_study",
+    "sensitivity_markdown",
+    "study_markdown",
 ]
 
 LOG = logging.getLogger(__name__)
@@ -97,6 +113,20 @@ CASES: tuple[DelayCase, ...] = (
         "trace:intercontinental:h1",
         "trace:intercontinental:h2",
         "recorded intercontinental trace (130-370 ms, time-varying, asymmetric), shipped CSV",
+    ),
+    DelayCase(
+        "satellite",
+        "uniform:1500ms:200ms",
+        "uniform:1500ms:200ms",
+        "satellite hop plus a congested path: 1.5 s +- 0.2 s each way; with the default D and "
+        "margin, (40) lifts sigma_e off its floor on the turn channel only",
+    ),
+    DelayCase(
+        "congested-satellite",
+        "uniform:3500ms:300ms",
+        "uniform:3500ms:300ms",
+        "satellite path with seconds of queueing: 3.5 s +- 0.3 s each way; (40) lifts sigma_e "
+        "off its floor on both channels",
     ),
 )
 
@@ -227,17 +257,154 @@ def _ci95(x: np.ndarray) -> tuple[float, list[float]]:
     return m, [m - half, m + half]
 
 
-def _summary(fwd: np.ndarray, turn: np.ndarray, diverged: np.ndarray) -> dict[str, Any]:
+def _summary(err: np.ndarray, offset: np.ndarray, diverged: np.ndarray) -> dict[str, Any]:
     ok = ~diverged
-    f, fci = _ci95(fwd[ok])
-    t, tci = _ci95(turn[ok])
-    return {
-        "forward_error": f,
-        "forward_ci95": fci,
-        "turn_error": t,
-        "turn_ci95": tci,
-        "diverged": int(diverged.sum()),
-    }
+    out: dict[str, Any] = {}
+    for c, ch in enumerate(("forward", "turn")):
+        m, ci = _ci95(err[ok, c])
+        o, oci = _ci95(offset[ok, c])
+        out[f"{ch}_error"] = m
+        out[f"{ch}_ci95"] = ci
+        out[f"{ch}_orbit_offset"] = o
+        out[f"{ch}_orbit_offset_ci95"] = oci
+    out["diverged"] = int(diverged.sum())
+    return out
+
+
+def orbit_deficit(s_r: np.ndarray, T: np.ndarray, cfg: ControlConfig) -> np.ndarray:
+    """Per run and channel, the periodic orbit's mean speed deficit as a fraction of a
+    constant reference (:func:`~bipedtele.control.hybrid.orbit_speed_deficit`).
+
+    ``s_r`` has shape (n, 2), ``T`` shape (n,); returns (n, 2).
+    """
+    d, k, b = (np.asarray(v, dtype=float) for v in (cfg.D, cfg.k_s, cfg.beta_r))
+    dps = (cfg.dp, cfg.dp_turn)
+    return np.stack(
+        [orbit_speed_deficit(s_r[:, c], T, float(d[c]), float(k[c]), float(b[c]), dps[c]) for c in range(2)], -1
+    )
+
+
+@dataclass(frozen=True)
+class CaseInputs:
+    """What one delay case feeds ``runs`` paired runs (the same for the reduced and the
+    walker study with equal seeds).
+
+    Attributes
+    ----------
+    h1, h2 : numpy.ndarray
+        One-way delay of a message sent at step ``k`` [s], shape (K,).
+    cp_s_r, cp_T : numpy.ndarray
+        CP's fixed real damping (runs, 2) and walking cycle (runs,) [s].
+    switch, intent : numpy.ndarray
+        Operator: times its intention changes (runs, n) [s] and the intended speeds
+        (runs, n, 2) [cm/s, deg/s].
+    """
+
+    h1: np.ndarray
+    h2: np.ndarray
+    cp_s_r: np.ndarray
+    cp_T: np.ndarray
+    switch: np.ndarray
+    intent: np.ndarray
+
+
+def case_inputs(
+    case: DelayCase,
+    runs: int,
+    seed: int,
+    cfg: ControlConfig,
+    params: StudyParams,
+    *,
+    T_bounds: tuple[float, float] | None = None,
+) -> CaseInputs:
+    """Draw a case's delays, CP parameters and operator intentions (seeded per case).
+
+    ``T_bounds`` narrows CP's walking-cycle range (default ``cfg.T_range``) without
+    changing the random stream, so run ``i`` keeps its intentions.
+    """
+    dt = params.dt
+    k_steps = round(params.duration_s / dt)
+    case_seed = [seed, CASES.index(case) if case in CASES else 99]
+    rng = np.random.default_rng(case_seed)
+    t_grid = np.arange(k_steps) * dt
+    offset = float(rng.uniform(0.0, 240.0)) if case.h1.startswith("trace") else 0.0
+    h = []
+    for j, spec in enumerate((case.h1, case.h2)):
+        f = delay_sampler(spec, seed=int(rng.integers(0, 2**31 - 1)) + j)
+        h.append(np.array([f(offset + t) for t in t_grid]))
+    s_lo, s_hi = cfg.s_r_range
+    t_lo, t_hi = cfg.T_range if T_bounds is None else T_bounds
+    cp_sr = rng.uniform(s_lo, s_hi, size=(runs, 2))
+    cp_T = rng.uniform(t_lo, t_hi, size=runs)
+    n_seg = int(params.duration_s / params.intent_min_s) + 2
+    gaps = params.intent_min_s + rng.exponential(params.intent_mean_s - params.intent_min_s, size=(runs, n_seg))
+    switch = np.concatenate([np.zeros((runs, 1)), np.cumsum(gaps, axis=1)], axis=1)
+    fwd_t = rng.uniform(*params.forward_range, size=(runs, n_seg + 1))
+    turn_t = rng.uniform(-params.turn_max, params.turn_max, size=(runs, n_seg + 1))
+    return CaseInputs(h[0], h[1], cp_sr, cp_T, switch, np.stack([fwd_t, turn_t], -1))
+
+
+class SimulatedLeader:
+    """The simulated operator's hand on the leader device, vectorised over runs.
+
+    The operator intends the speeds ``intent`` (switching at the times ``switch``); the
+    intention ``ref / k_g`` is smoothed (``hand_tau``) and a PD hand pulls the handle. The
+    handle (1) moves under the hand and the leader force (31) clamped to ``force_max_n``,
+    damping terms implicit.
+
+    Parameters
+    ----------
+    switch, intent : numpy.ndarray
+        As :class:`CaseInputs` (``n`` runs).
+    cfg : ControlConfig
+        ``k_g``, ``k_m``.
+    params : StudyParams
+        Hand, handle and period.
+    """
+
+    def __init__(self, switch: np.ndarray, intent: np.ndarray, cfg: ControlConfig, params: StudyParams) -> None:
+        self.switch, self.intent, self.params = switch, intent, params
+        n = switch.shape[0]
+        self.n_seg = switch.shape[1] - 1
+        self.k_g = np.asarray(cfg.k_g, dtype=float)
+        self.k_m = np.asarray(cfg.k_m, dtype=float)
+        self.a_hand = 1.0 - math.exp(-params.dt / params.hand_tau)
+        self.rows = np.arange(n)
+        self.x = np.zeros((n, 2))
+        self.v = np.zeros((n, 2))
+        self.x_d = np.zeros((n, 2))
+        self.seg = np.zeros(n, dtype=int)
+        self.f_m = np.zeros((n, 2))
+
+    def step(self, t: float, z_rx: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+        """Advance one period at time ``t`` [s] with the received ``z_e`` and the leader
+        damping ``alpha`` [N s/m]; return the handle position ``x_m`` [m]."""
+        p, dt, m = self.params, self.params.dt, self.params.leader_mass_kg
+        adv = self.switch[self.rows, np.minimum(self.seg + 1, self.n_seg)] <= t
+        self.seg = np.where(adv, np.minimum(self.seg + 1, self.n_seg), self.seg)
+        target = self.intent[self.rows, self.seg] / self.k_g
+        self.x_d += (target - self.x_d) * self.a_hand
+        x, v = self.x, self.v
+        spring = -self.k_m * (self.k_g * x - z_rx)
+        hand_pos = p.hand_k * (self.x_d - x)
+        v_new = (v + dt / m * (spring + hand_pos)) / (1.0 + dt * (alpha + p.hand_b) / m)
+        f_m = spring - alpha * v_new
+        f_h = hand_pos - p.hand_b * v_new
+        clamp_m = np.abs(f_m) > p.force_max_n
+        clamp_h = np.abs(f_h) > p.hand_f_max
+        if clamp_m.any() or clamp_h.any():
+            # saturated forces are constant over the step; unsaturated damping stays implicit
+            denom = 1.0 + dt * (np.where(clamp_m, 0.0, alpha) + np.where(clamp_h, 0.0, p.hand_b)) / m
+            num = v + dt / m * (
+                np.where(clamp_m, np.sign(f_m) * p.force_max_n, spring)
+                + np.where(clamp_h, np.sign(f_h) * p.hand_f_max, hand_pos)
+            )
+            v_new = num / denom
+            f_m = np.where(clamp_m, np.sign(f_m) * p.force_max_n, spring - alpha * v_new)
+        self.f_m = f_m
+        self.v = v_new
+        self.x = x + dt * v_new
+        return self.x
 
 
 def run_case(
@@ -261,59 +428,43 @@ def run_case(
     """
     dt = params.dt
     k_steps = round(params.duration_s / dt)
-    case_seed = [seed, CASES.index(case) if case in CASES else 99]
-    rng = np.random.default_rng(case_seed)
-    t_grid = np.arange(k_steps) * dt
-    offset = float(rng.uniform(0.0, 240.0)) if case.h1.startswith("trace") else 0.0
-    h = []
-    for j, spec in enumerate((case.h1, case.h2)):
-        f = delay_sampler(spec, seed=int(rng.integers(0, 2**31 - 1)) + j)
-        h.append(np.array([f(offset + t) for t in t_grid]))
-    ch1 = _channel(h[0], dt, params.window_s)
-    ch2 = _channel(h[1], dt, params.window_s)
+    inp = case_inputs(case, runs, seed, cfg, params)
+    ch1 = _channel(inp.h1, dt, params.window_s)
+    ch2 = _channel(inp.h2, dt, params.window_s)
     alpha_k, s_e_k, _, _ = schedule_damping_array(ch1.estimate, ch2.estimate, cfg)
 
     # VP: the online choice for every distinct s_e met along the case (shared by all runs)
+    # VP runs start together and share the choice, so they take it at the same steps:
+    # the choice is computed (memoised) only where it is used.
+    used: list[Choice] = []
+
+    def choice_at(k: int) -> Choice:
+        c = chooser.choose(s_e_k[k])
+        used.append(c)
+        return c
+
+    first = choice_at(0)
+    # (29) discretised once per distinct sigma_e of the case (closed-form 2x2 ZOH)
     uniq, inverse = np.unique(s_e_k, axis=0, return_inverse=True)
-    choices: list[Choice] = [chooser.choose(u) for u in uniq]
+    a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
+    phi_eq, gam_eq = zoh2(a_eq, b_eq, dt)
     inverse = inverse.reshape(-1)
-    ch_T = np.array([c.T for c in choices])[inverse]
-    ch_sr = np.array([c.s_r for c in choices])[inverse]
-    ch_eps = np.array([c.eps for c in choices])[inverse]
 
     n_all = 2 * runs
     vp = np.zeros(n_all, dtype=bool)
     vp[runs:] = True
     # CP parameters, drawn per run, fixed
-    s_lo, s_hi = cfg.s_r_range
-    t_lo, t_hi = cfg.T_range
-    cp_sr = rng.uniform(s_lo, s_hi, size=(runs, 2))
-    cp_T = rng.uniform(t_lo, t_hi, size=runs)
-    s_r = np.concatenate([cp_sr, np.repeat(ch_sr[:1], runs, axis=0)])
-    T_run = np.concatenate([cp_T, np.full(runs, ch_T[0])])
-    eps_used = np.concatenate([np.full(runs, cfg.eps), np.full(runs, ch_eps[0])])
+    cp_sr, cp_T = inp.cp_s_r, inp.cp_T
+    s_r = np.concatenate([cp_sr, np.repeat(first.s_r[None, :], runs, axis=0)])
+    T_run = np.concatenate([cp_T, np.full(runs, first.T)])
+    eps_used = np.concatenate([np.full(runs, cfg.eps), np.full(runs, first.eps)])
+    deficit = orbit_deficit(s_r, T_run, cfg)
 
     # operator intentions: the same for CP run i and VP run i
-    n_seg = int(params.duration_s / params.intent_min_s) + 2
-    gaps = params.intent_min_s + rng.exponential(params.intent_mean_s - params.intent_min_s, size=(runs, n_seg))
-    switch = np.concatenate([np.zeros((runs, 1)), np.cumsum(gaps, axis=1)], axis=1)
-    fwd_t = rng.uniform(*params.forward_range, size=(runs, n_seg + 1))
-    turn_t = rng.uniform(-params.turn_max, params.turn_max, size=(runs, n_seg + 1))
-    intent = np.stack([fwd_t, turn_t], -1)
-    switch = np.concatenate([switch, switch])
-    intent = np.concatenate([intent, intent])
-
+    leader = SimulatedLeader(np.concatenate([inp.switch, inp.switch]), np.concatenate([inp.intent, inp.intent]),
+                             cfg, params)
     k_g = np.asarray(cfg.k_g, dtype=float)
-    k_m = np.asarray(cfg.k_m, dtype=float)
     dp = np.array([cfg.dp, cfg.dp_turn])
-    m = params.leader_mass_kg
-    a_hand = 1.0 - math.exp(-dt / params.hand_tau)
-    rows = np.arange(n_all)
-
-    x = np.zeros((n_all, 2))
-    v = np.zeros((n_all, 2))
-    x_d = np.zeros((n_all, 2))
-    seg = np.zeros(n_all, dtype=int)
     eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
     hy = np.zeros((n_all, 2, 2))  # [eta, z_r] per channel
     phase = np.zeros(n_all)
@@ -321,6 +472,7 @@ def run_case(
     cmd_buf = np.zeros((ch1.ring, n_all, 2))
     fb_buf = np.zeros((ch2.ring, n_all, 2))
     err_sum = np.zeros((n_all, 2))
+    offset_sum = np.zeros((n_all, 2))
     peak = np.zeros(n_all)
     sum_T = np.zeros(n_all)
     sum_sr = np.zeros((n_all, 2))
@@ -329,39 +481,16 @@ def run_case(
 
     for k in range(k_steps):
         t = k * dt
-        # operator intention -> smoothed handle target
-        adv = switch[rows, np.minimum(seg + 1, n_seg)] <= t
-        seg = np.where(adv, np.minimum(seg + 1, n_seg), seg)
-        target = intent[rows, seg] / k_g
-        x_d += (target - x_d) * a_hand
-        # leader (31)-(32) with the feedback received
+        # operator and leader (31)-(32) with the feedback received
         i2 = ch2.idx[k]
         z_rx = fb_buf[i2 % ch2.ring] if i2 >= 0 else np.zeros((n_all, 2))
-        alpha = alpha_k[k]
-        spring = -k_m * (k_g * x - z_rx)
-        hand_pos = params.hand_k * (x_d - x)
-        v_new = (v + dt / m * (spring + hand_pos)) / (1.0 + dt * (alpha + params.hand_b) / m)
-        f_m = spring - alpha * v_new
-        f_h = hand_pos - params.hand_b * v_new
-        clamp_m = np.abs(f_m) > params.force_max_n
-        clamp_h = np.abs(f_h) > params.hand_f_max
-        if clamp_m.any() or clamp_h.any():
-            # saturated forces are constant over the step; unsaturated damping stays implicit
-            fm_c = np.clip(spring, -np.inf, np.inf)
-            denom = 1.0 + dt * (np.where(clamp_m, 0.0, alpha) + np.where(clamp_h, 0.0, params.hand_b)) / m
-            num = v + dt / m * (
-                np.where(clamp_m, np.sign(f_m) * params.force_max_n, fm_c)
-                + np.where(clamp_h, np.sign(f_h) * params.hand_f_max, hand_pos)
-            )
-            v_new = num / denom
-        v = v_new
-        x = x + dt * v
+        x = leader.step(t, z_rx, alpha_k[k])
         cmd_buf[k % ch1.ring] = k_g * x
         # follower: newest command received
         i1 = ch1.idx[k]
         ref = cmd_buf[i1 % ch1.ring] if i1 >= 0 else np.zeros((n_all, 2))
         # equivalent follower (29), shared discretisation for this step's sigma_e
-        phi_e, gam_e = equivalent_zoh(s_e_k[k], cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z, dt)
+        phi_e, gam_e = phi_eq[inverse[k]], gam_eq[inverse[k]]
         eq = np.einsum("cij,ncj->nci", phi_e, eq) + gam_e[None, :, :, 0] * ref[:, :, None]
         fb_buf[k % ch2.ring] = eq[:, :, 1]
         # real follower: hybrid speed dynamics between impacts, per-run matrices
@@ -378,18 +507,22 @@ def run_case(
             n_cycles[hit] += 1
             upd = hit & vp
             if upd.any():
-                T_run[upd] = ch_T[k]
-                s_r[upd] = ch_sr[k]
-                eps_used[upd] = ch_eps[k]
+                ck = choice_at(k)
+                T_run[upd] = ck.T
+                s_r[upd] = ck.s_r
+                eps_used[upd] = ck.eps
                 p, g = _hybrid_zoh(s_r[upd], cfg, dt)
                 phi_h[upd] = p
                 gam_h[upd] = g
+                deficit[upd] = orbit_deficit(s_r[upd], T_run[upd], cfg)
         err_sum += np.abs(ref - hy[..., 0])
+        offset_sum += deficit * np.abs(ref)
         peak = np.maximum(peak, np.abs(hy[..., 0]).max(axis=1))
         if progress is not None and (k + 1) % report_every == 0:
             progress(report_every)
 
     mean_err = err_sum / k_steps
+    mean_offset = offset_sum / k_steps
     diverged = ~np.isfinite(mean_err).all(axis=1) | ~np.isfinite(peak) | (peak > params.diverge_limit)
     cp_sl, vp_sl = slice(0, runs), slice(runs, n_all)
     out: dict[str, Any] = {
@@ -397,13 +530,19 @@ def run_case(
         "h1_ms": 1e3 * ch1.mean_s,
         "h2_ms": 1e3 * ch2.mean_s,
         "description": case.description,
-        "cp": _summary(mean_err[cp_sl, 0], mean_err[cp_sl, 1], diverged[cp_sl]),
-        "vp": _summary(mean_err[vp_sl, 0], mean_err[vp_sl, 1], diverged[vp_sl]),
+        "s_e": {"mean": s_e_k.mean(axis=0).tolist(), "max": s_e_k.max(axis=0).tolist(),
+                "floor_left": [bool(v) for v in (s_e_k > cfg.s_e_min + 1e-12).any(axis=0)]},
+        "cp": _summary(mean_err[cp_sl], mean_offset[cp_sl], diverged[cp_sl]),
+        "vp": _summary(mean_err[vp_sl], mean_offset[vp_sl], diverged[vp_sl]),
     }
     cyc = np.maximum(n_cycles[vp_sl], 1)
     out["vp"]["mean_T_s"] = float(np.mean(sum_T[vp_sl] / cyc))
     out["vp"]["mean_s_r"] = (sum_sr[vp_sl] / cyc[:, None]).mean(axis=0).tolist()
     out["vp"]["eps"] = float(np.mean(eps_used[vp_sl]))
+    used_T = np.array([c.T for c in used])
+    used_sr = np.array([c.s_r for c in used])
+    out["vp"]["T_span_s"] = [float(used_T.min()), float(used_T.max())]
+    out["vp"]["s_r_span"] = [used_sr.min(axis=0).tolist(), used_sr.max(axis=0).tolist()]
     out["_runs"] = {"mean_error": mean_err, "diverged": diverged, "cp_T": cp_T, "cp_s_r": cp_sr}
     return out
 
@@ -494,3 +633,105 @@ def plot_study(result: dict[str, Any]) -> Any:
         ax.legend()
     fig.suptitle(f"Coordination errors, {result['runs']} runs per scheme, seed {result['seed']}")
     return fig
+
+
+# ----------------------------------------------------------------------------- sensitivity
+
+#: The settings the paper does not give, one change at a time from the defaults:
+#: (label, ``[control]`` overrides).
+SENSITIVITY: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("defaults", {}),
+    ("k_wt = 0.01", {"k_wt": 0.01}),
+    ("dp_turn = 0.7", {"dp_turn": 0.7}),
+    ("(29) over 1 s in (30)", {"equivalent_period": "fixed", "equivalent_period_s": 1.0}),
+    ("beta_e = 1.5 s", {"beta_e": [1.5, 1.5]}),
+    ("margin of (40) = 1", {"margin": 1.0}),
+    ("walker-calibrated model", {"hybrid_model": "calibrated"}),
+)
+
+
+def run_sensitivity(
+    runs: int = 100,
+    seed: int = 0,
+    cfg: ControlConfig | None = None,
+    params: StudyParams | None = None,
+    *,
+    settings: tuple[tuple[str, dict[str, Any]], ...] = SENSITIVITY,
+    cases: tuple[DelayCase, ...] = CASES,
+    progress: bool | None = None,
+) -> dict[str, Any]:
+    """CP vs VP for every setting of ``settings`` (each one a change of ``cfg``).
+
+    Returns
+    -------
+    dict
+        ``{"seed", "runs", "duration_s", "settings": [{"label", "overrides", "cases"}]}``;
+        each ``cases`` is what :func:`run_study` returns for that configuration.
+    """
+    import dataclasses
+
+    base = cfg or ControlConfig()
+    params = params or StudyParams()
+    out = []
+    for label, overrides in settings:
+        try:
+            c = dataclasses.replace(base, **overrides)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"sensitivity setting {label!r}: {exc}") from None
+        res = run_study(runs, seed, c, params, cases=cases, progress=progress)
+        out.append({"label": label, "overrides": overrides, "cases": res["cases"]})
+        LOG.info("sensitivity: %s done", label)
+    return {"seed": seed, "runs": runs, "duration_s": params.duration_s, "settings": out}
+
+
+def _fmt_ci(s: dict[str, Any], channel: str) -> str:
+    lo, hi = s[f"{channel}_ci95"]
+    return f"{s[f'{channel}_error']:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def sensitivity_markdown(result: dict[str, Any]) -> str:
+    """One markdown table: setting, case, CP and VP errors with 95 % CIs per channel, the
+    periodic-orbit offsets, and VP's chosen ``(sigma_r, T)`` (time means over the case)."""
+    lines = [
+        f"{result['runs']} CP + {result['runs']} VP runs per case, {result['duration_s']:g} s each, "
+        f"seed {result['seed']}. Errors: mean of the time-mean |eq. (6)| [cm/s] and |eq. (10)| [deg/s] "
+        "with 95 % CI; offset: periodic-orbit offset (same units); sigma_e off floor: channels where (40) "
+        "lifted sigma_e (f = forward, t = turn).",
+        "",
+        "| setting | case | sigma_e off floor | CP forward | VP forward | CP turn | VP turn "
+        "| offset fwd CP / VP | VP sigma_r | VP T [s] |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for st in result["settings"]:
+        for c in st["cases"]:
+            cp, vp = c["cp"], c["vp"]
+            off = "".join(ch for ch, on in zip("ft", c["s_e"]["floor_left"], strict=True) if on) or "-"
+            s_r = ", ".join(f"{v:.2f}" for v in vp["mean_s_r"])
+            lines.append(
+                f"| {st['label']} | {c['name']} | {off} | {_fmt_ci(cp, 'forward')} | "
+                f"{_fmt_ci(vp, 'forward')} | {_fmt_ci(cp, 'turn')} | {_fmt_ci(vp, 'turn')} | "
+                f"{cp['forward_orbit_offset']:.2f} / {vp['forward_orbit_offset']:.2f} | [{s_r}] | {vp['mean_T_s']:.2f} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def study_markdown(result: dict[str, Any]) -> str:
+    """A markdown table of a study (reduced or walker): per case, CP and VP errors with 95 %
+    CIs per channel, VP's mean choice, and the failures (diverged runs; falls on the walker)."""
+    lines = [
+        f"{result['runs']} CP + {result['runs']} VP runs per case, {result['duration_s']:g} s each, "
+        f"seed {result['seed']}. Mean of the time-mean |eq. (6)| [cm/s] and |eq. (10)| [deg/s], 95 % CI.",
+        "",
+        "| case | h1 / h2 [ms] | CP forward | VP forward | CP turn | VP turn | VP sigma_r | VP T [s] | failed CP / VP |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for c in result["cases"]:
+        cp, vp = c["cp"], c["vp"]
+        s_r = ", ".join(f"{v:.2f}" for v in vp["mean_s_r"])
+        fail = f"{cp.get('falls', cp['diverged'])} / {vp.get('falls', vp['diverged'])}"
+        lines.append(
+            f"| {c['name']} | {c['h1_ms']:.0f} / {c['h2_ms']:.0f} | {_fmt_ci(cp, 'forward')} | "
+            f"{_fmt_ci(vp, 'forward')} | {_fmt_ci(cp, 'turn')} | {_fmt_ci(vp, 'turn')} | "
+            f"[{s_r}] | {vp['mean_T_s']:.2f} | {fail} |"
+        )
+    return "\n".join(lines) + "\n"

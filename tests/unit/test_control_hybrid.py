@@ -54,3 +54,25 @@ def test_definitions() -> None:
     b = beta_e_def3(CFG, 0.01)
     assert b is not None and 0 < b < 0.1
     assert beta_e_def3(CFG, 0.01, method="zoh") == pytest.approx(1e-4)
+
+
+@pytest.mark.parametrize(("sigma", "T", "dp"), [(2.0, 1.3, 0.7), (0.0, 0.5, 0.25), (8.0, 4.0, 0.9)])
+def test_orbit_speed_deficit_equals_the_simulated_orbit(sigma: float, T: float, dp: float) -> None:
+    from bipedtele.control.hybrid import orbit_speed_deficit
+    from bipedtele.control.linalg import mat2, zoh2
+
+    D, k, b, r, dt = 4.5, 1.0, 0.5, 5.0, 1e-3
+    a = mat2(-k / D - sigma / (D * b), sigma / (D * b), 1 / b, -1 / b)
+    phi, gam = zoh2(a, np.array([[k / D], [0.0]]), dt)
+    x = np.zeros(2)
+    n = round(T / dt)
+    for _ in range(300):  # walk until the orbit is periodic, then average one cycle
+        speeds = []
+        for _ in range(n):
+            speeds.append(x[0])
+            x = phi @ x + gam[:, 0] * r
+        x[0] *= dp
+    assert orbit_speed_deficit(sigma, T, D, k, b, dp) == pytest.approx(1 - np.mean(speeds) / r, abs=2e-3)
+    # no reset, no deficit; the deficit grows as the cycle shortens
+    assert orbit_speed_deficit(sigma, T, D, k, b, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert orbit_speed_deficit(sigma, T / 2, D, k, b, dp) > orbit_speed_deficit(sigma, T, D, k, b, dp)

@@ -90,3 +90,40 @@ def test_infeasible_is_flagged_with_nearest_rho(chooser: OnlineChooser) -> None:
         assert c.residual < -CFG.tolerance
         np.testing.assert_allclose(c.s_r, CFG.s_r_range[1])
     assert on.residual == pytest.approx(ex.residual, abs=1e-9)
+
+
+def test_fixed_discretisation_period_lets_T_follow_the_delay() -> None:
+    from bipedtele.control.damping import schedule_damping
+
+    cycle = OnlineChooser(CFG)
+    fixed_cfg = ControlConfig(equivalent_period="fixed", equivalent_period_s=1.0)
+    fixed = OnlineChooser(fixed_cfg)
+    Ts_cycle, Ts_fixed = [], []
+    for h in (0.002, 1.5, 3.5):
+        s_e = schedule_damping(h, h, CFG).s_e
+        Ts_cycle.append(cycle.choose(s_e).T)
+        c = fixed.choose(s_e)
+        assert c.feasible and abs(c.residual) <= fixed_cfg.tolerance
+        assert c.rho_equivalent == pytest.approx(equivalent_spectral_radius(s_e, fixed_cfg, 1.0))
+        Ts_fixed.append(c.T)
+    assert Ts_cycle == [CFG.T_range[0]] * 3  # with the cycle as period T stays at its bound
+    assert Ts_fixed[0] < Ts_fixed[1] < Ts_fixed[2]  # over a fixed period it grows with the delay
+
+
+def test_calibrated_model_switch(caplog: pytest.LogCaptureFixture) -> None:
+    cal = ControlConfig(hybrid_model="calibrated", calibrated_dp=0.95, calibrated_k_v=2.0)
+    hm = cal.hybrid()
+    assert hm.dp == 0.95 and hm.k_s == [2.0, CFG.k_s[1]] and cal.k_s == CFG.k_s
+    assert CFG.hybrid() is CFG
+    with caplog.at_level("INFO", logger="bipedtele.control.online"):
+        chooser = OnlineChooser(cal)
+    assert chooser.model == "calibrated"
+    assert any("calibrated reduced model" in r.getMessage() and "dp 0.950" in r.getMessage() for r in caplog.records)
+    c = chooser.choose([0.05, 0.05])
+    ex = solve_exact([0.05, 0.05], cal)
+    # both sides of (30) are evaluated with the calibrated model
+    assert c.rho_hybrid == pytest.approx(float(np.max(np.stack(rho_blocks(*c.s_r, c.T, c.eps, 0.95, hm)))))
+    assert abs(c.residual) <= cal.tolerance and abs(ex.residual) <= cal.tolerance
+    paper = OnlineChooser(CFG)
+    assert not np.allclose(chooser._tab[0], paper._tab[0])  # the forward block is the calibrated one
+    np.testing.assert_allclose(chooser._tab[1], paper._tab[1])  # the turn block is not calibrated

@@ -89,3 +89,56 @@ def test_calibration_cascade() -> None:
     assert sp.choice.feasible and abs(sp.choice.residual) <= cal.cfg.tolerance
     rep = cal.offline_report()
     assert rep["T_min_s"] is not None and rep["beta_e_def3_euler_s"] is not None
+
+
+@pytest.mark.timeout(120)
+def test_long_delay_cases_lift_sigma_e_and_move_vps_choice() -> None:
+    cfg = ControlConfig()
+    chooser = OnlineChooser(cfg)
+    params = StudyParams(duration_s=6.0)
+    by_name = {c.name: c for c in CASES}
+    lan = run_case(by_name["lan"], 2, 0, cfg, params, chooser)
+    sat = run_case(by_name["satellite"], 2, 0, cfg, params, chooser)
+    both = run_case(by_name["congested-satellite"], 2, 0, cfg, params, chooser)
+    # (40): sigma_e leaves its floor on the turn channel at 1.5 s each way, on both at 3.5 s
+    assert lan["s_e"]["floor_left"] == [False, False]
+    assert sat["s_e"]["floor_left"] == [False, True]
+    assert both["s_e"]["floor_left"] == [True, True]
+    # ... and VP's (sigma_r, T) differs where sigma_e does
+    assert not np.allclose(both["vp"]["mean_s_r"], lan["vp"]["mean_s_r"])
+    for res in (lan, sat, both):
+        for scheme in ("cp", "vp"):
+            s = res[scheme]
+            assert s["forward_orbit_offset"] >= 0.0 and s["turn_orbit_offset"] == pytest.approx(0.0)  # dp_turn = 1
+
+
+@pytest.mark.timeout(60)
+def test_orbit_offset_is_the_resets_share_of_the_error() -> None:
+    """At T = 0.5 s (VP's choice) the periodic orbit runs at about a quarter of the command:
+    the offset nearly equals VP's forward error; with dp = 1 there is no offset."""
+    params = StudyParams(duration_s=20.0)
+    res = run_case(CASES[0], 4, 3, ControlConfig(), params, OnlineChooser(ControlConfig()))
+    vp = res["vp"]
+    assert vp["forward_orbit_offset"] > 0.5 * vp["forward_error"]
+    flat = ControlConfig(dp=1.0)
+    res1 = run_case(CASES[0], 4, 3, flat, params, OnlineChooser(flat))
+    assert res1["cp"]["forward_orbit_offset"] == pytest.approx(0.0, abs=1e-9)
+    assert res1["vp"]["forward_orbit_offset"] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.timeout(240)
+def test_sensitivity_command_writes_one_table(tmp_path: Path) -> None:
+    from bipedtele.control.study import SENSITIVITY
+
+    out, md = tmp_path / "sens.json", tmp_path / "sens.md"
+    rc = main(["study", "--sensitivity", "--runs", "2", "--duration", "3", "--json", str(out), "--markdown", str(md)])
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert [s["label"] for s in data["settings"]] == [label for label, _ in SENSITIVITY]
+    for s in data["settings"]:
+        assert [c["name"] for c in s["cases"]] == [c.name for c in CASES]
+    table = md.read_text()
+    rows = [line for line in table.splitlines() if line.startswith("| ") and "---" not in line]
+    assert len(rows) == 1 + len(SENSITIVITY) * len(CASES)  # header + one row per setting and case
+    assert "VP sigma_r" in rows[0] and "CP forward" in rows[0]
+    assert main(["study", "--markdown", str(md)]) == 2  # only with --sensitivity or --walker
