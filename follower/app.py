@@ -22,9 +22,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bipedtele import recording as _recording
+from bipedtele.auth import load_message_auth
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.clock import ClockSync
+from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.follower.loop import DEFAULT_MAX_FUTURE_S, FollowerLoop
@@ -33,12 +34,11 @@ from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import ClockPing, ClockPong, Command, Feedback, Message, Status, VideoFrame
-from bipedtele.recording import Recorder
+from bipedtele.recording import Recorder, open_recording
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import (
     Keys,
     LatestReceiver,
-    MessageReceiver,
     Publishers,
     declare_presence,
     open_session,
@@ -54,14 +54,6 @@ def _robot_from_config(cfg: Config, name: str) -> FollowerRobot:
         return make_robot(name, config=cfg)
     except ValueError as exc:
         raise ConfigError(f"--robot: {exc}") from None
-
-
-def _recording_path(folder: Path) -> Path:
-    """A new recording name in ``folder`` (unique, never overwriting, where the core has it)."""
-    new_path = getattr(_recording, "new_recording_path", None)
-    if new_path is not None:
-        return Path(new_path(folder, "follower"))
-    return folder / f"follower-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
 
 
 def _reset_hook(robot: FollowerRobot) -> Any:
@@ -133,36 +125,54 @@ def main(
     keys = Keys(cfg.section("robot").id)
     # Every setting is checked (the robot's section too) before anything is written.
     robot_obj = _robot_from_config(cfg, name)
-    max_future_s = float(getattr(cfg.section("clock"), "max_future_s", DEFAULT_MAX_FUTURE_S))
+    ck = cfg.section("clock")
+    max_future_s = float(getattr(ck, "max_future_s", DEFAULT_MAX_FUTURE_S))
+    auth = load_message_auth(cfg.section("network"))  # a bad key file fails here, before any I/O
     rec_cfg = cfg.section("record")
-    if record is None and rec_cfg.enabled:
-        record = _recording_path(Path(rec_cfg.dir))
-    if record is not None:
-        try:
-            record.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise ConfigError(f"recording {record}: cannot create its folder ({exc.strerror}); allowed: a writable folder") from None
-    ntp = cfg.section("clock").mode == "ntp"
-    sync = ClockSync(cfg.section("clock").ping_window)
+    if record is not None and record.exists():
+        raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)")
+    ntp = ck.mode == "ntp"
+    sync = ClockSync(ck.ping_window) if ntp else None
     drops = DropCounter("follower")
+    # The command gate follows one leader session (another takes over only after the
+    # watchdog's silence); its live sid binds the clock link.
+    cmd_gate = SequenceGate(takeover_after_s=fcfg.watchdog_s)
 
     with contextlib.ExitStack() as stack:
         stop = stack.enter_context(shutdown_on_signals())
-        recorder = stack.enter_context(Recorder(record, rec_cfg.flush_s, metadata={"role": "follower", "config": cfg.to_dict()})) if record else None
         session = stack.enter_context(open_session(cfg.section("network")))
-        pubs = stack.enter_context(Publishers(session, keys))
-        stack.enter_context(declare_presence(session, keys, "follower"))
-        cmd_rx = stack.enter_context(
-            LatestReceiver(session, keys.cmd, Command, drops, SequenceGate(), clock_sync=sync if ntp else None)
-        )
-        clock_rx: MessageReceiver[Message] = stack.enter_context(
-            MessageReceiver(session, keys.clock, (ClockPing, ClockPong), drops)
-        )
+        pubs = stack.enter_context(Publishers(session, keys, auth=auth))
         try:
             robot = stack.enter_context(robot_obj)
         except RobotError as exc:
             LOG.error("robot %s: %s", name, exc)
             return 1
+        # Configuration, session and robot are good: now the recording and our presence.
+        recorder: Recorder | None = None
+        if record is not None or rec_cfg.enabled:
+            rec_args: dict[str, Any] = dict(flush_s=rec_cfg.flush_s, metadata={"role": "follower", "config": cfg.to_dict()})
+            try:
+                if record is not None:
+                    record.parent.mkdir(parents=True, exist_ok=True)
+                    recorder = stack.enter_context(Recorder(record, **rec_args))
+                else:  # a new, unique name (never an earlier run's file)
+                    recorder = stack.enter_context(open_recording(rec_cfg.dir, "follower", **rec_args))
+            except FileExistsError:
+                raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)") from None
+            except OSError as exc:
+                raise ConfigError(
+                    f"recording {record or rec_cfg.dir}: cannot create ({exc.strerror or exc}); allowed: a writable folder"
+                ) from None
+        stack.enter_context(declare_presence(session, keys, "follower"))
+
+        def on_command(got: Any) -> None:  # every accepted command, once, in the receiver
+            if recorder is not None:
+                recorder.write("cmd/recv", got.msg, got.t_recv)
+
+        cmd_rx = stack.enter_context(LatestReceiver(
+            session, keys.cmd, Command, drops, cmd_gate, clock_sync=sync, auth=auth,
+            max_future_s=max_future_s, on_message=on_command,
+        ))  # fmt: skip
 
         def publish(msg: Message) -> None:
             if isinstance(msg, Feedback):
@@ -199,9 +209,9 @@ def main(
 
         loop = FollowerLoop(
             robot, cfg.section("control"), fcfg, latest_command, publish,
-            now=clock, to_local=sync.to_local if ntp else (lambda t: t),
-            delay_window_s=cfg.section("clock").delay_window_s, on_event=on_event,
-            conservative_rtt=(lambda: sync.rtt) if ntp and cfg.section("clock").conservative_split else None,
+            now=clock, to_local=sync.to_local if sync is not None else (lambda t: t),
+            delay_window_s=ck.delay_window_s, on_event=on_event,
+            conservative_rtt=(lambda: sync.rtt) if sync is not None and ck.conservative_split else None,
             max_future_s=max_future_s, on_new_leader=_reset_hook(robot) if reset_on_leader else None,
         )
         naoqi_cfg = getattr(robot, "config", None)
@@ -210,24 +220,20 @@ def main(
         video = stack.enter_context(
             VideoStreamer(robot, fcfg.cameras, fcfg.camera_fps, pubs.video.put, now=clock, jpeg_quality=fcfg.jpeg_quality)
         )
+        # Clock pings: answered and sent off the control loop, bound to the followed leader.
+        link = stack.enter_context(ClockLink(
+            pubs.clock.put, loop.sid, sync=sync, drops=drops, ping_rate_hz=ck.ping_rate_hz,
+            answer_rate_hz=ck.answer_rate_hz, peer_sid=lambda: cmd_gate.live_sid,
+        ))  # fmt: skip
+        stack.enter_context(LatestReceiver(
+            session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=loop.sid, auth=auth,
+            on_message=link.on_message,
+        ))  # fmt: skip
         LOG.info("follower %s ready: robot %s, key %s, %s", keys.cmd.split("/")[1], name, keys.cmd, "real time" if rt else "as fast as possible")
-        ping_period = 1.0 / cfg.section("clock").ping_rate_hz
-        next_ping, ping_seq = 0.0, 0
         pacer = _Pacer(loop.dt)
         start_t = clock()
-        last_cmd_seen: tuple[int, int] | None = None
         while not stop.is_set():
-            for got in clock_rx.drain():
-                _answer_clock(got.msg, got.t_recv, pubs, loop.sid, sync, clock)
-            if ntp and time.monotonic() >= next_ping:
-                next_ping = time.monotonic() + ping_period
-                ping_seq += 1
-                pubs.clock.put(ClockPing(sid=loop.sid, seq=ping_seq, t=clock()))
             tel = supervisor.tick()
-            got_cmd = cmd_rx.latest()
-            if recorder is not None and got_cmd is not None and (got_cmd.msg.sid, got_cmd.msg.seq) != last_cmd_seen:
-                last_cmd_seen = (got_cmd.msg.sid, got_cmd.msg.seq)
-                recorder.write("cmd/recv", got_cmd.msg, got_cmd.t_recv)
             if tel is not None:
                 video.maybe_capture(tel.t)
             supervisor.advance(loop.dt)
@@ -240,14 +246,6 @@ def main(
         LOG.info("follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
                  dict(loop.counters), supervisor.faults, supervisor.reconnects, video.stats["errors"])
     return 0
-
-
-def _answer_clock(msg: Message, t_recv: float, pubs: Publishers, sid: int, sync: ClockSync, clock: Any) -> None:
-    """Answer others' pings; feed our ClockSync with pongs to our pings."""
-    if isinstance(msg, ClockPing) and msg.sid != sid:
-        pubs.clock.put(ClockPong(sid=sid, seq=msg.seq, t=clock(), ping_sid=msg.sid, ping_seq=msg.seq, t1=msg.t, t2=t_recv))
-    elif isinstance(msg, ClockPong) and msg.ping_sid == sid:
-        sync.on_pong(msg.t1, msg.t2, msg.t, t_recv)
 
 
 def _run(args: argparse.Namespace) -> int:
