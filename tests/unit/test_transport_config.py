@@ -255,3 +255,53 @@ def test_check_endpoint_tls_to_a_plain_tcp_server() -> None:
     finally:
         server.close()
         t.join(5)
+
+
+# Lines as Zenoh 1.x prints them (ANSI colours included), captured from a router.
+_ZENOH_LINES = [
+    "\x1b[2m2026-11-23T14:32:03.151493Z\x1b[0m \x1b[34mDEBUG\x1b[0m \x1b[1macc-0\x1b[0m ThreadId(05) "
+    "\x1b[2mzenoh_link_tcp::unicast\x1b[0m\x1b[2m:\x1b[0m Accepted TCP connection on 127.0.0.1:17449: 127.0.0.1:58934",
+    "2026-11-23T14:32:03.151948Z DEBUG acc-0 ThreadId(05) zenoh_transport::unicast::establishment::accept: "
+    "UsrPwd extension - Recv OpenSyn. Invalid password. at /root/.cargo/git/checkouts/zenoh/io/zenoh-transport/"
+    "src/unicast/establishment/ext/auth/usrpwd.rs:424.",
+    "2026-11-23T14:31:21.117919Z DEBUG acc-0 ThreadId(05) zenoh_link_tls::unicast: Accepted TLS connection on "
+    "127.0.0.1:17448: 127.0.0.1:47258. Common Name: leader.",
+    "2026-11-23T14:31:21.118479Z DEBUG acc-0 ThreadId(05) zenoh_transport::unicast::establishment::accept: "
+    "UsrPwd extension - Recv OpenSyn. Invalid user. at /x/usrpwd.rs:418.",
+    "2026-11-23T14:31:23.143371Z  WARN acc-0 ThreadId(05) zenoh_link_tls::unicast: peer sent no certificates. "
+    "Hint: increase the system open file limit.",
+    "2026-11-23T14:31:25.172513Z  WARN acc-0 ThreadId(05) zenoh_link_tls::unicast: invalid peer certificate: "
+    "BadSignature. Hint: increase the system open file limit.",
+    "2026-11-23T14:31:26.000000Z  INFO net-0 ThreadId(03) zenoh::net::routing::interceptor::access_control: "
+    "5f3a9c did not match any configured ACL subject. Default permission `Deny` will be applied on all messages",
+    "2026-11-23T14:31:27.000000Z  WARN net-0 ThreadId(03) zenoh::net::runtime::orchestrator: Unable to connect to tcp/x:1",
+]
+
+
+def test_zenoh_log_lines_become_refusal_records(caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+
+    from bipedtele.zenohlog import ZenohLogBridge, parse_line
+
+    assert parse_line("not a zenoh line") is None
+    level, thread, target, msg = parse_line(_ZENOH_LINES[1]) or (0, "", "", "")
+    assert (level, thread, target) == (logging.DEBUG, "acc-0", "zenoh_transport::unicast::establishment::accept")
+    assert msg == "UsrPwd extension - Recv OpenSyn. Invalid password."
+    bridge = ZenohLogBridge()
+    with caplog.at_level(logging.INFO, logger="bipedtele.zenoh"):
+        for line in _ZENOH_LINES:
+            bridge.handle(line)
+    got = [(r.levelno, r.getMessage()) for r in caplog.records]
+    assert got[0] == (logging.INFO, "refused a session from 127.0.0.1:58934: user/password refused: wrong password")
+    assert got[1] == (
+        logging.INFO, "refused a session from 127.0.0.1:47258 (Common Name: leader): user/password refused: unknown user"
+    )  # fmt: skip
+    assert got[2][1].startswith("refused a TLS connection: no client certificate presented")
+    assert got[3][1].startswith("refused a TLS connection: client certificate not signed by this router's CA")
+    assert "Hint" not in got[2][1] + got[3][1]
+    assert got[4] == (
+        logging.INFO,
+        "session 5f3a9c has no ACL role (not in publishers_allowed or followers_allowed): it may do nothing",
+    )
+    assert got[5] == (logging.WARNING, "zenoh::net::runtime::orchestrator: Unable to connect to tcp/x:1")
+    assert len(got) == 6 and bridge.refusals == 4
