@@ -44,7 +44,7 @@ import numpy as np
 from bipedtele.recording import Record, RecordingError, read_records
 from matplotlib.figure import Figure
 
-__all__ = ["REPORT_KEYS", "add_report_parser", "compute_report", "format_report", "plot_report"]
+__all__ = ["REPORT_KEYS", "add_report_parser", "compute_report", "fictitious_intervals", "format_report", "plot_report"]
 
 LOG = logging.getLogger("bipedtele.report")
 
@@ -93,6 +93,12 @@ class _Run:
     fb_ref: list[tuple[float, float]] = field(default_factory=list)
     fb_eta: list[tuple[float, float]] = field(default_factory=list)
     fb_yaw: list[float] = field(default_factory=list)
+    fv_t: list[float] = field(default_factory=list)
+    fv: list[tuple[float, float]] = field(default_factory=list)  # tangential, normal
+    ze_t: list[float] = field(default_factory=list)
+    ze: list[tuple[float, float]] = field(default_factory=list)
+    state_fv_t: list[float] = field(default_factory=list)
+    state_fv: list[tuple[float, float]] = field(default_factory=list)
     delay_t: list[float] = field(default_factory=list)
     delay: list[tuple[float, float]] = field(default_factory=list)  # (h1, h2) [s]
     delay_fallback_t: list[float] = field(default_factory=list)
@@ -150,6 +156,13 @@ def _collect(records: Iterable[Record]) -> _Run:
                 run.fb_ref.append(ref)
                 run.fb_eta.append(eta)
                 run.fb_yaw.append(math.nan if yaw is None else yaw)
+            fv_pair, ze_pair = _pair(d.get("f_v")), _pair(d.get("z_e"))
+            if fv_pair is not None:
+                run.fv_t.append(t)
+                run.fv.append(fv_pair)
+            if ze_pair is not None:
+                run.ze_t.append(t)
+                run.ze.append(ze_pair)
             if topic == "feedback/recv":
                 sent = _num(d.get("t"))
                 pair = _positive_pair(d.get("h1_s"), t - sent if sent is not None else None)
@@ -181,6 +194,10 @@ def _collect(records: Iterable[Record]) -> _Run:
             if fv is not None and fw is not None:
                 run.state_force_t.append(t)
                 run.state_force.append((fv, fw))
+            ft, fn = _num(d.get("f_v_t")), _num(d.get("f_v_n"))
+            if ft is not None and fn is not None:
+                run.state_fv_t.append(t)
+                run.state_fv.append((ft, fn))
         elif topic == "events":
             ev = d.get("event")
             if not isinstance(ev, str):
@@ -295,6 +312,27 @@ def compute_report(records: Iterable[Record]) -> dict[str, Any]:
 # ---------------------------------------------------------------------- figures
 
 
+def fictitious_intervals(t: np.ndarray, f_t: np.ndarray, threshold: float = 1e-6) -> list[tuple[float, float]]:
+    """Time intervals [s] where the tangential fictitious force acts (``|f_t| > threshold``).
+
+    An interval runs from its first active sample to the first inactive one after it (to
+    the last sample if it lasts to the end).
+    """
+    t = np.asarray(t, dtype=float)
+    on = np.abs(np.asarray(f_t, dtype=float)) > threshold
+    out: list[tuple[float, float]] = []
+    start: float | None = None
+    for ti, o in zip(t, on, strict=True):
+        if o and start is None:
+            start = float(ti)
+        elif not o and start is not None:
+            out.append((start, float(ti)))
+            start = None
+    if start is not None:
+        out.append((start, float(t[-1])))
+    return out
+
+
 def _rel(t: Sequence[float], t0: float) -> np.ndarray:
     return np.asarray(t, dtype=float) - t0
 
@@ -312,8 +350,11 @@ def plot_report(records: Iterable[Record]) -> dict[str, Figure]:
     dict of str to matplotlib Figure
         Time axes in seconds from the task start; the task window is shaded.
         ``fig9_delay``: h1, h2 and h1 + h2 [ms]. ``fig11_coordination``: (a) commanded
-        (sent) vs robot forward speed [cm/s], (b) the same for the turn speed [deg/s],
-        (c) force feedback f_m [N] (when recorded). ``fig12_tracking``: (a) the reference
+        (sent) vs robot forward speed and the equivalent speed z_e the operator feels
+        [cm/s], (b) the same for the turn speed [deg/s], (c) the fictitious force f_v
+        (tangential, normal; from the feedback, else the leader's state samples), (d) the
+        handle force f_m [N] (when recorded); the intervals where the tangential f_v acts
+        (:func:`fictitious_intervals`) are shaded on every panel. ``fig12_tracking``: (a) the reference
         applied on the robot vs its forward speed [cm/s], (b) the turn angle commanded
         (integral of the applied turn-speed reference) vs the robot's yaw [deg].
     """
@@ -343,31 +384,53 @@ def plot_report(records: Iterable[Record]) -> dict[str, Figure]:
     shade(ax)
     figs["fig9_delay"] = fig
 
-    # Fig. 11: commanded vs robot speeds and force feedback.
-    fig = Figure(figsize=(8, 7), layout="constrained")
-    axes = fig.subplots(3, 1, sharex=True)
+    # Fig. 11: commanded vs robot speeds, the fictitious force and the handle force; the
+    # intervals where f_v acts are shaded (the paper's rectangles).
+    fig = Figure(figsize=(8, 9), layout="constrained")
+    axes = fig.subplots(4, 1, sharex=True)
     cmd = np.asarray(run.cmd_ref, dtype=float).reshape(-1, 2)
     eta = np.asarray(run.fb_eta, dtype=float).reshape(-1, 2)
+    ze = np.asarray(run.ze, dtype=float).reshape(-1, 2)
+    fv_t, fv = (run.fv_t, run.fv) if run.fv else (run.state_fv_t, run.state_fv)
+    fva = np.asarray(fv, dtype=float).reshape(-1, 2)
+    acts = fictitious_intervals(_rel(fv_t, t0), fva[:, 0]) if len(fva) else []
+
+    def shade_fv(ax: Any) -> None:
+        for i, (a0, a1) in enumerate(acts):
+            ax.axvspan(a0, a1, color="tab:orange", alpha=0.18, zorder=0, label="f_v acts" if i == 0 else None)
+
     for i, (unit, name) in enumerate((("cm/s", "forward speed"), ("deg/s", "turn speed"))):
         a = axes[i]
         if len(cmd):
             a.plot(_rel(run.cmd_t, t0), cmd[:, i], color="C1", label="command (sent)")
         if len(eta):
             a.plot(_rel(run.fb_t, t0), eta[:, i], color="C0", lw=0.8, label="NAO (measured)")
+        if len(ze):
+            a.plot(_rel(run.ze_t, t0), ze[:, i], color="C2", lw=1.0, ls="--", label="z_e (felt, eq. 29)")
         a.set_ylabel(f"{name} [{unit}]")
-        a.legend(loc="upper right", fontsize=8)
         shade(a)
+        shade_fv(a)
+        a.legend(loc="upper right", fontsize=8)
     a = axes[2]
+    if len(fva):
+        a.plot(_rel(fv_t, t0), fva[:, 0], color="C3", label="f_v tangential")
+        a.plot(_rel(fv_t, t0), fva[:, 1], color="C7", lw=0.8, label="f_v normal")
+    a.set_ylabel("fictitious force f_v")
+    shade(a)
+    shade_fv(a)
+    a.legend(loc="upper right", fontsize=8)
+    a = axes[3]
     force_t, force = (run.force_t, run.force) if run.force else (run.state_force_t, run.state_force)
     if force:
         f = np.asarray(force)
         a.plot(_rel(force_t, t0), f[:, 0], color="C4", label="f_m forward axis")
         a.plot(_rel(force_t, t0), f[:, 1], color="C5", label="f_m turn axis")
-        a.legend(loc="upper right", fontsize=8)
-    a.set_ylabel("force [N]")
+    a.set_ylabel("handle force [N]")
     a.set_xlabel("time [s]")
     shade(a)
-    axes[0].set_title("Coordination: (a) forward, (b) turn, (c) force feedback")
+    shade_fv(a)
+    a.legend(loc="upper right", fontsize=8)
+    axes[0].set_title("Coordination: (a) forward, (b) turn, (c) fictitious force, (d) handle force")
     figs["fig11_coordination"] = fig
 
     # Fig. 12: applied reference vs robot, forward speed and turn angle.

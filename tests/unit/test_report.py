@@ -6,11 +6,12 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from bipedtele.cli import main
 from bipedtele.messages import Command, Feedback, Status
 from bipedtele.recording import Recorder, read_records
-from bipedtele.report import REPORT_KEYS, compute_report, plot_report
+from bipedtele.report import REPORT_KEYS, compute_report, fictitious_intervals, plot_report
 
 
 def _synthetic(path: Path) -> None:
@@ -95,7 +96,8 @@ def test_leader_state_records_and_short_event_names(tmp_path: Path) -> None:
     assert report["max_delay_ms"] == pytest.approx(300.0)
     assert report["forward_error_cm_s"] == pytest.approx(1.0)
     assert report["turn_error_deg_s"] == pytest.approx(0.0)
-    assert len(plot_report(records)["fig11_coordination"].axes[2].lines) == 2  # force
+    fig11 = plot_report(records)["fig11_coordination"]
+    assert len(fig11.axes[3].lines) == 2  # handle force
 
 
 def test_empty_input_gives_nones() -> None:
@@ -111,7 +113,8 @@ def test_figures(tmp_path: Path) -> None:
     figs = plot_report(list(read_records(path)))
     assert set(figs) == {"fig9_delay", "fig11_coordination", "fig12_tracking"}
     assert len(figs["fig9_delay"].axes[0].lines) == 3  # h1+h2, h1, h2
-    assert [len(a.lines) for a in figs["fig11_coordination"].axes] == [2, 2, 2]
+    # command, measured, z_e | same for turn | f_v tangential, normal | handle force axes
+    assert [len(a.lines) for a in figs["fig11_coordination"].axes] == [3, 3, 2, 2]
     turn = figs["fig12_tracking"].axes[1].lines
     assert turn[0].get_ydata()[-1] == pytest.approx(4.0 * 5.0)  # 4 deg/s, feedback 99..104 s
     assert turn[1].get_ydata()[-1] == pytest.approx(12.03, abs=0.01)  # yaw 0.21 rad
@@ -173,3 +176,46 @@ def test_truncated_recording_reports_up_to_the_cut(
     assert report["min_delay_ms"] == pytest.approx(201.0)
     assert report["max_delay_ms"] < full["max_delay_ms"]
     capsys.readouterr()
+
+
+def test_fictitious_intervals() -> None:
+    t = np.arange(10.0)
+    f = np.array([0, 0, 2, 3, 0, 0, 1e-9, 1, 1, 1])
+    assert fictitious_intervals(t, f) == [(2.0, 4.0), (7.0, 9.0)]
+    assert fictitious_intervals(t, np.zeros(10)) == []
+
+
+def _span_labels(ax: object) -> list[str]:
+    return [p.get_label() for p in ax.patches]  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("source", ["feedback", "leader_state"])
+def test_fig11_shades_where_the_fictitious_force_acts(tmp_path: Path, source: str) -> None:
+    """Fig. 11 counterpart: f_v is drawn and the intervals where it acts are shaded on every
+    panel (from the feedback's f_v, else from the leader's state samples)."""
+    path = tmp_path / "obstacle.mcap"
+    with Recorder(path) as rec:
+        rec.write("events", {"event": "task_start"}, 0.0)
+        for k in range(60):
+            t = 0.1 * k
+            near = 2.0 <= t < 3.5  # an obstacle in sonar range
+            fv = [4.0, 1.0] if near else [0.0, 0.0]
+            rec.write("cmd/sent", Command(seq=k, t=t, ref=[5.0, 0.0]), t)
+            if source == "feedback":
+                fb = Feedback(t=t, ref=[5.0, 0.0], eta=[3.0 if near else 5.0, 0.0], z_e=[1.0 if near else 5.0, 0.0],
+                              f_v=fv)
+                rec.write("feedback/recv", fb, t)
+            state = {"t": t, "force_v": -2.0 if near else 0.0, "force_w": 0.0}
+            if source == "leader_state":
+                state.update(f_v_t=fv[0], f_v_n=fv[1])
+            rec.write("leader/state", state, t)
+        rec.write("events", {"event": "task_done"}, 6.0)
+    fig = plot_report(list(read_records(path)))["fig11_coordination"]
+    assert len(fig.axes) == 4
+    # f_v drawn from the feedback, or from the leader's samples in a file without feedback
+    assert max(fig.axes[2].lines[0].get_ydata()) == pytest.approx(4.0)
+    for ax in fig.axes:
+        labels = _span_labels(ax)
+        assert labels.count("f_v acts") == 1  # one interval, labelled once
+    span = next(p for p in fig.axes[0].patches if p.get_label() == "f_v acts")
+    assert span.get_x() == pytest.approx(2.0) and span.get_x() + span.get_width() == pytest.approx(3.5)
