@@ -31,6 +31,7 @@ import ssl
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 __all__ = ["EndpointCheck", "LinkError", "check_endpoint", "split_endpoint"]
 
@@ -108,7 +109,7 @@ def split_endpoint(endpoint: str) -> tuple[str, str, int] | None:
 
 def _resolve(host: str, port: int, timeout_s: float) -> list[tuple[int, tuple[object, ...]]] | str:
     """Addresses of ``host`` (family, sockaddr), or a reason string; bounded in time."""
-    out: list[object] = []
+    out: list[list[Any] | OSError] = []
 
     def lookup() -> None:
         try:
@@ -124,7 +125,7 @@ def _resolve(host: str, port: int, timeout_s: float) -> list[tuple[int, tuple[ob
     res = out[0]
     if isinstance(res, OSError):
         return f"the name {host!r} does not resolve ({getattr(res, 'strerror', None) or res})"
-    return [(fam, addr) for fam, _, _, _, addr in res]  # type: ignore[union-attr]
+    return [(fam, addr) for fam, _, _, _, addr in res]
 
 
 def _connect(addrs: list[tuple[int, tuple[object, ...]]], timeout_s: float) -> tuple[socket.socket, float] | tuple[str, str]:
