@@ -19,6 +19,7 @@ import time
 
 from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
+from bipedtele.linkcheck import LinkError
 from bipedtele.messages import Command, Feedback
 from bipedtele.sections import NetworkConfig
 from bipedtele.transport import Keys, MessageReceiver, Publishers, Stamper, open_session
@@ -61,6 +62,9 @@ def main(argv: list[str] | None = None) -> int:
                 out["sid"] = stamper.sid
     except ConfigError as exc:
         out["error"] = str(exc)
+    except LinkError as exc:  # refused or unreachable: which one, as far as TLS and Zenoh tell
+        out["error"] = str(exc)
+        out["kind"] = exc.kind
     sys.stdout.write(json.dumps(out) + "\n")
     return 0
 
