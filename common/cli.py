@@ -59,7 +59,7 @@ def config_from_args(args: argparse.Namespace) -> Config:
     return load_config(args.config, args.overrides)
 
 
-def _build_parser() -> argparse.ArgumentParser:
+def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="bipedtele",
         description="Bilateral teleoperation of a biped (NAO) robot under time-varying delays.",
@@ -74,14 +74,20 @@ def _build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
     eps = sorted(metadata.entry_points(group="bipedtele.commands"), key=lambda e: e.name)
+    # Load only the plugin of the sub-command named on the command line (a health check
+    # or the router then imports neither pybullet nor scipy); all of them for --help, a
+    # missing or an unknown command, so the usage lists every choice.
+    words = list(sys.argv[1:] if argv is None else argv)
+    chosen = next((w for w in words if w in {ep.name for ep in eps}), None)
     for ep in eps:
-        ep.load()(sub)
+        if chosen is None or ep.name == chosen:
+            ep.load()(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``bipedtele`` console script."""
-    parser = _build_parser()
+    parser = _build_parser(argv)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=getattr(logging, args.log_level),

@@ -70,8 +70,9 @@ def three_hosts() -> Iterator[ThreeHosts]:
     tag = secrets.token_hex(2)
     n = int(tag, 16) % 254 + 1
     hosts = ("router", "robot", "operator")
+    short = {"router": "r", "robot": "b", "operator": "o"}
     three = ThreeHosts(
-        ns={h: f"bt-{h[0] if h != 'robot' else 'b'}-{tag}" for h in hosts},
+        ns={h: f"bt-{short[h]}-{tag}" for h in hosts},
         ip={h: f"10.233.{n}.{i}" for i, h in enumerate(hosts, 1)},
     )
     switch = f"bt-s-{tag}"
@@ -87,7 +88,7 @@ def three_hosts() -> Iterator[ThreeHosts]:
             ("-n", switch, "link", "set", "br0", "up"),
         ]
         for h in hosts:
-            ns, dev, peer = three.ns[h], f"bt{h[0]}{tag}", f"bs{h[0]}{tag}"
+            ns, dev, peer = three.ns[h], f"bt{short[h]}{tag}", f"bs{short[h]}{tag}"
             steps += [
                 ("link", "add", dev, "type", "veth", "peer", "name", peer),
                 ("link", "set", dev, "netns", ns),
@@ -223,7 +224,7 @@ def test_two_continents_as_written(three_hosts: ThreeHosts, tmp_path: Path) -> N
         cases = {
             "wrong password": ([f"--set=network.password_file={str(wrong_pw)!r}".replace("'", '"')],
                                r"refused .*(user|password|credentials)"),
-            "no client certificate": (['--set=network.tls_cert=""', '--set=network.tls_key=""'],
+            "no client certificate": (['--set=network.tls_cert=""', '--set=network.tls_key=""', "--set=network.tls_mutual=false"],
                                       r"client certificate"),
             "client certificate of another CA": (
                 [f'--set=network.tls_cert="{other_certs}/leader.pem"', f'--set=network.tls_key="{other_certs}/leader.key"'],
