@@ -75,11 +75,12 @@ class ControlConfig:
         doc="reduced model in the online choice (30): the paper's dp and k_v, or calibrated_dp and calibrated_k_v",
     )
     calibrated_dp: float = param(
-        0.7, lo=0.0, hi=1.0, lo_open=True,
-        doc="reset factor identified on the simulated walker (bipedtele calibrate)",
+        0.938, lo=0.0, hi=1.0, lo_open=True,
+        doc="reset factor identified on the simulated walker (bipedtele calibrate, default [sim]; docs/method.md)",
     )
     calibrated_k_v: float = param(
-        1.0, lo=0.0, lo_open=True, doc="forward gain k_v identified on the simulated walker (bipedtele calibrate)",
+        1.164, lo=0.0, lo_open=True,
+        doc="forward gain k_v identified on the simulated walker (bipedtele calibrate, default [sim]; docs/method.md)",
     )
 
     def __post_init__(self) -> None:
