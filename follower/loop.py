@@ -3,7 +3,7 @@
 Every control period ``dt`` the loop
 
 1. takes the latest command (dropping those older than ``max_cmd_age_s``) and feeds the
-   forward-delay estimator h1 (1 s moving average, DESIGN section 3);
+   forward-delay estimator h1 (1 s moving average, docs/method.md);
 2. recomputes, when h1 or h2 moved, the equivalent damping sigma_e from (40) and the
    walking parameters (sigma_r, T, eps) from (30) (V.2 and V.3 of the cascade);
 3. turns the sonar ranges into the fictitious force f_v (Sec. 3.2.1);
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from bipedtele.clock import DelayEstimator
+from bipedtele.clock import DelayEstimator, conservative_delays
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping
 from bipedtele.control.equivalent import EquivalentFollower
@@ -300,7 +300,7 @@ class FollowerLoop:
         h2 = _delay(self._cmd.h2_s) if self._cmd is not None else 0.0
         rtt = self._conservative_rtt() if self._conservative_rtt is not None else None
         if rtt is not None:
-            self._update_parameters(rtt, rtt)
+            self._update_parameters(*conservative_delays(rtt))
         else:
             self._update_parameters(h1, h2)
 

@@ -59,7 +59,7 @@ class WalkRefusedError(RobotError):
 
 @dataclass(frozen=True)
 class WalkLimits:
-    """What the robot can be asked to do. NAO defaults (DESIGN section 5).
+    """What the robot can be asked to do. NAO defaults (docs/hardware.md).
 
     Attributes
     ----------

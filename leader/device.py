@@ -53,7 +53,7 @@ class DeviceNotConnectedError(DeviceError):
 
 @dataclass(frozen=True)
 class DeviceLimits:
-    """Physical limits of the handle (Novint Falcon defaults, DESIGN section 5).
+    """Physical limits of the handle (Novint Falcon defaults, docs/hardware.md).
 
     Attributes
     ----------

@@ -43,7 +43,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from bipedtele.clock import DelayEstimator
+from bipedtele.clock import DelayEstimator, conservative_delays
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping
 from bipedtele.control.leader_law import leader_force
@@ -167,10 +167,6 @@ class LeaderLoop:
         """The latest feedback taken (None before the first)."""
         return self._fb
 
-    def feedback_age(self, now: float | None = None) -> float:
-        """Seconds since the latest feedback arrived (inf before the first)."""
-        return (self.now if now is None else now) - self._fb_recv
-
     def _take_feedback(self) -> None:
         got = self._latest()
         if got is None:
@@ -192,7 +188,7 @@ class LeaderLoop:
         if self._conservative_rtt is not None:
             rtt = self._conservative_rtt()
             if rtt is not None:
-                return rtt, rtt
+                return conservative_delays(rtt)
         return (self.h1 or 0.0), (self.h2 or 0.0)
 
     def _update_damping(self, now: float) -> None:

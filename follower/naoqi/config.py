@@ -11,7 +11,7 @@ from bipedtele.config import ConfigError, param
 
 __all__ = ["SONAR_RANGES_M", "NaoqiConfig"]
 
-#: Reliable sonar range [m] per NAO head/body version (DESIGN section 5).
+#: Reliable sonar range [m] per NAO head/body version (docs/hardware.md).
 SONAR_RANGES_M: dict[str, tuple[float, float]] = {"v5": (0.20, 0.80), "v6": (0.20, 0.80), "v4": (0.25, 2.55), "v3": (0.25, 2.55)}
 
 

@@ -9,7 +9,7 @@ from bipedtele.config import param
 
 __all__ = ["SONAR_RANGE_M", "SimConfig"]
 
-#: Reliable sonar range [m] per NAO version (DESIGN section 5): (min, max).
+#: Reliable sonar range [m] per NAO version (docs/hardware.md): (min, max).
 SONAR_RANGE_M = {"V3": (0.25, 2.55), "V4": (0.25, 2.55), "V5": (0.20, 0.80), "V6": (0.20, 0.80)}
 
 

@@ -1,6 +1,6 @@
 """The simulated NAO's body: a URDF built from primitive shapes with the NAO's leg geometry.
 
-Dimensions are the manufacturer's (DESIGN section 5): hip offset y 50 mm, hip offset z
+Dimensions are the manufacturer's (docs/follower.md): hip offset y 50 mm, hip offset z
 85 mm, thigh 100 mm, tibia 102.9 mm, foot height 45.19 mm; total mass about 5.3 kg with
 about 60 % in torso, head and arms (one rigid link here: arms and head do not move).
 

@@ -16,5 +16,5 @@ __all__ = ["SimFalcon", "SimFalconParams"]
 # a missing library is reported by connect()).
 with contextlib.suppress(ImportError):
     from bipedtele.leader.devices import joystick as _joystick  # noqa: F401
-with contextlib.suppress(ImportError):  # until falcon.py exists
+with contextlib.suppress(ImportError):
     from bipedtele.leader.devices import falcon as _falcon  # noqa: F401

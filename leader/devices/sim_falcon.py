@@ -160,11 +160,6 @@ class SimFalcon(LeaderDevice):
         """The operator's force f_h [N] in the last integration step."""
         return self._f_h.copy()
 
-    @property
-    def applied_force_n(self) -> np.ndarray:
-        """The commanded force f_m [N] now applied (after the clamp)."""
-        return self._f_m.copy()
-
     def kinetic_energy(self) -> float:
         """Kinetic energy of the handle [J]."""
         return 0.5 * self.params.mass_kg * float(self._dx @ self._dx)

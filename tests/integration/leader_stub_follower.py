@@ -14,15 +14,18 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/: the delay line
 
 from bipedtele.clock import DelayEstimator
-from bipedtele.delayline import DelayLine
 from bipedtele.delaymodels import ConstDelay
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, Feedback, new_session_id
 from bipedtele.sections import NetworkConfig
 from bipedtele.transport import Keys, LatestReceiver, Publishers, declare_presence, open_session
+from delayline import DelayLine
 
 TAU = 0.3  # s
 

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 from bipedtele.config import ConfigError
-from bipedtele.delayline import DelayLine
 from bipedtele.delaymodels import (
     ConstDelay,
     NormalDelay,
@@ -16,6 +15,7 @@ from bipedtele.delaymodels import (
     parse_delay_model,
     parse_duration,
 )
+from delayline import DelayLine
 
 
 def test_durations() -> None:
