@@ -65,6 +65,7 @@ __all__ = [
     "open_recording",
     "read_metadata",
     "read_records",
+    "recording_for_run",
 ]
 
 LOG = logging.getLogger("bipedtele.recording")
@@ -204,6 +205,40 @@ def open_recording(folder: str | Path, role: str, **kwargs: Any) -> Recorder:
         except FileExistsError:
             continue
     raise FileExistsError(f"{folder}: no free recording name for {role!r} after 100 tries")
+
+
+def recording_for_run(record: Path | None, folder: str | Path, role: str, **kwargs: Any) -> Recorder:
+    """The recording of one program run: ``record`` when given, else a new file in ``folder``.
+
+    Parameters
+    ----------
+    record : Path or None
+        The file the user asked for (``--record``); it must not exist.
+    folder : str or Path
+        Folder of the recordings (``[record] dir``) when ``record`` is None.
+    role : str
+        The new file's name prefix (``leader``, ``follower``).
+    **kwargs
+        :class:`Recorder` parameters.
+
+    Raises
+    ------
+    ConfigError
+        ``record`` exists, or the folder or file cannot be created (one line, exit 2).
+    """
+    from bipedtele.config import ConfigError
+
+    try:
+        if record is not None:
+            record.parent.mkdir(parents=True, exist_ok=True)
+            return Recorder(record, **kwargs)
+        return open_recording(folder, role, **kwargs)
+    except FileExistsError:
+        raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)") from None
+    except OSError as exc:
+        raise ConfigError(
+            f"recording {record or folder}: cannot create ({exc.strerror or exc}); allowed: a writable folder"
+        ) from None
 
 
 class Recorder:

@@ -34,7 +34,7 @@ from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import ClockPing, ClockPong, Command, Feedback, Message, Status, VideoFrame
-from bipedtele.recording import Recorder, open_recording
+from bipedtele.recording import Recorder, recording_for_run
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import (
     Keys,
@@ -150,19 +150,10 @@ def main(
         # Configuration, session and robot are good: now the recording and our presence.
         recorder: Recorder | None = None
         if record is not None or rec_cfg.enabled:
-            rec_args: dict[str, Any] = dict(flush_s=rec_cfg.flush_s, metadata={"role": "follower", "config": cfg.to_dict()})
-            try:
-                if record is not None:
-                    record.parent.mkdir(parents=True, exist_ok=True)
-                    recorder = stack.enter_context(Recorder(record, **rec_args))
-                else:  # a new, unique name (never an earlier run's file)
-                    recorder = stack.enter_context(open_recording(rec_cfg.dir, "follower", **rec_args))
-            except FileExistsError:
-                raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)") from None
-            except OSError as exc:
-                raise ConfigError(
-                    f"recording {record or rec_cfg.dir}: cannot create ({exc.strerror or exc}); allowed: a writable folder"
-                ) from None
+            recorder = stack.enter_context(recording_for_run(
+                record, rec_cfg.dir, "follower", flush_s=rec_cfg.flush_s,
+                metadata={"role": "follower", "config": cfg.to_dict()},
+            ))  # fmt: skip
         stack.enter_context(declare_presence(session, keys, "follower"))
 
         def on_command(got: Any) -> None:  # every accepted command, once, in the receiver
