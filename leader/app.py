@@ -42,6 +42,7 @@ from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
 from bipedtele.leader.devices import SimFalcon, SimFalconParams
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, make_operator
+from bipedtele.leader.predictor import DelayPredictor, LivePredictor, prediction_fields
 from bipedtele.leader.reach import CommandReach
 from bipedtele.messages import (
     ClockPing,
@@ -367,8 +368,24 @@ def main(
             rec("cmd/sent", cmd, cmd.t)
 
         aux_holder: list[_Aux] = []
+        # The predictive display's fields (docs/cockpit.md): the pilot's own predictor when
+        # it steers on one, else one fed here from the same samples.
+        live = getattr(operator, "live", None)
+        own_live = live is None
+        if own_live:
+            live = LivePredictor(DelayPredictor(tau_s=lc.pilot_predict_tau_s))
+        predict_every = max(1, round(lc.cmd_rate_hz / lc.cockpit_rate_hz))
 
         def on_sample(snap: dict[str, Any]) -> None:
+            if operator is not None:
+                operator.observe_sample(snap)
+            if live is not None and loop_ref:
+                fb = loop_ref[0].feedback
+                if own_live:
+                    live.observe(snap, fb.t if fb is not None else None)
+                    if fb is not None and snap["seq"] % predict_every == 0:
+                        live.predict(snap["t"], fb.pose, fb.eta, fb.t, fb.h1_s)
+                snap.update(prediction_fields(live.last))
             if aux_holder:
                 snap.update(aux_holder[0].extras())
             if cockpit is not None:

@@ -28,16 +28,18 @@ import abc
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from bipedtele.leader.predictor import DelayPredictor, LivePredictor, PredictedPose
 from bipedtele.messages import Feedback
 
 __all__ = [
     "DEFAULT_COURSE",
     "OPERATORS",
+    "PREDICT_MODES",
     "BrowserOperator",
     "Hand",
     "Obstacle",
@@ -134,6 +136,10 @@ class Operator(abc.ABC):
     def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
         """f_h [N] (the :class:`bipedtele.leader.device.OperatorHand` protocol)."""
         return self.hand.hand_force(t, x_m, dx_m)
+
+    def observe_sample(self, sample: Mapping[str, Any]) -> None:  # noqa: B027 - optional hook
+        """The loop's telemetry sample made right after each command (what was sent, the
+        delay estimates, the clocks); models that use it override this."""
 
     @property
     def done(self) -> bool:
@@ -294,7 +300,15 @@ class PilotOperator(Operator):
     counts when the robot's (fed back) position crosses the line through the obstacle
     centre, perpendicular to the travel direction, on the chosen side.
 
-    Steering is pure pursuit on the latest ``Feedback.pose``: the current waypoint is
+    Steering is pure pursuit on the robot's pose: with ``predict = "off"`` the latest
+    ``Feedback.pose`` (as it was h2 and more ago); with ``"now"`` the pose a
+    :class:`~bipedtele.leader.predictor.DelayPredictor` predicts for the present from that
+    feedback plus the commands in flight; with ``"h1"`` the pose it predicts for
+    ``h1`` from now, when the command decided now reaches the robot (the classic predictor
+    for delayed teleoperation: the loop then steers as without delay, up to the model's
+    error). Passes are counted on the reported pose, never on a prediction. The predictor
+    needs the loop's samples (:meth:`observe_sample`); until they come, or without a
+    feedback, the pilot steers on the reported pose. The current waypoint is
     dropped once closer than the look-ahead distance; the turn speed is
     ``v * 2 sin(a) / L`` (rad/s -> deg/s) toward it, clipped, and the forward speed shrinks
     with the heading error (to 30 % beyond 60 degrees, as a person slows to turn round)
@@ -316,6 +330,10 @@ class PilotOperator(Operator):
         Largest turn speed asked [deg/s].
     slow_range_m : float
         Sonar range below which the pilot slows [m].
+    predict : str
+        ``"off"``, ``"now"`` or ``"h1"``: the pose steered on (see above).
+    predictor : DelayPredictor, optional
+        The model for ``predict != "off"`` (default: ``DelayPredictor()``, lag 0.5 s).
     """
 
     name = "pilot"
@@ -333,8 +351,18 @@ class PilotOperator(Operator):
         slow_range_m: float = 0.45,
         workspace_m: float = 0.05,
         hand: Hand | None = None,
+        predict: str = "off",
+        predictor: DelayPredictor | None = None,
     ) -> None:
         super().__init__(k_g, workspace_m, hand)
+        if predict not in PREDICT_MODES:
+            raise ValueError(f"predict = {predict!r}: allowed: {', '.join(PREDICT_MODES)}")
+        self.predict = predict
+        self.live: LivePredictor | None = (
+            None if predict == "off" else LivePredictor(predictor or DelayPredictor())
+        )
+        self.predicted: tuple[PredictedPose, PredictedPose] | None = None
+        self._fb_seen: Feedback | None = None
         if not obstacles:
             raise ValueError("obstacles: allowed: at least one obstacle")
         if passes < 1:
@@ -431,15 +459,17 @@ class PilotOperator(Operator):
                 self._t_done = t
             self.target = None
             return np.zeros(2)
+        self._fb_seen = feedback
         px, py, yaw = feedback.pose
-        p = np.array([px, py])
+        p_seen = np.array([px, py])
+        p, yaw = self._steering_pose(t, feedback)
         if self._start is None:
-            self._start = p.copy()
+            self._start = p_seen.copy()
         if self._pass is None:
             self._pass = self._make_pass(self.passes_done)
             self._wp = 0
         ps = self._pass
-        rel = p - ps.centre
+        rel = p_seen - ps.centre
         along = float(rel @ ps.u)
         lateral = float(rel @ np.array([-ps.u[1], ps.u[0]])) * ps.side
         if not self._approached and float(np.hypot(*(ps.waypoints[0] - p))) < self.lookahead_m:
@@ -493,6 +523,24 @@ class PilotOperator(Operator):
             v = max(v_min, 100.0 * w_max / abs(kappa))  # slow down to make the turn
         w = math.degrees(float(np.clip(v / 100.0 * kappa, -w_max, w_max)))
         return np.array([v, w])
+
+    def _steering_pose(self, t: float, feedback: Feedback) -> tuple[np.ndarray, float]:
+        """The pose steered on: the reported one, or its prediction (class docstring)."""
+        live = self.live
+        px, py, yaw = feedback.pose
+        if live is None or not live.ready or live.dev_offset is None:
+            self.predicted = None
+            return np.array([px, py]), float(yaw)
+        now = t + live.dev_offset
+        h1 = feedback.h1_s if feedback.h1_s > 0.0 else (live.h1_s or 0.0)
+        self.predicted = live.predict(now, feedback.pose, feedback.eta, feedback.t, h1)
+        use = self.predicted[0] if self.predict == "now" else self.predicted[1]
+        return np.array([use.x, use.y]), use.yaw
+
+    def observe_sample(self, sample: Mapping[str, Any]) -> None:
+        if self.live is not None:
+            fb = self._fb_seen
+            self.live.observe(dict(sample), fb.t if fb is not None else None)
 
     @property
     def done(self) -> bool:
@@ -606,6 +654,8 @@ def make_operator(
             slow_range_m=lc.pilot_slow_range_m,
             workspace_m=workspace_m,
             hand=_hand(lc),
+            predict=lc.pilot_predict,
+            predictor=DelayPredictor(tau_s=lc.pilot_predict_tau_s),
         )
     if name == "browser":
         if joystick is None:
@@ -615,3 +665,6 @@ def make_operator(
 
 
 OPERATORS: tuple[str, ...] = ("scripted", "pilot", "browser")
+#: What the pilot steers on: the reported pose, the predicted present pose, or the pose
+#: predicted h1 ahead (see :class:`PilotOperator`).
+PREDICT_MODES: tuple[str, ...] = ("off", "now", "h1")
