@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import os
 import secrets
 import shlex
@@ -42,13 +43,22 @@ from typing import IO, Any
 
 from bipedtele.cli import OneLineParser, add_config_args
 from bipedtele.config import ConfigError, load_config
-from bipedtele.delaymodels import TraceDelay, parse_delay_model
+from bipedtele.delaymodels import (
+    MAX_DELAY_S,
+    ConstDelay,
+    DelayModel,
+    NormalDelay,
+    TraceDelay,
+    UniformDelay,
+    parse_delay_model,
+)
+from bipedtele.demostatus import StatusPrinter
 from bipedtele.netem import netem_available
 from bipedtele.netem_trace import NetemReplayer, schedule
 from bipedtele.netns import FOLLOWER, LEADER, CockpitRelay, NetnsError, VethLink
 from bipedtele.shutdown import shutdown_on_signals
 
-__all__ = ["DemoPlan", "add_demo_parser", "run_demo"]
+__all__ = ["DemoPlan", "add_demo_parser", "parse_delay_scale", "run_demo", "scale_delay_spec"]
 
 LOG = logging.getLogger(__name__)
 
@@ -207,8 +217,14 @@ def _processes(plan: DemoPlan) -> Iterator[dict[str, _Proc]]:
             p.log.close()
 
 
-def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
-    """Run the demo described by ``plan``; print the report. Returns the exit code."""
+def run_demo(
+    plan: DemoPlan, *, json_path: Path | None = None, quiet: bool = False, passes_total: int | None = None
+) -> int:
+    """Run the demo described by ``plan``; print the report. Returns the exit code.
+
+    Unless ``quiet``, a live status line (:mod:`bipedtele.demostatus`: passes k/
+    ``passes_total``, elapsed, h1 + h2, falls, contacts, running speed errors) is written
+    about once a second while the leader runs."""
     from bipedtele.recording import read_records
     from bipedtele.report import compute_report, format_report
 
@@ -236,14 +252,21 @@ def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
             _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/?token={plan.cockpit_token}")
         _say(f"run folder: {plan.run_dir}  (logs and recordings)")
         leader = procs["leader"].popen
-        while not stop.is_set():
-            if leader.poll() is not None:
-                break
-            dead = [n for n, p in procs.items() if n != "leader" and p.popen.poll() is not None]
-            if dead:
-                LOG.error("%s exited early; see %s", dead[0], plan.run_dir / f"{dead[0]}.log")
-                break
-            time.sleep(0.2)
+        status = None if quiet else StatusPrinter(plan.record, passes_total)
+        try:
+            while not stop.is_set():
+                if leader.poll() is not None:
+                    break
+                dead = [n for n, p in procs.items() if n != "leader" and p.popen.poll() is not None]
+                if dead:
+                    LOG.error("%s exited early; see %s", dead[0], plan.run_dir / f"{dead[0]}.log")
+                    break
+                if status is not None:
+                    status.update()
+                time.sleep(0.2)
+        finally:
+            if status is not None:
+                status.finish()
         leader_rc = leader.poll()
     if not plan.record.exists():
         sys.stderr.write(f"bipedtele demo: no recording at {plan.record}; see the logs in {plan.run_dir}\n")
@@ -253,6 +276,50 @@ def run_demo(plan: DemoPlan, *, json_path: Path | None = None) -> int:
     if json_path is not None:
         json_path.write_text(json.dumps(report, indent=2) + "\n")
     return 0 if leader_rc in (0, None) else 1
+
+
+def parse_delay_scale(text: str) -> float:
+    """``--delay-scale K``: a number in [0, 10] (ConfigError otherwise)."""
+    try:
+        k = float(text)
+    except ValueError:
+        k = math.nan
+    if not (math.isfinite(k) and 0.0 <= k <= 10.0):
+        raise ConfigError(f"--delay-scale {text!r}: allowed: a number from 0 to 10 (every delay is multiplied by it)")
+    return k
+
+
+def scale_delay_spec(spec: str, k: float, folder: Path, name: str) -> str:
+    """A delay model spec whose delays are ``k`` times those of ``spec``.
+
+    Constant, uniform and normal models get their times scaled; a trace is written,
+    scaled, to ``folder/delay-NAME-xK.csv`` (its times kept) and named by its path.
+
+    Raises
+    ------
+    ConfigError
+        When a scaled delay exceeds the largest a model allows (60 s).
+    """
+    model: DelayModel = parse_delay_model(spec)
+    biggest = max(model.d) if isinstance(model, TraceDelay) else model.mean_s
+    if isinstance(model, UniformDelay):
+        biggest = model.mean + model.half_width
+    if k * biggest > MAX_DELAY_S:
+        raise ConfigError(f"--delay-scale {k:g}: {spec} becomes longer than {MAX_DELAY_S:g} s; allowed: a smaller scale")
+    ms = lambda s: f"{1e3 * k * s:.6g}ms"  # noqa: E731
+    if isinstance(model, ConstDelay):
+        return f"const:{ms(model.delay)}"
+    if isinstance(model, UniformDelay):
+        return f"uniform:{ms(model.mean)}:{ms(model.half_width)}"
+    if isinstance(model, NormalDelay):
+        return f"normal:{ms(model.mean)}:{ms(model.std)}"
+    if isinstance(model, TraceDelay):
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"delay-{name}-x{k:g}.csv"
+        rows = ["t_s,h1_ms,h2_ms"] + [f"{t:.6f},{1e3 * k * d:.6f},{1e3 * k * d:.6f}" for t, d in zip(model.t, model.d, strict=True)]
+        path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+        return f"trace:{path.resolve()}:h1"
+    raise ConfigError(f"--delay-scale: cannot scale the delay model {spec!r}")  # pragma: no cover
 
 
 def _parse_delay(text: str) -> tuple[str, str]:
@@ -310,11 +377,15 @@ def _run(args: argparse.Namespace) -> int:
         forward, backward = _parse_delay(args.delay)
     else:
         forward, backward = DEFAULT_DELAY
-    load_config(args.config, args.overrides)  # fail early, before any process starts
+    scale = parse_delay_scale(args.delay_scale)
+    cfg = load_config(args.config, args.overrides)  # fail early, before any process starts
     if args.duration is not None and args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run_dir = Path(args.run_dir or Path("runs") / f"demo-{stamp}")
+    if scale != 1.0:
+        forward = scale_delay_spec(forward, scale, run_dir, "forward")
+        backward = scale_delay_spec(backward, scale, run_dir, "backward")
     record = Path(args.record) if args.record else run_dir / "leader.mcap"
     backend = _backend(args.delay_backend, args.dry_run)
     plan = DemoPlan(
@@ -332,7 +403,9 @@ def _run(args: argparse.Namespace) -> int:
     )
     if args.dry_run:
         return _dry_run(plan)
-    return run_demo(plan, json_path=Path(args.json) if args.json else None)
+    leader = cfg.sections.get("leader")
+    passes = getattr(leader, "pilot_passes", None) if args.operator == "pilot" else None
+    return run_demo(plan, json_path=Path(args.json) if args.json else None, quiet=args.quiet, passes_total=passes)
 
 
 def add_demo_parser(sub: Any) -> None:
@@ -354,5 +427,10 @@ def add_demo_parser(sub: Any) -> None:
         help="proxy (user space, default), netem (root, kernel sch_netem: two namespaces and a "
         "veth pair) or auto (netem where available, else the proxy)",
     )  # fmt: skip
+    p.add_argument(
+        "--delay-scale", default="1", metavar="K",
+        help="multiply every delay of the chosen models by K (0 to 10; e.g. 2: the trace with its delays doubled)",
+    )  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
     p.add_argument("--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing")
     p.set_defaults(func=_run)
