@@ -41,7 +41,7 @@ from bipedtele.gate import SequenceGate
 from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
 from bipedtele.leader.devices import SimFalcon, SimFalconParams
 from bipedtele.leader.loop import LeaderLoop
-from bipedtele.leader.operators import OPERATORS, Operator, make_operator
+from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, prediction_fields
 from bipedtele.leader.reach import CommandReach
 from bipedtele.messages import (
@@ -289,6 +289,7 @@ def main(
                 cockpit = CockpitServer(
                     lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=token,
                     allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
+                    course=_map_course(cfg),
                 ).start()  # fmt: skip
             except OSError as exc:
                 raise ConfigError(
@@ -451,6 +452,19 @@ def main(
             )  # fmt: skip
     print(summary, flush=True)  # noqa: T201 - the program's one-line result
     return EXIT_NOT_REACHED if never_reached else 0
+
+
+def _map_course(cfg: Config) -> list[tuple[float, float, float]]:
+    """The obstacles the cockpit's map draws (the pilot's course: ``[leader]
+    pilot_obstacles``, else the ``[world]`` obstacles); empty when neither is set."""
+    lc, world = cfg.section("leader"), cfg.sections.get("world")
+    if not lc.pilot_obstacles and not getattr(world, "obstacles", None):
+        return []
+    try:
+        return [(o.x, o.y, o.radius) for o in course_from_config(cfg)]
+    except ValueError as exc:
+        LOG.warning("cockpit map: no obstacles (%s)", exc)
+        return []
 
 
 def _summary(

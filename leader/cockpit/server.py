@@ -19,7 +19,8 @@ Websocket protocol
 ------------------
 Server to browser:
 
-- text ``{"type": "hello", "telemetry_hz": f, "keys": [...]}`` on connect;
+- text ``{"type": "hello", "telemetry_hz": f, "keys": [...], "course": [[x, y, r], ...]}``
+  on connect (``course``: the task's obstacles for the map, metres; empty when unknown);
 - text ``{"type": "samples", "samples": [sample, ...]}``: new telemetry samples (a late
   client first gets the last ``history_s`` seconds); non-finite numbers are sent as null;
 - binary video frame: ``b"VF"``, u8 name length, camera name (ASCII), f64 capture time [s]
@@ -89,11 +90,12 @@ SAMPLE_KEYS: tuple[str, ...] = (
     "t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v", "force_w",
     "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
     "state", "link", "watchdog", "falls", "passes_done",
+    "pose_x", "pose_y", "pose_yaw", "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt",
 )  # fmt: skip
 
 _MAX_IN_TEXT = 1024
 _VIDEO_MAGIC = b"VF"
-_STATIC = ("index.html", "app.js", "plot.js", "style.css")
+_STATIC = ("index.html", "app.js", "plot.js", "map.js", "style.css")
 _CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
 
 #: Host names always allowed in the ``Host`` header (loopback).
@@ -207,6 +209,9 @@ class CockpitServer:
         interfaces behind a tunnel).
     max_clients : int
         Most websocket clients at once (>= 1).
+    course : iterable of (float, float, float)
+        Obstacles ``(x [m], y [m], radius [m])`` drawn on the page's map (the frame of
+        ``Feedback.pose``).
 
     Notes
     -----
@@ -224,7 +229,11 @@ class CockpitServer:
         token: str | None = None,
         allowed_hosts: Iterable[str] = (),
         max_clients: int = 4,
+        course: Iterable[tuple[float, float, float]] = (),
     ) -> None:
+        self.course = [[float(v) for v in ob] for ob in course]
+        if any(len(ob) != 3 or not all(math.isfinite(v) for v in ob) for ob in self.course):
+            raise ValueError("course: allowed: finite (x, y, radius) triples [m]")
         if not (math.isfinite(telemetry_hz) and 1.0 <= telemetry_hz <= 100.0):
             raise ValueError(f"telemetry_hz must be in [1, 100] Hz, got {telemetry_hz!r}")
         if not (math.isfinite(history_s) and 0.0 <= history_s <= 600.0):
@@ -565,7 +574,8 @@ class CockpitServer:
         moved_joystick = False
         try:
             await ws.send_str(
-                json.dumps({"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS})
+                json.dumps({"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS,
+                            "course": self.course})
             )
             pusher = asyncio.create_task(self._push(client))
             async for msg in ws:

@@ -176,3 +176,74 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             browser.close()
     assert errors == []
     assert (ARTIFACTS / "cockpit.png").stat().st_size > 10_000
+
+
+COURSE = [(0.9, -0.2, 0.14), (1.8, 0.2, 0.1), (2.7, -0.2, 0.14)]
+
+
+def _map_sample(t: float) -> dict[str, object]:
+    """The robot as reported, and the leader predictor's two ghosts ahead of it on its heading."""
+    yaw = 0.3 + 0.05 * math.sin(t)
+    x, y = 1.2 + 0.02 * math.sin(t), 0.1
+    ahead = {f"{name}_{k}": v for name, d in (("pred", 0.35), ("ahead", 0.7))
+             for k, v in (("x", x + d * math.cos(yaw)), ("y", y + d * math.sin(yaw)), ("yaw", yaw))}  # fmt: skip
+    return {"t": t, "pose_x": x, "pose_y": y, "pose_yaw": yaw, **ahead, "ahead_dt": 0.18, "h1_ms": 180.0, "h2_ms": 200.0}
+
+
+@pytest.mark.timeout(90)
+def test_cockpit_map_shows_the_course_the_path_and_the_predicted_ghosts() -> None:
+    """The predictive display: the hello carries the course, the map draws the obstacles, the
+    reported path and pose, and the ghost of the predicted present pose where the sample puts
+    it (its colour at its position on the canvas) and the pose h1 ahead."""
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: run scripts/bootstrap.sh --test (installs chromium)")
+    from playwright.sync_api import sync_playwright
+
+    server = CockpitServer(telemetry_hz=25.0, course=COURSE).start()
+    stop = threading.Event()
+
+    def feed() -> None:
+        deadline = time.monotonic() + 60.0
+        while not stop.is_set() and time.monotonic() < deadline:
+            server.publish_sample(_map_sample(time.time()))
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=feed, daemon=True)
+    thread.start()
+    errors: list[str] = []
+    try:
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+            try:
+                page = browser.new_page(viewport={"width": 1400, "height": 900})
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.on("console", lambda m: errors.append(m.text) if "Content Security Policy" in m.text else None)
+                page.goto(server.url)
+                _wait_for(page, "cockpit.map.ghostDrawn && cockpit.map.draws > 3 && cockpit.map.path.length > 1", 20_000)
+                got = page.evaluate(
+                    """() => {
+                        const m = cockpit.map;
+                        m.draw();  // the latest sample, drawn now: read the pixels it made
+                        const g = m.canvas.getContext("2d");
+                        const px = (p) => { const [x, y] = m.toCanvas(p.x, p.y);
+                            return Array.from(g.getImageData(Math.round(x), Math.round(y), 1, 1).data); };
+                        return {obstacles: m.obstacles, ghost: px(m.ghost), ahead: m.ahead !== null,
+                                robotCentre: px(m.pose), obstacle: px({x: m.obstacles[2][0], y: m.obstacles[2][1]}),
+                                ghostPose: m.ghost, width: m.canvas.width};
+                    }"""
+                )
+                ARTIFACTS.mkdir(exist_ok=True)
+                page.locator("#map").screenshot(path=str(ARTIFACTS / "cockpit_map.png"))
+            finally:
+                browser.close()
+    finally:
+        stop.set()
+        thread.join(5)
+        server.stop()
+    assert errors == []
+    assert got["obstacles"] == [list(o) for o in COURSE]
+    assert got["ghost"][:3] == [0xF0, 0xB4, 0x29]  # the amber ghost, filled, at the predicted pose
+    assert got["obstacle"][:3] == [0x8B, 0x94, 0x9E]
+    assert got["robotCentre"][:3] != [0xF0, 0xB4, 0x29]  # the reported pose is elsewhere
+    assert got["ahead"] and got["width"] > 200
+    assert got["ghostPose"]["x"] == pytest.approx(1.2 + 0.35 * math.cos(0.3), abs=0.05)

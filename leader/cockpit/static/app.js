@@ -4,13 +4,18 @@
 
 const KNOWN = new Set(["t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v",
   "force_w", "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
-  "state", "link", "watchdog", "falls", "passes_done"]);
+  "state", "link", "watchdog", "falls", "passes_done", "pose_x", "pose_y", "pose_yaw",
+  "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt"]);
 
 const state = {
   wsOpen: false, connects: 0, framesReceived: 0, framesShown: 0, samplesReceived: 0,
   plotPoints: 0, joy: { x: 0, y: 0, active: false }, joySent: 0, lastSample: null,
 };
 window.cockpit = state;
+
+// The predictive display (map.js): reported pose and path, ghosts of the predictions.
+const map = new MapView(document.getElementById("map"));
+state.map = map;
 
 const C = { cmd: "#f0b429", robot: "#3fb950", eq: "#58a6ff", a: "#f778ba", b: "#a371f7",
   c: "#79c0ff", d: "#ffa657", tot: "#ff7b72" };
@@ -90,6 +95,7 @@ function onSamples(samples) {
   for (const s of samples) {
     const t = typeof s.t === "number" ? s.t : performance.now() / 1000;
     for (const p of plots) p.push(t, s);
+    map.push(s);
     state.samplesReceived += 1;
     state.lastSample = s;
   }
@@ -176,6 +182,7 @@ function connect() {
       let msg;
       try { msg = JSON.parse(ev.data); } catch (e) { return; }
       if (msg.type === "refused") state.refused = `refused: ${msg.reason}`;
+      if (msg.type === "hello") map.setCourse(msg.course);
       if (msg.type === "samples" && Array.isArray(msg.samples)) onSamples(msg.samples);
     } else {
       onFrame(ev.data);
@@ -254,6 +261,7 @@ setInterval(() => {
 
 function frame() {
   for (const p of plots) if (p.dirty) p.draw();
+  if (map.dirty) map.draw();
   requestAnimationFrame(frame);
 }
 
