@@ -1,7 +1,7 @@
 """Benchmark of the simulated walker's Poincare map (``bipedtele poincare``).
 
 Prints, for the follower's operating point at zero delay: wall time of the warm-up, of the
-central-difference Jacobian (26) (101 map evaluations) and of the measured contraction;
+central-difference Jacobian (26) (100 map evaluations) and of the measured contraction;
 simulated seconds, physics steps and control ticks per wall second; the cost of one
 save/restore of the whole simulation. With ``--grid`` also the wall time of the default
 ``bipedtele poincare`` grid (3 x 3 points plus the operating point).
@@ -44,11 +44,11 @@ def main() -> None:
         for _ in range(n):
             m.servo.restore(snap)
         restore_us = (time.perf_counter() - tr) / n * 1e6
-    for name, wall, simsec in (("warm-up to the fixed point", t1 - t0, sim0), ("Jacobian (101 evaluations)", t2 - t1, sim1 - sim0),
+    for name, wall, simsec in (("warm-up to the fixed point", t1 - t0, sim0), ("Jacobian (100 evaluations)", t2 - t1, sim1 - sim0),
                                ("contraction (30 cycles)", t3 - t2, sim2 - sim1)):
         print(f"{name:<28}: {wall:6.2f} s wall, {simsec:6.1f} s simulated, {simsec / wall:5.1f} sim-s/s, "
               f"{simsec * sim.physics_hz / wall:7.0f} physics steps/s, {simsec * st.control_rate_hz / wall:6.0f} ticks/s")
-    print(f"map evaluations per second: {101 / (t2 - t1):.2f}; save/restore of the whole simulation: {restore_us:.0f} us")
+    print(f"map evaluations per second: {100 / (t2 - t1):.2f}; save/restore of the whole simulation: {restore_us:.0f} us")
     print(f"contraction at the operating point: {c:.3f}")
     if args.grid:
         t = time.perf_counter()

@@ -1,6 +1,6 @@
 """Benchmark of the control core: the full default study and one online (30) call.
 
-Prints: wall time of the full default study (4 cases x (500 CP + 500 VP) runs x 60 s),
+Prints: wall time of the full default study (every delay case x (500 CP + 500 VP) runs x 60 s),
 runs per second, simulated seconds per wall second; the cost of one
 ``OnlineChooser.choose`` call (p50/p99, fresh s_e each call and memoised), side by side with
 the exact offline solver as the baseline.

@@ -178,6 +178,7 @@ def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = N
         rows.append({
             "sigma_r": [float(v) for v in s_r], "T": float(t), "eps": eps,
             "rho_walker": r.rho_walker,
+            "contraction": r.contraction,
             "rho_reduced": rho_hybrid(s_r, t, eps, control.dp, control),
             "rho_reduced_calibrated": rho_hybrid(s_r, t, eps, calibrated.dp, calibrated),
             "fixed_point_speed": r.fixed_point_speed,
@@ -216,7 +217,8 @@ def _run(args: argparse.Namespace) -> int:
     )
     for p in out["points"]:
         sys.stdout.write(
-            f"  sigma_r={p['sigma_r']} T={p['T']:g}: rho_walker {p['rho_walker']:.3f}  reduced (paper) "
+            f"  sigma_r={p['sigma_r']} T={p['T']:g}: rho_walker {p['rho_walker']:.3f} (contraction "
+            f"{p['contraction']:.3f})  reduced (paper) "
             f"{p['rho_reduced']:.3f}  reduced (calibrated) {p['rho_reduced_calibrated']:.3f}\n"
         )
     sys.stdout.write("use it: " + " ".join(f"--set {x}" for x in out["set"]) + "\n")

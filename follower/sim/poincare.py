@@ -637,8 +637,10 @@ def poincare_grid(
 
 
 def plot_poincare(data: dict[str, Any]) -> Any:
-    """Fig. 6 counterpart: ``rho_walker`` and the reduced model's ``max|l_hybrid|`` (paper and
-    calibrated) over ``sigma_r`` x ``T``; the plane ``rho = 1`` marks the stability limit."""
+    """Fig. 6 counterpart: ``rho_walker``, the walker's measured contraction and the reduced
+    model's ``max|l_hybrid|`` (paper and calibrated) over ``sigma_r`` x ``T``; the plane at 1
+    marks the stability limit; the red dot is the follower's operating point (its
+    ``sigma_r`` axis value is the forward channel's)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -649,25 +651,24 @@ def plot_poincare(data: dict[str, Any]) -> Any:
     Ts = sorted({p["T"] for p in pts})
     look = {(p["sigma_r"][0], p["T"]): p for p in pts}
     s, t = np.meshgrid(np.asarray(sig), np.asarray(Ts), indexing="ij")
-    keys = (("rho_walker", "3-D walker (pybullet)"), ("rho_reduced", "reduced model, paper dp, k_v"),
-            ("rho_reduced_calibrated", "reduced model, calibrated"))
-    fig = Figure(figsize=(13.0, 4.4), layout="constrained")
-    top = max(1.2, max(p["rho_walker"] for p in pts))
+    keys = (("rho_walker", "3-D walker: radius of (26)"), ("contraction", "3-D walker: measured contraction"),
+            ("rho_reduced", "reduced model, paper dp, k_v"), ("rho_reduced_calibrated", "reduced model, calibrated"))
+    fig = Figure(figsize=(17.0, 4.4), layout="constrained")
     for i, (key, title) in enumerate(keys):
-        ax = fig.add_subplot(1, 3, i + 1, projection="3d")
+        ax = fig.add_subplot(1, len(keys), i + 1, projection="3d")
         z = np.array([[look[(a, b)][key] for b in Ts] for a in sig])
         if len(sig) > 1 and len(Ts) > 1:
             ax.plot_surface(s, t, z, cmap="viridis", linewidth=0, alpha=0.9)
             ax.plot_surface(s, t, np.ones_like(z), color="red", alpha=0.15, linewidth=0)
         ax.scatter(s.ravel(), t.ravel(), z.ravel(), color="k", s=8)
-        if i == 0:
+        if i < 2:
             op = data["operating_point"]
-            ax.scatter([op["sigma_r"][0]], [op["T"]], [op["rho_walker"]], color="red", s=30, label="operating point")
+            ax.scatter([op["sigma_r"][0]], [op["T"]], [op[key]], color="red", s=30, label="operating point")
             ax.legend(fontsize=7)
         ax.set_xlabel("sigma_r")
         ax.set_ylabel("T [s]")
         ax.set_zlabel("spectral radius")
-        ax.set_zlim(0.0, top)
+        ax.set_zlim(0.0, max(1.5, float(np.nanmax(z)) * 1.05))
         ax.set_title(title, fontsize=9)
     return fig
 
@@ -712,10 +713,10 @@ def _run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise ConfigError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
     out = sys.stdout
-    out.write("sigma_r      T [s]  rho_walker  rho_reduced  rho_calibrated  speed [cm/s]  spread\n")
+    out.write("sigma_r      T [s]  rho_walker  contraction  rho_reduced  rho_calibrated  speed [cm/s]  spread\n")
     for p in [*data["points"], data["operating_point"]]:
         s = "/".join(f"{v:.2f}" for v in p["sigma_r"])
-        out.write(f"{s:<12} {p['T']:5.2f}  {p['rho_walker']:10.3f}  {p['rho_reduced']:11.3f}  "
+        out.write(f"{s:<12} {p['T']:5.2f}  {p['rho_walker']:10.3f}  {p['contraction']:11.3f}  {p['rho_reduced']:11.3f}  "
                   f"{p['rho_reduced_calibrated']:14.3f}  {p['fixed_point_speed']:12.2f}  {p['spread']:6.1f}\n")
     out.write("(last row: the follower's operating point at zero delay)\n")
     return 0
