@@ -363,6 +363,8 @@ class PilotOperator(Operator):
         )
         self.predicted: tuple[PredictedPose, PredictedPose] | None = None
         self._fb_seen: Feedback | None = None
+        self._pred_fb: Feedback | None = None
+        self._pred_t = -math.inf
         if not obstacles:
             raise ValueError("obstacles: allowed: at least one obstacle")
         if passes < 1:
@@ -531,9 +533,12 @@ class PilotOperator(Operator):
         if live is None or not live.ready or live.dev_offset is None:
             self.predicted = None
             return np.array([px, py]), float(yaw)
-        now = t + live.dev_offset
-        h1 = feedback.h1_s if feedback.h1_s > 0.0 else (live.h1_s or 0.0)
-        self.predicted = live.predict(now, feedback.pose, feedback.eta, feedback.t, h1)
+        # A new prediction for a new feedback, else every 20 ms (the commands move it on).
+        if self.predicted is None or feedback is not self._pred_fb or t - self._pred_t >= 0.02:
+            now = t + live.dev_offset
+            h1 = feedback.h1_s if feedback.h1_s > 0.0 else (live.h1_s or 0.0)
+            self.predicted = live.predict(now, feedback.pose, feedback.eta, feedback.t, h1)
+            self._pred_fb, self._pred_t = feedback, t
         use = self.predicted[0] if self.predict == "now" else self.predicted[1]
         return np.array([use.x, use.y]), use.yaw
 

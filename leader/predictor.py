@@ -29,6 +29,7 @@ enable flag other than as a zero reference, and the delay's variation inside the
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -85,8 +86,8 @@ class CommandLog:
         if not (keep_s > 0 and math.isfinite(keep_s)):
             raise ValueError(f"keep_s = {keep_s!r}: allowed: a finite number of seconds > 0")
         self.keep_s = float(keep_s)
-        self._t: deque[float] = deque()
-        self._ref: deque[tuple[float, float]] = deque()
+        self._t: list[float] = []
+        self._ref: list[tuple[float, float]] = []
 
     def __len__(self) -> int:
         return len(self._t)
@@ -103,20 +104,24 @@ class CommandLog:
             v = w = 0.0
         self._t.append(float(t))
         self._ref.append((v, w))
-        while self._t and self._t[0] < t - self.keep_s:
-            self._t.popleft()
-            self._ref.popleft()
+        if self._t[0] < t - 1.5 * self.keep_s:  # forget in batches (amortised O(1) per command)
+            i = bisect.bisect_left(self._t, t - self.keep_s)
+            del self._t[:i], self._ref[:i]
 
     def refs_at(self, t_send: np.ndarray) -> np.ndarray:
         """The reference in force at each send time (the latest command sent at or before
         it; zero before the first logged command), shape ``(n, 2)`` [cm/s, deg/s]."""
         t_send = np.asarray(t_send, dtype=float)
-        if not self._t:
+        if not self._t or len(t_send) == 0:
             return np.zeros((len(t_send), 2))
-        ts = np.fromiter(self._t, float, len(self._t))
-        refs = np.vstack([np.zeros((1, 2)), np.asarray(self._ref, dtype=float)])
-        idx = np.searchsorted(ts, t_send, side="right")  # 0: before the first command
-        return refs[idx]
+        # Only the commands that matter: the one in force at the first time, and later ones.
+        lo = max(0, bisect.bisect_right(self._t, float(t_send.min())) - 1)
+        hi = bisect.bisect_right(self._t, float(t_send.max()))
+        if lo == 0 and self._t[0] > t_send.min():
+            ts, refs = np.asarray(self._t[:hi]), np.vstack([np.zeros((1, 2)), np.asarray(self._ref[:hi]).reshape(-1, 2)])
+            return refs[np.searchsorted(ts, t_send, side="right")]  # 0: before the first command
+        ts, refs = np.asarray(self._t[lo:hi]), np.asarray(self._ref[lo:hi]).reshape(-1, 2)
+        return refs[np.searchsorted(ts, t_send, side="right") - 1]
 
 
 class DelayPredictor:
@@ -191,27 +196,23 @@ class DelayPredictor:
         v0, w0 = float(speed[0]), float(speed[1])
         if n == 0:
             return np.array([t_fb]), np.array([[x0, y0, yaw0, v0, w0]])
-        dts = np.full(n, span / n)
-        t = t_fb + np.concatenate([[0.0], np.cumsum(dts)])
+        dt = span / n
+        t = t_fb + dt * np.arange(n + 1)
         # Reference acting over each step: the command sent h1 before the step's start.
         ref = self.commands.refs_at(t[:-1] - h1)
-        dt = span / n
         if self.tau_s > 0.0:
             a = math.exp(-dt / self.tau_s)
-            # s[k+1] = a s[k] + (1 - a) ref[k], s[0] = v0: lfilter's y[k] is s[k+1].
-            v_next = lfilter([1.0 - a], [1.0, -a], ref[:, 0], zi=[a * v0])[0]
-            w_next = lfilter([1.0 - a], [1.0, -a], ref[:, 1], zi=[a * w0])[0]
+            # s[k+1] = a s[k] + (1 - a) ref[k], s[0] = (v0, w0): lfilter's y[k] is s[k+1].
+            nxt = lfilter([1.0 - a], [1.0, -a], ref, axis=0, zi=[[a * v0, a * w0]])[0]
         else:
-            v_next, w_next = ref[:, 0].copy(), ref[:, 1].copy()
-        vs = np.concatenate([[v0], v_next])
-        ws = np.concatenate([[w0], w_next])
-        # Trapezoidal speeds over each step; heading at mid-step.
-        v_mid = 0.5 * (vs[:-1] + vs[1:]) / 100.0  # m/s
-        w_mid = np.radians(0.5 * (ws[:-1] + ws[1:]))  # rad/s
-        yaw = yaw0 + np.concatenate([[0.0], np.cumsum(w_mid * dts)])
+            nxt = ref
+        sp = np.vstack([[v0, w0], nxt])  # (n + 1, 2): v [cm/s], w [deg/s]
+        mid = 0.5 * (sp[:-1] + sp[1:]) * dt  # per step: metres * 100, degrees
+        yaw = yaw0 + np.concatenate([[0.0], np.cumsum(np.radians(mid[:, 1]))])
         yaw_mid = 0.5 * (yaw[:-1] + yaw[1:])
-        x = x0 + np.concatenate([[0.0], np.cumsum(v_mid * np.cos(yaw_mid) * dts)])
-        y = y0 + np.concatenate([[0.0], np.cumsum(v_mid * np.sin(yaw_mid) * dts)])
+        step = mid[:, 0] / 100.0
+        xy = np.vstack([[x0, y0], np.column_stack([step * np.cos(yaw_mid), step * np.sin(yaw_mid)])]).cumsum(axis=0)
+        x, y, vs, ws = xy[:, 0], xy[:, 1], sp[:, 0], sp[:, 1]
         return t, np.column_stack([x, y, yaw, vs, ws])
 
     def predict(
