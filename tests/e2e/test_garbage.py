@@ -3,7 +3,7 @@
 While the scripted leader makes the robot walk through a router, a third process
 (``garbage.py``) publishes 200 invalid payloads on each of the robot's five keys. Every one
 that reaches a receiver must be dropped and counted (the follower subscribes to ``cmd`` and
-``clock``; the leader to ``feedback``, ``video`` and ``status``; both publish their drop
+``clock``; the leader to ``feedback``, ``video``, ``status`` and ``clock``; both publish their drop
 counters as ``drop_<reason>`` in their Status), the drops must be logged, and the robot
 must keep walking as if nothing happened.
 """
@@ -68,7 +68,7 @@ def test_garbage_on_every_key_is_dropped_and_counted(procs: Procs, tmp_path: Pat
         sent = report["sent"]
         assert sent == {k: COUNT for k in ("cmd", "feedback", "video", "clock", "status")}
         want_f = sent["cmd"] + sent["clock"]
-        want_l = sent["feedback"] + sent["video"] + sent["status"]
+        want_l = sent["feedback"] + sent["video"] + sent["status"] + sent["clock"]
 
         def counted() -> bool:
             f, ll = latest("follower"), latest("leader")
