@@ -300,24 +300,12 @@ def main(
             cockpit_ref.append(cockpit)
         recorder = None
         if record is not None or rec_cfg.enabled:
-            from bipedtele.recording import Recorder, open_recording
+            from bipedtele.recording import recording_for_run
 
-            rec_args: dict[str, Any] = dict(
-                flush_s=rec_cfg.flush_s, jpeg_every=10,
+            recorder = stack.enter_context(recording_for_run(
+                record, rec_cfg.dir, "leader", flush_s=rec_cfg.flush_s, jpeg_every=10,
                 metadata={"role": "leader", "operator": op_name, "device": dev_name, "config": cfg.to_dict()},
-            )  # fmt: skip
-            try:
-                if record is not None:
-                    record.parent.mkdir(parents=True, exist_ok=True)
-                    recorder = stack.enter_context(Recorder(record, **rec_args))
-                else:  # a new, unique name (never an earlier run's file)
-                    recorder = stack.enter_context(open_recording(rec_cfg.dir, "leader", **rec_args))
-            except FileExistsError:
-                raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)") from None
-            except OSError as exc:
-                raise ConfigError(
-                    f"recording {record or rec_cfg.dir}: cannot create ({exc.strerror or exc}); allowed: a writable folder"
-                ) from None
+            ))  # fmt: skip
             record = recorder.path
 
         def rec(topic: str, msg: Any, t: float) -> None:
@@ -377,9 +365,7 @@ def main(
             live = LivePredictor(DelayPredictor(tau_s=lc.pilot_predict_tau_s))
         predict_every = max(1, round(lc.cmd_rate_hz / lc.cockpit_rate_hz))
 
-        def on_sample(snap: dict[str, Any]) -> None:
-            if operator is not None:
-                operator.observe_sample(snap)
+        def on_sample(snap: dict[str, Any]) -> None:  # the loop fed the operator already
             if live is not None and loop_ref:
                 fb = loop_ref[0].feedback
                 if own_live:

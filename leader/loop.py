@@ -280,6 +280,8 @@ class LeaderLoop:
             LOG.warning("sending a command failed: %s", exc)
         self.last_command = cmd
         self.snapshot = self._make_snapshot(now, t_dev, cmd)
+        if self.operator is not None:
+            self.operator.observe_sample(self.snapshot)  # e.g. the pilot's predictor
         if self._on_sample is not None:
             self._on_sample(self.snapshot)
 
