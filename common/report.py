@@ -14,13 +14,29 @@ Delay (Fig. 9)
     ``t_recv - t``) or, in a follower's file, ``cmd/recv`` (``t_recv - t`` + the leader's
     ``h2_s``). Samples where a component is missing, zero (estimator not warm yet) or
     non-finite are left out. ``min/max/mean_delay_ms`` are over these samples.
-Speed errors (Table 2)
-    Mean over the feedback messages inside the task window of ``|ref - eta|``, where ``ref``
-    is the reference the robot is applying (the delayed operator command k_g x_m(t - h1))
-    and ``eta`` the measured speed (v_hip, turn rate): the tracking error "according to the
-    values received in the robot" (Sec. 5, Fig. 12). ``forward_error_cm_s`` uses the first
-    component [cm/s], ``turn_error_deg_s`` the second [deg/s]. Samples are feedback
-    messages (a constant rate), so the mean is a time average.
+Passes
+    ``passes``: the ``pass`` (``pass_done``) events inside the task window (the leader
+    records one per obstacle pass the operator completed); None in a file with neither a
+    task start nor a pass (a follower's).
+Speed errors (Table 2), odometry
+    ``forward_error_cm_s`` [cm/s] and ``turn_error_deg_s`` [deg/s]: the error of the
+    robot's speed as a walk engine reports it, per step. For each step inside the task
+    window: the displacement along the mean heading and the yaw change between two
+    consecutive footfalls over the step's time, against the mean of the reference applied
+    over that step; the mean of ``|ref - speed|`` weighted by step time. Footfalls come from
+    the ``footfall`` events the follower records (in the given recording, else in the
+    ``follower`` recording passed along); two footfalls are consecutive when the second
+    comes at most 1.5 of its step time after the first. Without footfalls, steps are
+    approximated by consecutive windows of one step time (T/2 of the feedback's T) of the
+    feedback poses, over the feedback in state ``walking``. ``odometry_source`` says which
+    (``footfalls``, ``feedback``, or None).
+Speed errors, instantaneous
+    ``forward_error_instant_cm_s``, ``turn_error_instant_deg_s``: mean over the feedback
+    messages inside the task window of ``|ref - eta|``, ``ref`` the reference the robot is
+    applying (the delayed operator command k_g x_m(t - h1)) and ``eta`` the measured speed
+    at that tick (v_hip, turn rate). The torso's turn rate is a pulse train (the hip yaws
+    only in single support), so this turn error is large even when every step turns as
+    asked. Samples are feedback messages (a constant rate): a time average.
 Falls, collisions
     Over the whole recording, the largest of three counts: ``fall``/``collision`` events;
     the follower's ``falls``/``collisions`` status counters (increase during the recording,
@@ -31,6 +47,7 @@ Falls, collisions
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import logging
 import math
@@ -53,10 +70,14 @@ REPORT_KEYS: tuple[str, ...] = (
     "max_delay_ms",
     "mean_delay_ms",
     "completion_s",
+    "passes",
     "forward_error_cm_s",
     "turn_error_deg_s",
+    "forward_error_instant_cm_s",
+    "turn_error_instant_deg_s",
     "falls",
     "collisions",
+    "odometry_source",
 )
 
 CMD_TOPICS = ("cmd/sent", "cmd/recv")
@@ -93,6 +114,17 @@ class _Run:
     fb_ref: list[tuple[float, float]] = field(default_factory=list)
     fb_eta: list[tuple[float, float]] = field(default_factory=list)
     fb_yaw: list[float] = field(default_factory=list)
+    # feedback poses for the odometry fallback: t_recv, own t, x, y, yaw, ref, T, state
+    pose_t: list[float] = field(default_factory=list)
+    pose_tmsg: list[float] = field(default_factory=list)
+    pose: list[tuple[float, float, float]] = field(default_factory=list)
+    pose_ref: list[tuple[float, float]] = field(default_factory=list)
+    pose_T: list[float] = field(default_factory=list)
+    pose_walking: list[bool] = field(default_factory=list)
+    # footfall events: t_recv, own t, pose, step_s, ref (None if not recorded)
+    footfalls: list[tuple[float, float, tuple[float, float, float], float, tuple[float, float] | None]] = field(
+        default_factory=list
+    )
     fv_t: list[float] = field(default_factory=list)
     fv: list[tuple[float, float]] = field(default_factory=list)  # tangential, normal
     ze_t: list[float] = field(default_factory=list)
@@ -156,6 +188,16 @@ def _collect(records: Iterable[Record]) -> _Run:
                 run.fb_ref.append(ref)
                 run.fb_eta.append(eta)
                 run.fb_yaw.append(math.nan if yaw is None else yaw)
+                xy = _pair(pose)
+                t_msg = _num(d.get("t"))
+                if xy is not None and yaw is not None and t_msg is not None:
+                    run.pose_t.append(t)
+                    run.pose_tmsg.append(t_msg)
+                    run.pose.append((xy[0], xy[1], yaw))
+                    run.pose_ref.append(ref)
+                    period = _num(d.get("T"))
+                    run.pose_T.append(period if period is not None and period > 0 else math.nan)
+                    run.pose_walking.append(d.get("state", "walking") == "walking")
             fv_pair, ze_pair = _pair(d.get("f_v")), _pair(d.get("z_e"))
             if fv_pair is not None:
                 run.fv_t.append(t)
@@ -210,6 +252,8 @@ def _collect(records: Iterable[Record]) -> _Run:
                 run.task_done.append(t)
             elif ev == "pass_done":
                 run.passes.append(t)
+            elif ev == "footfall":
+                _add_footfall(run, t, d)
         elif topic in STATUS_TOPICS:
             counters = d.get("counters")
             sid = d.get("sid", 0)
@@ -222,6 +266,16 @@ def _collect(records: Iterable[Record]) -> _Run:
                         {k: v for k, v in counters.items() if isinstance(v, int)}
                     )
     return run
+
+
+def _add_footfall(run: _Run, t: float, d: dict[str, Any]) -> None:
+    pose = d.get("pose")
+    t_ff, step_s = _num(d.get("t")), _num(d.get("step_s"))
+    xy = _pair(pose)
+    yaw = _num(pose[2]) if isinstance(pose, list | tuple) and len(pose) >= 3 else None
+    if t_ff is None or step_s is None or step_s <= 0 or xy is None or yaw is None:
+        return
+    run.footfalls.append((t, t_ff, (xy[0], xy[1], yaw), step_s, _pair(d.get("ref"))))
 
 
 def _window(run: _Run) -> tuple[float, float] | None:
@@ -269,25 +323,37 @@ def _delays(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, np.ndar
     return ta[keep], da[keep]
 
 
-def compute_report(records: Iterable[Record]) -> dict[str, Any]:
+def compute_report(records: Iterable[Record], follower: Iterable[Record] | None = None) -> dict[str, Any]:
     """The Table 2 columns of one run.
 
     Parameters
     ----------
     records : iterable of Record
         A leader's or a follower's recording (see :func:`bipedtele.recording.read_records`).
+    follower : iterable of Record, optional
+        The follower's recording of the same run: its ``footfall`` events give the exact
+        odometry speed errors when ``records`` has none (a leader's file). Its clock is
+        taken to read the leader's (one machine, or synced clocks).
 
     Returns
     -------
     dict
         Exactly :data:`REPORT_KEYS`: ``min_delay_ms``, ``max_delay_ms``, ``mean_delay_ms``
         (h1 + h2 [ms]), ``completion_s`` [s], ``forward_error_cm_s`` [cm/s],
-        ``turn_error_deg_s`` [deg/s] (floats, None when the recording has no such data),
-        ``falls`` and ``collisions`` (ints). Definitions in the module docstring.
+        ``turn_error_deg_s`` [deg/s] (odometry), ``forward_error_instant_cm_s``,
+        ``turn_error_instant_deg_s`` (per feedback) (floats, None when the recording has no
+        such data), ``passes`` (int, None without task events), ``falls`` and
+        ``collisions`` (ints), ``odometry_source`` (``"footfalls"``, ``"feedback"`` or
+        None). Definitions in the module docstring.
     """
     run = _collect(records)
+    if not run.footfalls and follower is not None:
+        run.footfalls = _collect(follower).footfalls
     out: dict[str, Any] = dict.fromkeys(REPORT_KEYS)
     window = _window(run)
+    if run.task_start is not None or run.passes:
+        lo, hi = window if window is not None else (-math.inf, math.inf)
+        out["passes"] = sum(1 for t in run.passes if lo <= t <= hi)
     if window is not None:
         out["completion_s"] = window[1] - window[0]
         _, d = _delays(run, window)
@@ -300,13 +366,123 @@ def compute_report(records: Iterable[Record]) -> dict[str, Any]:
         keep = (ft >= window[0]) & (ft <= window[1])
         if keep.any():
             err = np.abs(np.asarray(run.fb_ref)[keep] - np.asarray(run.fb_eta)[keep])
-            out["forward_error_cm_s"] = float(err[:, 0].mean())
-            out["turn_error_deg_s"] = float(err[:, 1].mean())
+            out["forward_error_instant_cm_s"] = float(err[:, 0].mean())
+            out["turn_error_instant_deg_s"] = float(err[:, 1].mean())
+        steps, source = _odometry_steps(run, window)
+        if len(steps):
+            err = np.abs(steps[:, 1:3] - steps[:, 3:5])
+            w = steps[:, 0] / steps[:, 0].sum()
+            out["forward_error_cm_s"] = float(err[:, 0] @ w)
+            out["turn_error_deg_s"] = float(err[:, 1] @ w)
+            out["odometry_source"] = source
     out["falls"] = max(
         run.event_counts.get("fall", 0), _status_increase(run, "falls"), run.fallen_transitions
     )
     out["collisions"] = max(run.event_counts.get("collision", 0), _status_increase(run, "collisions"))
     return out
+
+
+# ---------------------------------------------------------------------- odometry
+
+
+def _step_speed(p0: Sequence[float], p1: Sequence[float], dt: float) -> tuple[float, float]:
+    """Forward speed along the mean heading [cm/s] and turn rate [deg/s] from p0 to p1."""
+    dyaw = (p1[2] - p0[2] + math.pi) % (2.0 * math.pi) - math.pi
+    heading = p0[2] + dyaw / 2.0
+    ahead = (p1[0] - p0[0]) * math.cos(heading) + (p1[1] - p0[1]) * math.sin(heading)
+    return 100.0 * ahead / dt, math.degrees(dyaw) / dt
+
+
+def _mean_ref(run: _Run, t0: float, t1: float) -> tuple[float, float] | None:
+    """Mean of the feedback references with own time in [t0, t1) (None without any)."""
+    ts = np.asarray(run.pose_tmsg, dtype=float)
+    keep = (ts >= t0) & (ts < t1)
+    if not keep.any():
+        return None
+    m = np.asarray(run.pose_ref, dtype=float)[keep].mean(axis=0)
+    return float(m[0]), float(m[1])
+
+
+def _steps_from_footfalls(
+    footfalls: Sequence[tuple[float, float, tuple[float, float, float], float, tuple[float, float] | None]],
+    run: _Run | None = None,
+) -> list[tuple[float, float, float, float, float]]:
+    """Steps between consecutive footfalls: (dt [s], speed [cm/s], turn [deg/s], ref forward, ref turn).
+
+    ``footfalls`` are ``(t_recv, t, pose, step_s, ref)`` in time order; a pair counts when
+    ``0 < t1 - t0 <= 1.5 step_s`` of the second. ``ref`` missing: the mean of ``run``'s
+    feedback references over the step; a step without either is left out.
+    """
+    out = []
+    for (_, ta, pa, _, _), (_, tb, pb, step_s, ref) in itertools.pairwise(footfalls):
+        dt = tb - ta
+        if not 0.0 < dt <= 1.5 * step_s:
+            continue
+        if ref is None and run is not None:
+            ref = _mean_ref(run, ta, tb)
+        if ref is None:
+            continue
+        v, w = _step_speed(pa, pb, dt)
+        out.append((dt, v, w, ref[0], ref[1]))
+    return out
+
+
+def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tuple[float, float, float, float, float]]:
+    """Steps approximated by windows of one step time (T/2) of the feedback poses.
+
+    Over the feedback inside the task window in state ``walking``, on the feedback's own
+    time ``t``: consecutive windows of T/2 [s] (T of the latest feedback at the window's
+    start; 1 s when a feedback has none) from the start of each walking run; the pose at
+    each end interpolated linearly (yaw unwrapped), the reference averaged over the window.
+    A run ends at a feedback not walking or at a gap longer than T/2; its last partial
+    window is left out.
+    """
+    tr = np.asarray(run.pose_t, dtype=float)
+    if not len(tr):
+        return []
+    ts_all = np.asarray(run.pose_tmsg, dtype=float)
+    order = np.argsort(ts_all, kind="stable")
+    ts = ts_all[order]
+    walking = (np.asarray(run.pose_walking, dtype=bool) & (tr >= window[0]) & (tr <= window[1]))[order]
+    pose = np.asarray(run.pose, dtype=float).reshape(-1, 3)[order]
+    pose[:, 2] = np.unwrap(pose[:, 2])
+    refs = np.asarray(run.pose_ref, dtype=float).reshape(-1, 2)[order]
+    half = 0.5 * np.nan_to_num(np.asarray(run.pose_T, dtype=float)[order], nan=1.0)
+    out = []
+    i, n = 0, len(ts)
+    while i < n:
+        if not walking[i]:
+            i += 1
+            continue
+        j = i  # the walking run is [i, j]
+        while j + 1 < n and walking[j + 1] and ts[j + 1] - ts[j] <= half[j]:
+            j += 1
+        seg_t, seg_p = ts[i:j + 1], pose[i:j + 1]
+        t0 = ts[i]
+        while True:
+            k = i + int(np.searchsorted(seg_t, t0, side="right")) - 1
+            t1 = t0 + half[k]
+            if t1 > ts[j] + 1e-9:
+                break
+            keep = (seg_t >= t0) & (seg_t < t1)
+            if keep.any():
+                p0 = [float(np.interp(t0, seg_t, seg_p[:, c])) for c in range(3)]
+                p1 = [float(np.interp(t1, seg_t, seg_p[:, c])) for c in range(3)]
+                v, w = _step_speed(p0, p1, t1 - t0)
+                ref = refs[i:j + 1][keep].mean(axis=0)
+                out.append((t1 - t0, v, w, float(ref[0]), float(ref[1])))
+            t0 = t1
+        i = j + 1
+    return out
+
+
+def _odometry_steps(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, str | None]:
+    """(steps as an (n, 5) array, source): from footfalls if any, else from feedback windows."""
+    ff = sorted((f for f in run.footfalls if window[0] <= f[0] <= window[1]), key=lambda f: f[1])
+    steps, source = _steps_from_footfalls(ff, run), "footfalls"
+    if not steps:
+        steps, source = _odometry_from_feedback(run, window), "feedback"
+    return np.asarray(steps, dtype=float).reshape(-1, 5), source if steps else None
 
 
 # ---------------------------------------------------------------------- figures
@@ -468,10 +644,14 @@ _ROWS = (
     ("max_delay_ms", "Max delay", "ms"),
     ("mean_delay_ms", "Average delay", "ms"),
     ("completion_s", "Task completion time", "s"),
+    ("passes", "Task passes", ""),
     ("forward_error_cm_s", "Forward speed average error", "cm/s"),
     ("turn_error_deg_s", "Turning speed average error", "deg/s"),
+    ("forward_error_instant_cm_s", "Forward speed error per tick", "cm/s"),
+    ("turn_error_instant_deg_s", "Turning speed error per tick", "deg/s"),
     ("falls", "Falls", ""),
     ("collisions", "Obstacle contacts", ""),
+    ("odometry_source", "Speeds per step from", ""),
 )
 
 
@@ -482,7 +662,7 @@ def format_report(report: dict[str, Any], title: str = "") -> str:
         v = report.get(key)
         if v is None:
             text = "-"
-        elif isinstance(v, int):
+        elif isinstance(v, int | str):
             text = str(v)
         else:
             text = f"{v:.2f} {unit}"
@@ -490,18 +670,36 @@ def format_report(report: dict[str, Any], title: str = "") -> str:
     return "\n".join(lines)
 
 
-def _run_report(args: argparse.Namespace) -> int:
+def _inputs(args: argparse.Namespace) -> tuple[Path, Path | None]:
+    """(leader or single recording, follower recording or None) from the arguments.
+
+    A folder (a demo's run folder) stands for its ``leader.mcap`` and, when present, its
+    ``follower.mcap``.
+    """
     path = Path(args.recording)
+    follower = Path(args.follower) if args.follower else None
+    if path.is_dir():
+        folder = path
+        path = folder / "leader.mcap"
+        if follower is None and (folder / "follower.mcap").is_file():
+            follower = folder / "follower.mcap"
+    return path, follower
+
+
+def _run_report(args: argparse.Namespace) -> int:
+    path, follower_path = _inputs(args)
     try:
         records = list(read_records(path))
+        follower = list(read_records(follower_path)) if follower_path is not None else None
     except RecordingError as exc:
         sys.stderr.write(f"bipedtele report: {exc}\n")
         return 2
     if not records:
         sys.stderr.write(f"bipedtele report: {path} holds no messages (empty or cut at the start)\n")
         return 2
-    report = compute_report(records)
-    sys.stdout.write(format_report(report, title=f"Table 2: {path}") + "\n")
+    report = compute_report(records, follower=follower)
+    title = f"Table 2: {path}" + (f" (footfalls from {follower_path})" if follower_path is not None else "")
+    sys.stdout.write(format_report(report, title=title) + "\n")
     try:
         if args.json:
             Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
@@ -518,14 +716,17 @@ def _run_report(args: argparse.Namespace) -> int:
 
 
 def add_report_parser(sub: Any) -> None:
-    """``bipedtele report RUN.mcap [--json F] [--plots DIR]``: Table 2 of a recorded run."""
+    """``bipedtele report RUN.mcap [--follower F.mcap] [--json F] [--plots DIR]``: Table 2 of a recorded run."""
     p = sub.add_parser(
         "report",
         help="Table 2 metrics (delay, completion time, speed errors, falls) of a recording",
         description="Print the paper's Table 2 columns for a recorded run (MCAP) and "
         "optionally write them as JSON and the Fig. 9/11/12-like figures as PNG.",
     )
-    p.add_argument("recording", metavar="RUN.mcap", help="a leader or follower recording")
+    p.add_argument("recording", metavar="RUN.mcap",
+                   help="a leader or follower recording, or a run folder holding leader.mcap (and follower.mcap)")
+    p.add_argument("--follower", metavar="F.mcap",
+                   help="the follower's recording of the same run: exact per-step speeds from its footfalls")
     p.add_argument("--json", metavar="F", help="write the report as JSON to this file")
     p.add_argument("--plots", metavar="DIR", help="write fig9/fig11/fig12 PNGs into this folder")
     p.set_defaults(func=_run_report)

@@ -14,6 +14,12 @@ Every control period ``dt`` the loop
    asked to walk), so z_e, what the leader feels, falls near an obstacle;
 6. publishes feedback, status and (at its own rate) camera frames.
 
+Odometry: when the robot reports a new touchdown (:meth:`FollowerRobot.footfall`), the
+loop emits a ``footfall`` event ``{t, robot_t, n, pose, step_s, ref}``: ``t`` the
+touchdown on the loop clock [s], ``pose`` [m, m, rad], ``step_s`` the step that ended [s]
+and ``ref`` the mean reference applied over the ticks since the previous footfall
+[cm/s, deg/s]. The report turns consecutive footfalls into the odometry speed error.
+
 Safety: with no new command for ``watchdog_s`` (local receive time) or ``enable`` false,
 the robot stops and stands. A fall (torso tilt) stops it, is counted (every fall) and
 **latches**: the robot walks again only after the operator re-arms (a command with
@@ -191,6 +197,9 @@ class FollowerLoop:
         self._st_seq = 0
         self._next_fb = -math.inf
         self._next_status = -math.inf
+        self._footfall_n: int | None = None
+        self._ref_sum = np.zeros(2)
+        self._ref_n = 0
         self._update_parameters(0.0, 0.0)
 
     # ------------------------------------------------------------------ parameters
@@ -358,6 +367,7 @@ class FollowerLoop:
             state = "stopping" if obs.walking else "standing"
 
         z_e = self.equivalent.step(ref, self._s_e, f_hold)
+        self._odometry(obs, now, ref)
 
         tel.t, tel.state, tel.ref, tel.eta_meas = now, state, ref, eta_meas
         tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = self.reference.eta.copy(), self.reference.z_r.copy(), np.asarray(z_e), f_v
@@ -374,6 +384,22 @@ class FollowerLoop:
             self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
             self._publish(self.status(now))
         return tel
+
+    def _odometry(self, obs: RobotObservation, now: float, ref: np.ndarray) -> None:
+        """Emit a ``footfall`` event for a new touchdown; sum the reference applied."""
+        ff = self.robot.footfall()
+        if ff is not None and ff.n != self._footfall_n:
+            self._footfall_n = ff.n
+            mean = self._ref_sum / self._ref_n if self._ref_n else np.asarray(ref, dtype=float)
+            self._on_event("footfall", {
+                "t": now - max(0.0, obs.t - ff.t), "robot_t": ff.t, "n": ff.n,
+                "pose": [float(v) for v in ff.pose], "step_s": ff.step_s,
+                "ref": _pair(mean, 999.0),
+            })  # fmt: skip
+            self._ref_sum, self._ref_n = np.zeros(2), 0
+        # this tick's reference acts until the next observation
+        self._ref_sum = self._ref_sum + np.asarray(ref, dtype=float)
+        self._ref_n += 1
 
     def _walk(self, ref: np.ndarray, eta_meas: np.ndarray, f_v: np.ndarray, now: float) -> tuple[WalkCommand | None, str]:
         """Reference model (28) and one walk command; a robot refusing to walk stands."""

@@ -31,6 +31,7 @@ from bipedtele.registry import Registry
 __all__ = [
     "ROBOTS",
     "FollowerRobot",
+    "Footfall",
     "RobotError",
     "RobotNotConnectedError",
     "RobotObservation",
@@ -117,6 +118,33 @@ class WalkCommand:
 
 
 @dataclass(frozen=True)
+class Footfall:
+    """The robot's latest touchdown: what its walk odometry is read at.
+
+    A walk engine reports its speed per step (odometry): the displacement and yaw change
+    between consecutive footfalls over the step time. :meth:`FollowerRobot.footfall` gives
+    the latest; the follower loop records one ``footfall`` event per new touchdown; the
+    report computes the odometry speed error from them (docs/recording.md).
+
+    Attributes
+    ----------
+    n : int
+        Touchdowns so far (increases by one per step; a new value is a new footfall).
+    t : float
+        Robot time of the touchdown [s] (the clock of :attr:`RobotObservation.t`).
+    pose : (float, float, float)
+        x [m], y [m], yaw [rad] at the touchdown, in the frame of :attr:`RobotObservation.pose`.
+    step_s : float
+        Duration of the step that ended with this touchdown [s] (T/2).
+    """
+
+    n: int
+    t: float
+    pose: tuple[float, float, float]
+    step_s: float
+
+
+@dataclass(frozen=True)
 class RobotObservation:
     """What the robot measures, at robot time ``t``.
 
@@ -190,6 +218,14 @@ class FollowerRobot(abc.ABC):
     @abc.abstractmethod
     def advance(self, dt: float) -> None:
         """Let ``dt`` seconds of robot time pass (the simulator steps; real robots return)."""
+
+    def footfall(self) -> Footfall | None:
+        """The latest touchdown (None: none yet, or the robot reports none).
+
+        Robots that can tell when a foot lands (or sample their odometry once per step)
+        override this; the loop calls it right after ``observe()``.
+        """
+        return None
 
     def capture(self, camera: Camera = "head") -> np.ndarray | None:
         """An RGB image (H x W x 3, uint8) from ``camera``, or None if it has no such camera."""

@@ -46,9 +46,11 @@ from bipedtele.follower.naoqi.config import NaoqiConfig
 from bipedtele.follower.naoqi.gait import move_config_for, walk_limits
 from bipedtele.follower.naoqi.guardlink import GuardLink
 from bipedtele.follower.naoqi.session import open_session
+from bipedtele.follower.odometry import StepSampler
 from bipedtele.follower.robot import (
     Camera,
     FollowerRobot,
+    Footfall,
     RobotError,
     RobotNotConnectedError,
     RobotObservation,
@@ -107,6 +109,8 @@ class NaoqiRobot(FollowerRobot):
         self._guard: GuardLink | None = None
         self._refusing = False
         self._activity = time.monotonic()
+        self._steps = StepSampler()
+        self._step_s = 0.0  # step period of the last move sent [s]; 0 before the first
         self.owner = f"{socket.gethostname()}:{os.getpid()}"
 
     # ------------------------------------------------------------------ connection
@@ -286,6 +290,10 @@ class NaoqiRobot(FollowerRobot):
     def observe(self) -> RobotObservation:
         """Velocity and odometry from ALMotion, sonar and torso angles from ALMemory.
 
+        It also samples :meth:`footfall`: the odometry pose read once per step period of
+        the last ``move`` while NAO walks (:class:`~bipedtele.follower.odometry.StepSampler`),
+        so the report judges NAO's speed per step as it does the simulator's.
+
         Raises
         ------
         RobotError
@@ -306,16 +314,22 @@ class NaoqiRobot(FollowerRobot):
             left, right, ax, ay = as_floats(self._wait(futs["mem"], "ALMemory", "getListData"), 4, "ALMemory.getListData(sonar, torso angles)")
             walking = as_bool(self._wait(futs["active"], "ALMotion", "moveIsActive"), "ALMotion.moveIsActive")
         tilt = math.acos(max(-1.0, min(1.0, math.cos(ax) * math.cos(ay))))
+        pose = self._relative_pose(pos)
+        self._steps.update(t, pose, walking, self._step_s)
         return RobotObservation(
             t=t,
             v_hip_m_s=vx,
             turn_rate_rad_s=w,
-            pose=self._relative_pose(pos),
+            pose=pose,
             sonar_m=(self._sonar(left), self._sonar(right)),
             tilt_rad=tilt,
             fallen=tilt > self.config.fall_tilt_rad,
             walking=walking,
         )
+
+    def footfall(self) -> Footfall | None:
+        """The latest step-period sample of the odometry while walking (None before the first)."""
+        return self._steps.footfall
 
     def send_walk(self, cmd: WalkCommand) -> WalkCommand:
         """``ALMotion.move`` with the move config realising the cycle T of ``cmd``.
@@ -341,6 +355,7 @@ class NaoqiRobot(FollowerRobot):
                 LOG.warning("NAO guard answers: walking allowed again")
             move, sent = move_config_for(cmd, self.config)
             self._call("ALMotion", "move", move.x_m_s, move.y_m_s, move.theta_rad_s, move.as_naoqi())
+            self._step_s = move.step_period_s
             return sent
 
     def stop(self) -> None:

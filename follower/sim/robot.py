@@ -14,6 +14,9 @@ Measurements (``observe``):
   ``p_hip`` over the control period). The stance leg switches at impact.
 - turn rate: torso yaw change since the previous ``observe`` over the elapsed time.
 - sonar: two cones on the chest by ray casts (:meth:`sonar`), fall: torso tilt/height.
+- ``footfall()``: the torso pose at the physics step where the gait starts a new step after a
+  walking step (the swing foot lands), its robot time, a touchdown counter and the length
+  of the step that ended (:class:`~bipedtele.follower.robot.Footfall`).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from bipedtele.config import Config, resolve_section
 from bipedtele.follower.robot import (
     Camera,
     FollowerRobot,
+    Footfall,
     RobotError,
     RobotNotConnectedError,
     RobotObservation,
@@ -92,6 +96,7 @@ class SimNao(FollowerRobot):
         self._client: int | None = None
         self._dt = 1.0 / cfg.physics_hz
         self._eps = WalkCommand().eps_s
+        self._touchdowns = 0  # never reset: a new footfall always has a new number
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -109,6 +114,8 @@ class SimNao(FollowerRobot):
         self._history: list[tuple[float, float, float]] = []  # t, x, y for cycle speed
         self._v_hip_last = 0.0
         self._turn_last = 0.0
+        self._gait_step: tuple[str, float, float, float] | None = None
+        self._footfall: Footfall | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -251,6 +258,9 @@ class SimNao(FollowerRobot):
             q = np.fromiter((s[0] for s in states), float, 12)
             qd = np.fromiter((s[1] for s in states), float, 12)
             qref, qdref = self.gait.update(self._t)
+            step = self.gait.step
+            if step != self._gait_step:
+                self._step_changed(step)
             vel = qdref + (qref - q) / self._eps
             pb.setJointMotorControlArray(rob, joints, pb.VELOCITY_CONTROL, targetVelocities=vel.tolist(),
                                          forces=force, physicsClientId=c)
@@ -263,6 +273,16 @@ class SimNao(FollowerRobot):
             self._vhip_sum += tibia * (-dqa) + thigh * (-dqa - dqk)
             self._vhip_n += 1
             self._q, self._qd, self._qref = q, qd, qref
+
+    def _step_changed(self, step: tuple[str, float, float, float] | None) -> None:
+        """The gait began a new step: after a walking step, that is a touchdown."""
+        prev, self._gait_step = self._gait_step, step
+        if prev is None or prev[0] != "walk" or step is None:
+            return
+        self._touchdowns += 1
+        x, y, yaw, _, _ = self._base()
+        self._footfall = Footfall(self._touchdowns, float(step[1]), (float(x), float(y), float(yaw)),
+                                  float(step[1] - prev[1]))
 
     # ------------------------------------------------------------------ measurements
 
@@ -306,6 +326,11 @@ class SimNao(FollowerRobot):
             joint_error_rad=err,
             in_contact=bool(contact),
         )
+
+    def footfall(self) -> Footfall | None:
+        """The latest touchdown: torso pose where the gait began a step after a walking step."""
+        self._need()
+        return self._footfall
 
     def cycle_speed(self) -> float:
         """Torso ground speed along its heading, averaged over the last walking cycle [m/s].

@@ -56,8 +56,11 @@ def test_table2_values_by_hand(tmp_path: Path) -> None:
     assert report["mean_delay_ms"] == pytest.approx((250 + 400 + 300) / 3)
     assert report["completion_s"] == pytest.approx(8.25)
     # |ref - eta| over the four feedbacks in the window: forward 1, 0.5, 0, 3; turn .5, 1, 0, 0.
-    assert report["forward_error_cm_s"] == pytest.approx(4.5 / 4)
-    assert report["turn_error_deg_s"] == pytest.approx(1.5 / 4)
+    assert report["forward_error_instant_cm_s"] == pytest.approx(4.5 / 4)
+    assert report["turn_error_instant_deg_s"] == pytest.approx(1.5 / 4)
+    # Feedback 1 s apart, no T (1 s assumed): no window of T/2 holds two poses, no footfalls.
+    assert report["forward_error_cm_s"] is None and report["odometry_source"] is None
+    assert report["passes"] == 1
     # falls: events 1, status increase (3-2) + 1 = 2, fallen transitions 1 -> 2.
     assert report["falls"] == 2
     assert report["collisions"] == 2
@@ -73,9 +76,10 @@ def test_window_without_task_events_uses_commands(tmp_path: Path) -> None:
     assert report["completion_s"] == pytest.approx(4.0)
     # A follower's file: h1 = t_recv - t = 0.2 s, plus the leader's h2 = 0.1 s.
     assert report["mean_delay_ms"] == pytest.approx(300.0)
-    assert report["forward_error_cm_s"] == pytest.approx(0.5)
-    assert report["turn_error_deg_s"] == pytest.approx(1.0)
+    assert report["forward_error_instant_cm_s"] == pytest.approx(0.5)
+    assert report["turn_error_instant_deg_s"] == pytest.approx(1.0)
     assert report["falls"] == 0 and report["collisions"] == 0
+    assert report["passes"] is None  # no task events: a follower's file
 
 
 def test_leader_state_records_and_short_event_names(tmp_path: Path) -> None:
@@ -94,8 +98,9 @@ def test_leader_state_records_and_short_event_names(tmp_path: Path) -> None:
     assert report["completion_s"] == pytest.approx(2.5)
     assert report["min_delay_ms"] == pytest.approx(250.0)
     assert report["max_delay_ms"] == pytest.approx(300.0)
-    assert report["forward_error_cm_s"] == pytest.approx(1.0)
-    assert report["turn_error_deg_s"] == pytest.approx(0.0)
+    assert report["forward_error_instant_cm_s"] == pytest.approx(1.0)
+    assert report["turn_error_instant_deg_s"] == pytest.approx(0.0)
+    assert report["passes"] == 0
     fig11 = plot_report(records)["fig11_coordination"]
     assert len(fig11.axes[3].lines) == 2  # handle force
 
@@ -127,6 +132,7 @@ def test_cli_prints_writes_json_and_plots(tmp_path: Path, capsys: pytest.Capture
     assert main(["report", str(path), "--json", str(out_json), "--plots", str(plots)]) == 0
     text = capsys.readouterr().out
     assert "Average delay" in text and "316.67 ms" in text and "8.25 s" in text
+    assert f"{'Task passes':<30} 1" in text and "Turning speed error per tick" in text
     data = json.loads(out_json.read_text())
     assert data == compute_report(read_records(path))
     assert sorted(p.name for p in plots.iterdir()) == [
@@ -172,7 +178,7 @@ def test_truncated_recording_reports_up_to_the_cut(
     report = json.loads(out_json.read_text())
     assert tuple(report) == REPORT_KEYS
     assert report["completion_s"] == pytest.approx(last_cmd)  # no task_done: the last command
-    assert report["forward_error_cm_s"] == pytest.approx(1.0)
+    assert report["forward_error_instant_cm_s"] == pytest.approx(1.0)
     assert report["min_delay_ms"] == pytest.approx(201.0)
     assert report["max_delay_ms"] < full["max_delay_ms"]
     capsys.readouterr()
