@@ -2,12 +2,17 @@
 
 File format
 -----------
-An MCAP file (https://mcap.dev) written with the ``mcap`` library:
+An MCAP file (https://mcap.dev) written with the ``mcap`` library, which Foxglove opens
+with typed channels (``docs/recording.md``):
 
 - one channel per topic (``cmd/sent``, ``feedback/recv``, ``leader/state``, ...), message
-  encoding ``msgpack`` (no schema); each payload is a msgpack map;
+  encoding ``json``, each with a JSON Schema (schema encoding ``jsonschema``, built by
+  :mod:`bipedtele.schemas`); each payload is a JSON object;
 - a wire message (:class:`bipedtele.messages.Message`) is stored as its fields plus
-  ``"v"`` (schema version) and ``"k"`` (kind), i.e. the same map that went over the wire;
+  ``"v"`` (schema version) and ``"k"`` (kind), i.e. the same map that went over the wire,
+  with ``bytes`` as base64; a :class:`~bipedtele.messages.VideoFrame` on a ``video/`` topic
+  is a ``foxglove.CompressedImage`` (Foxglove's Image panel shows it), and a frame whose
+  JPEG was thinned out goes to the channel ``TOPIC/header`` (read back as ``TOPIC``);
 - the MCAP ``publish_time`` holds ``t_recv`` (receive time for ``*/recv`` topics, send time
   for ``*/sent`` topics, computation time otherwise) and ``log_time`` holds ``t_log`` (when
   the recorder was called), both as integer nanoseconds of ``time.time()``;
@@ -15,6 +20,10 @@ An MCAP file (https://mcap.dev) written with the ``mcap`` library:
 - zstd-compressed chunks, closed and flushed to the OS at least every ``flush_s`` seconds so
   that a killed process loses at most about ``flush_s`` seconds; :func:`read_records` reads a
   truncated file up to the last complete chunk.
+
+:func:`read_records` returns the same maps for every topic as before the JSON encoding
+(bytes restored, the video mapped back) and still reads the older files whose channels are
+``msgpack`` without a schema.
 
 File names and life
 -------------------
@@ -31,6 +40,8 @@ Topics and fields used by the leader, the follower and ``bipedtele report`` are 
 
 from __future__ import annotations
 
+import base64
+import binascii
 import collections
 import dataclasses
 import json
@@ -47,18 +58,20 @@ from types import TracebackType
 from typing import IO, Any
 
 import msgpack
-from bipedtele import __version__
-from bipedtele.messages import SCHEMA_VERSION, Message
+from bipedtele import __version__, schemas
+from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame
 from mcap.exceptions import McapError
-from mcap.records import Channel, Metadata
+from mcap.records import Channel, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 __all__ = [
+    "LEGACY_ENCODING",
     "MESSAGE_ENCODING",
     "METADATA_NAME",
     "Record",
+    "RecordDecoder",
     "Recorder",
     "RecordingError",
     "new_recording_path",
@@ -70,12 +83,14 @@ __all__ = [
 
 LOG = logging.getLogger("bipedtele.recording")
 
-MESSAGE_ENCODING = "msgpack"
+MESSAGE_ENCODING = "json"
+LEGACY_ENCODING = "msgpack"  # files written before the channels had schemas
 METADATA_NAME = "bipedtele"
 PROFILE = "bipedtele"
+TOPIC_KEY = "bipedtele.topic"  # channel metadata: the topic read_records reports
 _CHUNK_BYTES = 256 * 1024
 _RECORD_SIZE_LIMIT = 64 * 1024 * 1024
-_YIELD_EVERY = 32  # messages the writer thread adds before it releases the GIL
+_YIELD_NS = 50_000  # the writer thread releases the GIL at least this often [ns]
 
 
 class RecordingError(Exception):
@@ -93,7 +108,7 @@ class Record:
     t_recv : float
         Receive (or send, for ``*/sent``) time [s], ``time.time()`` clock of the recorder.
     data : dict
-        The msgpack map that was recorded.
+        The map that was recorded (bytes fields as bytes, whatever the file's encoding).
     t_log : float
         When the recorder was called [s].
     """
@@ -122,13 +137,60 @@ def message_to_dict(msg: Message) -> dict[str, Any]:
     return out
 
 
-def _default(obj: Any) -> Any:
-    """msgpack fallback: numpy scalars/arrays, tuples inside containers, paths."""
+_SCALARS = frozenset((float, int, str, bool, type(None)))
+
+
+def _plain(value: Any) -> Any:
+    """A copy of ``value`` made of plain values: numpy values and arrays, tuples and paths
+    converted, containers copied. Raises TypeError for anything else."""
+    cls = value.__class__
+    if cls in _SCALARS or cls is bytes:
+        return value
+    if cls is list or cls is tuple:
+        return [_plain(v) for v in value]
+    if cls is dict:
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, bool | int | float | str | bytes):  # subclasses (numpy float64, ...)
+        return value
+    if isinstance(value, bytearray | memoryview):
+        return bytes(value)
+    if hasattr(value, "tolist"):
+        return _plain(value.tolist())
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    raise TypeError(f"cannot record a {type(value).__name__}")
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, bytes | bytearray | memoryview):
+        return base64.b64encode(obj).decode("ascii")
     if hasattr(obj, "tolist"):
         return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
     raise TypeError(f"cannot record a {type(obj).__name__}")
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (JSON has no NaN or inf)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+_JSON = json.JSONEncoder(allow_nan=False, separators=(",", ":"), check_circular=False, default=_json_default)
+
+
+def _dataclass_dict(obj: Any) -> dict[str, Any]:
+    if isinstance(obj, Message):
+        return message_to_dict(obj)
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
 
 
 def _ns(t: float) -> int:
@@ -244,9 +306,11 @@ def recording_for_run(record: Path | None, folder: str | Path, role: str, **kwar
 class Recorder:
     """Thread-safe MCAP writer of everything a leader or follower sends and receives.
 
-    :meth:`write` only serialises the message (msgpack) and appends it to a queue; a
-    background thread writes the queue into MCAP chunks and closes a chunk and flushes
-    the file at least every ``flush_s`` seconds. Callers never wait on the disk.
+    :meth:`write` only takes a snapshot of the message (a wire message by reference, a map
+    copied) and appends it to a queue; a background thread encodes it (JSON, with the
+    channel's schema registered on first use), writes the queue into MCAP chunks and closes
+    a chunk and flushes the file at least every ``flush_s`` seconds. Callers never wait on
+    the disk and never pay for the encoding.
 
     Parameters
     ----------
@@ -324,8 +388,9 @@ class Recorder:
             self._file.close()
             self.path.unlink(missing_ok=True)
             raise
-        self._channels: dict[str, int] = {}
-        self._pending: collections.deque[tuple[str, bytes, int, int]] = collections.deque()
+        self._channels: dict[tuple[str, Any], int] = {}
+        self._schema_ids: dict[tuple[str, bytes], int] = {}
+        self._pending: collections.deque[tuple[str, Any, int, int]] = collections.deque()
         self._lock = threading.Lock()  # counters and the video frame counts
         self._video_count: dict[str, int] = {}
         self._closed = False
@@ -336,6 +401,7 @@ class Recorder:
             "dropped_closed": 0,
             "dropped_unencodable": 0,
             "jpeg_skipped": 0,
+            "nonfinite_nulled": 0,
             "flushes": 0,
         }
         self._logged_bad: set[str] = set()
@@ -349,7 +415,8 @@ class Recorder:
     @property
     def stats(self) -> dict[str, int]:
         """Counters: ``written``, ``dropped_full``, ``dropped_closed``,
-        ``dropped_unencodable``, ``jpeg_skipped``, ``flushes``."""
+        ``dropped_unencodable``, ``jpeg_skipped``, ``nonfinite_nulled`` (messages in which
+        a NaN or inf was written as null), ``flushes``."""
         with self._lock:
             return dict(self._stats)
 
@@ -367,9 +434,11 @@ class Recorder:
         topic : str
             Channel name (``cmd/sent``, ``feedback/recv``, ``video/recv``, ``leader/state``,
             ``events``, ...; ``docs/recording.md`` lists those the programs write).
-        msg : Message or dict
-            A wire message or a map of msgpack-able values (numbers, strings, bytes, lists,
-            dicts; numpy values are converted). The map is serialised at once, so the caller
+        msg : Message, dataclass or dict
+            A wire message (kept by reference: messages are values, never changed after
+            sending), another frozen dataclass, or a map of plain values (numbers, strings,
+            None, bytes, lists, dicts; numpy values are converted). A map is copied at once
+            (a flat map of scalars with one dict copy, anything else deeply), so the caller
             may reuse it afterwards.
         t_recv : float
             Receive time (send time for ``*/sent``) [s], ``time.time()`` clock.
@@ -390,12 +459,19 @@ class Recorder:
             self._log_once("full", "recorder queue full: dropping messages")
             return False
         try:
-            data = message_to_dict(msg) if isinstance(msg, Message) else dict(msg)
-            if topic.startswith("video/") and "jpeg" in data:
-                data = self._thin_video(topic, data)
-            payload = msgpack.packb(data, use_bin_type=True, default=_default)
+            if isinstance(msg, Message):
+                obj: Any = msg
+            elif msg.__class__ is dict and _SCALARS.issuperset(map(type, msg.values())):
+                obj = dict(msg)  # the common case (the leader's sample): one C-level copy
+            elif dataclasses.is_dataclass(msg) and not isinstance(msg, type):
+                params = getattr(type(msg), "__dataclass_params__", None)
+                obj = msg if params is not None and params.frozen else _plain(_dataclass_dict(msg))
+            elif isinstance(msg, Mapping):
+                obj = _plain(msg)
+            else:
+                raise TypeError(f"a message or a map, not a {type(msg).__name__}")
             t_l = time.time() if t_log is None else t_log
-            item = (str(topic), payload, _ns(float(t_recv)), _ns(float(t_l)))
+            item = (str(topic), obj, _ns(float(t_recv)), _ns(float(t_l)))
         except (TypeError, ValueError, OverflowError) as exc:
             self._count("dropped_unencodable")
             self._log_once(f"bad:{topic}", f"cannot record a message on {topic!r}: {exc}")
@@ -458,44 +534,108 @@ class Recorder:
             self._logged_bad.add(key)
             LOG.warning("%s (further ones counted, not logged)", text)
 
-    def _thin_video(self, topic: str, data: dict[str, Any]) -> dict[str, Any]:
-        with self._lock:
-            n = self._video_count.get(topic, 0)
-            self._video_count[topic] = n + 1
+    def _keep_jpeg(self, topic: str) -> bool:
+        """Whether this frame of ``topic`` keeps its JPEG (every ``jpeg_every``-th one)."""
+        n = self._video_count.get(topic, 0)  # the writer thread alone counts
+        self._video_count[topic] = n + 1
         keep = self.jpeg_every > 0 and n % self.jpeg_every == 0
-        if keep:
-            return data
-        self._count("jpeg_skipped")
-        data = dict(data)
-        data["jpeg"] = b""
-        data["jpeg_skipped"] = True
-        return data
+        if not keep:
+            self._count("jpeg_skipped")
+        return keep
 
-    def _channel(self, topic: str) -> int:
-        cid = self._channels.get(topic)
-        if cid is None:
-            cid = self._writer.register_channel(
-                topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=0
-            )
-            self._channels[topic] = cid
+    def _register(self, key: tuple[str, Any], topic: str, schema: dict[str, Any],
+                  metadata: dict[str, str] | None = None) -> int:  # fmt: skip
+        """Register the channel ``key`` (its schema once per distinct schema)."""
+        blob = json.dumps(schema, separators=(",", ":")).encode()
+        name = str(schema["title"])
+        sid = self._schema_ids.get((name, blob))
+        if sid is None:
+            sid = self._writer.register_schema(name=name, encoding=schemas.SCHEMA_ENCODING, data=blob)
+            self._schema_ids[(name, blob)] = sid
+        cid = self._writer.register_channel(
+            topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=sid, metadata=metadata or {}
+        )
+        self._channels[key] = cid
         return cid
+
+    def _video(self, topic: str, frame: VideoFrame) -> tuple[int, dict[str, Any]]:
+        """A frame as ``foxglove.CompressedImage``, or its header alone when thinned out."""
+        header = message_to_dict(frame)
+        del header["jpeg"]
+        if self._keep_jpeg(topic) and frame.jpeg:
+            key: tuple[str, Any] = (topic, schemas.COMPRESSED_IMAGE)
+            cid = self._channels.get(key)
+            if cid is None:
+                cid = self._register(key, topic, schemas.compressed_image_schema())
+            t = max(0.0, frame.t_capture)
+            sec = int(t)
+            data = {
+                "timestamp": {"sec": sec, "nsec": min(999_999_999, round((t - sec) * 1e9))},
+                "frame_id": frame.camera, "data": base64.b64encode(frame.jpeg).decode("ascii"),
+                "format": "jpeg", **header,
+            }  # fmt: skip
+            return cid, data
+        key = (topic, schemas.VIDEO_HEADER)
+        cid = self._channels.get(key)
+        if cid is None:
+            cid = self._register(key, f"{topic}/header", schemas.video_header_schema(), {TOPIC_KEY: topic})
+        header["jpeg_skipped"] = bool(frame.jpeg)
+        return cid, header
+
+    def _map_channel(self, topic: str, data: dict[str, Any]) -> int:
+        key = (topic, dict)
+        cid = self._channels.get(key)
+        if cid is None:
+            if topic == "leader/state":
+                schema = schemas.leader_state_schema(data)
+            elif topic == "events":
+                schema = schemas.event_schema(data)
+            else:
+                schema = schemas.sample_schema("bipedtele.Map", data, description=f"maps on {topic}")
+            cid = self._register(key, topic, schema)
+        return cid
+
+    def _encode(self, topic: str, obj: Any) -> tuple[int, bytes]:
+        """The channel and the JSON payload of one queued message (writer thread)."""
+        if isinstance(obj, dict):
+            data = obj
+            if topic.startswith("video/") and "jpeg" in data and not self._keep_jpeg(topic):
+                data = {**data, "jpeg": b"", "jpeg_skipped": True}
+            cid = self._map_channel(topic, data)
+        elif isinstance(obj, VideoFrame) and topic.startswith("video/"):
+            cid, data = self._video(topic, obj)
+        else:
+            key = (topic, type(obj))
+            known = self._channels.get(key)
+            cid = known if known is not None else self._register(key, topic, schemas.dataclass_schema(type(obj)))
+            data = _dataclass_dict(obj)
+        try:
+            text = _JSON.encode(data)
+        except ValueError:  # NaN or inf somewhere: null in JSON
+            text = _JSON.encode(_finite(data))
+            self._count("nonfinite_nulled")
+        return cid, text.encode()
 
     def _drain(self) -> int:
         n = 0
+        last_yield = time.perf_counter_ns()
         while True:
             try:
-                topic, payload, t_recv, t_log = self._pending.popleft()
+                topic, obj, t_recv, t_log = self._pending.popleft()
             except IndexError:
                 break
-            self._writer.add_message(
-                channel_id=self._channel(topic),
-                log_time=t_log,
-                data=payload,
-                publish_time=t_recv,
-            )
+            try:
+                cid, payload = self._encode(topic, obj)
+            except (TypeError, ValueError, OverflowError, RecursionError) as exc:
+                self._count("dropped_unencodable")
+                self._log_once(f"bad:{topic}", f"cannot record a message on {topic!r}: {exc}")
+                continue
+            self._writer.add_message(channel_id=cid, log_time=t_log, data=payload, publish_time=t_recv)
             n += 1
-            if n % _YIELD_EVERY == 0:
+            now = time.perf_counter_ns()
+            if now - last_yield >= _YIELD_NS:
                 time.sleep(0)  # let the control loop have the GIL (it may be waiting)
+                last_yield = time.perf_counter_ns()
         if n:
             self._count("written", n)
         return n
@@ -547,18 +687,120 @@ def _iter_raw(path: str | Path) -> Iterator[Any]:
             LOG.info("%s: read up to byte %d (%s)", path, f.tell(), type(exc).__name__)
 
 
+@dataclass(frozen=True)
+class _ChannelCodec:
+    """How to turn one channel's payloads back into the recorded maps."""
+
+    topic: str  # the topic read_records reports
+    encoding: str
+    image: bool = False  # foxglove.CompressedImage of a VideoFrame
+    header: bool = False  # a VideoFrame header recorded without its JPEG
+    base64_keys: tuple[str, ...] = ()
+
+
+def _codec(channel: Channel, schema: Schema | None) -> _ChannelCodec:
+    topic = channel.metadata.get(TOPIC_KEY, channel.topic)
+    if channel.message_encoding != MESSAGE_ENCODING or schema is None:
+        return _ChannelCodec(topic, channel.message_encoding)
+    b64: tuple[str, ...] = ()
+    try:
+        props = json.loads(schema.data).get("properties", {})
+        b64 = tuple(k for k, v in props.items() if isinstance(v, dict) and v.get("contentEncoding") == "base64")
+    except (ValueError, AttributeError):
+        LOG.info("channel %s: schema %s is not JSON; bytes fields stay base64", topic, schema.name)
+    if schema.name == schemas.COMPRESSED_IMAGE:
+        return _ChannelCodec(topic, MESSAGE_ENCODING, image=True, base64_keys=tuple(k for k in b64 if k != "data"))
+    return _ChannelCodec(topic, MESSAGE_ENCODING, header=schema.name == schemas.VIDEO_HEADER, base64_keys=b64)
+
+
+def _decode(codec: _ChannelCodec, payload: bytes) -> dict[str, Any] | None:
+    if codec.encoding == LEGACY_ENCODING:
+        data = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        return data if isinstance(data, dict) else None
+    if codec.encoding != MESSAGE_ENCODING:
+        return None
+    data = json.loads(payload)
+    if not isinstance(data, dict):
+        return None
+    for key in codec.base64_keys:
+        value = data.get(key)
+        if isinstance(value, str):
+            data[key] = base64.b64decode(value, validate=True)
+    if codec.image and data.get("k") == "video":  # back to the VideoFrame map
+        data.pop("timestamp", None)
+        data.pop("frame_id", None)
+        data.pop("format", None)
+        data["jpeg"] = base64.b64decode(data.pop("data", ""), validate=True)
+    elif codec.header:
+        data["jpeg"] = b""
+        if not data.get("jpeg_skipped"):
+            data.pop("jpeg_skipped", None)
+    return data
+
+
+class RecordDecoder:
+    """Turns the MCAP records of a recording, in file order, into ``(topic, map)`` pairs.
+
+    Reads both the JSON channels with schemas that :class:`Recorder` writes and the
+    ``msgpack`` channels of older files; used by :func:`read_records` and by readers that
+    follow a file as it is written.
+
+    Attributes
+    ----------
+    bad : int
+        Messages skipped so far (unknown channel or encoding, undecodable payload).
+
+    Examples
+    --------
+    >>> dec = RecordDecoder()  # doctest: +SKIP
+    >>> for rec in StreamReader(f).records:  # doctest: +SKIP
+    ...     got = dec.feed(rec)  # (topic, data) for a message, None for other records
+    """
+
+    def __init__(self) -> None:
+        self._schemas: dict[int, Schema] = {}
+        self._codecs: dict[int, _ChannelCodec] = {}
+        self.bad = 0
+
+    def feed(self, rec: Any) -> tuple[str, dict[str, Any]] | None:
+        """Take one MCAP record; for a decodable message, its topic and map."""
+        if isinstance(rec, McapMessage):
+            codec = self._codecs.get(rec.channel_id)
+            if codec is None:
+                self.bad += 1
+                return None
+            try:
+                data = _decode(codec, rec.data)
+            except (ValueError, TypeError, binascii.Error, msgpack.UnpackException):
+                data = None
+            except Exception:  # msgpack raises many types for garbage
+                data = None
+            if data is None:
+                self.bad += 1
+                return None
+            return codec.topic, data
+        if isinstance(rec, Schema):
+            self._schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            self._codecs[rec.id] = _codec(rec, self._schemas.get(rec.schema_id))
+        return None
+
+
 def read_records(path: str | Path) -> Iterator[Record]:
     """Every message of a recording, in file order; a truncated file yields up to the cut.
 
     Parameters
     ----------
     path : str or Path
-        An MCAP file written by :class:`Recorder` (possibly cut short by a crash).
+        An MCAP file written by :class:`Recorder` (possibly cut short by a crash), JSON
+        with schemas or, from before, msgpack.
 
     Yields
     ------
     Record
-        Messages whose payload could not be decoded are skipped (and logged once).
+        The maps as they were recorded (bytes as bytes; a video frame as its
+        :class:`~bipedtele.messages.VideoFrame` map, on its own topic). Messages whose
+        payload could not be decoded are skipped (and logged once).
 
     Raises
     ------
@@ -566,27 +808,13 @@ def read_records(path: str | Path) -> Iterator[Record]:
         When the file is missing, unreadable or not an MCAP file (raised on the first
         ``next()``).
     """
-    topics: dict[int, str] = {}
-    bad = 0
+    dec = RecordDecoder()
     for rec in _iter_raw(path):
-        if isinstance(rec, Channel):
-            topics[rec.id] = rec.topic
-        elif isinstance(rec, McapMessage):
-            topic = topics.get(rec.channel_id)
-            if topic is None:
-                bad += 1
-                continue
-            try:
-                data = msgpack.unpackb(rec.data, raw=False, strict_map_key=False)
-            except Exception:
-                bad += 1
-                continue
-            if not isinstance(data, dict):
-                bad += 1
-                continue
-            yield Record(topic, rec.publish_time / 1e9, data, rec.log_time / 1e9)
-    if bad:
-        LOG.warning("%s: skipped %d undecodable messages", path, bad)
+        got = dec.feed(rec)
+        if got is not None:
+            yield Record(got[0], rec.publish_time / 1e9, got[1], rec.log_time / 1e9)
+    if dec.bad:
+        LOG.warning("%s: skipped %d undecodable messages", path, dec.bad)
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:

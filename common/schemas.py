@@ -1,0 +1,396 @@
+"""JSON Schemas of the recorded channels, so that Foxglove shows typed plots and the video.
+
+Every channel of a recording (:mod:`bipedtele.recording`) carries a schema with encoding
+``jsonschema`` and its messages are JSON objects (message encoding ``json``), the JSON form
+Foxglove's MCAP reader understands. The schemas come from three sources:
+
+- **Wire messages** (:class:`bipedtele.messages.Message` and any other dataclass written to
+  a recorder): :func:`dataclass_schema` reads the field names and type hints
+  (``float`` -> number, ``int`` -> integer, ``list[float]`` -> array of numbers, ``bytes``
+  -> base64 string, ...) and, where a field carries a ``spec`` in its metadata (as the
+  message classes do), the numeric ranges (``lo``/``hi``), exact list lengths (``n``),
+  string choices and lengths. The envelope ``v`` (schema version) and ``k`` (kind) are
+  constants. Schema name: ``bipedtele.<ClassName>``.
+- **Video**: :func:`compressed_image_schema` is Foxglove's well-known
+  ``foxglove.CompressedImage`` (``timestamp`` {sec, nsec}, ``frame_id``, ``data`` as base64,
+  ``format``) with the :class:`~bipedtele.messages.VideoFrame` header fields beside them;
+  frames recorded without their JPEG use :func:`video_header_schema`.
+- **Maps** (``leader/state``, ``events`` and any other topic written as a dict): a fixed
+  table of the keys the programs write (:data:`LEADER_STATE_FIELDS`, :data:`EVENT_FIELDS`)
+  merged with :func:`sample_schema`, which types every other key from the first map
+  written on the channel (number, integer, boolean, string, array of numbers, object;
+  every one nullable). Keys that appear only later are still recorded (the schemas allow
+  additional properties) but Foxglove offers only the typed ones for completion.
+
+Numbers that are not finite (NaN, inf) are written as ``null``: JSON has no such values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import types
+from collections.abc import Mapping
+from typing import Any, Final, Union, cast, get_args, get_origin, get_type_hints
+
+from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame
+
+__all__ = [
+    "COMPRESSED_IMAGE",
+    "EVENTS",
+    "EVENT_FIELDS",
+    "JSON_SCHEMA_DRAFT",
+    "LEADER_STATE",
+    "LEADER_STATE_FIELDS",
+    "SCHEMA_ENCODING",
+    "VIDEO_HEADER",
+    "compressed_image_schema",
+    "dataclass_schema",
+    "event_schema",
+    "leader_state_schema",
+    "sample_schema",
+    "video_header_schema",
+]
+
+SCHEMA_ENCODING: Final = "jsonschema"
+JSON_SCHEMA_DRAFT: Final = "https://json-schema.org/draft/2020-12/schema"
+COMPRESSED_IMAGE: Final = "foxglove.CompressedImage"
+VIDEO_HEADER: Final = "bipedtele.VideoFrameHeader"
+LEADER_STATE: Final = "bipedtele.LeaderState"
+EVENTS: Final = "bipedtele.Event"
+
+Schema = dict[str, Any]
+
+_NUMBER: Final[Schema] = {"type": "number"}
+_BASE64: Final[Schema] = {"type": "string", "contentEncoding": "base64"}
+
+
+def _nullable(schema: Schema) -> Schema:
+    t = schema.get("type")
+    if isinstance(t, str):
+        return {**schema, "type": [t, "null"]}
+    return dict(schema)
+
+
+def _object(name: str, properties: Mapping[str, Schema], required: list[str], *,
+            description: str = "", additional: bool = False) -> Schema:  # fmt: skip
+    out: Schema = {"$schema": JSON_SCHEMA_DRAFT, "title": name, "type": "object"}
+    if description:
+        out["description"] = description
+    out["properties"] = dict(properties)
+    out["required"] = required
+    out["additionalProperties"] = additional
+    return out
+
+
+# ---------------------------------------------------------------------- dataclasses
+
+
+def _hint_schema(hint: Any) -> Schema:
+    """The JSON Schema of a Python type hint (the subset the messages and samples use)."""
+    origin = get_origin(hint)
+    if origin in (Union, types.UnionType):
+        args = get_args(hint)
+        subs = [_hint_schema(a) for a in args if a is not type(None)]
+        if len(subs) == 1 and type(None) in args:
+            return _nullable(subs[0])
+        return {"anyOf": subs + ([{"type": "null"}] if type(None) in args else [])}
+    if hint is bool:
+        return {"type": "boolean"}
+    if hint is int:
+        return {"type": "integer"}
+    if hint is float:
+        return {"type": "number"}
+    if hint is str:
+        return {"type": "string"}
+    if hint in (bytes, bytearray):
+        return dict(_BASE64)
+    if origin in (list, tuple):
+        items = [a for a in get_args(hint) if a is not Ellipsis]
+        out: Schema = {"type": "array"}
+        if items:
+            out["items"] = _hint_schema(items[0])
+        return out
+    if origin is dict or hint is dict:
+        args = get_args(hint)
+        out = {"type": "object"}
+        if len(args) == 2:
+            out["additionalProperties"] = _hint_schema(args[1])
+        return out
+    return {}  # Any or an unknown type: no constraint
+
+
+def _with_spec(schema: Schema, spec: Any) -> Schema:
+    """Add the ranges of a message field's ``spec`` (duck-typed: ``lo``/``hi``/``n``,
+    ``choices``/``max_len``, ``max_items``) to its schema."""
+    if spec is None or spec is bool:
+        return schema
+    out = dict(schema)
+    lo, hi, n = getattr(spec, "lo", None), getattr(spec, "hi", None), getattr(spec, "n", 0)
+    target = out
+    if out.get("type") == "array":
+        if n:
+            out["minItems"] = out["maxItems"] = n
+        target = out["items"] = dict(out.get("items", _NUMBER))
+    if lo is not None and hi is not None:
+        target["minimum"], target["maximum"] = lo, hi
+    choices = getattr(spec, "choices", ())
+    if choices:
+        out["enum"] = list(choices)
+    max_len = getattr(spec, "max_len", None)
+    if max_len is not None and out.get("type") == "string":
+        if out.get("contentEncoding") == "base64":
+            out["maxLength"] = 4 * ((max_len + 2) // 3)
+        else:
+            out["maxLength"] = max_len
+    max_items = getattr(spec, "max_items", None)
+    if max_items is not None and out.get("type") == "object":
+        out["maxProperties"] = max_items
+        out["additionalProperties"] = {"type": "integer", "minimum": 0}
+    return out
+
+
+def _first_line(doc: str | None) -> str:
+    return (doc or "").strip().splitlines()[0] if (doc or "").strip() else ""
+
+
+@functools.cache
+def dataclass_schema(cls: type) -> Schema:
+    """The JSON Schema of a dataclass's recorded map (a wire message or a typed sample).
+
+    For a :class:`~bipedtele.messages.Message` subclass the map is the one that goes over
+    the wire (:func:`bipedtele.recording.message_to_dict`): the constants ``v`` and ``k``
+    followed by the fields, all required. For any other dataclass, its fields.
+
+    Parameters
+    ----------
+    cls : type
+        A dataclass.
+
+    Returns
+    -------
+    dict
+        An object schema titled ``bipedtele.<ClassName>``; no additional properties.
+
+    Raises
+    ------
+    TypeError
+        ``cls`` is not a dataclass.
+    """
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+        raise TypeError(f"{cls!r} is not a dataclass")
+    hints = get_type_hints(cls)
+    props: dict[str, Schema] = {}
+    required: list[str] = []
+    if issubclass(cls, Message):
+        props["v"] = {"const": SCHEMA_VERSION, "description": "schema version"}
+        props["k"] = {"const": cast(type[Message], cls).KIND, "description": "message kind"}
+        required += ["v", "k"]
+    for f in dataclasses.fields(cls):
+        props[f.name] = _with_spec(_hint_schema(hints[f.name]), f.metadata.get("spec"))
+        required.append(f.name)
+    return _object(f"bipedtele.{cls.__name__}", props, required, description=_first_line(cls.__doc__))
+
+
+# ---------------------------------------------------------------------- video
+
+
+def _video_header_properties() -> dict[str, Schema]:
+    props = dict(dataclass_schema(VideoFrame)["properties"])
+    del props["jpeg"]
+    return props
+
+
+@functools.cache
+def compressed_image_schema() -> Schema:
+    """``foxglove.CompressedImage`` (JSON form) plus the :class:`VideoFrame` header fields.
+
+    ``timestamp`` is the frame's ``t_capture`` split in whole seconds and nanoseconds,
+    ``frame_id`` the camera (``head``, ``scene``), ``data`` the JPEG in base64, ``format``
+    ``"jpeg"``. Foxglove's Image panel reads these four and ignores the others.
+    """
+    header = _video_header_properties()
+    props: dict[str, Schema] = {
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "description": "when the image was captured (the frame's t_capture)",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+            },
+            "required": ["sec", "nsec"],
+        },
+        "frame_id": {"type": "string", "description": "the camera"},
+        "data": {**_BASE64, "description": "the JPEG file"},
+        "format": {"type": "string", "enum": ["jpeg"], "description": "image format"},
+        **header,
+    }
+    return _object(COMPRESSED_IMAGE, props, ["timestamp", "frame_id", "data", "format", *header],
+                   description="A compressed image (a VideoFrame with its JPEG)")  # fmt: skip
+
+
+@functools.cache
+def video_header_schema() -> Schema:
+    """A :class:`VideoFrame` recorded without its JPEG (``jpeg_skipped``: thinned out by
+    the recorder's ``jpeg_every``; false when the frame came without one)."""
+    header = _video_header_properties()
+    props = {**header, "jpeg_skipped": {"type": "boolean"}}
+    return _object(VIDEO_HEADER, props, [*header, "jpeg_skipped"],
+                   description="A video frame's header, recorded without its image")  # fmt: skip
+
+
+# ---------------------------------------------------------------------- maps
+
+
+def _t(type_: str | list[str], description: str) -> Schema:
+    return {"type": type_, "description": description}
+
+
+_NUM_OR_NULL: Final = ["number", "null"]
+
+#: Keys of the leader's ``leader/state`` sample (the loop's cockpit sample, see
+#: ``docs/cockpit.md``), with their JSON types and units. Derived from the keys and value
+#: types a leader run writes (``bipedtele demo``: every key, its types over the run);
+#: numbers are nullable (a delay estimate is null until it is warm, a non-finite value is
+#: written as null).
+LEADER_STATE_FIELDS: Final[dict[str, Schema]] = {
+    "t": _t("number", "time of the sample [s, time.time()]"),
+    "t_device": _t(_NUM_OR_NULL, "time of the device reading [s]"),
+    "seq": _t("integer", "sequence number of the command sent with this sample"),
+    "ref_v": _t(_NUM_OR_NULL, "commanded forward speed k_g x_m [cm/s]"),
+    "ref_w": _t(_NUM_OR_NULL, "commanded turn speed k_g x_m [deg/s]"),
+    "x_v": _t(_NUM_OR_NULL, "handle position, forward axis [m]"),
+    "x_w": _t(_NUM_OR_NULL, "handle position, turn axis [m]"),
+    "dx_v": _t(_NUM_OR_NULL, "handle velocity, forward axis [m/s]"),
+    "dx_w": _t(_NUM_OR_NULL, "handle velocity, turn axis [m/s]"),
+    "force_v": _t(_NUM_OR_NULL, "force on the handle f_m, forward axis [N]"),
+    "force_w": _t(_NUM_OR_NULL, "force on the handle f_m, turn axis [N]"),
+    "h1_ms": _t(_NUM_OR_NULL, "forward delay estimate h1 [ms]"),
+    "h2_ms": _t(_NUM_OR_NULL, "backward delay estimate h2 [ms]"),
+    "delay_ms": _t(_NUM_OR_NULL, "h1 + h2 [ms]"),
+    "alpha_m_v": _t(_NUM_OR_NULL, "leader damping, forward axis [N s/m]"),
+    "alpha_m_w": _t(_NUM_OR_NULL, "leader damping, turn axis [N s/m]"),
+    "gain": _t(_NUM_OR_NULL, "k_g in use"),
+    "enable": _t("boolean", "the operator holds the device"),
+    "leader_state": _t("string", "leader loop state"),
+    "link": _t("string", "link state (waiting, ok, stale, no follower)"),
+    "feedback_age_ms": _t(_NUM_OR_NULL, "age of the latest feedback [ms]"),
+    "z_e_v": _t(_NUM_OR_NULL, "equivalent follower speed z_e, forward [cm/s]"),
+    "z_e_w": _t(_NUM_OR_NULL, "equivalent follower speed z_e, turn [deg/s]"),
+    "z_r_v": _t(_NUM_OR_NULL, "observer estimate z_r, forward [cm/s]"),
+    "z_r_w": _t(_NUM_OR_NULL, "observer estimate z_r, turn [deg/s]"),
+    "eta_v": _t(_NUM_OR_NULL, "measured forward speed v_hip [cm/s]"),
+    "eta_w": _t(_NUM_OR_NULL, "measured turn rate [deg/s]"),
+    "s_r_v": _t(_NUM_OR_NULL, "follower real damping, forward"),
+    "s_r_w": _t(_NUM_OR_NULL, "follower real damping, turn"),
+    "s_e_v": _t(_NUM_OR_NULL, "follower equivalent damping, forward"),
+    "s_e_w": _t(_NUM_OR_NULL, "follower equivalent damping, turn"),
+    "T": _t(_NUM_OR_NULL, "walking cycle time [s]"),
+    "eps": _t(_NUM_OR_NULL, "joint-servo gain [s]"),
+    "state": _t(["string", "null"], "follower state from the latest feedback"),
+    "pose_x": _t(_NUM_OR_NULL, "reported robot x [m]"),
+    "pose_y": _t(_NUM_OR_NULL, "reported robot y [m]"),
+    "pose_yaw": _t(_NUM_OR_NULL, "reported robot yaw [rad]"),
+    "sonar_l": _t(_NUM_OR_NULL, "left sonar range [m]"),
+    "sonar_r": _t(_NUM_OR_NULL, "right sonar range [m]"),
+    "f_v_t": _t(_NUM_OR_NULL, "fictitious force, tangential"),
+    "f_v_n": _t(_NUM_OR_NULL, "fictitious force, normal"),
+    "operator": _t(["string", "null"], "operator model"),
+    "intended_v": _t(_NUM_OR_NULL, "operator's intended forward speed [cm/s]"),
+    "intended_w": _t(_NUM_OR_NULL, "operator's intended turn speed [deg/s]"),
+    "passes_done": _t("integer", "pilot passes completed"),
+    "pred_x": _t(_NUM_OR_NULL, "predicted present robot x [m]"),
+    "pred_y": _t(_NUM_OR_NULL, "predicted present robot y [m]"),
+    "pred_yaw": _t(_NUM_OR_NULL, "predicted present robot yaw [rad]"),
+    "ahead_x": _t(_NUM_OR_NULL, "robot x predicted h1 ahead [m]"),
+    "ahead_y": _t(_NUM_OR_NULL, "robot y predicted h1 ahead [m]"),
+    "ahead_yaw": _t(_NUM_OR_NULL, "robot yaw predicted h1 ahead [rad]"),
+    "ahead_dt": _t(_NUM_OR_NULL, "how far ahead of the present [s]"),
+    "follower_present": _t("boolean", "the follower's presence is seen"),
+    "watchdog": _t("integer", "follower watchdog stops"),
+    "falls": _t("integer", "follower falls"),
+    "collisions": _t("integer", "follower obstacle contacts"),
+    "follower_text": _t("string", "follower status text"),
+}
+
+#: Keys of ``events`` maps (``docs/recording.md``, Events) and their JSON types.
+EVENT_FIELDS: Final[dict[str, Schema]] = {
+    "event": _t("string", "event name (start, pass, done, stop, fall, collision, ...)"),
+    "t": _t(_NUM_OR_NULL, "when it happened [s]"),
+    "operator": _t(["string", "null"], "operator model (start)"),
+    "n": _t("integer", "pass number (pass), fall count (fall), step count (footfall)"),
+    "side": _t("string", "left or right (pass)"),
+    "elapsed_s": _t(_NUM_OR_NULL, "run length (done, stop) [s]"),
+    "commands": _t("integer", "commands sent (commands_not_reaching)"),
+    "tilt_rad": _t(_NUM_OR_NULL, "torso tilt (fall) [rad]"),
+    "pose": {"type": "array", "items": _NUMBER, "description": "robot pose x, y, yaw (collision)"},
+    "why": _t("string", "reason (watchdog_stop, walk_refused)"),
+    "robot_t": _t(_NUM_OR_NULL, "robot (simulation) time (footfall) [s]"),
+    "step_s": _t(_NUM_OR_NULL, "length of the step just ended (footfall) [s]"),
+    "ref": {"type": "array", "items": _NUMBER, "description": "reference in use (footfall) [cm/s, deg/s]"},
+}
+
+
+def _value_schema(value: Any) -> Schema:
+    """The (nullable) schema of one recorded value, judged from the value itself."""
+    if value is None:
+        return {}
+    if isinstance(value, bool):
+        return {"type": ["boolean", "null"]}
+    if isinstance(value, int | float):
+        return {"type": ["number", "null"]}
+    if isinstance(value, str):
+        return {"type": ["string", "null"]}
+    if isinstance(value, bytes | bytearray | memoryview):
+        return {**_BASE64, "type": ["string", "null"]}
+    if isinstance(value, list | tuple):
+        if value and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+            return {"type": ["array", "null"], "items": {"type": ["number", "null"]}}
+        return {"type": ["array", "null"]}
+    if isinstance(value, dict):
+        return {"type": ["object", "null"]}
+    return {}
+
+
+def sample_schema(name: str, sample: Mapping[str, Any], known: Mapping[str, Schema] | None = None,
+                  required: list[str] | None = None, description: str = "") -> Schema:  # fmt: skip
+    """The schema of a channel of maps: ``known`` keys as given, every other key of
+    ``sample`` (the first map written) typed from its value, all nullable.
+
+    Parameters
+    ----------
+    name : str
+        Schema name (its ``title``).
+    sample : Mapping
+        The first map written on the channel (plain values: numbers, strings, booleans,
+        None, bytes, lists, dicts).
+    known : Mapping, optional
+        Fixed property schemas, e.g. :data:`LEADER_STATE_FIELDS`; they win over ``sample``.
+    required : list of str, optional
+        Keys every map has.
+    description : str
+        The schema's description.
+
+    Returns
+    -------
+    dict
+        An object schema that allows additional properties.
+    """
+    props = dict(known or {})
+    for key, value in sample.items():
+        if str(key) not in props:
+            props[str(key)] = _value_schema(value)
+    return _object(name, props, list(required or []), description=description, additional=True)
+
+
+def leader_state_schema(sample: Mapping[str, Any]) -> Schema:
+    """``bipedtele.LeaderState``: :data:`LEADER_STATE_FIELDS` plus the first sample's other keys."""
+    return sample_schema(LEADER_STATE, sample, LEADER_STATE_FIELDS, ["t"],
+                         description="The leader loop's sample (one per command)")  # fmt: skip
+
+
+def event_schema(sample: Mapping[str, Any]) -> Schema:
+    """``bipedtele.Event``: :data:`EVENT_FIELDS` plus the first event's other keys."""
+    return sample_schema(EVENTS, sample, EVENT_FIELDS, ["event"],
+                         description="A run event: {event: NAME, ...details}")  # fmt: skip
