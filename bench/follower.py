@@ -11,13 +11,21 @@ Prints the real-time factor (simulated seconds per wall second; goals >= 4x phys
 >= 1.5x with the camera at 10 fps), the camera's cost per frame (p50/p99), the RMS joint
 tracking error and the forward (eq. 8) and turn tracking errors after the first 5 s.
 
-    .venv/bin/python bench/follower.py [--seconds 30]
+Then the walker's speed range: per cycle time T (0.6, 0.8, 1.0, 1.2 s asked; the robot
+clamps T to its limits and says so), the steady speed reached, measured per step between
+footfalls (odometry, as the report does) after the first 4 s of a 12 s walk, for the
+fastest command (10 cm/s straight; 25 deg/s turning in place; 25 deg/s while walking at
+5 cm/s). "sent" is what ``send_walk`` returned (its clamp), "reached" the mean per-step
+speed, "+-" the standard deviation over the steps.
+
+    .venv/bin/python bench/follower.py [--seconds 30] [--range-only | --no-range]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import math
 import time
 
@@ -70,20 +78,83 @@ def run(seconds: float, cameras: tuple[str, ...], fps: float) -> dict[str, float
     }
 
 
+RANGE_T = (0.6, 0.8, 1.0, 1.2)
+RANGE_V = 0.10  # fastest forward command [m/s]
+RANGE_W = math.radians(25.0)  # fastest turn command [rad/s]
+RANGE_S = 12.0  # simulated seconds per walk
+STEADY_S = 4.0  # steps before this time are left out
+
+
+def walk_range(v: float, w: float, cycle_s: float) -> dict[str, float]:
+    """Walk ``RANGE_S`` s at (v [m/s], w [rad/s], T [s]); per-step speeds from the footfalls."""
+    with SimNao() as robot:
+        sent = robot.send_walk(WalkCommand(v, w, cycle_s, 0.1))
+        feet = []
+        fell = False
+        for _ in range(round(RANGE_S / DT)):
+            robot.send_walk(WalkCommand(v, w, cycle_s, 0.1))
+            robot.advance(DT)
+            obs = robot.observe()
+            fell = fell or obs.fallen
+            ff = robot.footfall()
+            if ff is not None and (not feet or feet[-1].n != ff.n):
+                feet.append(ff)
+    speeds, turns = [], []
+    for a, b in itertools.pairwise(feet):
+        dt = b.t - a.t
+        if a.t < STEADY_S or not 0 < dt <= 1.5 * b.step_s:
+            continue
+        dyaw = (b.pose[2] - a.pose[2] + math.pi) % (2 * math.pi) - math.pi
+        head = a.pose[2] + dyaw / 2
+        speeds.append(((b.pose[0] - a.pose[0]) * math.cos(head) + (b.pose[1] - a.pose[1]) * math.sin(head)) / dt)
+        turns.append(dyaw / dt)
+    return {
+        "T": sent.cycle_s, "v_sent": sent.forward_m_s, "w_sent": sent.turn_rad_s, "fell": float(fell),
+        "v": float(np.mean(speeds)) if speeds else math.nan, "v_sd": float(np.std(speeds)) if speeds else math.nan,
+        "w": float(np.mean(turns)) if turns else math.nan, "w_sd": float(np.std(turns)) if turns else math.nan,
+    }
+
+
+def print_range() -> None:
+    print(f"\nwalker speed range: per-step odometry after {STEADY_S:.0f} s of a {RANGE_S:.0f} s walk "
+          f"(commands {100 * RANGE_V:.0f} cm/s, {math.degrees(RANGE_W):.0f} deg/s)")
+    print(f"{'T asked':>7s} {'T':>5s} | {'straight: sent':>14s} {'reached cm/s':>14s} | "
+          f"{'in place: sent':>14s} {'reached deg/s':>14s} | {'walk+turn: sent':>15s} {'reached':>17s}")
+    for cycle in RANGE_T:
+        f = walk_range(RANGE_V, 0.0, cycle)
+        t = walk_range(0.0, RANGE_W, cycle)
+        b = walk_range(RANGE_V / 2, RANGE_W, cycle)
+        fell = " FELL" if f["fell"] or t["fell"] or b["fell"] else ""
+        print(f"{cycle:7.1f} {f['T']:5.2f} | {100 * f['v_sent']:14.1f} {100 * f['v']:8.2f} +-{100 * f['v_sd']:4.2f} | "
+              f"{math.degrees(t['w_sent']):14.1f} {math.degrees(t['w']):8.2f} +-{math.degrees(t['w_sd']):4.2f} | "
+              f"{100 * b['v_sent']:5.1f} cm/s {math.degrees(b['w_sent']):4.1f} d/s "
+              f"{100 * b['v']:5.2f} cm/s {math.degrees(b['w']):5.2f} d/s{fell}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=30.0, help="simulated seconds per run")
+    group = ap.add_mutually_exclusive_group()
+    group.add_argument("--range-only", action="store_true", help="only the walker's speed range")
+    group.add_argument("--no-range", action="store_true", help="skip the walker's speed range")
     args = ap.parse_args()
+    if not args.range_only:
+        print_rtf(args.seconds)
+    if not args.no_range:
+        print_range()
+
+
+def print_rtf(seconds: float) -> None:
     rows = [
         ("physics + control", (), 0.0, 4.0),
         ("+ head camera 10 fps", ("head",), 10.0, 1.5),
         ("+ head & scene 10 fps", ("head", "scene"), 10.0, 1.5),
     ]
-    print(f"sim NAO, {args.seconds:.0f} s simulated per run, 50 Hz control, QVGA TinyRenderer")
+    print(f"sim NAO, {seconds:.0f} s simulated per run, 50 Hz control, QVGA TinyRenderer")
     print(f"{'run':24s} {'RTF':>6s} {'goal':>5s} {'frame p50/p99 ms':>17s} {'joint RMS deg':>13s} "
           f"{'|v err| cm/s':>12s} {'|turn err| deg/s':>16s}")
     for name, cams, fps, goal in rows:
-        r = run(args.seconds, cams, fps)
+        r = run(seconds, cams, fps)
         frame = f"{r['frame_p50_ms']:.1f}/{r['frame_p99_ms']:.1f}" if cams else "-"
         print(f"{name:24s} {r['rtf']:5.1f}x {goal:4.1f}x {frame:>17s} {r['joint_rms_deg']:13.2f} "
               f"{r['v_err_cm_s']:12.2f} {r['turn_err_deg_s']:16.2f}")
