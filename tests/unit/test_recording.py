@@ -1,5 +1,6 @@
-"""The MCAP recorder: round trip, thread safety, video thinning, truncation and SIGKILL,
-unique never-overwritten file names, no empty files, no secrets in the metadata."""
+"""The MCAP recorder: round trip, maps copied at write(), thread safety, video thinning,
+truncation and SIGKILL, unique never-overwritten file names, no empty files, no secrets in
+the metadata. The channels' schemas: tests/unit/test_recording_schemas.py."""
 
 from __future__ import annotations
 
@@ -56,6 +57,23 @@ def test_unencodable_values_are_dropped_and_counted(tmp_path: Path) -> None:
     assert not rec.write("events", {"event": "late"}, 3.0)  # after close: dropped, no raise
     assert rec.stats["dropped_closed"] == 1
     assert [r.data["event"] for r in read_records(tmp_path / "r.mcap")] == ["ok"]
+
+
+def test_a_map_may_be_reused_after_write(tmp_path: Path) -> None:
+    """The writer thread encodes later: write() must have taken its own copy."""
+    path = tmp_path / "reuse.mcap"
+    flat = {"t": 1.0, "x": 2.0, "state": "ok"}
+    nested = {"pose": [1.0, 2.0], "inner": {"n": 1}, "arr": np.array([3.0, 4.0])}
+    with Recorder(path) as rec:
+        assert rec.write("leader/state", flat, 1.0)
+        assert rec.write("events", nested, 1.0)
+        flat["x"] = 99.0
+        flat["new"] = 1
+        nested["pose"].append(3.0)
+        nested["inner"]["n"] = 2
+        nested["arr"][0] = -1.0
+    got = [r.data for r in read_records(path)]
+    assert got == [{"t": 1.0, "x": 2.0, "state": "ok"}, {"pose": [1.0, 2.0], "inner": {"n": 1}, "arr": [3.0, 4.0]}]
 
 
 def test_video_keeps_every_nth_jpeg(tmp_path: Path) -> None:
