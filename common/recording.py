@@ -41,7 +41,6 @@ Topics and fields used by the leader, the follower and ``bipedtele report`` are 
 from __future__ import annotations
 
 import base64
-import binascii
 import collections
 import dataclasses
 import json
@@ -448,8 +447,10 @@ class Recorder:
         Returns
         -------
         bool
-            False when the message was dropped (closed recorder, full queue, value that
-            cannot be serialised); drops are counted in :attr:`stats`.
+            False when the message was dropped (closed recorder, full queue, a map value
+            that cannot be recorded); drops are counted in :attr:`stats`. A message the
+            writer thread then fails to encode is dropped there and counted as well
+            (``dropped_unencodable``). Map keys are recorded as strings (JSON).
         """
         if self._closed or self._failed:
             self._count("dropped_closed")
@@ -771,9 +772,7 @@ class RecordDecoder:
                 return None
             try:
                 data = _decode(codec, rec.data)
-            except (ValueError, TypeError, binascii.Error, msgpack.UnpackException):
-                data = None
-            except Exception:  # msgpack raises many types for garbage
+            except Exception:  # garbage: JSON, base64 and msgpack raise many types
                 data = None
             if data is None:
                 self.bad += 1

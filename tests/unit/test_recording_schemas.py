@@ -190,6 +190,24 @@ def test_recordings_written_before_the_schemas_still_read(tmp_path: Path) -> Non
     assert got == [("cmd/sent", cmd), ("video/recv", frame), ("leader/state", {"t": T, "h1_ms": None})]
 
 
+def test_undecodable_json_payloads_are_skipped(tmp_path: Path) -> None:
+    """A damaged payload (not JSON, not an object, bad base64 in an image) is skipped, the
+    messages around it are read."""
+    path = tmp_path / "bad.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="bipedtele", library="test")
+        sid = w.register_schema(name="foxglove.CompressedImage", encoding="jsonschema",
+                                data=json.dumps({"type": "object", "properties": {"data": {"type": "string", "contentEncoding": "base64"}}}).encode())  # fmt: skip
+        ev = w.register_channel(topic="events", message_encoding="json", schema_id=0)
+        img = w.register_channel(topic="video/recv", message_encoding="json", schema_id=sid)
+        for cid, payload in ((ev, b'{"event": "a"}'), (ev, b"{not json"), (ev, b"[1, 2]"),
+                             (img, b'{"k": "video", "data": "***"}'), (ev, b'{"event": "b"}')):  # fmt: skip
+            w.add_message(cid, log_time=1, publish_time=1, data=payload)
+        w.finish()
+    assert [r.data for r in read_records(path)] == [{"event": "a"}, {"event": "b"}]
+
+
 def test_the_message_schemas_carry_the_wire_ranges() -> None:
     """The schemas reject what the message decoder rejects: out-of-range, wrong length,
     unknown state, missing field, extra field."""
