@@ -32,8 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-import msgpack
-from mcap.records import Channel, Message
+from bipedtele.recording import RecordDecoder
 from mcap.stream_reader import StreamReader
 
 __all__ = ["LiveStatus", "RecordingTail", "StatusPrinter", "format_status"]
@@ -57,7 +56,7 @@ class RecordingTail:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self._pos = 0
-        self._channels: dict[int, str] = {}
+        self._decoder = RecordDecoder()  # JSON channels with schemas, or older msgpack ones
         self.broken = False
 
     def poll(self) -> list[tuple[str, dict[str, Any]]]:
@@ -97,15 +96,9 @@ class RecordingTail:
         reader = StreamReader(stream, skip_magic=True)
         try:
             for rec in reader.records:
-                if isinstance(rec, Channel):
-                    self._channels[rec.id] = rec.topic
-                elif isinstance(rec, Message) and rec.channel_id in self._channels:
-                    try:
-                        payload = msgpack.unpackb(rec.data, raw=False, strict_map_key=False)
-                    except Exception:  # a bad payload is skipped, as by read_records
-                        continue
-                    if isinstance(payload, dict):
-                        yield self._channels[rec.channel_id], payload
+                got = self._decoder.feed(rec)  # a bad payload is skipped, as by read_records
+                if got is not None:
+                    yield got
         except Exception as exc:  # the end of the complete records (EOF) or a damaged chunk
             LOG.debug("%s: tail stops at %s", self.path, type(exc).__name__)
 
