@@ -20,8 +20,9 @@ from bipedtele.recording import read_records
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 REPORT_KEYS = {
-    "min_delay_ms", "max_delay_ms", "mean_delay_ms", "completion_s",
-    "forward_error_cm_s", "turn_error_deg_s", "falls", "collisions",
+    "min_delay_ms", "max_delay_ms", "mean_delay_ms", "completion_s", "passes",
+    "forward_error_cm_s", "turn_error_deg_s", "forward_error_instant_cm_s", "turn_error_instant_deg_s",
+    "falls", "collisions", "odometry_source",
 }
 
 
@@ -42,6 +43,8 @@ def test_demo_completes_the_paper_task_under_the_intercontinental_delay(tmp_path
     report = json.loads(out_json.read_text())
     assert set(report) == REPORT_KEYS
     assert all(report[k] is not None for k in REPORT_KEYS), report
+    assert report["passes"] == 10, report
+    assert report["odometry_source"] == "footfalls", report  # the demo reads the follower's footfalls
     assert report["falls"] == 0, logs
     assert report["collisions"] == 0, logs
 
