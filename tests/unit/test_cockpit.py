@@ -217,8 +217,11 @@ def test_only_an_authenticated_page_moves_the_joystick() -> None:
         assert asyncio.run(push(_u(server, "ws"), None)) == "403"
         assert server.joystick() is None and server.stats["joystick_messages"] == 0
         assert asyncio.run(push(_u(server, "ws"), _origin(server))) == "open"
-        joy = server.joystick()
-        assert joy is not None and joy[:2] == (0.0, 0.0)  # moved, then centred when it left
+        # moved, then centred when it left (the server handles the close on its own thread)
+        deadline = time.monotonic() + 5.0
+        while (joy := server.joystick()) is not None and joy[:2] != (0.0, 0.0) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert joy is not None and joy[:2] == (0.0, 0.0)
         assert server.stats["joystick_messages"] == 1
 
 
