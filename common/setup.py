@@ -37,6 +37,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from bipedtele.auth import write_message_key
 from bipedtele.config import ConfigError
 
 __all__ = [
@@ -82,7 +83,7 @@ def make_message_key(path: str | Path) -> Path:
         ``path`` exists (a key is never overwritten: both ends must hold the same one).
     """
     path = Path(path)
-    _write_private(path, secrets.token_hex(32) + "\n")
+    write_message_key(path)  # the one writer of key files (bipedtele.auth reads them)
     return path
 
 
