@@ -386,6 +386,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=15.0, help="length of each run [s]")
     ap.add_argument("--rates", default="50,240", help="follower control rates to run [Hz]")
     ap.add_argument("--no-browser", action="store_true", help="skip the headless chromium part")
+    ap.add_argument("--no-video", action="store_true", help="skip the video part (overhead only)")
     ap.add_argument("--keep", action="store_true", help="keep the run folders")
     ap.add_argument("--echo", help=argparse.SUPPRESS)
     ap.add_argument("--fb-size", type=int, default=0, help=argparse.SUPPRESS)
@@ -400,6 +401,9 @@ def main() -> None:
         print_overhead(rate, p)
         summary[f"overhead_p50_ms@{rate:g}Hz"] = round(1e3 * (pct(p["total"], 0.5) - pct(p["bare"], 0.5)), 2)
         summary[f"transport_overhead_p50_ms@{rate:g}Hz"] = round(1e3 * (pct(p["transport"], 0.5) - pct(p["bare"], 0.5)), 2)
+    if args.no_video:
+        print("\nsummary " + json.dumps(summary))
+        return
     rt = render_time()
     print("\nvideo, head camera QVGA 10 fps, proxy 0 ms")
     print(row("pybullet render (not in the figures below)", rt))

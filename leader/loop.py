@@ -27,7 +27,7 @@ Every haptic tick (1 kHz by default) the loop
 The loop is transport-agnostic: it gets ``send_command(Command)`` and
 ``latest_feedback() -> (Feedback, t_recv) | None`` callables, so tests drive it in
 simulated time (:meth:`LeaderLoop.run_for`) and the program over Zenoh in real time
-(:meth:`LeaderLoop.run`, paced by :class:`bipedtele.leader.pacing.Pacer`).
+(:meth:`LeaderLoop.run`, paced by :class:`bipedtele.pacer.Pacer`).
 
 Message ``t`` fields and staleness use ``clock`` (``time.time`` by default: delays are
 computed across processes); pacing uses a monotonic clock.
@@ -50,8 +50,8 @@ from bipedtele.control.leader_law import leader_force
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operators import Operator
-from bipedtele.leader.pacing import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.messages import Command, Feedback, new_session_id
+from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 
 __all__ = ["LeaderLoop"]
 
@@ -394,7 +394,7 @@ class LeaderLoop:
         """
         set_timer_slack()
         with realtime_scheduling(self.cfg.rt_priority):
-            pacer = Pacer(self.dt, self.cfg.spin_s, mono)
+            pacer = Pacer(self.dt, spin_s=self.cfg.spin_s, clock=mono)
             t_start = pacer.start
             last = t_start
             self._stop.clear()
@@ -407,4 +407,6 @@ class LeaderLoop:
                     break
                 if until_done and self.done:
                     break
-                self.missed_ticks += pacer.wait()
+                missed = pacer.missed
+                pacer.wait()
+                self.missed_ticks += pacer.missed - missed
