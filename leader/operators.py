@@ -39,15 +39,18 @@ from bipedtele.messages import Feedback
 __all__ = [
     "DEFAULT_COURSE",
     "OPERATORS",
+    "OPERATOR_REGISTRY",
     "PREDICT_MODES",
     "BrowserOperator",
     "Hand",
     "Obstacle",
     "Operator",
+    "OperatorContext",
     "PilotOperator",
     "ScriptedOperator",
     "course_from_config",
     "make_operator",
+    "register_operator",
 ]
 
 LOG = logging.getLogger(__name__)
@@ -138,8 +141,11 @@ class Operator(abc.ABC):
         return self.hand.hand_force(t, x_m, dx_m)
 
     def observe_sample(self, sample: Mapping[str, Any]) -> None:  # noqa: B027 - optional hook
-        """The loop's telemetry sample made right after each command (what was sent, the
-        delay estimates, the clocks); models that use it override this."""
+        """Observe the loop's telemetry sample made right after each command.
+
+        The sample holds what was sent, the delay estimates, the clocks; models that use
+        it override this.
+        """
 
     @property
     def done(self) -> bool:
@@ -192,6 +198,7 @@ class ScriptedOperator(Operator):
         self._t = 0.0
 
     def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s] (see the class docstring)."""
         if self.t_start is None:
             if self.wait_for_feedback and feedback is None:
                 return np.zeros(2)
@@ -206,7 +213,8 @@ class ScriptedOperator(Operator):
 
     @property
     def done(self) -> bool:
-        return not self.hold_last and self._t > self.points[-1, 0]
+        """True once the task is finished (see the class docstring)."""
+        return bool(not self.hold_last and self._t > self.points[-1, 0])
 
 
 # --------------------------------------------------------------------------- browser
@@ -240,6 +248,7 @@ class BrowserOperator(Operator):
         self.active = False
 
     def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s] (see the class docstring)."""
         js = self.joystick()
         self.active = False
         if js is None:
@@ -252,6 +261,7 @@ class BrowserOperator(Operator):
         return pos * self.k_g
 
     def progress(self) -> dict[str, Any]:
+        """Plain-data progress for telemetry."""
         return {**super().progress(), "joystick_active": self.active}
 
 
@@ -426,8 +436,11 @@ class PilotOperator(Operator):
     # ---------------------------------------------------------------- steering
 
     def _carrot(self, p: np.ndarray, ps: _Pass) -> np.ndarray | None:
-        """The pure-pursuit goal: ``lookahead_m`` along the pass's path beyond the
-        robot's projection on it (None past the path's end)."""
+        """Return the pure-pursuit goal.
+
+        That is ``lookahead_m`` along the pass's path beyond the robot's projection on it
+        (None past the path's end).
+        """
         wps = ps.waypoints
         while self._wp < len(wps) - 2:
             a, b = wps[self._wp], wps[self._wp + 1]
@@ -456,6 +469,7 @@ class PilotOperator(Operator):
             seg += 1
 
     def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
+        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s] (see the class docstring)."""
         if feedback is None or self.done:
             if self.done and self._t_done is None:
                 self._t_done = t
@@ -527,7 +541,7 @@ class PilotOperator(Operator):
         return np.array([v, w])
 
     def _steering_pose(self, t: float, feedback: Feedback) -> tuple[np.ndarray, float]:
-        """The pose steered on: the reported one, or its prediction (class docstring)."""
+        """Return the pose steered on: the reported one, or its prediction (class docstring)."""
         live = self.live
         px, py, yaw = feedback.pose
         if live is None or not live.ready or live.dev_offset is None:
@@ -543,15 +557,18 @@ class PilotOperator(Operator):
         return np.array([use.x, use.y]), use.yaw
 
     def observe_sample(self, sample: Mapping[str, Any]) -> None:
+        """Feed the loop sample to the predictor (see the class docstring)."""
         if self.live is not None:
             fb = self._fb_seen
             self.live.observe(dict(sample), fb.t if fb is not None else None)
 
     @property
     def done(self) -> bool:
+        """True once the task is finished (see the class docstring)."""
         return self.passes_done >= self.passes
 
     def progress(self) -> dict[str, Any]:
+        """Plain-data progress for telemetry."""
         return {
             **super().progress(),
             "passes_done": self.passes_done,
@@ -577,9 +594,12 @@ DEFAULT_COURSE: tuple[Obstacle, ...] = (
 
 
 def _obstacle_from(item: Any) -> Obstacle:
-    """An obstacle from ``[x, y, radius]`` or a ``[world]`` obstacle (a table or object
-    with ``shape``, ``position`` [x, y, z] and ``size``: box edge lengths, or cylinder
-    radius and height; a box counts as its circumscribed circle in the ground plane)."""
+    """Build an obstacle from ``[x, y, radius]`` or a ``[world]`` obstacle.
+
+    A ``[world]`` obstacle is a table or object with ``shape``, ``position`` [x, y, z] and
+    ``size``: box edge lengths, or cylinder radius and height; a box counts as its
+    circumscribed circle in the ground plane.
+    """
     if isinstance(item, list | tuple) and len(item) == 3:
         return Obstacle(float(item[0]), float(item[1]), float(item[2]))
 
@@ -597,7 +617,7 @@ def _obstacle_from(item: Any) -> Obstacle:
 
 
 def course_from_config(cfg: Any) -> list[Obstacle]:
-    """The pilot's obstacles from a loaded :class:`bipedtele.config.Config`.
+    """Return the pilot's obstacles from a loaded :class:`bipedtele.config.Config`.
 
     ``[leader] pilot_obstacles`` when not empty; otherwise ``obstacles`` of the
     ``[world]`` section read as plain data (the leader never imports follower code);
@@ -614,8 +634,102 @@ def course_from_config(cfg: Any) -> list[Obstacle]:
     return list(DEFAULT_COURSE)
 
 
-def _hand(lc: Any) -> Hand:
-    return Hand(lc.hand_stiffness_n_m, lc.hand_damping_n_s_m, lc.hand_force_max_n, lc.hand_tau_s)
+@dataclass(frozen=True)
+class OperatorContext:
+    """What an operator factory may use to build its operator.
+
+    Attributes
+    ----------
+    cfg : bipedtele.config.Config
+        Loaded profile (``[leader]`` and ``[control]`` are used).
+    workspace_m : float
+        The device's workspace half-width [m].
+    joystick : callable or None
+        The cockpit's joystick reader (``None`` without a cockpit).
+    hold_script : bool
+        ``scripted``: hold the last point's speed instead of finishing.
+    """
+
+    cfg: Any
+    workspace_m: float = 0.05
+    joystick: Callable[[], tuple[float, float, float] | None] | None = None
+    hold_script: bool = False
+
+    @property
+    def leader(self) -> Any:
+        """The ``[leader]`` section."""
+        return self.cfg.sections["leader"]
+
+    @property
+    def k_g(self) -> list[float]:
+        """Handle position -> speed gains of ``[control]`` (eq. 7, 11)."""
+        return list(self.cfg.sections["control"].k_g)
+
+    @property
+    def hand(self) -> Hand:
+        """A hand built from the ``[leader] hand_*`` settings."""
+        lc = self.leader
+        return Hand(lc.hand_stiffness_n_m, lc.hand_damping_n_s_m, lc.hand_force_max_n, lc.hand_tau_s)
+
+
+OperatorFactory = Callable[[OperatorContext], Operator]
+
+#: The operator registry: name -> factory. Register a new model with
+#: :func:`register_operator`; the leader's ``--operator`` choices come from here.
+OPERATOR_REGISTRY: dict[str, OperatorFactory] = {}
+
+
+def register_operator(name: str) -> Callable[[OperatorFactory], OperatorFactory]:
+    """Register an operator factory under ``name`` (a decorator).
+
+    Parameters
+    ----------
+    name : str
+        The name chosen by ``[leader] operator`` or ``--operator``.
+    """
+
+    def deco(factory: OperatorFactory) -> OperatorFactory:
+        if name in OPERATOR_REGISTRY:
+            raise ValueError(f"operator {name!r} is already registered")
+        OPERATOR_REGISTRY[name] = factory
+        return factory
+
+    return deco
+
+
+@register_operator("scripted")
+def _scripted(ctx: OperatorContext) -> Operator:
+    lc = ctx.leader
+    return ScriptedOperator(
+        lc.script, ctx.k_g, lc.script_interp, ctx.workspace_m, ctx.hand, hold_last=ctx.hold_script
+    )
+
+
+@register_operator("pilot")
+def _pilot(ctx: OperatorContext) -> Operator:
+    lc = ctx.leader
+    return PilotOperator(
+        course_from_config(ctx.cfg),
+        ctx.k_g,
+        passes=lc.pilot_passes,
+        clearance_m=lc.pilot_clearance_m,
+        approach_m=lc.pilot_approach_m,
+        lookahead_m=lc.pilot_lookahead_m,
+        speed_cm_s=lc.pilot_speed_cm_s,
+        turn_max_deg_s=lc.pilot_turn_max_deg_s,
+        slow_range_m=lc.pilot_slow_range_m,
+        workspace_m=ctx.workspace_m,
+        hand=ctx.hand,
+        predict=lc.pilot_predict,
+        predictor=DelayPredictor(tau_s=lc.pilot_predict_tau_s),
+    )
+
+
+@register_operator("browser")
+def _browser(ctx: OperatorContext) -> Operator:
+    if ctx.joystick is None:
+        raise ValueError("operator 'browser' needs the cockpit (set leader.cockpit = true)")
+    return BrowserOperator(ctx.joystick, ctx.k_g, ctx.workspace_m, ctx.hand)
 
 
 def make_operator(
@@ -626,12 +740,12 @@ def make_operator(
     joystick: Callable[[], tuple[float, float, float] | None] | None = None,
     hold_script: bool = False,
 ) -> Operator:
-    """Build the operator ``name`` (``scripted``, ``pilot``, ``browser``) from a config.
+    """Build the registered operator ``name`` from a config.
 
     Parameters
     ----------
     name : str
-        Operator model.
+        Operator model (a key of :data:`OPERATOR_REGISTRY`).
     cfg : bipedtele.config.Config
         Loaded profile (``[leader]`` and ``[control]`` are used).
     workspace_m : float
@@ -641,35 +755,20 @@ def make_operator(
     hold_script : bool
         ``scripted``: hold the last point's speed instead of finishing (the run has a
         duration that ends it).
+
+    Returns
+    -------
+    Operator
+        The operator, ready for :meth:`Operator.update`.
     """
-    lc = cfg.sections["leader"]
-    k_g = cfg.sections["control"].k_g
-    if name == "scripted":
-        return ScriptedOperator(lc.script, k_g, lc.script_interp, workspace_m, _hand(lc), hold_last=hold_script)
-    if name == "pilot":
-        return PilotOperator(
-            course_from_config(cfg),
-            k_g,
-            passes=lc.pilot_passes,
-            clearance_m=lc.pilot_clearance_m,
-            approach_m=lc.pilot_approach_m,
-            lookahead_m=lc.pilot_lookahead_m,
-            speed_cm_s=lc.pilot_speed_cm_s,
-            turn_max_deg_s=lc.pilot_turn_max_deg_s,
-            slow_range_m=lc.pilot_slow_range_m,
-            workspace_m=workspace_m,
-            hand=_hand(lc),
-            predict=lc.pilot_predict,
-            predictor=DelayPredictor(tau_s=lc.pilot_predict_tau_s),
-        )
-    if name == "browser":
-        if joystick is None:
-            raise ValueError("operator 'browser' needs the cockpit (set leader.cockpit = true)")
-        return BrowserOperator(joystick, k_g, workspace_m, _hand(lc))
-    raise ValueError(f"operator {name!r}: allowed: {', '.join(OPERATORS)}")
+    factory = OPERATOR_REGISTRY.get(name)
+    if factory is None:
+        raise ValueError(f"operator {name!r}: allowed: {', '.join(OPERATOR_REGISTRY)}")
+    return factory(OperatorContext(cfg, workspace_m, joystick, hold_script))
 
 
-OPERATORS: tuple[str, ...] = ("scripted", "pilot", "browser")
+#: The registered operator names (CLI choices).
+OPERATORS: tuple[str, ...] = tuple(OPERATOR_REGISTRY)
 #: What the pilot steers on: the reported pose, the predicted present pose, or the pose
 #: predicted h1 ahead (see :class:`PilotOperator`).
 PREDICT_MODES: tuple[str, ...] = ("off", "now", "h1")

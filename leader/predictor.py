@@ -96,7 +96,8 @@ class CommandLog:
         """Log a command sent at ``t`` [s] with reference ``ref`` [cm/s, deg/s].
 
         A command stamped before the newest one replaces nothing and is ignored (time
-        never runs backwards on one sender)."""
+        never runs backwards on one sender).
+        """
         if not math.isfinite(t) or (self._t and t < self._t[-1]):
             return
         v, w = float(ref[0]), float(ref[1])
@@ -109,8 +110,11 @@ class CommandLog:
             del self._t[:i], self._ref[:i]
 
     def refs_at(self, t_send: np.ndarray) -> np.ndarray:
-        """The reference in force at each send time (the latest command sent at or before
-        it; zero before the first logged command), shape ``(n, 2)`` [cm/s, deg/s]."""
+        """Return the reference in force at each send time, shape ``(n, 2)`` [cm/s, deg/s].
+
+        That is the latest command sent at or before it; zero before the first logged
+        command.
+        """
         t_send = np.asarray(t_send, dtype=float)
         if not self._t or len(t_send) == 0:
             return np.zeros((len(t_send), 2))
@@ -167,7 +171,7 @@ class DelayPredictor:
         t_end: float,
         h1_s: float,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The predicted states from ``t_fb`` to ``t_end``.
+        """Predict the states from ``t_fb`` to ``t_end``.
 
         Parameters
         ----------
@@ -223,7 +227,7 @@ class DelayPredictor:
         t: float,
         h1_s: float,
     ) -> PredictedPose:
-        """The predicted state at time ``t`` [s] (see :meth:`trajectory` for the rest).
+        """Predict the state at time ``t`` [s] (see :meth:`trajectory` for the rest).
 
         ``t = now`` gives the present pose; ``t = now + h1_s`` the pose when a command sent
         now starts to act. A ``t`` before ``t_fb`` gives the reported state.
@@ -240,8 +244,10 @@ class DelayPredictor:
         now: float,
         h1_s: float,
     ) -> tuple[PredictedPose, PredictedPose]:
-        """The predicted present state (at ``now``) and the state ``h1_s`` later, from one
-        integration (units as in :meth:`trajectory`)."""
+        """Predict the present state (at ``now``) and the state ``h1_s`` later.
+
+        Both come from one integration (units as in :meth:`trajectory`).
+        """
         ts, st = self.trajectory(pose, speed, t_fb, now + max(0.0, h1_s), h1_s)
         k = int(np.searchsorted(ts, now, side="right")) - 1
         k = min(max(k, 0), len(ts) - 1)
@@ -287,8 +293,11 @@ class LivePredictor:
         self.last: tuple[PredictedPose, PredictedPose] | None = None
 
     def observe(self, sample: dict[str, object], feedback_t: float | None) -> None:
-        """Take one loop sample (see the class docstring); ``feedback_t`` is the stamp
-        ``Feedback.t`` [s] of the feedback the sample was made with (None: none yet)."""
+        """Take one loop sample (see the class docstring).
+
+        ``feedback_t`` is the stamp ``Feedback.t`` [s] of the feedback the sample was
+        made with (None: none yet).
+        """
         t, t_dev = _num(sample.get("t")), _num(sample.get("t_device"))
         if t is None:
             return
@@ -311,7 +320,7 @@ class LivePredictor:
         return self.dev_offset is not None and len(self.predictor.commands) > 0
 
     def feedback_time(self, feedback_t: float) -> float:
-        """A feedback stamp [s] on this host's message clock."""
+        """Convert a feedback stamp to this host's message clock [s]."""
         return feedback_t + self._fb_offset
 
     def predict(
@@ -322,8 +331,11 @@ class LivePredictor:
         feedback_t: float,
         h1_s: float,
     ) -> tuple[PredictedPose, PredictedPose]:
-        """Present state and the state ``h1_s`` later [message clock ``now``, s], from a
-        feedback's pose, speeds and stamp (units of :meth:`DelayPredictor.trajectory`)."""
+        """Predict the present state and the state ``h1_s`` later [message clock ``now``, s].
+
+        From a feedback's pose, speeds and stamp (units of
+        :meth:`DelayPredictor.trajectory`).
+        """
         self.last = self.predictor.predict_now_and_ahead(pose, speed, self.feedback_time(feedback_t), now, h1_s)
         return self.last
 
@@ -336,9 +348,12 @@ def _num(v: object) -> float | None:
 
 
 def prediction_fields(pred: tuple[PredictedPose, PredictedPose] | None) -> dict[str, float]:
-    """Telemetry fields of a prediction (empty for None): ``pred_x``, ``pred_y`` [m],
-    ``pred_yaw`` [rad] (the present) and ``ahead_x``, ``ahead_y``, ``ahead_yaw``,
-    ``ahead_dt`` [s] (the pose h1 later, and how far ahead of the present it is)."""
+    """Return the telemetry fields of a prediction (empty for None).
+
+    ``pred_x``, ``pred_y`` [m], ``pred_yaw`` [rad] (the present) and ``ahead_x``,
+    ``ahead_y``, ``ahead_yaw``, ``ahead_dt`` [s] (the pose h1 later, and how far ahead of
+    the present it is).
+    """
     if pred is None:
         return {}
     now, ahead = pred

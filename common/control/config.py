@@ -94,7 +94,7 @@ class ControlConfig:
                 raise ValueError(f"{name} = {[lo, hi]!r}: allowed: [low, high] with low < high")
 
     def hybrid(self) -> ControlConfig:
-        """The parameters of the reduced model (20)-(23) that the online choice (30) uses.
+        """Return the parameters of the reduced model (20)-(23) that the online choice (30) uses.
 
         ``hybrid_model = "paper"``: this config. ``"calibrated"``: ``dp`` and the forward
         gain ``k_s[0]`` replaced by ``calibrated_dp`` and ``calibrated_k_v`` (the

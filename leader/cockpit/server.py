@@ -119,8 +119,10 @@ _Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
 def _hostname(value: str) -> tuple[str, int | None] | None:
-    """``(name, port)`` of a ``Host`` header or URL netloc (name lower case, IPv6 without
-    brackets); None when it does not parse."""
+    """Parse a ``Host`` header or URL netloc into ``(name, port)``.
+
+    The name is lower case, IPv6 without brackets; None when it does not parse.
+    """
     try:
         parts = urlsplit("//" + value)
         name, port = parts.hostname, parts.port
@@ -132,15 +134,17 @@ def _hostname(value: str) -> tuple[str, int | None] | None:
 
 
 def check_token(token: str) -> str:
-    """``token`` if it can be a cockpit token (URL-safe characters, at least 16), else
-    ValueError naming what is allowed."""
+    """Return ``token`` if it can be a cockpit token (URL-safe characters, at least 16).
+
+    Raises ValueError naming what is allowed otherwise.
+    """
     if len(token) < _MIN_TOKEN_LEN or not set(token) <= _TOKEN_CHARS:
         raise ValueError(f"allowed: at least {_MIN_TOKEN_LEN} characters of A-Z a-z 0-9 - _")
     return token
 
 
 def _clean(value: Any) -> Any:
-    """A JSON-safe copy of a telemetry value (non-finite -> None, unknown -> str)."""
+    """Copy a telemetry value into JSON-safe form (non-finite -> None, unknown -> str)."""
     if isinstance(value, bool) or value is None or isinstance(value, str):
         return value
     if isinstance(value, int):
@@ -294,8 +298,10 @@ class CockpitServer:
 
     @property
     def base_url(self) -> str:
-        """``http://host:port/`` (without the token; a wildcard listen address is shown as
-        ``127.0.0.1``)."""
+        """``http://host:port/`` without the token.
+
+        A wildcard listen address is shown as ``127.0.0.1``.
+        """
         host = "127.0.0.1" if self.host in _WILDCARDS else self.host
         host = f"[{host}]" if ":" in host else host
         return f"http://{host}:{self._port}/"
@@ -358,13 +364,17 @@ class CockpitServer:
     # ------------------------------------------------------------------ publishing
 
     def publish_sample(self, sample: Mapping[str, Any]) -> None:
-        """Offer the latest telemetry sample (keys in :data:`SAMPLE_KEYS`; others shown as
-        text). Cheap and non-blocking; only the newest sample per telemetry period is sent."""
+        """Offer the latest telemetry sample (keys in :data:`SAMPLE_KEYS`; others as text).
+
+        Cheap and non-blocking; only the newest sample per telemetry period is sent.
+        """
         self._sample = (next(self._sample_n), dict(sample))
 
     def publish_video(self, camera: str, jpeg: bytes, t: float) -> None:
-        """Offer the latest JPEG of ``camera`` captured at ``t`` [s]; older frames are
-        replaced (latest only)."""
+        """Offer the latest JPEG of ``camera`` captured at ``t`` [s].
+
+        Older frames are replaced (latest only).
+        """
         self._frames[camera] = (next(self._frame_n), float(t), bytes(jpeg))
         loop = self._loop
         if loop is not None and self._clients:
@@ -377,17 +387,22 @@ class CockpitServer:
             client.wake.set()
 
     def joystick(self) -> tuple[float, float, float] | None:
-        """``(x, y, t)``: the virtual joystick (x right, y up, each in [-1, 1]) and when it
-        last changed or was re-sent [s, ``time.time()``]; None until a browser touches it.
-        Falls back to (0, 0) when the browser that moved it disconnects."""
+        """Return ``(x, y, t)``: the virtual joystick and when it last changed.
+
+        x right, y up, each in [-1, 1]; ``t`` [s, ``time.time()``] when it last changed or
+        was re-sent; None until a browser touches it. Falls back to (0, 0) when the
+        browser that moved it disconnects.
+        """
         return self._joy
 
     @property
     def stats(self) -> dict[str, Any]:
-        """Counters: ``clients``, ``frames_pushed``, ``samples_pushed``,
-        ``joystick_messages``, ``connections``, refusals (``refused_host``,
-        ``refused_token``, ``refused_origin``, ``refused_full``), ``bad_messages`` and
-        ``bad_by_reason``."""
+        """Return the counters.
+
+        ``clients``, ``frames_pushed``, ``samples_pushed``, ``joystick_messages``,
+        ``connections``, refusals (``refused_host``, ``refused_token``,
+        ``refused_origin``, ``refused_full``), ``bad_messages`` and ``bad_by_reason``.
+        """
         out: dict[str, Any] = dict(self._counters)
         out["clients"] = len(self._clients)
         out["bad_by_reason"] = self._drops.counts()
@@ -493,8 +508,11 @@ class CockpitServer:
             response.headers.setdefault(key, value)
 
     def _origin_ok(self, request: web.Request) -> bool:
-        """The websocket's Origin is this very server as the browser reached it (the Host
-        header, already on the allow-list): scheme http(s), same host and port."""
+        """Tell whether the websocket's Origin is this very server as the browser reached it.
+
+        That is the Host header, already on the allow-list: scheme http(s), same host
+        and port.
+        """
         origin = request.headers.get("Origin")
         if not origin:
             return False
@@ -604,8 +622,11 @@ class CockpitServer:
         return True
 
     async def _push(self, client: _Client) -> None:
-        """Send a browser what is new: telemetry once per telemetry period, video frames as
-        soon as they arrive (latest only per camera)."""
+        """Send a browser what is new.
+
+        Telemetry once per telemetry period, video frames as soon as they arrive (latest
+        only per camera).
+        """
         ws = client.ws
         loop = asyncio.get_running_loop()
         next_samples = loop.time()
