@@ -59,7 +59,7 @@ def main() -> None:
     print(f"solve_exact baseline: {_pcts(exact)}  (10 calls; ratio p50 exact/online {np.median(exact) / np.median(fresh):.0f}x)")
 
     t0 = time.perf_counter()
-    result = run_study(args.runs, args.seed, cfg, params, progress=False)
+    result = run_study(args.runs, args.seed, cfg, params)
     wall = time.perf_counter() - t0
     n_runs = len(CASES) * 2 * args.runs
     sim_s = n_runs * params.duration_s

@@ -13,7 +13,7 @@ import sys
 
 from bipedtele.cli import OneLineParser
 from bipedtele.config import ConfigError
-from bipedtele.health import add_health_parser
+from bipedtele.tools.health import add_health_parser
 
 
 def main(argv: list[str]) -> int:

@@ -48,8 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
-from collections.abc import Callable, Generator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -73,12 +72,12 @@ __all__ = [
     "case_inputs",
     "delay_sampler",
     "orbit_deficit",
-    "plot_study",
     "run_case",
     "run_sensitivity",
     "run_study",
     "sensitivity_markdown",
     "study_markdown",
+    "study_steps",
 ]
 
 LOG = logging.getLogger(__name__)
@@ -550,14 +549,9 @@ def run_case(
 # ----------------------------------------------------------------------------- study
 
 
-def _progress_bar(total: int, enabled: bool) -> Generator[Callable[[int], None] | None, None, None]:
-    if not enabled:
-        yield None
-        return
-    from tqdm import tqdm
-
-    with tqdm(total=total, unit="step", desc="study", leave=False, file=sys.stderr) as bar:
-        yield bar.update
+def study_steps(params: StudyParams, cases: tuple[DelayCase, ...] = CASES) -> int:
+    """Return the number of control periods a study simulates (the progress total)."""
+    return round(params.duration_s / params.dt) * len(cases)
 
 
 def run_study(
@@ -567,9 +561,9 @@ def run_study(
     params: StudyParams | None = None,
     *,
     cases: tuple[DelayCase, ...] = CASES,
-    progress: bool | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """The whole study: every case, CP and VP.
+    """Run the whole study: every case, CP and VP.
 
     Parameters
     ----------
@@ -577,8 +571,9 @@ def run_study(
         Runs per scheme and case (>= 1).
     seed : int
         Seed; equal seeds give equal results.
-    progress : bool, optional
-        Show a tqdm bar; default: only when stderr is a terminal.
+    progress : callable, optional
+        Called with the number of control periods simulated since its last call (all
+        cases together make :func:`study_steps` periods); none by default.
 
     Returns
     -------
@@ -590,49 +585,12 @@ def run_study(
     cfg = cfg or ControlConfig()
     params = params or StudyParams()
     chooser = OnlineChooser(cfg)
-    show = sys.stderr.isatty() if progress is None else progress
-    steps = round(params.duration_s / params.dt)
     results = []
-    gen = _progress_bar(steps * len(cases), show)
-    update = next(gen)
-    try:
-        for case in cases:
-            res = run_case(case, runs, seed, cfg, params, chooser, progress=update)
-            res.pop("_runs")
-            results.append(res)
-    finally:
-        gen.close()
+    for case in cases:
+        res = run_case(case, runs, seed, cfg, params, chooser, progress=progress)
+        res.pop("_runs")
+        results.append(res)
     return {"seed": seed, "runs": runs, "duration_s": params.duration_s, "dt_s": params.dt, "cases": results}
-
-
-def plot_study(result: dict[str, Any]) -> Any:
-    """Fig. 8: mean coordination errors per case, CP vs VP, with 95 % CIs.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(9, 3.6), layout="constrained")
-    axes = fig.subplots(1, 2)
-    names = [c["name"] for c in result["cases"]]
-    xs = np.arange(len(names))
-    for ax, key, unit in ((axes[0], "forward", "cm/s"), (axes[1], "turn", "deg/s")):
-        for off, scheme, color in ((-0.2, "cp", "tab:gray"), (0.2, "vp", "tab:blue")):
-            means = np.array([c[scheme][f"{key}_error"] for c in result["cases"]])
-            ci = np.array([c[scheme][f"{key}_ci95"] for c in result["cases"]])
-            err = np.abs(np.stack([means - ci[:, 0], ci[:, 1] - means]))
-            ax.bar(xs + off, means, 0.4, yerr=err, capsize=3, color=color, label=scheme.upper())
-        ax.set_xticks(xs, names, rotation=15)
-        ax.set_ylabel(f"mean |{key} error| [{unit}]")
-        ax.set_title(f"({'a' if key == 'forward' else 'b'}) {key} speed")
-        ax.legend()
-    fig.suptitle(f"Coordination errors, {result['runs']} runs per scheme, seed {result['seed']}")
-    return fig
 
 
 # ----------------------------------------------------------------------------- sensitivity
@@ -658,9 +616,9 @@ def run_sensitivity(
     *,
     settings: tuple[tuple[str, dict[str, Any]], ...] = SENSITIVITY,
     cases: tuple[DelayCase, ...] = CASES,
-    progress: bool | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """CP vs VP for every setting of ``settings`` (each one a change of ``cfg``).
+    """Compare CP and VP for every setting of ``settings`` (each one a change of ``cfg``).
 
     Returns
     -------

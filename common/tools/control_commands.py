@@ -1,10 +1,17 @@
-"""CLI sub-commands of the control core: ``surfaces`` (Fig. 6) and ``study`` (Fig. 8)."""
+"""Sub-commands over the control core: ``surfaces`` (Fig. 6) and ``study`` (Fig. 8).
+
+The computing is :mod:`bipedtele.control` (pure); this module parses the arguments, writes
+the JSON, markdown and figures (:mod:`bipedtele.tools.plots`) and shows a progress bar
+(tqdm, when installed and stderr is a terminal).
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +40,7 @@ def _save_fig(fig: Any, path: str) -> None:
 
 
 def _run_surfaces(args: argparse.Namespace) -> int:
-    from bipedtele.control.surfaces import compute_surfaces, plot_surfaces
+    from bipedtele.control.surfaces import compute_surfaces
 
     for dp in args.dp:
         if not 0.0 < dp <= 1.0:
@@ -43,6 +50,8 @@ def _run_surfaces(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, data)
     if args.plot:
+        from bipedtele.tools.plots import plot_surfaces
+
         _save_fig(plot_surfaces(data), args.plot)
     if args.json != "-":
         for i, dp in enumerate(data["dp"]):
@@ -61,6 +70,21 @@ def _write_text(path: str, text: str, flag: str) -> None:
         raise ConfigError(f"{flag} {path}: cannot write ({exc.strerror})") from None
 
 
+@contextlib.contextmanager
+def _progress_bar(total: int) -> Iterator[Callable[[int], None] | None]:
+    """Yield a tqdm bar's ``update`` when stderr is a terminal and tqdm is installed, else None."""
+    if not sys.stderr.isatty():
+        yield None
+        return
+    try:
+        from tqdm import tqdm
+    except ImportError:  # the optional extra is not installed: no bar
+        yield None
+        return
+    with tqdm(total=total, unit="step", desc="study", leave=False, file=sys.stderr) as bar:
+        yield bar.update
+
+
 def _walker_backend() -> Any:
     """The walker study, registered by the follower package (the core never imports it)."""
     from importlib import metadata
@@ -73,11 +97,12 @@ def _walker_backend() -> Any:
 
 def _run_study(args: argparse.Namespace) -> int:
     from bipedtele.control.study import (
+        SENSITIVITY,
         StudyParams,
-        plot_study,
         run_sensitivity,
         run_study,
         sensitivity_markdown,
+        study_steps,
     )
 
     runs = args.runs if args.runs is not None else (3 if args.walker else 100 if args.sensitivity else 500)
@@ -92,12 +117,16 @@ def _run_study(args: argparse.Namespace) -> int:
         raise ConfigError("--markdown: allowed only with --sensitivity or --walker")
     cfg = config_from_args(args)
     control = cfg.section("control")
+    params = StudyParams(duration_s=duration)
     if args.walker:
         result = _walker_backend()(cfg, runs=runs, seed=args.seed, duration_s=duration)
     elif args.sensitivity:
-        result = run_sensitivity(runs, args.seed, control, StudyParams(duration_s=duration))
+        total = study_steps(params) * len(SENSITIVITY)
+        with _progress_bar(total) as update:
+            result = run_sensitivity(runs, args.seed, control, params, progress=update)
     else:
-        result = run_study(runs, args.seed, control, StudyParams(duration_s=duration))
+        with _progress_bar(study_steps(params)) as update:
+            result = run_study(runs, args.seed, control, params, progress=update)
     if args.json:
         _write_json(args.json, result)
     if args.sensitivity:
@@ -117,6 +146,8 @@ def _run_study(args: argparse.Namespace) -> int:
             sys.stdout.write(table)
         return 0
     if args.plot:
+        from bipedtele.tools.plots import plot_study
+
         _save_fig(plot_study(result), args.plot)
     if args.json != "-":
         sys.stdout.write(f"study: {runs} runs per scheme, {duration:g} s each, seed {args.seed}\n")

@@ -31,7 +31,7 @@ from bipedtele.delaymodels import ALLOWED_SPECS, DelayModel, parse_delay_model
 
 __all__ = ["DelayProxy", "DirectionStats", "add_delay_proxy_parser", "parse_hostport"]
 
-LOG = logging.getLogger("bipedtele.delayproxy")
+LOG = logging.getLogger("bipedtele.tools.delayproxy")
 CHUNK = 256 * 1024
 
 

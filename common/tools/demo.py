@@ -10,7 +10,7 @@ nothing bypasses the delay.
 ``--delay-backend netem`` (root, a kernel with ``sch_netem``) replaces the proxy by the
 kernel: two network namespaces joined by a veth pair, the leader in one, the follower and
 the router in the other, h1 as netem on the leader's end and h2 on the follower's, a trace
-replayed by ``tc qdisc change`` at its own sample rate (:mod:`bipedtele.netem_trace`);
+replayed by ``tc qdisc change`` at its own sample rate (:mod:`bipedtele.tools.netem_trace`);
 the namespaces go on exit, also on Ctrl-C. ``auto`` takes netem where it can and the
 proxy otherwise, and says which. ``--dry-run`` prints the plan (the processes, and for
 netem every ``ip``/``tc`` command with its time) and starts nothing. The demo prints the cockpit URL, waits for the operator to
@@ -52,11 +52,11 @@ from bipedtele.delaymodels import (
     UniformDelay,
     parse_delay_model,
 )
-from bipedtele.demostatus import StatusPrinter
-from bipedtele.netem import netem_available
-from bipedtele.netem_trace import NetemReplayer, schedule
-from bipedtele.netns import FOLLOWER, LEADER, CockpitRelay, NetnsError, VethLink
 from bipedtele.shutdown import shutdown_on_signals
+from bipedtele.tools.demostatus import StatusPrinter
+from bipedtele.tools.netem import netem_available
+from bipedtele.tools.netem_trace import NetemReplayer, schedule
+from bipedtele.tools.netns import FOLLOWER, LEADER, CockpitRelay, NetnsError, VethLink
 
 __all__ = ["DemoPlan", "add_demo_parser", "parse_delay_scale", "run_demo", "scale_delay_spec"]
 
@@ -222,11 +222,11 @@ def run_demo(
 ) -> int:
     """Run the demo described by ``plan``; print the report. Returns the exit code.
 
-    Unless ``quiet``, a live status line (:mod:`bipedtele.demostatus`: passes k/
+    Unless ``quiet``, a live status line (:mod:`bipedtele.tools.demostatus`: passes k/
     ``passes_total``, elapsed, h1 + h2, falls, contacts, running speed errors) is written
     about once a second while the leader runs."""
     from bipedtele.recording import read_records
-    from bipedtele.report import compute_report, format_report
+    from bipedtele.tools.report import compute_report, format_report
 
     plan.run_dir.mkdir(parents=True, exist_ok=True)
     plan.t0 = time.time()  # origin of trace delay models (recorded for later checks)

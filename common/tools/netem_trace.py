@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import IO
 
 from bipedtele.delaymodels import ConstDelay, DelayModel, NormalDelay, TraceDelay, UniformDelay
-from bipedtele.netns import FOLLOWER, LEADER, VethLink
+from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
 
 __all__ = ["NETEM_LIMIT", "NetemReplayer", "netem_args", "replay_times", "schedule"]
 

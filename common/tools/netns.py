@@ -2,7 +2,7 @@
 
 Used by ``bipedtele demo --delay-backend netem``: the leader runs in one namespace, the
 follower and the router in the other, and all their traffic crosses the veth pair, whose
-two ends each carry a netem qdisc (see :mod:`bipedtele.netem_trace`). Needs root
+two ends each carry a netem qdisc (see :mod:`bipedtele.tools.netem_trace`). Needs root
 (``ip netns``). The namespaces have unique names; the same addresses in every pair do no
 harm since each pair is isolated from the rest.
 
@@ -206,7 +206,7 @@ class CockpitRelay:
             sock.bind(("127.0.0.1", self.port))
             sock.listen(16)
             fd = sock.fileno()
-            cmd = [*self.link.exec_prefix(LEADER), sys.executable, "-m", "bipedtele.netns", "relay", str(fd), str(self.port)]
+            cmd = [*self.link.exec_prefix(LEADER), sys.executable, "-m", "bipedtele.tools.netns", "relay", str(fd), str(self.port)]
             self.proc = subprocess.Popen(cmd, pass_fds=[fd], start_new_session=True)
         return self
 
@@ -250,9 +250,9 @@ async def _relay(fd: int, port: int) -> None:
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m bipedtele.netns relay FD PORT`` (started by :class:`CockpitRelay`)."""
+    """``python -m bipedtele.tools.netns relay FD PORT`` (started by :class:`CockpitRelay`)."""
     if len(argv) != 3 or argv[0] != "relay" or not argv[1].isdigit() or not argv[2].isdigit():
-        sys.stderr.write("usage: python -m bipedtele.netns relay FD PORT\n")
+        sys.stderr.write("usage: python -m bipedtele.tools.netns relay FD PORT\n")
         return 2
     asyncio.run(_relay(int(argv[1]), int(argv[2])))
     return 0

@@ -63,7 +63,7 @@ from matplotlib.figure import Figure
 
 __all__ = ["REPORT_KEYS", "add_report_parser", "compute_report", "fictitious_intervals", "format_report", "plot_report"]
 
-LOG = logging.getLogger("bipedtele.report")
+LOG = logging.getLogger("bipedtele.tools.report")
 
 REPORT_KEYS: tuple[str, ...] = (
     "min_delay_ms",

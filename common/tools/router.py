@@ -31,7 +31,7 @@ from bipedtele.zenohlog import ZenohLogBridge
 
 __all__ = ["DEFAULT_LISTEN", "add_router_parser", "exposure_warnings", "router_endpoints"]
 
-LOG = logging.getLogger("bipedtele.router")
+LOG = logging.getLogger("bipedtele.tools.router")
 DEFAULT_LISTEN = ["tcp/127.0.0.1:7447"]
 
 

@@ -42,7 +42,7 @@ import numpy as np
 import pytest
 from bipedtele.delaymodels import parse_delay_model
 from bipedtele.recording import read_records
-from bipedtele.report import compute_report
+from bipedtele.tools.report import compute_report
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.docker]
 

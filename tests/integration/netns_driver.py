@@ -1,6 +1,6 @@
 """Driver of tests/integration/test_netem_namespaces.py: the netem backend's link, for real.
 
-Makes a :class:`bipedtele.netns.VethLink` (as ``bipedtele demo --delay-backend netem``
+Makes a :class:`bipedtele.tools.netns.VethLink` (as ``bipedtele demo --delay-backend netem``
 does), starts a Zenoh router in the follower's namespace on the veth address and, from the
 leader's namespace, ``bipedtele health --role router`` across the veth pair; prints one
 JSON line (namespaces, devices, PIDs, the health result), then waits for SIGINT/SIGTERM and
@@ -14,8 +14,8 @@ import subprocess
 import sys
 import time
 
-from bipedtele.netns import FOLLOWER, LEADER, VethLink
 from bipedtele.shutdown import shutdown_on_signals
+from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 

@@ -211,7 +211,7 @@ def test_client_started_just_before_its_router_connects(certs: tuple[Path, Path]
 def test_cli_maps_link_error_to_one_line_and_exit_1(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    import bipedtele.health as health
+    import bipedtele.tools.health as health
 
     def refuse(*_: object) -> tuple[bool, str]:
         raise LinkError("refused", "tcp/127.0.0.1:1: connection refused by 127.0.0.1:1")

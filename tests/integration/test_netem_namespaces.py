@@ -21,8 +21,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from bipedtele.netem import netem_available
-from bipedtele.netns import FOLLOWER, LEADER, VethLink
+from bipedtele.tools.netem import netem_available
+from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -102,8 +102,8 @@ def test_demo_netem_backend_without_netem_fails_in_one_line_and_cleans_up(tmp_pa
     code = (
         "import sys\n"
         "from pathlib import Path\n"
-        "from bipedtele.demo import DemoPlan, run_demo\n"
-        "from bipedtele.netns import VethLink\n"
+        "from bipedtele.tools.demo import DemoPlan, run_demo\n"
+        "from bipedtele.tools.netns import VethLink\n"
         f"run = Path({str(tmp_path)!r})\n"
         "link = VethLink()\n"
         "print(link.ns['leader'], link.ns['follower'], flush=True)\n"
@@ -123,7 +123,7 @@ def test_demo_netem_backend_without_netem_fails_in_one_line_and_cleans_up(tmp_pa
 
 
 def test_a_failed_setup_step_is_one_line_and_leaves_nothing() -> None:
-    from bipedtele.netns import NetnsError
+    from bipedtele.tools.netns import NetnsError
 
     link = VethLink(leader_ip="10.233.0.300")  # refused by `ip addr add`, after the veth was made
     with pytest.raises(NetnsError, match=r"^`ip -n bt-dl-\w+ addr add 10\.233\.0\.300/30 dev btdl-\w+`: ") as err:
@@ -140,7 +140,7 @@ def test_cockpit_relay_reaches_a_server_inside_the_leader_namespace(tmp_path: Pa
     import time
     import urllib.request
 
-    from bipedtele.netns import CockpitRelay
+    from bipedtele.tools.netns import CockpitRelay
 
     (tmp_path / "index.html").write_text("cockpit inside bt-dl\n")
     with socket.socket() as s:

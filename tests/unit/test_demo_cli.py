@@ -10,10 +10,10 @@ import pytest
 from bipedtele.cli import main
 from bipedtele.config import ConfigError
 from bipedtele.delaymodels import parse_delay_model
-from bipedtele.demo import parse_delay_scale, scale_delay_spec
-from bipedtele.demostatus import LiveStatus, RecordingTail, StatusPrinter, format_status
 from bipedtele.messages import Feedback
 from bipedtele.recording import Recorder
+from bipedtele.tools.demo import parse_delay_scale, scale_delay_spec
+from bipedtele.tools.demostatus import LiveStatus, RecordingTail, StatusPrinter, format_status
 
 pytestmark = pytest.mark.timeout(60)
 

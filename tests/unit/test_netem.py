@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 from bipedtele.config import ConfigError
-from bipedtele.netem import netem_available, tc_commands
+from bipedtele.tools.netem import netem_available, tc_commands
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -97,7 +97,7 @@ def _demo(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[st
 
 def test_netem_args_realise_each_model() -> None:
     from bipedtele.delaymodels import parse_delay_model
-    from bipedtele.netem_trace import netem_args
+    from bipedtele.tools.netem_trace import netem_args
 
     assert netem_args(parse_delay_model("const:150ms")) == ["delay", "150000us", "limit", "10000"]
     assert netem_args(parse_delay_model("uniform:150ms:30ms")) == ["delay", "150000us", "30000us", "limit", "10000"]
@@ -112,7 +112,7 @@ def test_netem_args_realise_each_model() -> None:
 
 def test_replay_times_are_the_trace_rows_looped() -> None:
     from bipedtele.delaymodels import TraceDelay, parse_delay_model
-    from bipedtele.netem_trace import replay_times
+    from bipedtele.tools.netem_trace import replay_times
 
     trace = TraceDelay([0.0, 0.1, 0.2], [0.1, 0.11, 0.12])  # period 0.3 s
     assert list(replay_times(trace, 0.65)) == pytest.approx([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])

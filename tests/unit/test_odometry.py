@@ -17,7 +17,7 @@ from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.odometry import StepSampler
 from bipedtele.messages import Command, Feedback
 from bipedtele.recording import Record, Recorder, read_records
-from bipedtele.report import compute_report
+from bipedtele.tools.report import compute_report
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -11,7 +11,7 @@ import pytest
 from bipedtele.cli import main
 from bipedtele.messages import Command, Feedback, Status
 from bipedtele.recording import Recorder, read_records
-from bipedtele.report import REPORT_KEYS, compute_report, fictitious_intervals, plot_report
+from bipedtele.tools.report import REPORT_KEYS, compute_report, fictitious_intervals, plot_report
 
 
 def _synthetic(path: Path) -> None:

@@ -59,7 +59,7 @@ def test_make_certs_usage_names_ips_and_rejects_bad_names(tmp_path: Path) -> Non
 
 
 def test_script_and_setup_command_make_the_same_kind_of_certificates(tmp_path: Path) -> None:
-    from bipedtele.setup import make_certs
+    from bipedtele.tools.setup import make_certs
 
     _run([str(MAKE_CERTS), "sh", "r.example.org"], cwd=tmp_path)
     make_certs(tmp_path / "py", ["r.example.org"])

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from bipedtele.auth import load_message_auth
 from bipedtele.config import ConfigError, load_config
-from bipedtele.setup import make_certs, task_course, write_two_hosts
+from bipedtele.tools.setup import make_certs, task_course, write_two_hosts
 
 pytestmark = pytest.mark.timeout(120)
 

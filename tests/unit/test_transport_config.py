@@ -206,7 +206,7 @@ def test_each_role_reads_only_its_settings(tmp_path: Path, monkeypatch: pytest.M
 
 
 def test_router_listens_on_loopback_by_default_and_warns_when_exposed() -> None:
-    from bipedtele.router import DEFAULT_LISTEN, exposure_warnings, router_endpoints
+    from bipedtele.tools.router import DEFAULT_LISTEN, exposure_warnings, router_endpoints
 
     assert router_endpoints(NetworkConfig(), None) == DEFAULT_LISTEN == ["tcp/127.0.0.1:7447"]
     assert router_endpoints(NetworkConfig(listen=["tls/0.0.0.0:7447"]), None) == ["tls/0.0.0.0:7447"]
