@@ -24,7 +24,7 @@ from bipedtele import __version__
 from bipedtele.config import Config, ConfigError, load_config
 from bipedtele.linkcheck import LinkError
 
-__all__ = ["OneLineParser", "add_config_args", "config_from_args", "main"]
+__all__ = ["EXTRAS", "OneLineParser", "add_config_args", "config_from_args", "main", "missing_extra_message"]
 
 LOG = logging.getLogger("bipedtele")
 
@@ -81,8 +81,54 @@ def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     chosen = next((w for w in words if w in {ep.name for ep in eps}), None)
     for ep in eps:
         if chosen is None or ep.name == chosen:
-            ep.load()(sub)
+            try:
+                add_parser = ep.load()
+            except ModuleNotFoundError as exc:
+                if (exc.name or "").split(".")[0] == "bipedtele":
+                    raise  # a broken install, not a missing extra
+                _add_missing_parser(sub, ep.name, exc)
+            else:
+                add_parser(sub)
     return parser
+
+
+#: The optional extra (pyproject.toml) that provides each third-party package a sub-command may need.
+EXTRAS = {
+    "pybullet": "sim",
+    "cv2": "video",
+    "aiohttp": "cockpit",
+    "matplotlib": "plots",
+    "tqdm": "progress",
+    "qi": "naoqi",
+    "evdev": "joystick",
+}
+
+
+def missing_extra_message(exc: ModuleNotFoundError) -> str:
+    """Return one line naming the package a sub-command could not import and how to install it.
+
+    Parameters
+    ----------
+    exc : ModuleNotFoundError
+        The error raised while importing the sub-command's module.
+    """
+    top = (exc.name or "").split(".")[0]
+    extra = EXTRAS.get(top)
+    if extra is None:
+        return f"the python package {top or '?'} is missing"
+    return f"the python package {top} is missing: allowed: pip install 'bipedtele[{extra}]' (or 'bipedtele[all]')"
+
+
+def _add_missing_parser(sub: Any, name: str, exc: ModuleNotFoundError) -> None:
+    """Register ``name`` as a sub-command that says which extra it needs (exit 2) when run."""
+    message = missing_extra_message(exc)
+    p = sub.add_parser(name, help=f"(not available: {message})", add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+
+    def _missing(args: argparse.Namespace) -> int:
+        raise ConfigError(message)
+
+    p.set_defaults(func=_missing)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

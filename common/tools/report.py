@@ -55,11 +55,14 @@ import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from bipedtele.recording import Record, RecordingError, read_records
-from matplotlib.figure import Figure
+from bipedtele.tools.plots import require_matplotlib
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["REPORT_KEYS", "add_report_parser", "compute_report", "fictitious_intervals", "format_report", "plot_report"]
 
@@ -537,6 +540,8 @@ def plot_report(records: Iterable[Record]) -> dict[str, Figure]:
     run = _collect(records)
     window = _window(run) or (0.0, 0.0)
     t0 = window[0]
+    from matplotlib.figure import Figure  # the ``plots`` extra: only the figures need it
+
     figs: dict[str, Figure] = {}
 
     def shade(ax: Any) -> None:
@@ -687,6 +692,8 @@ def _inputs(args: argparse.Namespace) -> tuple[Path, Path | None]:
 
 
 def _run_report(args: argparse.Namespace) -> int:
+    if args.plots:
+        require_matplotlib("--plots")
     path, follower_path = _inputs(args)
     try:
         records = list(read_records(path))

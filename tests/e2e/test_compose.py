@@ -232,7 +232,7 @@ def test_compose_stack_builds_runs_records_and_reports(engine: Engine, tmp_path:
     wheels = ctx / "docker" / "wheels"
     wheel = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "-q", "--disable-pip-version-check", "-w", str(wheels),
-         str(ctx), "setuptools>=68", "wheel"],
+         f"{ctx}[all]", "setuptools>=68", "wheel"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert wheel.returncode == 0, wheel.stderr[-3000:]
