@@ -1,8 +1,13 @@
-"""Wire messages between leader and follower (msgpack, schema-versioned).
+"""Wire messages between leader and follower (msgspec Structs over msgpack, schema-versioned).
 
 Every message is a msgpack map with an envelope::
 
-    {"v": SCHEMA_VERSION, "k": kind, "sid": session id, "seq": n, "t": send time [s], ...fields}
+    {"k": kind, "v": SCHEMA_VERSION, "sid": session id, "seq": n, "t": send time [s], ...fields}
+
+Each message type is a frozen, tagged :class:`msgspec.Struct` (tag field ``k``) whose
+fields carry their range constraints (``Annotated[float, Meta(ge=..., le=...)]``), so
+decoding and validation are one step in msgspec's C code. Every float field is bounded
+on both sides, which also refuses NaN and the infinities (no comparison with NaN holds).
 
 ``sid`` is a random 32-bit id chosen once per process start: a receiver that sees a new
 ``sid`` knows the peer restarted and resets its sequence gate (see
@@ -12,19 +17,20 @@ the sender) at the moment of sending.
 Speeds are in the paper's units: forward in cm/s, turn in deg/s. Positions in metres,
 angles in radians, times in seconds.
 
-:func:`decode` validates types, finiteness and ranges; anything else raises
-:class:`MessageError`, whose ``reason`` names the kind of problem for counters.
+:func:`decode` validates types, finiteness and ranges, and requires every field on the
+wire (a field left out is an error, not its default); anything else raises
+:class:`MessageError`, whose ``reason`` names the kind of problem for counters. The wire
+is authenticated outside this module (:mod:`bipedtele.auth`).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import os
-from dataclasses import dataclass, field
-from typing import Any, ClassVar, Final, get_type_hints
+import re
+from typing import Annotated, Any, ClassVar, Final, Literal, TypeAlias, Union, get_type_hints
 
-import msgpack
+import msgspec
+from msgspec import Meta, Struct, field
 
 __all__ = [
     "MESSAGE_TYPES",
@@ -39,6 +45,7 @@ __all__ = [
     "VideoFrame",
     "decode",
     "encode",
+    "message_fields",
     "new_session_id",
 ]
 
@@ -47,6 +54,7 @@ MAX_MESSAGE_BYTES: Final = 4 * 1024 * 1024
 MAX_JPEG_BYTES: Final = 2 * 1024 * 1024
 MAX_SEQ: Final = 2**63 - 1
 MAX_TEXT: Final = 1024
+MAX_COUNTERS: Final = 64
 
 # Sanity bounds on wire values (far beyond anything physical; they reject garbage).
 MAX_SPEED: Final = 1000.0  # cm/s or deg/s
@@ -57,6 +65,9 @@ MAX_DELAY_S: Final = 60.0
 MIN_TIME: Final = 0.0
 MAX_TIME: Final = 1.0e11  # s (about year 5138)
 
+FOLLOWER_STATES: Final = ("starting", "standing", "walking", "stopping", "fallen", "error")
+LEADER_STATES: Final = ("starting", "running", "feedback_stale", "stopped", "error")
+
 
 class MessageError(ValueError):
     """A received payload is not a valid message.
@@ -66,6 +77,8 @@ class MessageError(ValueError):
     reason : str
         Short category for counters: ``too_large``, ``not_msgpack``, ``not_a_map``,
         ``bad_version``, ``unknown_kind``, ``bad_field``, ``missing_field``.
+    detail : str
+        What was wrong (msgspec's message, with the field's path).
     """
 
     def __init__(self, reason: str, detail: str) -> None:
@@ -75,138 +88,72 @@ class MessageError(ValueError):
 
 
 def new_session_id() -> int:
-    """A random non-zero 32-bit session id for this process."""
+    """Return a random non-zero 32-bit session id for this process."""
     return int.from_bytes(os.urandom(4), "little") or 1
 
 
-# --------------------------------------------------------------------------- field specs
+# --------------------------------------------------------------------------- field types
 
 
-@dataclass(frozen=True)
-class _Num:
-    lo: float
-    hi: float
-    n: int = 0  # 0: scalar; otherwise a list of exactly n numbers
+def _choice(*names: str) -> Meta:
+    """Constrain a string to one of ``names`` (a regex, so the type stays ``str``)."""
+    return Meta(pattern="^(?:" + "|".join(re.escape(n) for n in names) + ")$", extra_json_schema={"enum": list(names)})
 
 
-@dataclass(frozen=True)
-class _Int:
-    lo: int
-    hi: int
+SessionId: TypeAlias = Annotated[int, Meta(ge=0, le=2**32 - 1)]
+Seq: TypeAlias = Annotated[int, Meta(ge=0, le=MAX_SEQ)]
+Time: TypeAlias = Annotated[float, Meta(ge=MIN_TIME, le=MAX_TIME)]
+Delay: TypeAlias = Annotated[float, Meta(ge=0.0, le=MAX_DELAY_S)]
+Gain: TypeAlias = Annotated[float, Meta(ge=0.0, le=100.0)]
+Speed: TypeAlias = Annotated[float, Meta(ge=-MAX_SPEED, le=MAX_SPEED)]
+Position: TypeAlias = Annotated[float, Meta(ge=-MAX_POS, le=MAX_POS)]
+Damping: TypeAlias = Annotated[float, Meta(ge=0.0, le=MAX_PARAM)]
+Force: TypeAlias = Annotated[float, Meta(ge=-MAX_FORCE, le=MAX_FORCE)]
+Range: TypeAlias = Annotated[float, Meta(ge=0.0, le=100.0)]
+PAIR: Final = Meta(min_length=2, max_length=2)
+Speeds: TypeAlias = Annotated[list[Speed], PAIR]
+Positions: TypeAlias = Annotated[list[Position], PAIR]
+Dampings: TypeAlias = Annotated[list[Damping], PAIR]
+Forces: TypeAlias = Annotated[list[Force], PAIR]
+Ranges: TypeAlias = Annotated[list[Range], PAIR]
+Pose: TypeAlias = Annotated[list[Position], Meta(min_length=3, max_length=3)]
+Text: TypeAlias = Annotated[str, Meta(max_length=MAX_TEXT)]
+Counters: TypeAlias = Annotated[
+    dict[Annotated[str, Meta(max_length=64)], Annotated[int, Meta(ge=0, le=MAX_SEQ)]],
+    Meta(max_length=MAX_COUNTERS),
+]
 
 
-@dataclass(frozen=True)
-class _Str:
-    choices: tuple[str, ...] = ()
-    max_len: int = MAX_TEXT
-
-
-@dataclass(frozen=True)
-class _Bytes:
-    max_len: int
-
-
-@dataclass(frozen=True)
-class _Counters:
-    max_items: int = 64
-
-
-def _spec(spec: object, default: Any = dataclasses.MISSING, **kw: Any) -> Any:
-    if "default_factory" in kw:
-        return field(default_factory=kw["default_factory"], metadata={"spec": spec})
-    return field(default=default, metadata={"spec": spec})
-
-
-def _number(spec: _Num, name: str, value: Any) -> float:
-    """Validate one number against ``spec``'s range (the hot path of decoding)."""
-    if value.__class__ is float:
-        x = value
-    elif isinstance(value, int | float) and not isinstance(value, bool):
-        x = float(value)
-    else:
-        raise MessageError("bad_field", f"{name}: expected a number")
-    if not spec.lo <= x <= spec.hi:  # also false for NaN
-        if not math.isfinite(x):
-            raise MessageError("bad_field", f"{name}: not finite")
-        raise MessageError("bad_field", f"{name}: out of range [{spec.lo}, {spec.hi}]")
-    return x
-
-
-def _check(spec: object, name: str, value: Any) -> Any:
-    """Validate one field; return it in canonical Python form."""
-
-    def bad(why: str) -> MessageError:
-        return MessageError("bad_field", f"{name}: {why}")
-
-    if isinstance(spec, _Num):
-        if spec.n:
-            if not isinstance(value, list | tuple) or len(value) != spec.n:
-                raise bad(f"expected a list of {spec.n} numbers")
-            return [_number(spec, f"{name}[{i}]", v) for i, v in enumerate(value)]
-        return _number(spec, name, value)
-    if isinstance(spec, _Int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise bad("expected an integer")
-        if not spec.lo <= value <= spec.hi:
-            raise bad(f"out of range [{spec.lo}, {spec.hi}]")
-        return value
-    if isinstance(spec, _Str):
-        if not isinstance(value, str):
-            raise bad("expected a string")
-        if len(value) > spec.max_len:
-            raise bad("too long")
-        if spec.choices and value not in spec.choices:
-            raise bad(f"expected one of {', '.join(spec.choices)}")
-        return value
-    if isinstance(spec, _Bytes):
-        if not isinstance(value, bytes | bytearray | memoryview):
-            raise bad("expected bytes")
-        if len(value) > spec.max_len:
-            raise bad("too long")
-        return bytes(value)
-    if isinstance(spec, _Counters):
-        if not isinstance(value, dict) or len(value) > spec.max_items:
-            raise bad("expected a small map of counters")
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str) or len(k) > 64:
-                raise bad("counter names must be short strings")
-            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_SEQ:
-                raise bad("counter values must be non-negative integers")
-            out[k] = v
-        return out
-    if spec is bool:
-        if not isinstance(value, bool):
-            raise bad("expected true or false")
-        return value
-    raise TypeError(f"unknown spec {spec!r}")  # pragma: no cover - programming error
-
-
-_SPEED2 = _Num(-MAX_SPEED, MAX_SPEED, 2)
-_PAIR_POS = _Num(-MAX_POS, MAX_POS, 2)
-_PARAM = _Num(-MAX_PARAM, MAX_PARAM)
-_DELAY = _Num(0.0, MAX_DELAY_S)
-_TIME = _Num(MIN_TIME, MAX_TIME)
-
-FOLLOWER_STATES: Final = ("starting", "standing", "walking", "stopping", "fallen", "error")
-LEADER_STATES: Final = ("starting", "running", "feedback_stale", "stopped", "error")
+def _zeros2() -> list[float]:
+    return [0.0, 0.0]
 
 
 # --------------------------------------------------------------------------- messages
 
 
-@dataclass(frozen=True)
-class Message:
-    """Envelope shared by every message."""
+class Message(Struct, frozen=True, gc=False, tag_field="k"):
+    """Envelope shared by every message.
+
+    Attributes
+    ----------
+    v : int
+        Schema version (:data:`SCHEMA_VERSION`; any other is refused).
+    sid : int
+        Sender's session id (random per process start).
+    seq : int
+        Sender's sequence number.
+    t : float
+        Send time, sender's clock [s].
+    """
 
     KIND: ClassVar[str] = ""
-    sid: int = _spec(_Int(0, 2**32 - 1), 0)
-    seq: int = _spec(_Int(0, MAX_SEQ), 0)
-    t: float = _spec(_TIME, 0.0)
+    v: Literal[1] = SCHEMA_VERSION
+    sid: SessionId = 0
+    seq: Seq = 0
+    t: Time = 0.0
 
 
-@dataclass(frozen=True)
-class Command(Message):
+class Command(Message, frozen=True, gc=False, tag="cmd"):
     """Leader -> follower: the reference ``k_g x_m`` and the leader's state.
 
     Attributes
@@ -224,16 +171,15 @@ class Command(Message):
     """
 
     KIND: ClassVar[str] = "cmd"
-    ref: list[float] = _spec(_SPEED2, default_factory=lambda: [0.0, 0.0])
-    x_m: list[float] = _spec(_PAIR_POS, default_factory=lambda: [0.0, 0.0])
-    dx_m: list[float] = _spec(_PAIR_POS, default_factory=lambda: [0.0, 0.0])
-    h2_s: float = _spec(_DELAY, 0.0)
-    alpha_m: list[float] = _spec(_Num(0.0, MAX_PARAM, 2), default_factory=lambda: [0.0, 0.0])
-    enable: bool = _spec(bool, True)
+    ref: Speeds = field(default_factory=_zeros2)
+    x_m: Positions = field(default_factory=_zeros2)
+    dx_m: Positions = field(default_factory=_zeros2)
+    h2_s: Delay = 0.0
+    alpha_m: Dampings = field(default_factory=_zeros2)
+    enable: bool = True
 
 
-@dataclass(frozen=True)
-class Feedback(Message):
+class Feedback(Message, frozen=True, gc=False, tag="fb"):
     """Follower -> leader: what the operator feels and sees in the plots.
 
     Attributes
@@ -267,24 +213,23 @@ class Feedback(Message):
     """
 
     KIND: ClassVar[str] = "fb"
-    z_e: list[float] = _spec(_SPEED2, default_factory=lambda: [0.0, 0.0])
-    z_r: list[float] = _spec(_SPEED2, default_factory=lambda: [0.0, 0.0])
-    eta: list[float] = _spec(_SPEED2, default_factory=lambda: [0.0, 0.0])
-    ref: list[float] = _spec(_SPEED2, default_factory=lambda: [0.0, 0.0])
-    pose: list[float] = _spec(_Num(-MAX_POS, MAX_POS, 3), default_factory=lambda: [0.0, 0.0, 0.0])
-    sonar: list[float] = _spec(_Num(0.0, 100.0, 2), default_factory=lambda: [0.0, 0.0])
-    f_v: list[float] = _spec(_Num(-MAX_FORCE, MAX_FORCE, 2), default_factory=lambda: [0.0, 0.0])
-    h1_s: float = _spec(_DELAY, 0.0)
-    s_e: list[float] = _spec(_Num(0.0, MAX_PARAM, 2), default_factory=lambda: [0.0, 0.0])
-    s_r: list[float] = _spec(_Num(0.0, MAX_PARAM, 2), default_factory=lambda: [0.0, 0.0])
-    T: float = _spec(_Num(0.0, 100.0), 0.0)
-    eps: float = _spec(_Num(0.0, 100.0), 0.0)
-    state: str = _spec(_Str(FOLLOWER_STATES), "starting")
-    cmd_seq: int = _spec(_Int(0, MAX_SEQ), 0)
+    z_e: Speeds = field(default_factory=_zeros2)
+    z_r: Speeds = field(default_factory=_zeros2)
+    eta: Speeds = field(default_factory=_zeros2)
+    ref: Speeds = field(default_factory=_zeros2)
+    pose: Pose = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    sonar: Ranges = field(default_factory=_zeros2)
+    f_v: Forces = field(default_factory=_zeros2)
+    h1_s: Delay = 0.0
+    s_e: Dampings = field(default_factory=_zeros2)
+    s_r: Dampings = field(default_factory=_zeros2)
+    T: Gain = 0.0
+    eps: Gain = 0.0
+    state: Annotated[str, _choice(*FOLLOWER_STATES)] = "starting"
+    cmd_seq: Seq = 0
 
 
-@dataclass(frozen=True)
-class VideoFrame(Message):
+class VideoFrame(Message, frozen=True, gc=False, tag="video"):
     """Follower -> leader: one JPEG image (latest only; receivers may drop any frame).
 
     Attributes
@@ -300,22 +245,20 @@ class VideoFrame(Message):
     """
 
     KIND: ClassVar[str] = "video"
-    camera: str = _spec(_Str(("head", "scene")), "head")
-    width: int = _spec(_Int(1, 4096), 320)
-    height: int = _spec(_Int(1, 4096), 240)
-    t_capture: float = _spec(_TIME, 0.0)
-    jpeg: bytes = _spec(_Bytes(MAX_JPEG_BYTES), b"")
+    camera: Annotated[str, _choice("head", "scene")] = "head"
+    width: Annotated[int, Meta(ge=1, le=4096)] = 320
+    height: Annotated[int, Meta(ge=1, le=4096)] = 240
+    t_capture: Time = 0.0
+    jpeg: Annotated[bytes, Meta(max_length=MAX_JPEG_BYTES)] = b""
 
 
-@dataclass(frozen=True)
-class ClockPing(Message):
+class ClockPing(Message, frozen=True, gc=False, tag="ping"):
     """NTP-style ping: ``t`` is t1, the requester's send time."""
 
     KIND: ClassVar[str] = "ping"
 
 
-@dataclass(frozen=True)
-class ClockPong(Message):
+class ClockPong(Message, frozen=True, gc=False, tag="pong"):
     """Answer to a :class:`ClockPing`.
 
     Attributes
@@ -329,14 +272,13 @@ class ClockPong(Message):
     """
 
     KIND: ClassVar[str] = "pong"
-    ping_sid: int = _spec(_Int(0, 2**32 - 1), 0)
-    ping_seq: int = _spec(_Int(0, MAX_SEQ), 0)
-    t1: float = _spec(_TIME, 0.0)
-    t2: float = _spec(_TIME, 0.0)
+    ping_sid: SessionId = 0
+    ping_seq: Seq = 0
+    t1: Time = 0.0
+    t2: Time = 0.0
 
 
-@dataclass(frozen=True)
-class Status(Message):
+class Status(Message, frozen=True, gc=False, tag="status"):
     """Either side: coarse state and counters, about 2 Hz.
 
     Attributes
@@ -352,57 +294,64 @@ class Status(Message):
     """
 
     KIND: ClassVar[str] = "status"
-    role: str = _spec(_Str(("leader", "follower")), "follower")
-    state: str = _spec(_Str(FOLLOWER_STATES + LEADER_STATES), "starting")
-    counters: dict[str, int] = _spec(_Counters(), default_factory=dict)
-    text: str = _spec(_Str(max_len=MAX_TEXT), "")
+    role: Annotated[str, _choice("leader", "follower")] = "follower"
+    state: Annotated[str, _choice(*dict.fromkeys(FOLLOWER_STATES + LEADER_STATES))] = "starting"
+    counters: Counters = field(default_factory=dict)
+    text: Text = ""
 
 
 MESSAGE_TYPES: Final[dict[str, type[Message]]] = {
     cls.KIND: cls for cls in (Command, Feedback, VideoFrame, ClockPing, ClockPong, Status)
 }
 
-_FIELDS: dict[type[Message], list[tuple[str, object]]] = {
-    cls: [(f.name, f.metadata["spec"]) for f in dataclasses.fields(cls)]
-    for cls in MESSAGE_TYPES.values()
-}
-# Ensure every field has a spec (a programming error otherwise).
-for _cls in MESSAGE_TYPES.values():
-    get_type_hints(_cls)
 
-# Decoding plan per class: (name, spec, fast kind, lo, hi, n). The fast kinds accept the
-# common, valid case inline (a float in range, a list of n floats in range, an int in
-# range); anything else goes through :func:`_check`, which gives the same result or the
-# same error. Decoding runs once per message from cold caches, where each Python call
-# and f-string costs several times its tight-loop time, so the happy path makes none.
-_FLOAT, _FLOATS, _INTEGER, _OTHER = 0, 1, 2, 3
-
-
-def _plan(spec: object) -> tuple[int, Any, Any, int]:
-    if isinstance(spec, _Num):
-        return (_FLOATS if spec.n else _FLOAT), spec.lo, spec.hi, spec.n
-    if isinstance(spec, _Int):
-        return _INTEGER, spec.lo, spec.hi, 0
-    return _OTHER, None, None, 0
-
-
-_PLANS: dict[type[Message], list[tuple[str, object, int, Any, Any, int]]] = {
-    cls: [(name, spec, *_plan(spec)) for name, spec in fields] for cls, fields in _FIELDS.items()
-}
-# Classes built without running __init__ (every field is validated and present, and none
-# has a __post_init__): frozen dataclasses only guard __setattr__, not __dict__.
-_DIRECT = {cls for cls in MESSAGE_TYPES.values() if not hasattr(cls, "__post_init__")}
+def message_fields(cls: type[Message]) -> tuple[str, ...]:
+    """Return the names of a message type's fields, envelope first (``v``, ``sid``, ...)."""
+    return cls.__struct_fields__
 
 
 # --------------------------------------------------------------------------- codec
+#
+# On the wire every field is required, while the classes give every field a default (so
+# that code builds messages field by field). Decoding therefore goes through a twin of
+# each class with the same fields, types and tag but no defaults; the twin's values then
+# fill the public class positionally (both have the same field order).
+
+
+def _wire_twin(cls: type[Message]) -> type[Struct]:
+    hints = get_type_hints(cls, include_extras=True)
+    fields = [(name, hints[name]) for name in cls.__struct_fields__]
+    return msgspec.defstruct(
+        f"_Wire{cls.__name__}", fields, frozen=True, gc=False, tag_field="k", tag=cls.KIND, module=__name__
+    )
+
+
+for _cls in MESSAGE_TYPES.values():
+    if _cls.__struct_config__.tag != _cls.KIND:  # pragma: no cover - programming error
+        raise TypeError(f"{_cls.__name__}: tag {_cls.__struct_config__.tag!r} is not KIND {_cls.KIND!r}")
+
+_TWINS: Final[dict[type[Struct], type[Message]]] = {_wire_twin(c): c for c in MESSAGE_TYPES.values()}
+_ENCODER: Final = msgspec.msgpack.Encoder()
+_DECODER: Final[msgspec.msgpack.Decoder[Any]] = msgspec.msgpack.Decoder(Union[tuple(_TWINS)])  # noqa: UP007
+_PATH = re.compile(r"`\$\.(\w+)")
+_MISSING = re.compile(r"missing required field `(\w+)`")
 
 
 def encode(msg: Message) -> bytes:
     """Serialise a message to msgpack bytes (envelope plus fields)."""
-    data: dict[str, Any] = {"v": SCHEMA_VERSION, "k": msg.KIND}
-    for name, _ in _FIELDS[type(msg)]:
-        data[name] = getattr(msg, name)
-    return msgpack.packb(data, use_bin_type=True)
+    return _ENCODER.encode(msg)
+
+
+def _reason(error: str) -> str:
+    """Return the counter reason of a msgspec validation error message."""
+    missing = _MISSING.search(error)
+    if missing is not None:
+        name = missing.group(1)
+        return {"k": "unknown_kind", "v": "bad_version"}.get(name, "missing_field")
+    path = _PATH.search(error)
+    if path is None:
+        return "not_a_map"  # only the top level has no path: "Expected `object`, got ..."
+    return {"k": "unknown_kind", "v": "bad_version"}.get(path.group(1), "bad_field")
 
 
 def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None = None) -> Message:
@@ -415,6 +364,11 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None
     expect : type, optional
         If given, any other message kind is rejected (``unknown_kind``).
 
+    Returns
+    -------
+    Message
+        An instance of one of :data:`MESSAGE_TYPES` (of ``expect`` if given).
+
     Raises
     ------
     MessageError
@@ -424,49 +378,18 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None
     if len(payload) > MAX_MESSAGE_BYTES:
         raise MessageError("too_large", f"{len(payload)} bytes")
     try:
-        data = msgpack.unpackb(
-            payload if payload.__class__ is bytes else bytes(payload),
-            raw=False,
-            strict_map_key=True,
-            max_str_len=MAX_TEXT * 4,
-            max_bin_len=MAX_JPEG_BYTES,
-            max_array_len=64,
-            max_map_len=128,
-            max_ext_len=0,
-        )
-    except Exception as exc:  # msgpack raises many types (ValueError, ExtraData, ...)
-        raise MessageError("not_msgpack", type(exc).__name__) from None
-    if not isinstance(data, dict):
-        raise MessageError("not_a_map", type(data).__name__)
-    if data.get("v") != SCHEMA_VERSION:
-        raise MessageError("bad_version", f"v={data.get('v')!r}, expected {SCHEMA_VERSION}")
-    kind = data.get("k")
-    cls = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
-    if cls is None or (expect is not None and cls is not expect):
-        raise MessageError("unknown_kind", f"k={kind!r}")
-    kwargs: dict[str, Any] = {}
-    for name, spec, fast, lo, hi, n in _PLANS[cls]:
-        if name not in data:
-            raise MessageError("missing_field", name)
-        value = data[name]
-        if fast == _FLOAT:
-            if value.__class__ is float and lo <= value <= hi:
-                kwargs[name] = value
-                continue
-        elif fast == _FLOATS:
-            if value.__class__ is list and len(value) == n:
-                for x in value:
-                    if x.__class__ is not float or not lo <= x <= hi:
-                        break
-                else:
-                    kwargs[name] = value  # a fresh list from msgpack, not shared
-                    continue
-        elif fast == _INTEGER and value.__class__ is int and lo <= value <= hi:
-            kwargs[name] = value
-            continue
-        kwargs[name] = _check(spec, name, value)
-    if cls in _DIRECT:
-        msg = object.__new__(cls)
-        msg.__dict__.update(kwargs)
-        return msg
-    return cls(**kwargs)
+        wire = _DECODER.decode(payload)
+    except msgspec.ValidationError as exc:
+        # msgspec stops at the first wrong value; bytes that are not one whole msgpack
+        # object at all count as not_msgpack however early they went wrong (error path only)
+        try:
+            msgspec.msgpack.decode(payload)
+        except Exception as bad:  # DecodeError, UnicodeDecodeError, RecursionError, ...
+            raise MessageError("not_msgpack", f"{type(bad).__name__}: {bad}") from None
+        raise MessageError(_reason(str(exc)), str(exc)) from None
+    except Exception as exc:  # DecodeError, UnicodeDecodeError, RecursionError, ...
+        raise MessageError("not_msgpack", f"{type(exc).__name__}: {exc}") from None
+    cls = _TWINS[type(wire)]
+    if expect is not None and cls is not expect:
+        raise MessageError("unknown_kind", f"k={cls.KIND!r}, expected {expect.KIND!r}")
+    return cls(*msgspec.structs.astuple(wire))

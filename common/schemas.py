@@ -4,13 +4,14 @@ Every channel of a recording (:mod:`bipedtele.recording`) carries a schema with 
 ``jsonschema`` and its messages are JSON objects (message encoding ``json``), the JSON form
 Foxglove's MCAP reader understands. The schemas come from three sources:
 
-- **Wire messages** (:class:`bipedtele.messages.Message` and any other dataclass written to
-  a recorder): :func:`dataclass_schema` reads the field names and type hints
-  (``float`` -> number, ``int`` -> integer, ``list[float]`` -> array of numbers, ``bytes``
-  -> base64 string, ...) and, where a field carries a ``spec`` in its metadata (as the
-  message classes do), the numeric ranges (``lo``/``hi``), exact list lengths (``n``),
-  string choices and lengths. The envelope ``v`` (schema version) and ``k`` (kind) are
-  constants. Schema name: ``bipedtele.<ClassName>``.
+- **Wire messages** (:class:`bipedtele.messages.Message`): :func:`message_schema` is
+  msgspec's JSON Schema of the message's Struct (:func:`msgspec.json.schema`), so the
+  ranges, exact list lengths, string choices and lengths are the very constraints the
+  decoder applies; every field is required (as on the wire) and the envelope ``v``
+  (schema version) and ``k`` (kind) are constants. Any other dataclass written to a
+  recorder: :func:`dataclass_schema` reads its field names and type hints (``float`` ->
+  number, ``int`` -> integer, ``list[float]`` -> array of numbers, ``bytes`` -> base64
+  string, ...). Schema name: ``bipedtele.<ClassName>``.
 - **Video**: :func:`compressed_image_schema` is Foxglove's well-known
   ``foxglove.CompressedImage`` (``timestamp`` {sec, nsec}, ``frame_id``, ``data`` as base64,
   ``format``) with the :class:`~bipedtele.messages.VideoFrame` header fields beside them;
@@ -31,9 +32,10 @@ import dataclasses
 import functools
 import types
 from collections.abc import Mapping
-from typing import Any, Final, Union, cast, get_args, get_origin, get_type_hints
+from typing import Any, Final, Union, get_args, get_origin, get_type_hints
 
-from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame
+import msgspec
+from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame, message_fields
 
 __all__ = [
     "COMPRESSED_IMAGE",
@@ -48,6 +50,7 @@ __all__ = [
     "dataclass_schema",
     "event_schema",
     "leader_state_schema",
+    "message_schema",
     "sample_schema",
     "video_header_schema",
 ]
@@ -120,52 +123,50 @@ def _hint_schema(hint: Any) -> Schema:
     return {}  # Any or an unknown type: no constraint
 
 
-def _with_spec(schema: Schema, spec: Any) -> Schema:
-    """Add the ranges of a message field's ``spec`` (duck-typed: ``lo``/``hi``/``n``,
-    ``choices``/``max_len``, ``max_items``) to its schema."""
-    if spec is None or spec is bool:
-        return schema
-    out = dict(schema)
-    lo, hi, n = getattr(spec, "lo", None), getattr(spec, "hi", None), getattr(spec, "n", 0)
-    target = out
-    if out.get("type") == "array":
-        if n:
-            out["minItems"] = out["maxItems"] = n
-        target = out["items"] = dict(out.get("items", _NUMBER))
-    if lo is not None and hi is not None:
-        target["minimum"], target["maximum"] = lo, hi
-    choices = getattr(spec, "choices", ())
-    if choices:
-        out["enum"] = list(choices)
-    max_len = getattr(spec, "max_len", None)
-    if max_len is not None and out.get("type") == "string":
-        if out.get("contentEncoding") == "base64":
-            out["maxLength"] = 4 * ((max_len + 2) // 3)
-        else:
-            out["maxLength"] = max_len
-    max_items = getattr(spec, "max_items", None)
-    if max_items is not None and out.get("type") == "object":
-        out["maxProperties"] = max_items
-        out["additionalProperties"] = {"type": "integer", "minimum": 0}
-    return out
-
-
 def _first_line(doc: str | None) -> str:
     return (doc or "").strip().splitlines()[0] if (doc or "").strip() else ""
 
 
 @functools.cache
-def dataclass_schema(cls: type) -> Schema:
-    """The JSON Schema of a dataclass's recorded map (a wire message or a typed sample).
+def message_schema(cls: type[Message]) -> Schema:
+    """Return the JSON Schema of a wire message's recorded map, from its msgspec type.
 
-    For a :class:`~bipedtele.messages.Message` subclass the map is the one that goes over
-    the wire (:func:`bipedtele.recording.message_to_dict`): the constants ``v`` and ``k``
-    followed by the fields, all required. For any other dataclass, its fields.
+    The map is the one that goes over the wire (:func:`bipedtele.recording.message_to_dict`):
+    the constants ``v`` and ``k`` and the fields, all required, nothing else.
 
     Parameters
     ----------
     cls : type
-        A dataclass.
+        A :class:`~bipedtele.messages.Message` subclass.
+
+    Returns
+    -------
+    dict
+        An object schema titled ``bipedtele.<ClassName>``; no additional properties.
+    """
+    generated = msgspec.json.schema(cls)
+    body = generated.get("$defs", {}).get(cls.__name__, generated)
+    props: dict[str, Schema] = {
+        "v": {"const": SCHEMA_VERSION, "description": "schema version"},
+        "k": {"const": cls.KIND, "description": "message kind"},
+    }
+    for name in message_fields(cls):
+        if name not in props:
+            props[name] = {k: v for k, v in body["properties"][name].items() if k != "default"}
+    return _object(f"bipedtele.{cls.__name__}", props, list(props), description=_first_line(cls.__doc__))
+
+
+@functools.cache
+def dataclass_schema(cls: type) -> Schema:
+    """Return the JSON Schema of a recorded map: a wire message's or a typed sample's.
+
+    A :class:`~bipedtele.messages.Message` subclass gets :func:`message_schema`; any
+    other dataclass an object of its fields, typed from their hints, all required.
+
+    Parameters
+    ----------
+    cls : type
+        A message class or a dataclass.
 
     Returns
     -------
@@ -175,21 +176,15 @@ def dataclass_schema(cls: type) -> Schema:
     Raises
     ------
     TypeError
-        ``cls`` is not a dataclass.
+        ``cls`` is neither.
     """
+    if isinstance(cls, type) and issubclass(cls, Message):
+        return message_schema(cls)
     if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
-        raise TypeError(f"{cls!r} is not a dataclass")
+        raise TypeError(f"{cls!r} is not a message class or a dataclass")
     hints = get_type_hints(cls)
-    props: dict[str, Schema] = {}
-    required: list[str] = []
-    if issubclass(cls, Message):
-        props["v"] = {"const": SCHEMA_VERSION, "description": "schema version"}
-        props["k"] = {"const": cast(type[Message], cls).KIND, "description": "message kind"}
-        required += ["v", "k"]
-    for f in dataclasses.fields(cls):
-        props[f.name] = _with_spec(_hint_schema(hints[f.name]), f.metadata.get("spec"))
-        required.append(f.name)
-    return _object(f"bipedtele.{cls.__name__}", props, required, description=_first_line(cls.__doc__))
+    props = {f.name: _hint_schema(hints[f.name]) for f in dataclasses.fields(cls)}
+    return _object(f"bipedtele.{cls.__name__}", props, list(props), description=_first_line(cls.__doc__))
 
 
 # ---------------------------------------------------------------------- video

@@ -41,7 +41,6 @@ Examples
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import json
 import logging
@@ -55,6 +54,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
+import msgspec
 import zenoh
 from bipedtele.acl import access_control_json, credential_users
 from bipedtele.auth import MacError, MessageAuth
@@ -433,7 +433,7 @@ class Stamper:
         """A copy of ``msg`` with this stamper's sid, the next seq and the current time."""
         with self._lock:
             seq = next(self._seq)
-        return dataclasses.replace(msg, sid=self.sid, seq=seq, t=self._clock())
+        return msgspec.structs.replace(msg, sid=self.sid, seq=seq, t=self._clock())
 
 
 class MessagePublisher:

@@ -189,7 +189,8 @@ def test_garbage_on_every_key_is_dropped_and_counted(tmp_path: Path) -> None:
 
 SENDER = r'''
 """Replays a JSON spec on a real Zenoh session (blocking congestion control: nothing lost)."""
-import dataclasses, json, sys, time
+import json, sys, time
+import msgspec
 import zenoh
 from bipedtele.auth import load_message_auth
 from bipedtele.messages import Command, encode
@@ -206,7 +207,7 @@ with open_session(net) as s:
         s.put(key, bytes.fromhex(hexpayload), congestion_control=block)
         time.sleep(0.002)
     for offset in spec.get("stamped", []):  # send time = this host's clock + offset
-        msg = dataclasses.replace(st.make(Command), t=time.time() + offset)
+        msg = msgspec.structs.replace(st.make(Command), t=time.time() + offset)
         s.put("bipedtele/nao1/cmd", encode(msg), congestion_control=block)
         time.sleep(0.002)
     with Publishers(s, Keys("nao1"), auth=load_message_auth(net)) as pubs:

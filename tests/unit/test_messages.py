@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import math
 
 import msgpack
+import msgspec
+import msgspec.inspect as mi
 import pytest
 from bipedtele.messages import (
     MESSAGE_TYPES,
@@ -18,13 +19,9 @@ from bipedtele.messages import (
     MessageError,
     Status,
     VideoFrame,
-    _Bytes,
-    _Counters,
-    _Int,
-    _Num,
-    _Str,
     decode,
     encode,
+    message_fields,
 )
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -33,32 +30,35 @@ pytestmark = pytest.mark.timeout(120)
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
-def _num(spec: _Num) -> st.SearchStrategy:
-    one = st.floats(min_value=spec.lo, max_value=spec.hi, allow_nan=False, allow_infinity=False)
-    return st.lists(one, min_size=spec.n, max_size=spec.n) if spec.n else one
-
-
-def _field_strategy(spec: object) -> st.SearchStrategy:
-    if isinstance(spec, _Num):
-        return _num(spec)
-    if isinstance(spec, _Int):
-        return st.integers(spec.lo, spec.hi)
-    if isinstance(spec, _Str):
-        return st.sampled_from(spec.choices) if spec.choices else st.text(max_size=50)
-    if isinstance(spec, _Bytes):
+def _field_strategy(t: mi.Type) -> st.SearchStrategy:
+    """Valid values of one field, read from its msgspec type and constraints."""
+    if isinstance(t, mi.Metadata):
+        return _field_strategy(t.type)
+    if isinstance(t, mi.FloatType):
+        return st.floats(min_value=t.ge, max_value=t.le, allow_nan=False, allow_infinity=False)
+    if isinstance(t, mi.IntType):
+        return st.integers(t.ge, t.le)
+    if isinstance(t, mi.ListType):
+        return st.lists(_field_strategy(t.item_type), min_size=t.min_length, max_size=t.max_length)
+    if isinstance(t, mi.StrType):
+        if t.pattern:
+            return st.from_regex(t.pattern, fullmatch=True)
+        return st.text(max_size=min(50, t.max_length or 50))
+    if isinstance(t, mi.BytesType):
         return st.binary(max_size=256)
-    if isinstance(spec, _Counters):
+    if isinstance(t, mi.DictType):
         return st.dictionaries(st.text(max_size=10), st.integers(0, 2**40), max_size=5)
-    if spec is bool:
+    if isinstance(t, mi.BoolType):
         return st.booleans()
-    raise AssertionError(spec)
+    if isinstance(t, mi.LiteralType):
+        return st.sampled_from(t.values)
+    raise AssertionError(t)
 
 
 def _message(cls: type[Message]) -> st.SearchStrategy:
-    return st.builds(
-        cls,
-        **{f.name: _field_strategy(f.metadata["spec"]) for f in dataclasses.fields(cls)},
-    )
+    info = mi.type_info(cls)
+    assert isinstance(info, mi.StructType)
+    return st.builds(cls, **{f.name: _field_strategy(f.type) for f in info.fields})
 
 
 any_message = st.one_of(*[_message(c) for c in MESSAGE_TYPES.values()])
@@ -186,3 +186,93 @@ def test_other_reasons() -> None:
         decode(msgpack.packb(v, use_bin_type=True))
     p = ClockPong(ping_sid=1, ping_seq=2, t1=1.0, t2=2.0)
     assert decode(encode(p)) == p
+
+
+def _float_paths(cls: type[Message]) -> list[tuple[str, int | None]]:
+    """Every float on the wire of ``cls``: (field, index in its list or None)."""
+    info = mi.type_info(cls)
+    assert isinstance(info, mi.StructType)
+    out: list[tuple[str, int | None]] = []
+    for f in info.fields:
+        if isinstance(f.type, mi.FloatType):
+            out.append((f.name, None))
+        elif isinstance(f.type, mi.ListType) and isinstance(f.type.item_type, mi.FloatType):
+            out.extend((f.name, i) for i in range(f.type.min_length or 0))
+    return out
+
+
+_EVERY_FLOAT = [(cls, name, i) for cls in MESSAGE_TYPES.values() for name, i in _float_paths(cls)]
+
+
+def test_every_float_field_is_found() -> None:
+    """The parametrisation below covers the float fields (Command's 10, Feedback's 23, ...)."""
+    counts = {cls.KIND: sum(1 for c, _, _ in _EVERY_FLOAT if c is cls) for cls in MESSAGE_TYPES.values()}
+    assert counts == {"cmd": 10, "fb": 23, "video": 2, "ping": 1, "pong": 3, "status": 1}
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+@pytest.mark.parametrize(("cls", "name", "index"), _EVERY_FLOAT, ids=lambda x: getattr(x, "KIND", str(x)))
+def test_non_finite_refused_in_every_float(cls: type[Message], name: str, index: int | None, bad: float) -> None:
+    """msgspec's float constraints alone would let NaN through an unbounded float: every float
+    field is bounded on both sides, so NaN and the infinities are refused wherever they are."""
+    data = msgpack.unpackb(encode(cls()))
+    if index is None:
+        data[name] = bad
+    else:
+        data[name][index] = bad
+    with pytest.raises(MessageError) as exc:
+        decode(msgpack.packb(data, use_bin_type=True))
+    assert exc.value.reason == "bad_field"
+    assert f"$.{name}" in exc.value.detail
+
+
+def test_every_float_field_is_bounded_both_sides() -> None:
+    """The reason NaN is refused: no float type is open on either side."""
+
+    def floats(t: mi.Type) -> list[mi.FloatType]:
+        if isinstance(t, mi.Metadata):
+            return floats(t.type)
+        if isinstance(t, mi.FloatType):
+            return [t]
+        if isinstance(t, mi.ListType):
+            return floats(t.item_type)
+        return []
+
+    for cls in MESSAGE_TYPES.values():
+        info = mi.type_info(cls)
+        assert isinstance(info, mi.StructType)
+        for f in info.fields:
+            for ft in floats(f.type):
+                assert (ft.ge is not None or ft.gt is not None) and (ft.le is not None or ft.lt is not None), (cls, f.name)
+
+
+def test_every_field_is_required_on_the_wire() -> None:
+    """A field left out is an error (``missing_field``), not its default, for every field."""
+    for cls in MESSAGE_TYPES.values():
+        good = msgpack.unpackb(encode(cls()))
+        for name in message_fields(cls):
+            with pytest.raises(MessageError) as exc:
+                decode(msgpack.packb({k: v for k, v in good.items() if k != name}, use_bin_type=True))
+            want = "bad_version" if name == "v" else "missing_field"
+            assert exc.value.reason == want, (cls, name)
+        missing_kind = {k: v for k, v in good.items() if k != "k"}
+        with pytest.raises(MessageError) as exc:
+            decode(msgpack.packb(missing_kind, use_bin_type=True))
+        assert exc.value.reason == "unknown_kind"
+
+
+def test_deep_nesting_in_an_unknown_field() -> None:
+    """Unknown keys are skipped, but a value nested far too deep is a MessageError."""
+    head = msgpack.packb({"k": "ping", "v": SCHEMA_VERSION, "sid": 1, "seq": 1, "t": 1.0})
+    body = b"\x86" + head[1:] + b"\xa2zz" + b"\x91" * 200_000 + b"\xc0"
+    with pytest.raises(MessageError) as exc:
+        decode(body)
+    assert exc.value.reason == "not_msgpack"
+
+
+def test_messages_are_frozen_and_replaceable() -> None:
+    c = Command(sid=1, seq=2, t=3.0)
+    with pytest.raises(AttributeError):
+        c.seq = 5  # type: ignore[misc]
+    d = msgspec.structs.replace(c, seq=5)
+    assert d.seq == 5 and c.seq == 2 and decode(encode(d)) == d
