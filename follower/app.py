@@ -16,88 +16,37 @@ Nothing is written (recording) before the configuration is valid.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
+import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bipedtele.auth import load_message_auth
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.clock import ClockSync
-from bipedtele.clocklink import ClockLink
+from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
-from bipedtele.drops import DropCounter
-from bipedtele.follower.loop import DEFAULT_MAX_FUTURE_S, FollowerLoop
+from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot
+from bipedtele.follower.robots import robot_names, robot_spec
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
-from bipedtele.messages import ClockPing, ClockPong, Command, Feedback, Message, Status, VideoFrame
-from bipedtele.recording import Recorder, recording_for_run
-from bipedtele.shutdown import shutdown_on_signals
-from bipedtele.transport import (
-    Keys,
-    LatestReceiver,
-    Publishers,
-    declare_presence,
-    open_session,
-)
+from bipedtele.messages import Command, Feedback, Message, Status
+from bipedtele.node import Node, StepClock
+from bipedtele.pacer import Pacer
+from bipedtele.transport import LatestReceiver, MessagePublisher, Received
 
-__all__ = ["add_follower_parser", "main"]
+__all__ = ["FollowerApp", "add_follower_parser", "main"]
 
 LOG = logging.getLogger(__name__)
 
 
-def _robot_from_config(cfg: Config, name: str) -> FollowerRobot:
-    try:
-        return make_robot(name, config=cfg)
-    except ValueError as exc:
-        raise ConfigError(f"--robot: {exc}") from None
+class FollowerApp:
+    """The follower program on the node runtime (see the module docstring).
 
-
-def _reset_hook(robot: FollowerRobot) -> Any:
-    """``on_new_leader`` for ``--reset-on-leader``: the robot back on its start pose."""
-
-    def on_new_leader(sid: int) -> bool:
-        reset = getattr(robot, "reset_pose", None)
-        if reset is None:
-            return False
-        LOG.info("new leader session %d: putting the robot back on the course start", sid)
-        reset()
-        return True
-
-    return on_new_leader
-
-
-class _Pacer:
-    """Sleeps to keep a fixed period without drift (skips ahead after overruns)."""
-
-    def __init__(self, period: float) -> None:
-        self.period = period
-        self.next = time.monotonic()
-        self.overruns = 0
-
-    def wait(self) -> None:
-        self.next += self.period
-        delay = self.next - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        elif delay < -self.period:
-            self.overruns += 1
-            self.next = time.monotonic()
-
-
-def main(
-    cfg: Config,
-    *,
-    robot_name: str | None = None,
-    realtime: bool | None = None,
-    duration_s: float | None = None,
-    record: Path | None = None,
-    reset_on_leader: bool = False,
-) -> int:
-    """Run the follower until a signal or ``duration_s`` of robot time.
+    Every argument and setting is checked when it is built (one line, exit 2); nothing
+    is opened or written before :meth:`run`.
 
     Parameters
     ----------
@@ -113,130 +62,180 @@ def main(
         MCAP file (default: a new file in ``[record] dir`` when recording is enabled).
     reset_on_leader : bool
         Put the robot back on its start pose whenever a new leader session begins
-        (simulator only).
+        (simulated robots only).
     """
-    fcfg = cfg.section("follower")
-    name = robot_name or fcfg.robot
-    rt = fcfg.realtime if realtime is None else realtime
-    if not rt and name != "sim":
-        raise ConfigError(f"--realtime off with robot {name!r}: allowed: only with the simulator (robot 'sim')")
-    if reset_on_leader and name != "sim":
-        raise ConfigError(f"--reset-on-leader with robot {name!r}: allowed: only with the simulator (robot 'sim')")
-    keys = Keys(cfg.section("robot").id)
-    # Every setting is checked (the robot's section too) before anything is written.
-    robot_obj = _robot_from_config(cfg, name)
-    ck = cfg.section("clock")
-    max_future_s = float(getattr(ck, "max_future_s", DEFAULT_MAX_FUTURE_S))
-    auth = load_message_auth(cfg.section("network"))  # a bad key file fails here, before any I/O
-    rec_cfg = cfg.section("record")
-    if record is not None and record.exists():
-        raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)")
-    ntp = ck.mode == "ntp"
-    sync = ClockSync(ck.ping_window) if ntp else None
-    drops = DropCounter("follower")
-    # The command gate follows one leader session (another takes over only after the
-    # watchdog's silence); its live sid binds the clock link.
-    cmd_gate = SequenceGate(takeover_after_s=fcfg.watchdog_s)
 
-    with contextlib.ExitStack() as stack:
-        stop = stack.enter_context(shutdown_on_signals())
-        session = stack.enter_context(open_session(cfg.section("network")))
-        pubs = stack.enter_context(Publishers(session, keys, auth=auth))
+    def __init__(
+        self,
+        cfg: Config,
+        *,
+        robot_name: str | None = None,
+        realtime: bool | None = None,
+        duration_s: float | None = None,
+        record: Path | None = None,
+        reset_on_leader: bool = False,
+    ) -> None:
+        self.cfg = cfg
+        self.fcfg = cfg.section("follower")
+        self.robot_name = robot_name or self.fcfg.robot
         try:
-            robot = stack.enter_context(robot_obj)
-        except RobotError as exc:
-            LOG.error("robot %s: %s", name, exc)
-            return 1
-        # Configuration, session and robot are good: now the recording and our presence.
-        recorder: Recorder | None = None
-        if record is not None or rec_cfg.enabled:
-            recorder = stack.enter_context(recording_for_run(
-                record, rec_cfg.dir, "follower", flush_s=rec_cfg.flush_s,
-                metadata={"role": "follower", "config": cfg.to_dict()},
+            self.spec = robot_spec(self.robot_name)
+            # Every setting is checked (the robot's section too) before anything is written.
+            self.robot: FollowerRobot = make_robot(self.robot_name, config=cfg)
+        except ValueError as exc:
+            raise ConfigError(f"--robot: {exc}") from None
+        self.realtime = self.fcfg.realtime if realtime is None else realtime
+        simulated = ", ".join(n for n in robot_names() if robot_spec(n).simulated)
+        if not self.realtime and not self.spec.simulated:
+            raise ConfigError(f"--realtime off with robot {self.robot_name!r}: allowed: only with a simulated robot ({simulated})")
+        if reset_on_leader and not self.spec.simulated:
+            raise ConfigError(f"--reset-on-leader with robot {self.robot_name!r}: allowed: only with a simulated robot ({simulated})")
+        self.reset_on_leader = reset_on_leader
+        self.duration_s = duration_s
+        self.node = Node(cfg, "follower", record=record)  # a bad key file or --record fails here
+        # The command gate follows one leader session (another takes over only after the
+        # watchdog's silence): the only de-duplication of commands. Its live sid binds
+        # the clock link.
+        self.gate = SequenceGate(takeover_after_s=self.fcfg.watchdog_s)
+        self.h1 = DelayEstimator(cfg.section("clock").delay_window_s)
+        self.dt = 1.0 / self.fcfg.control_rate_hz
+        self.clock: Callable[[], float] = time.time if self.realtime else StepClock(self.dt)
+        # Woken by the command receiver: a fresh command is applied at once (pickup).
+        self.pacer: Pacer | None = None
+        self._cmd_rx: LatestReceiver[Command] | None = None
+        self._outlets: dict[type[Message], tuple[MessagePublisher, str]] = {}
+
+    # ------------------------------------------------------------------ wiring
+
+    def _take_command(self) -> tuple[Command, float] | None:
+        got = self._cmd_rx.take() if self._cmd_rx is not None else None
+        return (got.msg, got.t_recv) if got is not None else None
+
+    def _on_command(self, got: Received[Command]) -> None:  # Zenoh's thread: wake the loop
+        if self.pacer is not None:
+            self.pacer.notify()
+
+    def _publish(self, msg: Message) -> None:
+        pub, topic = self._outlets[type(msg)]
+        self.node.send(pub, msg, topic)
+
+    def _reset_robot(self, sid: int) -> bool:
+        """``on_new_leader`` for ``--reset-on-leader``: the robot back on its start pose."""
+        reset = getattr(self.robot, "reset_pose", None)
+        if reset is None:
+            return False
+        LOG.info("new leader session %d: putting the robot back on the course start", sid)
+        reset()
+        return True
+
+    def _make_loop(self, robot: FollowerRobot) -> FollowerLoop:
+        node = self.node
+        return FollowerLoop(
+            robot, self.cfg.section("control"), self.fcfg, self._take_command, self._publish,
+            now=self.clock, to_local=node.to_local, estimator=self.h1, drops=node.drops, sid=node.sid,
+            on_event=node.event, conservative_rtt=node.round_trip, max_future_s=node.max_future_s,
+            on_new_leader=self._reset_robot if self.reset_on_leader else None,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ run
+
+    def run(self) -> int:
+        """Run until a signal or ``duration_s`` of robot time; return the exit code.
+
+        0: clean end; 1: the robot could not be connected at the start.
+        """
+        with self.node as node:
+            try:
+                robot = node.enter(self.robot)
+            except RobotError as exc:
+                LOG.error("robot %s: %s", self.robot_name, exc)
+                return 1
+            # Configuration, session and robot are good: now the recording and our presence.
+            node.start_recording({})
+            node.declare_presence()
+            pubs = node.pubs
+            self._outlets = {Feedback: (pubs.feedback, "feedback/sent"), Status: (pubs.status, "status/sent")}
+            loop = self._make_loop(robot)
+            # Every accepted command: recorded and fed to h1 once, in the receiver.
+            self._cmd_rx = node.receive(
+                node.keys.cmd, Command, self.gate, topic="cmd/recv", estimator=self.h1, on_message=self._on_command
+            )
+            backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))
+            supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
+            video = node.enter(VideoStreamer(
+                robot, self.fcfg.cameras, self.fcfg.camera_fps, pubs.video.put, now=self.clock,
+                jpeg_quality=self.fcfg.jpeg_quality,
             ))  # fmt: skip
-        stack.enter_context(declare_presence(session, keys, "follower"))
-
-        def on_command(got: Any) -> None:  # every accepted command, once, in the receiver
-            if recorder is not None:
-                recorder.write("cmd/recv", got.msg, got.t_recv)
-
-        cmd_rx = stack.enter_context(LatestReceiver(
-            session, keys.cmd, Command, drops, cmd_gate, clock_sync=sync, auth=auth,
-            max_future_s=max_future_s, on_message=on_command,
-        ))  # fmt: skip
-
-        def publish(msg: Message) -> None:
-            if isinstance(msg, Feedback):
-                pubs.feedback.put(msg)
-                topic = "feedback/sent"
-            elif isinstance(msg, Status):
-                msg = Status(**{**msg.__dict__, "counters": {**msg.counters, **{f"drop_{k}": v for k, v in drops.counts().items()}}})
-                pubs.status.put(msg)
-                topic = "status/sent"
+            node.link_clocks(peer_sid=lambda: self.gate.live_sid)
+            LOG.info("follower %s ready: robot %s, key %s, %s", node.keys.cmd.split("/")[1], self.robot_name,
+                     node.keys.cmd, "real time" if self.realtime else "as fast as possible")  # fmt: skip
+            if self.realtime:
+                self._run_realtime(robot, loop, supervisor, video)
             else:
-                pubs.video.put(msg)
-                topic = "video/sent"
-            if recorder is not None and not isinstance(msg, VideoFrame):
-                recorder.write(topic, msg, time.time())
+                self._run_fast(supervisor, video)
+            LOG.info("follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
+                     dict(loop.counters), supervisor.faults, supervisor.reconnects, video.stats["errors"])  # fmt: skip
+        return 0
 
-        def latest_command() -> tuple[Command, float] | None:
-            got = cmd_rx.latest()
-            return (got.msg, got.t_recv) if got is not None else None
+    def _over(self, start_t: float) -> bool:
+        return self.duration_s is not None and self.clock() - start_t >= self.duration_s
 
-        def on_event(event: str, detail: dict[str, Any]) -> None:
-            if recorder is not None:
-                recorder.write("events", {"event": event, **detail}, time.time())
-
-        ticks = [0]
-        if rt:
-            clock = time.time
-        else:
-            # Faster than real time: message times follow robot time, offset to the wall
-            # clock at start so they stay plausible to receivers.
-            t0_wall = time.time()
-
-            def clock() -> float:
-                return t0_wall + ticks[0] * loop.dt
-
-        loop = FollowerLoop(
-            robot, cfg.section("control"), fcfg, latest_command, publish,
-            now=clock, to_local=sync.to_local if sync is not None else (lambda t: t),
-            delay_window_s=ck.delay_window_s, on_event=on_event,
-            conservative_rtt=(lambda: sync.rtt) if sync is not None and ck.conservative_split else None,
-            max_future_s=max_future_s, on_new_leader=_reset_hook(robot) if reset_on_leader else None,
-        )
-        naoqi_cfg = getattr(robot, "config", None)
-        backoff = tuple(getattr(naoqi_cfg, "reconnect_backoff_s", (0.2, 5.0)))
-        supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
-        video = stack.enter_context(
-            VideoStreamer(robot, fcfg.cameras, fcfg.camera_fps, pubs.video.put, now=clock, jpeg_quality=fcfg.jpeg_quality)
-        )
-        # Clock pings: answered and sent off the control loop, bound to the followed leader.
-        link = stack.enter_context(ClockLink(
-            pubs.clock.put, loop.sid, sync=sync, drops=drops, ping_rate_hz=ck.ping_rate_hz,
-            answer_rate_hz=ck.answer_rate_hz, peer_sid=lambda: cmd_gate.live_sid,
-        ))  # fmt: skip
-        stack.enter_context(LatestReceiver(
-            session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=loop.sid, auth=auth,
-            on_message=link.on_message,
-        ))  # fmt: skip
-        LOG.info("follower %s ready: robot %s, key %s, %s", keys.cmd.split("/")[1], name, keys.cmd, "real time" if rt else "as fast as possible")
-        pacer = _Pacer(loop.dt)
+    def _run_fast(self, supervisor: RobotSupervisor, video: VideoStreamer) -> None:
+        """Faster than real time: one tick, then one period of robot time, and so on."""
+        clock = self.clock
+        assert isinstance(clock, StepClock)
         start_t = clock()
-        while not stop.is_set():
+        while not self.node.stopping:
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)
-            supervisor.advance(loop.dt)
-            if duration_s is not None and clock() - start_t >= duration_s:
+            supervisor.advance(self.dt)
+            if self._over(start_t):
                 break
-            if rt:
-                pacer.wait()
-            else:
-                ticks[0] += 1
-        LOG.info("follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
-                 dict(loop.counters), supervisor.faults, supervisor.reconnects, video.stats["errors"])
-    return 0
+            clock.advance()
+
+    def _run_realtime(
+        self, robot: FollowerRobot, loop: FollowerLoop, supervisor: RobotSupervisor, video: VideoStreamer
+    ) -> None:
+        """Real time: a tick every period; between ticks the robot's time moves on one step
+        at a time on the wall clock, and a command that arrives is applied before the next
+        step (:meth:`FollowerLoop.pickup`)."""
+        step_s = self.spec.step_s(self.cfg)
+        n_sub = max(1, math.ceil(self.dt / step_s - 1e-9)) if step_s else 1
+        sub_dt = self.dt / n_sub
+        self.pacer = pacer = Pacer(sub_dt, clock=time.monotonic)
+        start_t = self.clock()
+        while not self.node.stopping:
+            tel = supervisor.tick()
+            if tel is not None:
+                video.maybe_capture(tel.t)
+            for _ in range(n_sub):
+                supervisor.advance(sub_dt)
+                while not pacer.wait() and not self.node.stopping:
+                    if robot.is_connected:
+                        loop.pickup()
+            if self._over(start_t):
+                break
+
+
+def main(
+    cfg: Config,
+    *,
+    robot_name: str | None = None,
+    realtime: bool | None = None,
+    duration_s: float | None = None,
+    record: Path | None = None,
+    reset_on_leader: bool = False,
+) -> int:
+    """Run the follower until a signal or ``duration_s`` of robot time; return the exit code.
+
+    Parameters are those of :class:`FollowerApp`.
+    """
+    app = FollowerApp(
+        cfg, robot_name=robot_name, realtime=realtime, duration_s=duration_s, record=record,
+        reset_on_leader=reset_on_leader,
+    )  # fmt: skip
+    return app.run()
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -258,7 +257,7 @@ def add_follower_parser(sub: Any) -> None:
     """``bipedtele follower``: run the robot side."""
     p = sub.add_parser("follower", help="run the robot side (pybullet NAO or a real NAO)")
     add_config_args(p)
-    p.add_argument("--robot", choices=["sim", "naoqi"], default=None, help="robot (default: [follower] robot)")
+    p.add_argument("--robot", choices=robot_names(), default=None, help="robot (default: [follower] robot)")
     p.add_argument("--naoqi-url", default=None, metavar="URL", help="real NAO: tcp://HOST:9559 or tcps://HOST:9503 (sets naoqi.url)")
     p.add_argument("--realtime", choices=["on", "off"], default=None, help="pace in real time (off: simulator only)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds of robot time")

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
-
 from bipedtele.config import param
+from bipedtele.follower.robots import robot_names
 
 __all__ = ["FollowerConfig"]
 
@@ -14,7 +13,7 @@ __all__ = ["FollowerConfig"]
 class FollowerConfig:
     """Follower loop settings (see follower/loop.py)."""
 
-    robot: Literal["sim", "naoqi"] = param("sim", doc="which robot: the pybullet NAO or a real NAO")
+    robot: str = param("sim", doc="which robot: 'sim' (the pybullet NAO) or 'naoqi' (a real NAO); see follower/robots.py")
     realtime: bool = param(True, doc="pace the loop in real time (off: as fast as possible, sim only)")
     control_rate_hz: float = param(50.0, lo=5.0, hi=1000.0, unit="Hz", doc="control loop rate")
     feedback_rate_hz: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="feedback publish rate")
@@ -37,6 +36,8 @@ class FollowerConfig:
     sonar_yaw_deg: float = param(22.0, lo=0.0, hi=90.0, unit="deg", doc="yaw of each sonar axis")
 
     def __post_init__(self) -> None:
+        if self.robot not in robot_names():
+            raise ValueError(f"robot: {self.robot!r}: allowed: {', '.join(repr(n) for n in robot_names())}")
         for cam in self.cameras:
             if cam not in ("head", "scene"):
                 raise ValueError(f"cameras: {cam!r}: allowed: 'head', 'scene'")

@@ -2,8 +2,10 @@
 
 Every control period ``dt`` the loop
 
-1. takes the latest command (dropping those older than ``max_cmd_age_s``) and feeds the
-   forward-delay estimator h1 (1 s moving average, docs/method.md);
+1. takes the newest command not taken before (dropping those older than
+   ``max_cmd_age_s``); the forward-delay estimator h1 (1 s moving average,
+   docs/method.md) is fed by the transport's receiver with every accepted command, or by
+   the loop itself when it was given none;
 2. recomputes, when h1 or h2 moved, the equivalent damping sigma_e from (40) and the
    walking parameters (sigma_r, T, eps) from (30) (V.2 and V.3 of the cascade);
 3. turns the sonar ranges into the fictitious force f_v (Sec. 3.2.1);
@@ -30,12 +32,21 @@ make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a t
 robot call failed: the robot is stopped if it can be reached and the walk state is
 forgotten, so walking resumes smoothly once the robot answers again.
 
-The loop is transport-agnostic: it gets callables for the latest command and for
+Event-driven pickup: a command that arrives between two ticks need not wait for the next
+one. :meth:`FollowerLoop.pickup` (called by the program as soon as the receiver signals a
+new command) re-runs this period's control update from the state at the period's start
+with the fresher command, sends the result to the robot before its next physics step and
+publishes the feedback that acknowledges it. The discrete laws keep their period: the
+models step once per period (the newest command is the period's sample), (40) and (30)
+are recomputed under the same ``param_update_s`` rule.
+
+The loop is transport-agnostic: it gets callables for taking a new command and for
 publishing, so it runs in simulated time in tests and over Zenoh in the program.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -50,10 +61,11 @@ from bipedtele.control.damping import schedule_damping
 from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
+from bipedtele.drops import DropCounter
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
-from bipedtele.messages import Command, Feedback, Status, new_session_id
+from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
 
 __all__ = ["DEFAULT_MAX_FUTURE_S", "FollowerLoop", "FollowerTelemetry"]
 
@@ -89,6 +101,15 @@ class FollowerTelemetry:
     obs: RobotObservation | None = None
 
 
+@dataclass
+class _PeriodStart:
+    """The state at a period's start that a command picked up later in the period restarts from."""
+
+    obs: RobotObservation
+    reference: RealFollowerReference
+    equivalent: EquivalentFollower
+
+
 class FollowerLoop:
     """The follower controller around a connected robot.
 
@@ -100,9 +121,10 @@ class FollowerLoop:
         The ``[control]`` section.
     cfg : FollowerConfig
         The ``[follower]`` section.
-    latest_command : callable
-        Returns ``(Command, t_recv)`` of the newest valid command (t_recv on the local
-        clock [s]) or None.
+    take_command : callable
+        Returns ``(Command, t_recv)`` of the newest valid command not taken before (t_recv
+        on the local clock [s]) or None. The transport's sequence gate is the only
+        de-duplication: a command given again is taken again.
     publish : callable
         ``publish(msg)`` for Feedback and Status messages.
     now : callable
@@ -126,6 +148,13 @@ class FollowerLoop:
         accepted (before the robot is observed in that tick). It returns True when it put
         the robot back on its start pose (``--reset-on-leader``, simulator only): the
         loop then forgets its walk state and any fall latch.
+    estimator : DelayEstimator, optional
+        The forward-delay (h1) estimator, fed by the command receiver with every accepted
+        message. None: the loop makes one and feeds it with the commands it takes.
+    drops : DropCounter, optional
+        The node's drop counter; its counts go into every Status as ``drop_<reason>``.
+    sid : int, optional
+        The follower's session id (default: a new random one).
     """
 
     def __init__(
@@ -133,7 +162,7 @@ class FollowerLoop:
         robot: FollowerRobot,
         control: ControlConfig,
         cfg: FollowerConfig,
-        latest_command: Callable[[], tuple[Command, float] | None],
+        take_command: Callable[[], tuple[Command, float] | None],
         publish: Callable[[Any], None],
         *,
         now: Callable[[], float] = time.time,
@@ -143,12 +172,15 @@ class FollowerLoop:
         conservative_rtt: Callable[[], float | None] | None = None,
         max_future_s: float = DEFAULT_MAX_FUTURE_S,
         on_new_leader: Callable[[int], bool] | None = None,
+        estimator: DelayEstimator | None = None,
+        drops: DropCounter | None = None,
+        sid: int | None = None,
     ) -> None:
         self.robot = robot
         self.control = control
         self.cfg = cfg
         self.dt = 1.0 / cfg.control_rate_hz
-        self._latest_command = latest_command
+        self._take = take_command
         self._publish = publish
         self._now = now
         self._to_local = to_local
@@ -156,8 +188,10 @@ class FollowerLoop:
         self._conservative_rtt = conservative_rtt
         self.max_future_s = float(max_future_s)
         self._on_new_leader = on_new_leader
-        self.sid = new_session_id()
-        self.h1 = DelayEstimator(delay_window_s)
+        self.sid = new_session_id() if sid is None else int(sid)
+        self._feed_h1 = estimator is None
+        self.h1 = DelayEstimator(delay_window_s) if estimator is None else estimator
+        self._drops = drops
         self.chooser = OnlineChooser(control)
         self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
         self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt, k_z=control.k_z)
@@ -175,8 +209,8 @@ class FollowerLoop:
             "collisions": 0, "robot_faults": 0, "walk_refused": 0, "leader_sessions": 0, "resets": 0,
         }
         self._cmd: Command | None = None
-        self._cmd_key: tuple[int, int] | None = None
         self._cmd_recv = -math.inf
+        self._period: _PeriodStart | None = None
         self._h_used: tuple[float, float] | None = None
         self._s_e = np.full(2, control.s_e_min)
         self._choice_s_r = np.zeros(2)
@@ -221,15 +255,12 @@ class FollowerLoop:
 
     # ------------------------------------------------------------------ command intake
 
-    def _take_command(self, now: float) -> None:
-        rec = self._latest_command()
+    def _take_command(self, now: float) -> bool:
+        """Take a new command if there is one; True when one was accepted."""
+        rec = self._take()
         if rec is None:
-            return
+            return False
         msg, t_recv = rec
-        key = (msg.sid, msg.seq)
-        if key == self._cmd_key:
-            return
-        self._cmd_key = key
         t_sent = self._to_local(msg.t)
         if not (math.isfinite(t_sent) and math.isfinite(t_recv)) or t_sent - now > self.max_future_s:
             self.counters["cmd_future"] += 1
@@ -239,13 +270,14 @@ class FollowerLoop:
                     "ignoring a command stamped %.3f s ahead of this clock (tolerance %.3f s; %d so far): clocks not in sync, or a forged time",
                     t_sent - now, self.max_future_s, self.counters["cmd_future"],
                 )
-            return
-        # A send time a little after the receive time (clock jitter within the tolerance)
-        # is a zero delay, never a negative one.
-        self.h1.update(min(t_sent, t_recv), t_recv)
+            return False
+        if self._feed_h1:
+            # A send time a little after the receive time (clock jitter within the
+            # tolerance) is a zero delay, never a negative one.
+            self.h1.update(min(t_sent, t_recv), t_recv)
         if now - t_sent > self.cfg.max_cmd_age_s:
             self.counters["cmd_too_old"] += 1
-            return
+            return False
         self._cmd = msg
         self._cmd_recv = t_recv
         self.counters["cmd_accepted"] += 1
@@ -254,6 +286,7 @@ class FollowerLoop:
             self.counters["leader_sessions"] += 1
             if self._on_new_leader is not None and self._on_new_leader(msg.sid):
                 self._after_reset(now)
+        return True
 
     def _after_reset(self, now: float) -> None:
         """The robot was put back on its start pose: forget the walk state and the latch."""
@@ -300,12 +333,79 @@ class FollowerLoop:
     def tick(self) -> FollowerTelemetry:
         """Run one control period (the caller advances the robot by ``dt`` afterwards)."""
         now = self._now()
-        tel = self.telemetry
         self._take_command(now)  # first: a new leader may put the robot back on its start
         obs = self.robot.observe()
+        self._watch(obs, now)
+        # The period's starting state: a command picked up later in the period re-runs
+        # the control update from here (:meth:`pickup`).
+        self._period = _PeriodStart(obs, copy.deepcopy(self.reference), copy.deepcopy(self.equivalent))
+        tel = self._control(now, obs)
+        self._odometry(obs, now, tel.ref)
+        if now >= self._next_fb:
+            self._next_fb = max(now, self._next_fb + 1.0 / self.cfg.feedback_rate_hz)
+            self._publish(self._feedback(now, obs))
+        if now >= self._next_status:
+            self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
+            self._publish(self.status(now))
+        return tel
 
-        h1 = self.h1.value(now)
-        h1 = _delay(tel.h1_s if h1 is None else h1)
+    def pickup(self) -> bool:
+        """Take a command that arrived since the tick and apply it now (see the module docstring).
+
+        The period's control update is run again from the state at the period's start
+        with the new command, the result goes to the robot, and a Feedback acknowledging
+        the command is published at once. A failure is handled as in :meth:`fault`; never
+        raises.
+
+        Returns
+        -------
+        bool
+            True when a new command was accepted.
+        """
+        try:
+            now = self._now()
+            if not self._take_command(now):
+                return False
+            start = self._period
+            if start is None:  # no tick yet: the first one takes it
+                return True
+            self.reference = copy.deepcopy(start.reference)
+            self.equivalent = copy.deepcopy(start.equivalent)
+            old_ref = self.telemetry.ref
+            tel = self._control(now, start.obs)
+            self._ref_sum = self._ref_sum + (np.asarray(tel.ref, dtype=float) - np.asarray(old_ref, dtype=float))
+            self._publish(self._feedback(now, start.obs))
+            return True
+        except Exception as exc:
+            LOG.warning("applying a new command between ticks failed: %s", exc)
+            self.fault(exc)
+            return False
+
+    def _watch(self, obs: RobotObservation, now: float) -> None:
+        """Collisions and falls: count, report, and latch a fall (stopping the robot)."""
+        if obs.in_contact and not self._in_contact:
+            self.counters["collisions"] += 1
+            self._on_event("collision", {"t": now, "pose": list(obs.pose)})
+        self._in_contact = obs.in_contact
+
+        if obs.fallen and not self._fallen:  # every fall: stop, count, latch
+            self.counters["falls"] += 1
+            LOG.error(
+                "robot fell (tilt %.1f deg, fall %d): stopping; it walks again after it stands "
+                "and the operator re-arms (release, then enable)",
+                math.degrees(obs.tilt_rad), self.counters["falls"],
+            )
+            self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self.counters["falls"]})
+            self.robot.stop()
+            self._fall_latched = True
+            self._walking_cmd = self._stop_pending = False
+        self._fallen = obs.fallen
+
+    def _control(self, now: float, obs: RobotObservation) -> FollowerTelemetry:
+        """The period's control update: (40)/(30) when due, (28) and (29), the walk or stop."""
+        tel = self.telemetry
+        h1_est = self.h1.value(now)
+        h1 = _delay(tel.h1_s if h1_est is None else h1_est)
         h2 = _delay(self._cmd.h2_s) if self._cmd is not None else 0.0
         rtt = self._conservative_rtt() if self._conservative_rtt is not None else None
         if rtt is not None:
@@ -324,24 +424,6 @@ class FollowerLoop:
         # The tangential force acting on the forward channel, held over the period: the
         # reference model (28) and the equivalent follower (33) get the same one.
         f_hold = np.zeros(2)
-
-        if obs.in_contact and not self._in_contact:
-            self.counters["collisions"] += 1
-            self._on_event("collision", {"t": now, "pose": list(obs.pose)})
-        self._in_contact = obs.in_contact
-
-        if obs.fallen and not self._fallen:  # every fall: stop, count, latch
-            self.counters["falls"] += 1
-            LOG.error(
-                "robot fell (tilt %.1f deg, fall %d): stopping; it walks again after it stands "
-                "and the operator re-arms (release, then enable)",
-                math.degrees(obs.tilt_rad), self.counters["falls"],
-            )
-            self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self.counters["falls"]})
-            self.robot.stop()
-            self._fall_latched = True
-            self._walking_cmd = self._stop_pending = False
-        self._fallen = obs.fallen
         if self._fall_latched:
             self._update_latch(obs, fresh)
 
@@ -367,7 +449,6 @@ class FollowerLoop:
             state = "stopping" if obs.walking else "standing"
 
         z_e = self.equivalent.step(ref, self._s_e, f_hold)
-        self._odometry(obs, now, ref)
 
         tel.t, tel.state, tel.ref, tel.eta_meas = now, state, ref, eta_meas
         tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = self.reference.eta.copy(), self.reference.z_r.copy(), np.asarray(z_e), f_v
@@ -376,13 +457,6 @@ class FollowerLoop:
         if sent is not None:
             self._T_sent, self._eps_sent = sent.cycle_s, sent.eps_s
         tel.T, tel.eps, tel.sent, tel.obs = self._T_sent, self._eps_sent, sent, obs
-
-        if now >= self._next_fb:
-            self._next_fb = max(now, self._next_fb + 1.0 / self.cfg.feedback_rate_hz)
-            self._publish(self._feedback(now, obs))
-        if now >= self._next_status:
-            self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
-            self._publish(self.status(now))
         return tel
 
     def _odometry(self, obs: RobotObservation, now: float, ref: np.ndarray) -> None:
@@ -394,7 +468,7 @@ class FollowerLoop:
             self._on_event("footfall", {
                 "t": now - max(0.0, obs.t - ff.t), "robot_t": ff.t, "n": ff.n,
                 "pose": [float(v) for v in ff.pose], "step_s": ff.step_s,
-                "ref": _pair(mean, 999.0),
+                "ref": _pair(mean, MAX_SPEED),
             })  # fmt: skip
             self._ref_sum, self._ref_n = np.zeros(2), 0
         # this tick's reference acts until the next observation
@@ -444,7 +518,7 @@ class FollowerLoop:
     def _feedback(self, now: float, obs: RobotObservation) -> Feedback:
         tel = self.telemetry
         self._fb_seq += 1
-        lim = 999.0
+        lim = MAX_SPEED
         return Feedback(
             sid=self.sid,
             seq=self._fb_seq,
@@ -455,7 +529,7 @@ class FollowerLoop:
             ref=_pair(tel.ref, lim),
             pose=[float(v) for v in obs.pose],
             sonar=[float(min(max(v, 0.0), 100.0)) for v in obs.sonar_m],
-            f_v=_pair(tel.f_v, 999.0),
+            f_v=_pair(tel.f_v, lim),
             h1_s=float(min(max(tel.h1_s, 0.0), 60.0)),
             s_e=[float(v) for v in tel.s_e],
             s_r=[float(v) for v in tel.s_r],
@@ -474,9 +548,15 @@ class FollowerLoop:
             t=now,
             role="follower",
             state=self.telemetry.state,
-            counters=dict(self.counters),
+            counters=self._counters(),
             text=f"robot={self.robot.name} T={self._T:.2f}s{self._status_note()}",
         )
+
+    def _counters(self) -> dict[str, int]:
+        counters = dict(self.counters)
+        if self._drops is not None:
+            counters.update({f"drop_{k}": v for k, v in self._drops.counts().items()})
+        return counters
 
     def _status_note(self) -> str:
         if self._fall_latched:

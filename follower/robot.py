@@ -241,7 +241,7 @@ class FollowerRobot(abc.ABC):
 
 R = TypeVar("R", bound=FollowerRobot)
 
-ROBOTS: Registry[FollowerRobot] = Registry("robot", "bipedtele.follower.robots")
+ROBOTS: Registry[FollowerRobot] = Registry("robot", "bipedtele.follower.builtin_robots")
 
 #: Class decorator: make a robot available as ``--robot NAME``.
 register_robot = ROBOTS.register

@@ -32,6 +32,7 @@ class Harness:
         self.published: list[object] = []
         self.events: list[tuple[str, dict]] = []
         self.seq = 0
+        self._taken: Command | None = None
         robot.connect()
         self.loop = FollowerLoop(
             robot, cfg.section("control"), cfg.section("follower"), self.latest, self.published.append,
@@ -39,8 +40,12 @@ class Harness:
         )
 
     def latest(self) -> tuple[Command, float] | None:
+        """The newest arrived command not taken before (as the receiver's latest-slot gives it)."""
         arrived = [(ta, c) for ta, c in self.sent if ta <= self.t]
-        return (arrived[-1][1], arrived[-1][0]) if arrived else None
+        if not arrived or arrived[-1][1] is self._taken:
+            return None
+        self._taken = arrived[-1][1]
+        return arrived[-1][1], arrived[-1][0]
 
     def command(self, v: float, w: float, enable: bool = True, sent_at: float | None = None) -> None:
         self.seq += 1
@@ -384,3 +389,90 @@ def test_an_unexpected_error_in_a_tick_is_a_fault_too() -> None:
     h.loop.equivalent = None  # type: ignore[assignment]  # a bug
     assert sup.tick() is None
     assert sup.faults == 1 and robot.stopping
+
+
+# ---------------------------------------------------------------- issue 13: one intake, pickup on arrival
+
+
+def test_a_command_given_again_is_taken_again_the_gate_is_the_only_dedupe() -> None:
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    cmd = Command(sid=1, seq=1, t=100.0, ref=[5.0, 0.0])
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmd, 100.0),
+                        lambda m: None, now=lambda: 100.0)  # fmt: skip
+    loop.tick()
+    loop.tick()
+    assert loop.counters["cmd_accepted"] == 2
+
+
+def test_a_given_estimator_is_fed_by_the_receiver_not_the_loop() -> None:
+    from bipedtele.clock import DelayEstimator
+
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    est = DelayEstimator(1.0)
+    est.update(99.7, 100.0)  # what the receiver saw: 0.3 s
+    cmd = Command(sid=1, seq=1, t=99.9, ref=[5.0, 0.0])
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmd, 100.0),
+                        lambda m: None, now=lambda: 100.0, estimator=est)  # fmt: skip
+    tel = loop.tick()
+    assert loop.h1 is est
+    assert tel.h1_s == pytest.approx(0.3)  # the taken command (0.1 s) did not feed it
+
+
+def test_status_carries_the_drop_counts_passed_in() -> None:
+    from bipedtele.drops import DropCounter
+
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    drops = DropCounter("follower")
+    drops.drop("bad_mac", "test")
+    published: list[object] = []
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: None,
+                        published.append, now=lambda: 100.0, drops=drops, sid=1234)  # fmt: skip
+    loop.tick()
+    st = [m for m in published if isinstance(m, Status)][-1]
+    assert st.sid == 1234 and st.counters["drop_bad_mac"] == 1 and "cmd_accepted" in st.counters
+
+
+def _twin() -> Harness:
+    h = Harness(KinematicRobot())
+    h.run(3.0, v=5.0, w=2.0)  # walking, commands every 10 ms
+    return h
+
+
+def test_a_command_picked_up_between_ticks_acts_as_the_period_sample() -> None:
+    """pickup() gives the robot what a tick would have given had the command come first."""
+    early, late = _twin(), _twin()
+    # early: the new command arrived just before the tick
+    early.command(2.0, -3.0)
+    early.loop.tick()
+    # late: the tick ran without it; it arrives 7 ms into the period and is picked up
+    late.loop.tick()
+    sent_before = len(late.robot.sent)
+    late.t += 0.007
+    late.command(2.0, -3.0)
+    late.sent[-1] = (late.t, late.sent[-1][1])
+    late.published.clear()
+    assert late.loop.pickup() is True
+    assert len(late.robot.sent) == sent_before + 1  # at once, not at the next tick
+    assert late.robot.sent[-1].forward_m_s == pytest.approx(early.robot.sent[-1].forward_m_s, abs=1e-12)
+    assert late.robot.sent[-1].turn_rad_s == pytest.approx(early.robot.sent[-1].turn_rad_s, abs=1e-12)
+    np.testing.assert_allclose(late.loop.reference.eta, early.loop.reference.eta, atol=1e-12)
+    np.testing.assert_allclose(late.loop.telemetry.z_e, early.loop.telemetry.z_e, atol=1e-12)
+    fb = [m for m in late.published if isinstance(m, Feedback)]
+    assert len(fb) == 1 and fb[0].cmd_seq == late.seq and fb[0].ref == pytest.approx([2.0, -3.0])
+    # nothing new: nothing to do
+    assert late.loop.pickup() is False
+
+
+def test_a_release_picked_up_between_ticks_stops_the_robot_at_once() -> None:
+    h = _twin()
+    h.loop.tick()
+    h.command(0.0, 0.0, enable=False)
+    assert h.loop.pickup() is True
+    assert h.robot.stops >= 1 and h.loop.telemetry.state in ("stopping", "standing")
+    assert h.loop.counters["watchdog_stops"] == 1

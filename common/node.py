@@ -1,0 +1,305 @@
+"""The node runtime both programs (``bipedtele leader``, ``bipedtele follower``) run on.
+
+A :class:`Node` owns what every node does the same way, so that each program's ``main``
+only wires its own parts (a robot and its loop; a device, the cockpit and the haptic
+loop):
+
+- the checks before any I/O: message-key file, clock mode, ``--record`` not an existing
+  file (a bad one raises :class:`~bipedtele.config.ConfigError`);
+- shutdown: SIGINT/SIGTERM set :attr:`Node.stop` (programs loop ``while not
+  node.stopping``), and every part entered with :meth:`Node.enter` closes, in reverse
+  order, when the ``with node:`` block ends (as in zenoh-python's examples);
+- the Zenoh session and the publishers of the robot's keys;
+- declarations: presence (:meth:`Node.declare_presence`, :meth:`Node.watch_presence`) and
+  receivers (:meth:`Node.receive`) with the node's checks applied (message
+  authentication, clock conversion in ntp mode, the future-stamp limit), each accepted
+  message recorded once, in the receiver, under its topic;
+- clock sync: one :class:`~bipedtele.clocklink.ClockLink` (pings answered off the
+  loop thread) and its receiver (:meth:`Node.link_clocks`);
+- the recorder (:meth:`Node.start_recording`, :meth:`Node.record`) and the drop counter
+  every receiver and the node's Status share (:attr:`Node.drops`);
+- the loop clock: the wall clock in real time, or a :class:`StepClock` that moves one
+  loop period per tick when a simulation runs faster than real time.
+
+The node never imports the leader or follower packages.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from pathlib import Path
+from types import TracebackType
+from typing import Any, TypeVar
+
+import zenoh
+from bipedtele.auth import MessageAuth, load_message_auth
+from bipedtele.clock import ClockSync, DelayEstimator
+from bipedtele.clocklink import ClockLink
+from bipedtele.config import Config, ConfigError
+from bipedtele.drops import DropCounter
+from bipedtele.gate import SequenceGate
+from bipedtele.messages import ClockPing, ClockPong, Message, new_session_id
+from bipedtele.recording import Recorder, recording_for_run
+from bipedtele.shutdown import shutdown_on_signals
+from bipedtele.transport import (
+    Keys,
+    LatestReceiver,
+    MessagePublisher,
+    PresenceWatcher,
+    Publishers,
+    Received,
+    declare_presence,
+    open_session,
+)
+
+__all__ = ["Node", "StepClock"]
+
+LOG = logging.getLogger(__name__)
+
+M = TypeVar("M", bound=Message)
+T = TypeVar("T")
+
+
+class StepClock:
+    """Loop clock of a run faster than real time: ``t0 + ticks * period_s``.
+
+    Message times follow the loop's time, offset to the wall clock at the start so that
+    receivers find them plausible.
+
+    Parameters
+    ----------
+    period_s : float
+        Loop period [s].
+    t0 : float, optional
+        Time of tick 0 [s] (default: the wall clock now).
+    """
+
+    def __init__(self, period_s: float, t0: float | None = None) -> None:
+        self.period_s = float(period_s)
+        self.t0 = time.time() if t0 is None else float(t0)
+        self.ticks = 0
+
+    def __call__(self) -> float:
+        """Return the loop time [s]."""
+        return self.t0 + self.ticks * self.period_s
+
+    def advance(self) -> None:
+        """Move on by one loop period."""
+        self.ticks += 1
+
+
+class Node:
+    """One process of the teleoperation link (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : Config
+        The loaded profile.
+    role : str
+        ``leader`` or ``follower`` (presence, recording file prefix, drop counter name).
+    record : Path, optional
+        The recording file asked for (``--record``); it must not exist. None: a new file
+        in ``[record] dir`` when ``[record] enabled``, else no recording.
+    sid : int, optional
+        This node's session id (default: a new random one).
+
+    Raises
+    ------
+    ConfigError
+        ``record`` exists, or the message-key file is bad (checked before any I/O).
+    """
+
+    def __init__(self, cfg: Config, role: str, *, record: Path | None = None, sid: int | None = None) -> None:
+        if record is not None and record.exists():
+            raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)")
+        self.cfg = cfg
+        self.role = role
+        self.keys = Keys(cfg.section("robot").id)
+        self.sid = new_session_id() if sid is None else int(sid)
+        ck = cfg.section("clock")
+        self.ntp: bool = ck.mode == "ntp"
+        self.sync: ClockSync | None = ClockSync(ck.ping_window) if self.ntp else None
+        self.max_future_s = float(ck.max_future_s)
+        self.auth: MessageAuth | None = load_message_auth(cfg.section("network"))
+        self.drops = DropCounter(role)
+        self.recorder: Recorder | None = None
+        self._record_path = record
+        self._stack = contextlib.ExitStack()
+        self._stop: threading.Event | None = None
+        self._session: zenoh.Session | None = None
+        self._pubs: Publishers | None = None
+
+    # ------------------------------------------------------------------ lifetime
+
+    def __enter__(self) -> Node:
+        """Install the signal handlers, open the session and the publishers."""
+        with contextlib.ExitStack() as stack:
+            self._stop = stack.enter_context(shutdown_on_signals())
+            self._session = stack.enter_context(open_session(self.cfg.section("network")))
+            self._pubs = stack.enter_context(Publishers(self._session, self.keys, auth=self.auth))
+            self._stack = stack.pop_all()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        """Close every part entered, newest first, then the session."""
+        self._stack.close()
+
+    def enter(self, part: AbstractContextManager[T]) -> T:
+        """Enter ``part`` (a robot, a device, a receiver...) for the node's lifetime."""
+        return self._stack.enter_context(part)
+
+    def on_close(self, fn: Callable[[], object]) -> None:
+        """Call ``fn()`` when the node closes (before the parts entered earlier)."""
+        self._stack.callback(fn)
+
+    @property
+    def stop(self) -> threading.Event:
+        """Set by SIGINT/SIGTERM (or by anyone who wants the node's loop to end)."""
+        if self._stop is None:
+            raise RuntimeError("Node.stop: enter the node first (with node: ...)")
+        return self._stop
+
+    @property
+    def stopping(self) -> bool:
+        """True once a stop was asked for."""
+        return self._stop is not None and self._stop.is_set()
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The open Zenoh session."""
+        if self._session is None:
+            raise RuntimeError("Node.session: enter the node first (with node: ...)")
+        return self._session
+
+    @property
+    def pubs(self) -> Publishers:
+        """The publishers of the robot's keys."""
+        if self._pubs is None:
+            raise RuntimeError("Node.pubs: enter the node first (with node: ...)")
+        return self._pubs
+
+    # ------------------------------------------------------------------ recording
+
+    def start_recording(self, metadata: dict[str, Any], **kwargs: Any) -> Recorder | None:
+        """Start the run's recording (see ``record``); None when the run records nothing.
+
+        ``kwargs`` go to :class:`~bipedtele.recording.Recorder` (e.g. ``jpeg_every``).
+        """
+        rc = self.cfg.section("record")
+        if self._record_path is None and not rc.enabled:
+            return None
+        self.recorder = self.enter(recording_for_run(
+            self._record_path, rc.dir, self.role, flush_s=rc.flush_s,
+            metadata={"role": self.role, "config": self.cfg.to_dict(), **metadata}, **kwargs,
+        ))  # fmt: skip
+        return self.recorder
+
+    def record(self, topic: str, msg: Any, t: float) -> None:
+        """Write one record (no-op when the run records nothing)."""
+        if self.recorder is not None:
+            self.recorder.write(topic, msg, t)
+
+    def event(self, name: str, detail: dict[str, Any], t: float | None = None) -> None:
+        """Record an event ``{"event": name, **detail}`` at ``t`` (default: now)."""
+        self.record("events", {"event": name, **detail}, time.time() if t is None else t)
+
+    def send(self, pub: MessagePublisher, msg: Message, topic: str | None = None) -> None:
+        """Publish ``msg`` and record it under ``topic`` (None: not recorded)."""
+        pub.put(msg)
+        if topic is not None:
+            self.record(topic, msg, time.time())
+
+    # ------------------------------------------------------------------ declarations
+
+    def declare_presence(self) -> None:
+        """Declare this node alive under its role until it closes."""
+        self.enter(declare_presence(self.session, self.keys, self.role))
+
+    def watch_presence(self, role: str) -> PresenceWatcher:
+        """Watch whether a peer of ``role`` is alive."""
+        return self.enter(PresenceWatcher(self.session, self.keys, role))
+
+    def receive(
+        self,
+        key: str,
+        expect: type[M],
+        gate: SequenceGate | None,
+        *,
+        topic: str | None = None,
+        estimator: DelayEstimator | None = None,
+        on_message: Callable[[Received[M]], None] | None = None,
+        ignore_sid: int | None = None,
+    ) -> LatestReceiver[M]:
+        """Declare a receiver of ``key`` with the node's checks; it lives as long as the node.
+
+        Parameters
+        ----------
+        key : str
+            Key expression.
+        expect : type
+            The message class accepted.
+        gate : SequenceGate or None
+            Drops stale and duplicated messages: the only de-duplication on the way in.
+        topic : str, optional
+            Every accepted message is recorded under this topic, once, in the receiver.
+        estimator : DelayEstimator, optional
+            Fed with every accepted message (send and receive time).
+        on_message : callable, optional
+            Called with every accepted message in Zenoh's callback thread (keep it short).
+        ignore_sid : int, optional
+            Messages of this session (our own on a shared key) are ignored.
+        """
+        record, recorder = self.record, self.recorder
+
+        def accepted(got: Received[M]) -> None:
+            if topic is not None and recorder is not None:
+                record(topic, got.msg, got.t_recv)
+            if on_message is not None:
+                on_message(got)
+
+        wants = (topic is not None and recorder is not None) or on_message is not None
+        rx: LatestReceiver[M] = LatestReceiver(
+            self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
+            auth=self.auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
+            on_message=accepted if wants else None,
+        )  # fmt: skip
+        return self.enter(rx)
+
+    def link_clocks(self, peer_sid: Callable[[], int | None]) -> ClockLink:
+        """Start the clock link (answers pings; pings in ntp mode) bound to ``peer_sid()``."""
+        ck = self.cfg.section("clock")
+        link = self.enter(ClockLink(
+            self.pubs.clock.put, self.sid, sync=self.sync, drops=self.drops, ping_rate_hz=ck.ping_rate_hz,
+            answer_rate_hz=ck.answer_rate_hz, peer_sid=peer_sid,
+        ))  # fmt: skip
+        # The clock receiver gets no clock conversion, future check nor gate: pings are
+        # stamped on the peer's clock, and the link does its own matching.
+        self.enter(LatestReceiver(
+            self.session, self.keys.clock, (ClockPing, ClockPong), self.drops, ignore_sid=self.sid,
+            auth=self.auth, on_message=link.on_message,
+        ))  # fmt: skip
+        return link
+
+    # ------------------------------------------------------------------ clocks
+
+    def to_local(self, t: float) -> float:
+        """Convert a peer's send time to the local clock (identity unless in ntp mode)."""
+        return self.sync.to_local(t) if self.sync is not None else t
+
+    def round_trip(self) -> float | None:
+        """Return the measured round trip [s] when delays are split conservatively, else None.
+
+        ntp mode with ``[clock] conservative_split``: across two clocks the round trip is
+        exact but its split is not, so the control laws take ``h1 = h2 = rtt``.
+        """
+        if self.sync is None or not self.cfg.section("clock").conservative_split:
+            return None
+        rtt = self.sync.rtt
+        return None if rtt is None else float(rtt)
