@@ -101,7 +101,7 @@ def equivalent_max_real(s_e: ArrayLike, cfg: ControlConfig) -> np.ndarray:
     b = np.asarray(cfg.beta_e, dtype=float)
     half = 0.5 * (s + d) / (d * b)
     disc = half * half - k / (d * b)
-    return np.where(disc > 0, -half + np.sqrt(np.maximum(disc, 0.0)), -half)
+    return np.asarray(np.where(disc > 0, -half + np.sqrt(np.maximum(disc, 0.0)), -half))
 
 
 def equivalent_spectral_radius(s_e: ArrayLike, cfg: ControlConfig, dt: ArrayLike) -> np.ndarray | float:

@@ -233,7 +233,7 @@ def jacobian_central(
 def speed_block_matrix(sigma: ArrayLike, D: float, k: float, beta_r: float) -> np.ndarray:
     """2x2 ``A`` of a speed channel ``[y', y4]`` (forward or turn), broadcast over ``sigma``."""
     s = np.asarray(sigma, dtype=float)
-    return mat2(-k / D + 0.0 * s, s / (D * beta_r), k / D + 0.0 * s, -(s / D + 1.0) / beta_r)
+    return np.asarray(mat2(-k / D + 0.0 * s, s / (D * beta_r), k / D + 0.0 * s, -(s / D + 1.0) / beta_r))
 
 
 def rho_speed_block(sigma: ArrayLike, T: ArrayLike, D: float, k: float, beta_r: float, dp: float) -> np.ndarray:
@@ -242,7 +242,7 @@ def rho_speed_block(sigma: ArrayLike, T: ArrayLike, D: float, k: float, beta_r: 
     phi = expm2(speed_block_matrix(s, D, k, beta_r), t)
     r = np.array([[dp, 0.0], [1.0 - dp, 1.0]])
     l1, l2 = eig2(r @ phi)
-    return np.maximum(np.abs(l1), np.abs(l2))
+    return np.asarray(np.maximum(np.abs(l1), np.abs(l2)))
 
 
 def orbit_speed_deficit(sigma: ArrayLike, T: ArrayLike, D: float, k: float, beta_r: float, dp: float) -> np.ndarray:
@@ -307,7 +307,7 @@ def rho_hybrid_grid(
     ``s_r_turn`` is given), ``T`` and ``eps``."""
     tau = s_r if s_r_turn is None else s_r_turn
     fwd, turn, joint = rho_blocks(s_r, tau, T, eps, dp, cfg)
-    return np.maximum(np.maximum(fwd, turn), joint)
+    return np.asarray(np.maximum(np.maximum(fwd, turn), joint))
 
 
 # ---------------------------------------------------------------------- definitions 1-3
@@ -331,7 +331,7 @@ def _first_crossing(f: Callable[[float], float], lo: float, hi: float, level: fl
             a, ga = mid, gm
         else:
             b = mid
-    return 0.5 * (a + b)
+    return float(0.5 * (a + b))
 
 
 def T_min(

@@ -50,7 +50,7 @@ def leader_force(
         Force [N], same shape as ``x_m``.
     """
     x = np.asarray(x_m, dtype=float)
-    return (
+    return np.asarray(
         -np.asarray(k_m, dtype=float) * (np.asarray(k_g, dtype=float) * x - np.asarray(z_e_delayed, dtype=float))
         + np.asarray(g_m, dtype=float)
         - np.asarray(alpha_m, dtype=float) * np.asarray(dx_m, dtype=float)

@@ -21,7 +21,7 @@ def mat2(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarr
 
 def mul2(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Batched 2x2 matrix product ``x @ y``."""
-    return np.asarray(x) @ np.asarray(y)
+    return np.asarray(np.asarray(x) @ np.asarray(y))
 
 
 def eig2(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,7 +54,7 @@ def expm2(a: np.ndarray, t: np.ndarray | float = 1.0) -> np.ndarray:
     c0 = (em * (ch - m * shq)).real
     c1 = (em * shq).real
     eye = np.eye(2)
-    return c0[..., None, None] * eye + c1[..., None, None] * a
+    return np.asarray(c0[..., None, None] * eye + c1[..., None, None] * a)
 
 
 def zoh2(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

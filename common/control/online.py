@@ -229,10 +229,10 @@ def _exact_blocks(cfg: ControlConfig, lo: np.ndarray, hi: np.ndarray) -> tuple[R
 
     def rho(b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
         if b == 0:
-            return rho_speed_block(x, T, m, kv, bv, cfg.dp)
+            return np.asarray(rho_speed_block(x, T, m, kv, bv, cfg.dp))
         if b == 1:
-            return rho_speed_block(x, T, i_, kd, bd, cfg.dp_turn)
-        return rho_joint(T, x)
+            return np.asarray(rho_speed_block(x, T, i_, kd, bd, cfg.dp_turn))
+        return np.asarray(rho_joint(T, x))
 
     def inv(b: int, y: np.ndarray, T: np.ndarray) -> np.ndarray:
         if b == 2:
@@ -244,7 +244,7 @@ def _exact_blocks(cfg: ControlConfig, lo: np.ndarray, hi: np.ndarray) -> tuple[R
             below = rho(b, mid, T) <= y
             a = np.where(below, mid, a)
             c = np.where(below, c, mid)
-        return 0.5 * (a + c)
+        return np.asarray(0.5 * (a + c))
 
     return rho, inv
 
@@ -348,14 +348,14 @@ class OnlineChooser:
 
     def _rho(self, b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
         if b == 2:
-            return rho_joint(T, x)
+            return np.asarray(rho_joint(T, x))
         f = (x - self.sigma[0]) / self._ds
         i = np.clip(f.astype(int), 0, self.sigma.size - 2)
         frac = f - i
         k = self._base + i
         flat = self._flat[b]
         y0 = flat.take(k)
-        return y0 + (flat.take(k + 1) - y0) * frac
+        return np.asarray(y0 + (flat.take(k + 1) - y0) * frac)
 
     def _inv(self, b: int, y: np.ndarray, T: np.ndarray) -> np.ndarray:
         if b == 2:
@@ -373,7 +373,7 @@ class OnlineChooser:
         y0 = flat.take(base + i)
         y1 = flat.take(base + i + 1)
         frac = np.clip((y - y0) / (y1 - y0), 0.0, 1.0)
-        return self.sigma[i] + frac * self._ds
+        return np.asarray(self.sigma[i] + frac * self._ds)
 
     def choose(self, s_e: ArrayLike) -> Choice:
         """Solve (30) for the equivalent damping ``s_e`` (shape (2,)); < 1 ms per call.

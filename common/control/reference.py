@@ -52,7 +52,7 @@ class RealFollowerReference:
     @property
     def z_r(self) -> np.ndarray:
         """Observer estimate of the real speeds [cm/s, deg/s] (eq. 12)."""
-        return self.observer.z_r
+        return np.asarray(self.observer.z_r)
 
     def reset(self, eta: np.ndarray | None = None, z_r: np.ndarray | None = None) -> None:
         """Set the commanded speed ``eta`` and the observer state ``z_r`` (default zero)."""

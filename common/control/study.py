@@ -177,7 +177,8 @@ class StudyParams:
 
 def delay_sampler(spec: str, seed: int) -> Callable[[float], float]:
     """``t -> delay [s]`` for a delay-model spec (:mod:`bipedtele.delaymodels`)."""
-    return parse_delay_model(spec, seed=seed).delay_s
+    delay_s: Callable[[float], float] = parse_delay_model(spec, seed=seed).delay_s
+    return delay_s
 
 
 @dataclass(frozen=True)
