@@ -33,6 +33,7 @@ class SimConfig:
     step_height_m: float = param(0.02, lo=0.0, hi=0.05, unit="m", doc="swing-foot clearance (NAO StepHeight)")
     double_support: float = param(0.3, lo=0.05, hi=0.6, doc="phi: fraction of the cycle with both feet down")
     max_step_m: float = param(0.04, lo=0.005, hi=0.08, unit="m", doc="largest step length (NAO MaxStepX)")
+    max_turn_deg_s: float = param(25.0, lo=1.0, hi=60.0, unit="deg/s", doc="largest turn rate accepted")
     cycle_min_s: float = param(0.8, lo=0.3, hi=5.0, unit="s", doc="shortest walking cycle T accepted")
     cycle_max_s: float = param(2.0, lo=0.3, hi=5.0, unit="s", doc="longest walking cycle T accepted")
 

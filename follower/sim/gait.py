@@ -43,10 +43,15 @@ import numpy as np
 from bipedtele.follower.sim.bezier import BezierFitter, evaluate
 from bipedtele.follower.sim.model import NaoGeometry
 
-__all__ = ["Gait", "GaitConfig", "Leg", "ik_linear", "ik_sagittal", "p_hip_linear"]
+__all__ = ["Gait", "GaitConfig", "Leg", "hip_speed", "hip_x", "ik_linear", "ik_sagittal", "p_hip_linear"]
 
 Leg = Literal["L", "R"]
 G = 9.81  # m/s^2
+
+#: Fractions of the swing by which the swing foot has moved over its landing spot and has
+#: come down [-]; the rest of the swing it holds still just above, then on, the floor.
+_MOVE_DONE = 0.7
+_LIFT_DONE = 0.85
 
 # Index of each joint inside a leg's 6-vector.
 YAW, ROLL, HIP, KNEE, ANKLE, AROLL = range(6)
@@ -143,12 +148,37 @@ def ik_linear(p: np.ndarray, h: np.ndarray, l1: float, l2: float) -> tuple[np.nd
 
 
 def p_hip_linear(q_hip: float, q_knee: float, thigh: float, tibia: float) -> float:
-    """Eq. (8): linearised hip position over the ankle [m] from hip and knee pitch [rad].
+    """Eq. (8) linearised about straight legs: hip position over the ankle [m] from hip and knee pitch [rad].
 
     With the ankle at ``q_a = -(q_h + q_k)``: ``a1 (-q_a) + a2 (-q_a - q_k)``, a1 tibia, a2 thigh.
+    About 10 % longer than the true :func:`hip_x` for the crouched walk (docs/follower.md).
     """
     q_a = -(q_hip + q_knee)
     return tibia * (-q_a) + thigh * (-q_a - q_knee)
+
+
+def hip_x(q_hip: float, q_knee: float, thigh: float, tibia: float) -> float:
+    """Hip position ahead of the ankle [m] in the leg's sagittal plane from hip and knee pitch [rad]."""
+    return float(thigh * np.sin(q_hip) + tibia * np.sin(q_hip + q_knee))
+
+
+def hip_speed(q_hip: float, q_knee: float, dq_hip: float, dq_knee: float, thigh: float, tibia: float) -> float:
+    """Eq. (8) with its lever arms at the current posture: the hip's speed over the ankle [m/s].
+
+    ``v_hip = a1 (-dq_a) + a2 (-dq_a - dq_k)`` with ``a1 = tibia cos(q_a)``,
+    ``a2 = thigh cos(q_a + q_k)`` (``q_a = -(q_h + q_k)``): the linearisation of the hip
+    position about the posture the leg is in, which is the exact time derivative of
+    :func:`hip_x` (the paper leaves ``a1``, ``a2`` open; with the bare link lengths eq. (8)
+    is linearised about straight legs and reads 10 % fast on NAO's crouched walk).
+    """
+    q_a = -(q_hip + q_knee)
+    dq_a = -(dq_hip + dq_knee)
+    return float(tibia * np.cos(q_a) * (-dq_a) + thigh * np.cos(q_a + q_knee) * (-dq_a - dq_knee))
+
+
+def _cumtrapz(f: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Cumulative trapezoid integral of ``f`` over ``x``, starting at 0."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(x))])
 
 
 def _smooth(s: np.ndarray) -> np.ndarray:
@@ -171,6 +201,7 @@ class _Step:
     cycle_s: float
     v: float
     turn: float  # turn of this step [rad]
+    omega: float  # turn rate of this step [rad/s]
 
 
 class Gait:
@@ -200,15 +231,19 @@ class Gait:
     # ------------------------------------------------------------------ public API
 
     def standing_pose(self) -> np.ndarray:
-        """The 12 joint angles of standing [rad]: feet under the hips, knees bent."""
+        """Return the 12 joint angles of standing [rad]: feet under the hips, knees bent."""
         l1, l2 = self.geom.thigh, self.geom.tibia
-        th1, th2 = ik_linear(np.array(0.0), np.array(self.cfg.leg_height_m), l1, l2)
+        th1, th2 = ik_sagittal(np.array(0.0), np.array(self.cfg.leg_height_m), l1, l2)
         leg = np.array([0.0, 0.0, float(th1), float(th2 - th1), float(-th2), 0.0])
         return np.concatenate([leg, leg])
 
     def max_forward(self, cycle_s: float) -> float:
         """Largest forward speed [m/s] at cycle time ``cycle_s`` [s] (step length bound)."""
         return 2.0 * self.cfg.max_step_m / cycle_s
+
+    def max_turn(self, cycle_s: float) -> float:
+        """Largest turn rate [rad/s] at cycle time ``cycle_s`` [s] (turn per step bound)."""
+        return 2.0 * self.cfg.max_turn_step_rad / cycle_s
 
     def command(self, v: float, omega: float, cycle_s: float) -> None:
         """Walk at ``v`` [m/s] turning at ``omega`` [rad/s] with cycle ``cycle_s`` [s] from the next step.
@@ -217,7 +252,7 @@ class Gait:
         """
         cycle_s = float(cycle_s)
         vmax = self.max_forward(cycle_s)
-        wmax = 2.0 * self.cfg.max_turn_step_rad / cycle_s
+        wmax = self.max_turn(cycle_s)
         v = float(np.clip(v, -vmax, vmax))
         omega = float(np.clip(omega, -wmax, wmax))
         self._cmd = (v, omega, cycle_s)
@@ -276,7 +311,7 @@ class Gait:
             self._end_step(self._phases[-1].t0 + self._phases[-1].duration)
         if not self._phases:
             return self._q.copy(), np.zeros(12)
-        ph = self._phases[0] if t < self._phases[0].t0 + self._phases[0].duration else self._phases[-1]
+        ph = next((p for p in self._phases if t < p.t0 + p.duration), self._phases[-1])
         q, qd = evaluate(ph.ctrl, (t - ph.t0) / ph.duration, ph.duration)
         return q, qd
 
@@ -302,75 +337,103 @@ class Gait:
         cfg, g = self.cfg, self.geom
         l1, l2 = g.thigh, g.tibia
         v, omega, cycle = self._cmd
-        prev_v = self._step.v if self._step is not None else 0.0
+        prev = self._step
         if kind == "shift" or kind == "settle":
-            v, turn = 0.0, 0.0
-        else:
-            turn = omega * cycle / 2.0
+            v, omega = 0.0, 0.0
         ts = cycle / 2.0
         phi = cfg.double_support
         t_ds = phi * ts
-        step = _Step(kind, stance, t0, cycle, v, turn)
+        step = _Step(kind, stance, t0, cycle, v, omega * ts, omega)
         st = 0 if stance == "L" else 6
         sw = 6 - st
+        swing: Leg = "R" if stance == "L" else "L"
         q0 = self._q
         sigma = 1.0 if stance == "L" else -1.0
         amp = 0.0 if kind == "settle" else 1.0
         y_nom0 = sigma * amp * float(cfg.sway(cycle, np.array(0.0)))
         dy0 = self._sway - y_nom0
-        p_st0 = p_hip_linear(q0[st + HIP], q0[st + KNEE], l1, l2)
-        p_sw0 = p_hip_linear(q0[sw + HIP], q0[sw + KNEE], l1, l2)
-        yaw_st0, yaw_sw0 = q0[st + YAW], q0[sw + YAW]
-        settle_d = -(p_st0 + p_sw0) / 2.0
+        x_st0 = hip_x(q0[st + HIP], q0[st + KNEE], l1, l2)
+        x_sw0 = hip_x(q0[sw + HIP], q0[sw + KNEE], l1, l2)
+        settle_d = -(x_st0 + x_sw0) / 2.0
 
         def sway(tau: np.ndarray) -> np.ndarray:
+            """Torso's lateral offset over the ankles, in the torso frame [m]."""
             nom = sigma * amp * cfg.sway(cycle, tau)
             return nom + dy0 * (1.0 - _smooth(tau / ts))
 
-        def ground_p(p0: float, tau: np.ndarray) -> np.ndarray:
-            if kind == "settle":  # cubic Hermite: speed prev_v -> 0, hip to mid-feet
-                s = tau / ts
-                h10, h01 = s - 2 * s**2 + s**3, 3 * s**2 - 2 * s**3
-                return p0 + prev_v * ts * h10 + settle_d * h01
-            return p0 + v * tau
+        # Feet on the ground, planned on a fine grid: the torso moves at v and turns at omega, so
+        # each hip moves over its foot at (v -+ hip_offset_y omega, sway') in the torso frame;
+        # the foot is turned by the hip yaw q from the torso, so in the foot's frame (where the
+        # leg's roll and pitch act) that velocity is rotated by -q, and integrated.
+        tau_f = np.linspace(0.0, ts, 241)
+        y_t = sway(tau_f)
+        dy_t = np.gradient(y_t, tau_f)
 
-        def leg_angles(p_or_x: np.ndarray, lift: np.ndarray, y: np.ndarray, yaw: np.ndarray,
-                       linear: bool) -> np.ndarray:
+        def ground(o: int, leg: Leg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Hip over ankle in the foot frame (x, y) [m] and hip yaw [rad] on ``tau_f``."""
+            x0 = hip_x(q0[o + HIP], q0[o + KNEE], l1, l2)
+            y0 = -cfg.leg_height_m * math.tan(q0[o + ROLL])
+            yaw = q0[o + YAW] - omega * tau_f
+            if kind == "settle":  # cubic Hermite in x: speed prev -> 0, hip to mid-feet
+                v_prev = self._leg_speed(leg, prev.v, prev.omega) if prev is not None else 0.0
+                sn = tau_f / ts
+                vx = v_prev * (1 - 4 * sn + 3 * sn**2) + settle_d * (6 * sn - 6 * sn**2) / ts
+            else:
+                vx = np.full_like(tau_f, self._leg_speed(leg, v, omega))
+            c, sn_q = np.cos(yaw), np.sin(yaw)
+            vxf, vyf = vx * c + dy_t * sn_q, -vx * sn_q + dy_t * c
+            return x0 + _cumtrapz(vxf, tau_f), y0 + _cumtrapz(vyf, tau_f), yaw
+
+        gx_st, gy_st, gyaw_st = ground(st, stance)
+        gx_sw, gy_sw, gyaw_sw = ground(sw, swing)
+
+        def leg_angles(x: np.ndarray, lift: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
             hv = cfg.leg_height_m - lift
             roll = np.arctan2(-y, hv)
             hs = np.sqrt(y * y + hv * hv)
-            th1, th2 = (ik_linear if linear else ik_sagittal)(p_or_x, hs, l1, l2)
+            th1, th2 = ik_sagittal(x, hs, l1, l2)
             return np.stack([yaw, roll, th1, th2 - th1, -th2, -roll], axis=1)
+
+        def at(tau: np.ndarray, *series: np.ndarray) -> list[np.ndarray]:
+            return [np.interp(tau, tau_f, f) for f in series]
 
         s = self._fit.s
         phases: list[_Phase] = []
         delta = np.zeros(12)
-        segments = [(0.0, t_ds), (t_ds, ts)] if t_ds > 1e-6 else [(0.0, ts)]
+        t_sw = t_ds + _MOVE_DONE * (ts - t_ds)  # the swing foot has arrived over its landing spot
+        segments = [(0.0, t_ds), (t_ds, t_sw), (t_sw, ts)] if t_ds > 1e-6 else [(0.0, t_sw), (t_sw, ts)]
         for a, b in segments:
             tau = a + s * (b - a)
-            y = sway(tau)
             in_ss = a >= t_ds - 1e-9
-            # stance leg: on the ground all step; yaw turns during single support
-            yaw_st_end = -turn / 2.0 if kind == "walk" else yaw_st0
-            f_yaw = _smooth((tau - t_ds) / (ts - t_ds)) if in_ss else np.zeros_like(tau)
-            q_st = leg_angles(ground_p(p_st0, tau), np.zeros_like(tau), y,
-                              yaw_st0 + (yaw_st_end - yaw_st0) * f_yaw, linear=True)
+            x, y, yaw = at(tau, gx_st, gy_st, gyaw_st)
+            q_st = leg_angles(x, np.zeros_like(tau), y, yaw)
             if in_ss and kind == "walk":
                 # swing: hip-over-ankle x from lift-off to landing, Bezier in x, bump in z
-                th1, th2 = ik_linear(np.array(ground_p(p_sw0, np.array(a))), np.array(cfg.leg_height_m), l1, l2)
-                x_lo = float(l1 * np.sin(th1) + l2 * np.sin(th2))
-                x_td = -v * ts * (1.0 + phi) / 2.0
-                d = b - a
-                u = s
-                cx = np.array([x_lo, x_lo + v * d / 3.0, x_td - v * d / 3.0, x_td])
-                x = ((1 - u) ** 3 * cx[0] + 3 * (1 - u) ** 2 * u * cx[1]
-                     + 3 * (1 - u) * u**2 * cx[2] + u**3 * cx[3])
-                lift = cfg.step_height_m * 16.0 * u**2 * (1 - u) ** 2
-                yaw_sw = yaw_sw0 + (turn / 2.0 - yaw_sw0) * _smooth(u)
-                q_sw = leg_angles(x, lift, y, yaw_sw, linear=False)
+                v_sw = self._leg_speed(swing, v, omega)
+                d = ts - t_ds
+                u = (tau - t_ds) / d
+                x_lo, y_lo, yaw_lo = (float(f[0]) for f in at(np.array([t_ds]), gx_sw, gy_sw, gyaw_sw))
+                # the swing leg leads: it lands its foot turned ahead of the torso by half the
+                # turn of its coming contact, the hip at (x_td, sway) in the torso frame
+                yaw_td = omega * ts * (1.0 + phi) / 2.0
+                x_td_t, y_td_t = -v_sw * ts * (1.0 + phi) / 2.0, float(sway(np.array(ts)))
+                x_td = x_td_t * math.cos(yaw_td) + y_td_t * math.sin(yaw_td)
+                y_td = -x_td_t * math.sin(yaw_td) + y_td_t * math.cos(yaw_td)
+                # the foot moves (forward, sideways, turning) by quintic smoothsteps while it is
+                # up and is still over the floor before landing, so an early touchdown neither
+                # drags nor spins it; the hip keeps moving over it at v_sw
+                done = _smooth(u / _MOVE_DONE)
+                x = x_lo + v_sw * d * u - (x_lo + v_sw * d - x_td) * done
+                w = np.clip(u / _LIFT_DONE, 0.0, 1.0)
+                lift = cfg.step_height_m * 16.0 * w**2 * (1 - w) ** 2
+                y = (sway(tau) + (y_lo - float(sway(np.array(t_ds)))) * (1.0 - done)
+                     + (y_td - y_td_t) * done)
+                # the swing leg leads: the foot's own yaw (hip yaw + torso yaw) turns ahead
+                yaw = yaw_lo - omega * d * u + (yaw_td - yaw_lo + omega * d) * done
+                q_sw = leg_angles(x, lift, y, yaw)
             else:
-                q_sw = leg_angles(ground_p(p_sw0, tau), np.zeros_like(tau), y,
-                                  np.full_like(tau, yaw_sw0), linear=True)
+                x, y, yaw = at(tau, gx_sw, gy_sw, gyaw_sw)
+                q_sw = leg_angles(x, np.zeros_like(tau), y, yaw)
             samples = np.zeros((len(s), 12))
             samples[:, st:st + 6] = q_st
             samples[:, sw:sw + 6] = q_sw
@@ -382,3 +445,8 @@ class Gait:
             phases.append(_Phase(t0 + a, b - a, self._fit.fit(samples)))
         self._sway_end = float(sway(np.array(ts)))
         self._step, self._phases = step, phases
+
+    def _leg_speed(self, leg: Leg, v: float, omega: float) -> float:
+        """Speed [m/s] of a hip over its planted foot when the torso moves at ``v`` turning at ``omega``."""
+        side = 1.0 if leg == "L" else -1.0
+        return v - side * self.geom.hip_offset_y * omega

@@ -43,7 +43,7 @@ from bipedtele.follower.robot import (
     register_robot,
 )
 from bipedtele.follower.sim.config import SONAR_RANGE_M, SimConfig
-from bipedtele.follower.sim.gait import ANKLE, KNEE, Gait, GaitConfig
+from bipedtele.follower.sim.gait import HIP, KNEE, YAW, Gait, GaitConfig, hip_speed
 from bipedtele.follower.sim.model import LEG_JOINTS, NaoGeometry, nao_urdf
 from bipedtele.follower.sim.world import WorldConfig
 
@@ -88,7 +88,7 @@ class SimNao(FollowerRobot):
                          self.geom)
         self.limits = WalkLimits(
             max_forward_m_s=2.0 * cfg.max_step_m / cfg.cycle_min_s,
-            max_turn_rad_s=math.radians(20.0),
+            max_turn_rad_s=math.radians(cfg.max_turn_deg_s),
             cycle_s=(cfg.cycle_min_s, cfg.cycle_max_s),
             eps_s=(0.02, 1.0),
         )
@@ -121,9 +121,11 @@ class SimNao(FollowerRobot):
 
     @property
     def is_connected(self) -> bool:
+        """True while a pybullet physics server is attached."""
         return self._client is not None
 
     def connect(self) -> None:
+        """Start headless physics, build the world and let the robot settle on its feet."""
         if self._client is not None:
             return
         cfg = self.config
@@ -211,6 +213,7 @@ class SimNao(FollowerRobot):
         LOG.info("sim NAO back on its start pose")
 
     def disconnect(self) -> None:
+        """Stop the gait and end the physics server."""
         if self._client is None:
             return
         try:
@@ -227,19 +230,23 @@ class SimNao(FollowerRobot):
     # ------------------------------------------------------------------ commands
 
     def send_walk(self, cmd: WalkCommand) -> WalkCommand:
+        """Walk at ``cmd`` from the next step, clamped to the limits and the gait's step bounds; the clamp."""
         self._need()
         c = cmd.clamped(self.limits)
-        vmax = self.gait.max_forward(c.cycle_s)
-        c = dataclasses.replace(c, forward_m_s=float(np.clip(c.forward_m_s, -vmax, vmax)))
+        vmax, wmax = self.gait.max_forward(c.cycle_s), self.gait.max_turn(c.cycle_s)
+        c = dataclasses.replace(c, forward_m_s=float(np.clip(c.forward_m_s, -vmax, vmax)),
+                                turn_rad_s=float(np.clip(c.turn_rad_s, -wmax, wmax)))
         self._eps = c.eps_s
         self.gait.command(c.forward_m_s, c.turn_rad_s, c.cycle_s)
         return c
 
     def stop(self) -> None:
+        """Finish the current step, then settle and stand."""
         self._need()
         self.gait.stop()
 
     def advance(self, dt: float) -> None:
+        """Run the physics (and the gait) for ``dt`` [s] of robot time."""
         self._need()
         if not math.isfinite(dt) or dt < 0:
             raise ValueError(f"dt = {dt}: allowed: a finite number >= 0 [s]")
@@ -252,7 +259,7 @@ class SimNao(FollowerRobot):
         c = self._client
         rob, joints = self._robot, self._joints
         force = [self.config.max_torque_nm] * 12
-        thigh, tibia = self.geom.thigh, self.geom.tibia
+        thigh, tibia, hip_y = self.geom.thigh, self.geom.tibia, self.geom.hip_offset_y
         for _ in range(n):
             states = pb.getJointStates(rob, joints, physicsClientId=c)
             q = np.fromiter((s[0] for s in states), float, 12)
@@ -267,15 +274,16 @@ class SimNao(FollowerRobot):
             pb.stepSimulation(physicsClientId=c)
             self._steps += 1
             self._t = self._steps * self._dt
-            # eq. (8) rate on the stance leg (a1 tibia, a2 thigh), measured joint speeds
-            o = 0 if self.gait.stance == "L" else 6
-            dqa, dqk = qd[o + ANKLE], qd[o + KNEE]
-            self._vhip_sum += tibia * (-dqa) + thigh * (-dqa - dqk)
+            # eq. (8) on the stance leg at its posture, measured joint angles and speeds, carried
+            # from the stance hip to the hips' centre by the turn (torso yaw rate -dq_yaw)
+            o, side = (0, 1.0) if self.gait.stance == "L" else (6, -1.0)
+            v_st = hip_speed(q[o + HIP], q[o + KNEE], qd[o + HIP], qd[o + KNEE], thigh, tibia)
+            self._vhip_sum += v_st - side * hip_y * qd[o + YAW]
             self._vhip_n += 1
             self._q, self._qd, self._qref = q, qd, qref
 
     def _step_changed(self, step: tuple[str, float, float, float] | None) -> None:
-        """The gait began a new step: after a walking step, that is a touchdown."""
+        """Record a touchdown when the gait begins a new step after a walking step."""
         prev, self._gait_step = self._gait_step, step
         if prev is None or prev[0] != "walk" or step is None:
             return
@@ -294,6 +302,7 @@ class SimNao(FollowerRobot):
         return pos[0], pos[1], yaw, tilt, pos[2]
 
     def observe(self) -> RobotObservation:
+        """Measure speeds, pose, sonar, tilt and contacts since the previous call."""
         self._need()
         x, y, yaw, tilt, z = self._base()
         dyaw = (yaw - self._last_yaw + math.pi) % (2 * math.pi) - math.pi
@@ -328,7 +337,7 @@ class SimNao(FollowerRobot):
         )
 
     def footfall(self) -> Footfall | None:
-        """The latest touchdown: torso pose where the gait began a step after a walking step."""
+        """Return the latest touchdown: torso pose where the gait began a step after a walking step."""
         self._need()
         return self._footfall
 
@@ -350,8 +359,10 @@ class SimNao(FollowerRobot):
         return float(((x1 - x0) * math.cos(yaw) + (y1 - y0) * math.sin(yaw)) / (t1 - t0))
 
     def sonar(self) -> tuple[float, float]:
-        """Left and right sonar ranges [m]: nearest obstacle in each cone, clamped to the
-        NAO version's range; the maximum when nothing is seen.
+        """Return the left and right sonar ranges [m].
+
+        The nearest obstacle in each cone, clamped to the NAO version's range; the maximum
+        when nothing is seen.
 
         Each 60-degree cone is sampled by 5 x 3 rays (azimuth x elevation) in one
         ``rayTestBatch``; only obstacles count (floor echoes are ignored).
@@ -385,7 +396,7 @@ class SimNao(FollowerRobot):
         return out[0], out[1]
 
     def capture(self, camera: Camera = "head") -> np.ndarray | None:
-        """A QVGA RGB image (H x W x 3 uint8) from the head or the fixed scene camera.
+        """Render a QVGA RGB image (H x W x 3 uint8) from the head or the fixed scene camera.
 
         Rendered with pybullet's TinyRenderer (CPU, no GPU or display needed).
         """
