@@ -46,7 +46,7 @@ ROLE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 
 
 def credential_users(path: str) -> list[str]:
-    """The user names of a router credentials file (``user:password`` lines).
+    """Return the user names of a router credentials file (``user:password`` lines).
 
     Raises
     ------
@@ -97,7 +97,7 @@ def _rules(role: str) -> list[dict[str, Any]]:
 
 
 def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
-    """The Zenoh ``access_control`` section for a router, or None if no role is set.
+    """Return the Zenoh ``access_control`` section for a router, or None if no role is set.
 
     When ``publishers_allowed`` or ``followers_allowed`` is set, the ACL is deny by
     default with the per-role allow rules of this module's docstring. Users must

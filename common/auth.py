@@ -1,4 +1,4 @@
-"""End-to-end message authentication: HMAC-SHA256 with a key the router never sees.
+r"""End-to-end message authentication: HMAC-SHA256 with a key the router never sees.
 
 Leader and follower share a 32-byte key (``[network] message_key_file``: 64 hex
 characters, mode 0600). Every payload a process sends is framed as::
@@ -20,9 +20,9 @@ time (:func:`hmac.compare_digest`) before anything is decoded. See docs/network.
 Examples
 --------
 >>> auth = MessageAuth(bytes(32))
->>> signed = auth.sign(b"\\x80", "bipedtele/nao1/cmd")
+>>> signed = auth.sign(b"\x80", "bipedtele/nao1/cmd")
 >>> auth.verify(signed, "bipedtele/nao1/cmd")
-b'\\x80'
+b'\x80'
 """
 
 from __future__ import annotations
@@ -108,8 +108,10 @@ class MessageAuth:
         return h
 
     def tag(self, body: bytes | memoryview, topic: str) -> bytes:
-        """The 32-byte tag of ``body`` published on key expression ``topic``:
-        ``HMAC-SHA256(key, MAC_MAGIC | topic | 0x00 | body)``."""
+        """Return the 32-byte tag of ``body`` published on key expression ``topic``.
+
+        The tag is ``HMAC-SHA256(key, MAC_MAGIC | topic | 0x00 | body)``.
+        """
         inner = self._state(topic).copy()
         inner.update(body)
         outer = self._outer.copy()
@@ -117,11 +119,11 @@ class MessageAuth:
         return outer.digest()
 
     def sign(self, body: bytes, topic: str) -> bytes:
-        """The framed payload ``MAGIC | tag | body`` to publish on ``topic``."""
+        """Return the framed payload ``MAGIC | tag | body`` to publish on ``topic``."""
         return MAC_MAGIC + self.tag(body, topic) + body
 
     def verify(self, payload: bytes, topic: str) -> bytes:
-        """The body of a framed payload received on ``topic``, if its tag is right.
+        """Return the body of a framed payload received on ``topic``, if its tag is right.
 
         Raises
         ------
@@ -144,7 +146,7 @@ def _key_error(path: str, why: str) -> ConfigError:
 
 
 def load_message_auth(net: NetworkConfig) -> MessageAuth | None:
-    """The :class:`MessageAuth` of ``[network] message_key_file``, or None when it is empty.
+    """Return the :class:`MessageAuth` of ``[network] message_key_file``, or None when it is empty.
 
     Raises
     ------

@@ -33,6 +33,7 @@ class OneLineParser(argparse.ArgumentParser):
     """An ArgumentParser whose errors are one line (no usage dump) and exit code 2."""
 
     def error(self, message: str) -> NoReturn:
+        """Exit with code 2 and one line naming what is wrong."""
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 

@@ -133,7 +133,7 @@ class DelayEstimator:
             return mean if mean > 0.0 else 0.0  # rounding of the running sum: never < 0
 
     def count(self, now: float) -> int:
-        """Number of samples in the window ending at ``now``."""
+        """Return the number of samples in the window ending at ``now``."""
         self.value(now)
         with self._lock:
             return sum(1 for t, _ in self._samples if t <= now)
@@ -317,7 +317,7 @@ class ClockSync:
             return None
 
     def bind(self, peer: int | None) -> None:
-        """The caller now follows session ``peer``: forget samples of any other session.
+        """Follow session ``peer`` from now on: forget samples of any other session.
 
         Call it when the followed peer changes, so that the estimate of the previous one
         is not used until the new one answers (None: no change).

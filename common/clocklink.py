@@ -328,7 +328,7 @@ class ClockLink:
     # ------------------------------------------------------------------ lifecycle
 
     def counters(self) -> dict[str, int]:
-        """The link's counters (a snapshot)."""
+        """Return the link's counters (a snapshot)."""
         return {
             "answered": self.answered,
             "rate_limited": self.rate_limited,

@@ -103,10 +103,12 @@ class ConstDelay(DelayModel):
         self.spec = f"const:{delay * 1e3:g}ms"
 
     def delay_s(self, t: float) -> float:
+        """Return the constant delay [s]."""
         return self.delay
 
     @property
     def mean_s(self) -> float:
+        """Mean delay [s]."""
         return self.delay
 
 
@@ -127,10 +129,12 @@ class UniformDelay(DelayModel):
         self.spec = f"uniform:{mean * 1e3:g}ms:{half_width * 1e3:g}ms"
 
     def delay_s(self, t: float) -> float:
+        """Return a uniform draw around the mean [s], clipped at 0."""
         return max(0.0, self._rng.uniform(self.mean - self.half_width, self.mean + self.half_width))
 
     @property
     def mean_s(self) -> float:
+        """Mean delay [s]."""
         return self.mean
 
 
@@ -151,6 +155,7 @@ class NormalDelay(DelayModel):
         self.spec = f"normal:{mean * 1e3:g}ms:{std * 1e3:g}ms"
 
     def delay_s(self, t: float) -> float:
+        """Return a normal draw [s], redrawn while negative (0 after 64 tries)."""
         for _ in range(64):
             d = self._rng.gauss(self.mean, self.std)
             if d >= 0.0:
@@ -159,6 +164,7 @@ class NormalDelay(DelayModel):
 
     @property
     def mean_s(self) -> float:
+        """Mean delay [s]."""
         return self.mean
 
 
@@ -187,6 +193,7 @@ class TraceDelay(DelayModel):
         self.spec = spec
 
     def delay_s(self, t: float) -> float:
+        """Return the trace's delay at time ``t`` [s] (looped, interpolated)."""
         tau = self.t[0] + (t - self.t[0]) % self.period
         i = bisect.bisect_right(self.t, tau) - 1
         if i >= len(self.t) - 1:  # between the last row and the wrap to the first
@@ -198,6 +205,7 @@ class TraceDelay(DelayModel):
 
     @property
     def mean_s(self) -> float:
+        """Mean of the trace's delays [s]."""
         return sum(self.d) / len(self.d)
 
     def window_mean(self, t_end: float, window_s: float, step_s: float = 0.001) -> float:

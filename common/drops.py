@@ -77,7 +77,7 @@ class DropCounter:
         )
 
     def counts(self) -> dict[str, int]:
-        """Drops per reason since creation (a copy)."""
+        """Return the drops per reason since creation (a copy)."""
         with self._lock:
             return dict(self._counts)
 

@@ -137,8 +137,10 @@ class SequenceGate:
 
     @property
     def live_sid(self) -> int | None:
-        """The bound session while it is live (a message accepted within
-        ``takeover_after_s``), else None: the session another may not take over from.
+        """The bound session while it is live, else None.
+
+        Live: a message accepted within ``takeover_after_s``; the session another may not
+        take over from.
 
         Meant for peer binding elsewhere (``ClockLink(peer_sid=lambda: gate.live_sid)``):
         when the followed session falls silent, whoever takes over is followed there too.

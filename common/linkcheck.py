@@ -90,6 +90,7 @@ class EndpointCheck:
 
     @property
     def ok(self) -> bool:
+        """Whether the link came up."""
         return self.kind == "ok"
 
 
@@ -129,7 +130,7 @@ def _resolve(host: str, port: int, timeout_s: float) -> list[tuple[int, tuple[ob
 
 
 def _connect(addrs: list[tuple[int, tuple[object, ...]]], timeout_s: float) -> tuple[socket.socket, float] | tuple[str, str]:
-    """A connected socket and the connect time [s], or ``(kind, detail)``."""
+    """Return a connected socket and the connect time [s], or ``(kind, detail)``."""
     kind, detail = "unreachable", "no address"
     for fam, addr in addrs:
         s = socket.socket(fam, socket.SOCK_STREAM)

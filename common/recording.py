@@ -126,7 +126,7 @@ _FIELD_CACHE: dict[type[Message], tuple[str, ...]] = {}
 
 
 def message_to_dict(msg: Message) -> dict[str, Any]:
-    """The map a wire message is recorded as: its fields plus ``v`` and ``k``."""
+    """Return the map a wire message is recorded as: its fields plus ``v`` and ``k``."""
     names = _FIELD_CACHE.get(type(msg))
     if names is None:
         names = _FIELD_CACHE.setdefault(type(msg), _fields(type(msg)))
@@ -140,8 +140,15 @@ _SCALARS = frozenset((float, int, str, bool, type(None)))
 
 
 def _plain(value: Any) -> Any:
-    """A copy of ``value`` made of plain values: numpy values and arrays, tuples and paths
-    converted, containers copied. Raises TypeError for anything else."""
+    """Return a copy of ``value`` made of plain values.
+
+    Numpy values and arrays, tuples and paths are converted, containers copied.
+
+    Raises
+    ------
+    TypeError
+        For anything else.
+    """
     cls = value.__class__
     if cls in _SCALARS or cls is bytes:
         return value
@@ -201,7 +208,7 @@ _MAX_SUFFIX = 10_000
 
 
 def new_recording_path(folder: str | Path, role: str, *, now: float | None = None) -> Path:
-    """A recording file name in ``folder`` that no file has yet.
+    """Return a recording file name in ``folder`` that no file has yet.
 
     ``FOLDER/ROLE-YYYYmmdd-HHMMSS-mmm.mcap`` (local time, milliseconds); when that name
     is taken, ``-1``, ``-2``, ... is appended before ``.mcap``. The file is not created:
@@ -240,7 +247,7 @@ def new_recording_path(folder: str | Path, role: str, *, now: float | None = Non
 
 
 def open_recording(folder: str | Path, role: str, **kwargs: Any) -> Recorder:
-    """A :class:`Recorder` on a new file :func:`new_recording_path` names in ``folder``.
+    """Return a :class:`Recorder` on a new file :func:`new_recording_path` names in ``folder``.
 
     Creates ``folder`` if needed. If another process creates the same name between the
     choice and the exclusive creation, the next free name is taken.
@@ -269,7 +276,7 @@ def open_recording(folder: str | Path, role: str, **kwargs: Any) -> Recorder:
 
 
 def recording_for_run(record: Path | None, folder: str | Path, role: str, **kwargs: Any) -> Recorder:
-    """The recording of one program run: ``record`` when given, else a new file in ``folder``.
+    """Return the recording of one program run: ``record`` when given, else a new file in ``folder``.
 
     Parameters
     ----------
@@ -413,9 +420,11 @@ class Recorder:
 
     @property
     def stats(self) -> dict[str, int]:
-        """Counters: ``written``, ``dropped_full``, ``dropped_closed``,
-        ``dropped_unencodable``, ``jpeg_skipped``, ``nonfinite_nulled`` (messages in which
-        a NaN or inf was written as null), ``flushes``."""
+        """Counters of the writer.
+
+        ``written``, ``dropped_full``, ``dropped_closed``, ``dropped_unencodable``, ``jpeg_skipped``, ``nonfinite_nulled`` (messages in which
+        a NaN or inf was written as null), ``flushes``.
+        """
         with self._lock:
             return dict(self._stats)
 
@@ -560,7 +569,7 @@ class Recorder:
         return cid
 
     def _video(self, topic: str, frame: VideoFrame) -> tuple[int, dict[str, Any]]:
-        """A frame as ``foxglove.CompressedImage``, or its header alone when thinned out."""
+        """Return a frame as ``foxglove.CompressedImage``, or its header alone when thinned out."""
         header = message_to_dict(frame)
         del header["jpeg"]
         if self._keep_jpeg(topic) and frame.jpeg:
@@ -597,7 +606,7 @@ class Recorder:
         return cid
 
     def _encode(self, topic: str, obj: Any) -> tuple[int, bytes]:
-        """The channel and the JSON payload of one queued message (writer thread)."""
+        """Return the channel and the JSON payload of one queued message (writer thread)."""
         if isinstance(obj, dict):
             data = obj
             if topic.startswith("video/") and "jpeg" in data and not self._keep_jpeg(topic):
@@ -817,7 +826,7 @@ def read_records(path: str | Path) -> Iterator[Record]:
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
-    """The ``bipedtele`` metadata map of a recording (empty when absent).
+    """Return the ``bipedtele`` metadata map of a recording (empty when absent).
 
     Raises
     ------

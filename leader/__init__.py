@@ -1,2 +1,5 @@
-"""The operator's side: leader devices (simulated Falcon, Falcon, joystick), operator
-models, the 1 kHz haptic loop with the force law (31), the browser cockpit."""
+"""The operator's side.
+
+Leader devices (simulated Falcon, Falcon, joystick), operator models, the 1 kHz haptic
+loop with the force law (31), the browser cockpit.
+"""

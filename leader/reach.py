@@ -98,8 +98,11 @@ class CommandReach:
 
     @property
     def never_reached(self) -> bool:
-        """True when the follower was present for a whole window while we sent
-        commands, and not one of them was acknowledged."""
+        """Whether the commands never reached the follower.
+
+        True when the follower was present for a whole window while we sent commands, and
+        not one of them was acknowledged.
+        """
         return self.exposed and not self.ever_reached
 
     def check(self, follower_present: bool) -> None:

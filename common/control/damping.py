@@ -50,7 +50,7 @@ MAX_SCHEDULED_DELAY_S: float = float(MAX_TIME - MIN_TIME)
 
 
 def sanitize_delay(h_s: float) -> float:
-    """A delay the control laws can use [s]: ``>= 0`` and finite.
+    """Return a delay the control laws can use [s]: ``>= 0`` and finite.
 
     Parameters
     ----------

@@ -84,7 +84,7 @@ def _pair(x: ArrayLike) -> np.ndarray:
 
 
 def continuous_matrix(s_r: ArrayLike, eps: float, cfg: ControlConfig) -> np.ndarray:
-    """The matrix ``A`` of ``e' = A e`` between impacts (16 x 16), eqs. (20)-(23)."""
+    """Return the matrix ``A`` of ``e' = A e`` between impacts (16 x 16), eqs. (20)-(23)."""
     sig, tau = _pair(s_r)
     (m, i_), (kv, kd), (bv, bd) = _pair(cfg.D), _pair(cfg.k_s), _pair(cfg.beta_r)
     a = np.zeros((N_STATES, N_STATES))
@@ -172,7 +172,7 @@ def analytic_jacobian(s_r: ArrayLike, T: float, eps: float, dp: float, cfg: Cont
 
 
 def fixed_point(s_r: ArrayLike, T: float, eps: float, dp: float, cfg: ControlConfig) -> np.ndarray:
-    """The fixed point ``e* = P(e*)`` (the periodic orbit at the impact surface)."""
+    """Return the fixed point ``e* = P(e*)`` (the periodic orbit at the impact surface)."""
     _, c = reset_map(dp, cfg)
     j = analytic_jacobian(s_r, T, eps, dp, cfg)
     return np.asarray(np.linalg.solve(np.eye(N_STATES) - j, c))
@@ -303,8 +303,10 @@ def rho_hybrid(s_r: ArrayLike, T: float, eps: float, dp: float, cfg: ControlConf
 def rho_hybrid_grid(
     s_r: ArrayLike, T: ArrayLike, eps: ArrayLike, dp: float, cfg: ControlConfig, *, s_r_turn: ArrayLike | None = None
 ) -> np.ndarray:
-    """Vectorised ``max|lambda_hybrid|`` broadcast over ``s_r`` (both channels unless
-    ``s_r_turn`` is given), ``T`` and ``eps``."""
+    """Return ``max|lambda_hybrid|``, vectorised.
+
+    Broadcast over ``s_r`` (both channels unless ``s_r_turn`` is given), ``T`` and ``eps``.
+    """
     tau = s_r if s_r_turn is None else s_r_turn
     fwd, turn, joint = rho_blocks(s_r, tau, T, eps, dp, cfg)
     return np.asarray(np.maximum(np.maximum(fwd, turn), joint))
@@ -373,8 +375,10 @@ def s_r_min(
     eps_min: float | None = None,
     level: float = 1.0,
 ) -> float | None:
-    """Definition 2: the smallest real damping at which ``max|lambda_hybrid|`` reaches ``level``
-    for a cycle ``T`` [s] (``None`` if it stays below ``level`` over ``s_r_range``)."""
+    """Return Definition 2's bound: the smallest real damping where ``max|lambda_hybrid|`` is ``level``.
+
+    For a cycle ``T`` [s]; ``None`` if it stays below ``level`` over ``s_r_range``.
+    """
     dp = cfg.dp if dp_min is None else dp_min
     e = cfg.eps_range[0] if eps_min is None else eps_min
     lo, hi = cfg.s_r_range
@@ -395,8 +399,10 @@ def beta_e_def3(
     level: float = 1.0,
     bounds: tuple[float, float] = (1e-4, 100.0),
 ) -> float | None:
-    """Definition 3: the smallest ``beta_e`` [s] at which the discretised (29) with
-    ``sigma_e = s_e_min`` has ``max|lambda_equivalent| <= level``.
+    """Return Definition 3's bound: the smallest ``beta_e`` [s] that makes (29) stable enough.
+
+    That is, the discretised (29) with ``sigma_e = s_e_min`` has
+    ``max|lambda_equivalent| <= level``.
 
     ``method="euler"`` (forward Euler at ``dt``): the discrete eigenvalues ``1 + dt l`` leave
     the unit circle for small ``beta_e``, so the definition gives the stability boundary.

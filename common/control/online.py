@@ -89,13 +89,13 @@ class Choice:
 
 
 def choice_cost(s_r: ArrayLike, T: float, eps: float, s_e: ArrayLike, cfg: ControlConfig) -> float:
-    """The functional of (30)."""
+    """Return the functional of (30)."""
     d = np.abs(np.asarray(s_r, dtype=float) - np.asarray(s_e, dtype=float)).sum()
     return float(cfg.k_sigma * d + cfg.k_wt * T + cfg.k_eps * eps)
 
 
 def equivalent_period(T: ArrayLike, cfg: ControlConfig) -> np.ndarray:
-    """The period over which (29) is discretised in (30) for candidate cycles ``T`` [s].
+    """Return the period over which (29) is discretised in (30) for candidate cycles ``T`` [s].
 
     ``cfg.equivalent_period = "cycle"``: ``T`` itself; ``"fixed"``: ``equivalent_period_s``.
     """
@@ -250,8 +250,10 @@ def _exact_blocks(cfg: ControlConfig, lo: np.ndarray, hi: np.ndarray) -> tuple[R
 
 
 def solve_exact(s_e: ArrayLike, cfg: ControlConfig, *, n_T: int = 901) -> Choice:
-    """Offline solution of (30): exact block radii, ``n_T``-point ``T`` grid, then a bounded
-    scalar refinement of ``T`` around the best grid point.
+    """Solve (30) offline.
+
+    Exact block radii, an ``n_T``-point ``T`` grid, then a bounded scalar refinement of
+    ``T`` around the best grid point.
 
     Parameters
     ----------

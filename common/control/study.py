@@ -272,8 +272,9 @@ def _summary(err: np.ndarray, offset: np.ndarray, diverged: np.ndarray) -> dict[
 
 
 def orbit_deficit(s_r: np.ndarray, T: np.ndarray, cfg: ControlConfig) -> np.ndarray:
-    """Per run and channel, the periodic orbit's mean speed deficit as a fraction of a
-    constant reference (:func:`~bipedtele.control.hybrid.orbit_speed_deficit`).
+    """Return the periodic orbit's mean speed deficit per run and channel.
+
+    As a fraction of a constant reference (:func:`~bipedtele.control.hybrid.orbit_speed_deficit`).
 
     ``s_r`` has shape (n, 2), ``T`` shape (n,); returns (n, 2).
     """
@@ -286,8 +287,9 @@ def orbit_deficit(s_r: np.ndarray, T: np.ndarray, cfg: ControlConfig) -> np.ndar
 
 @dataclass(frozen=True)
 class CaseInputs:
-    """What one delay case feeds ``runs`` paired runs (the same for the reduced and the
-    walker study with equal seeds).
+    """What one delay case feeds ``runs`` paired runs.
+
+    The same for the reduced and the walker study with equal seeds.
 
     Attributes
     ----------
@@ -377,8 +379,10 @@ class SimulatedLeader:
         self.f_m = np.zeros((n, 2))
 
     def step(self, t: float, z_rx: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-        """Advance one period at time ``t`` [s] with the received ``z_e`` and the leader
-        damping ``alpha`` [N s/m]; return the handle position ``x_m`` [m]."""
+        """Advance one period at time ``t`` [s]; return the handle position ``x_m`` [m].
+
+        ``z_rx`` is the received ``z_e``, ``alpha`` the leader damping [N s/m].
+        """
         p, dt, m = self.params, self.params.dt, self.params.leader_mass_kg
         adv = self.switch[self.rows, np.minimum(self.seg + 1, self.n_seg)] <= t
         self.seg = np.where(adv, np.minimum(self.seg + 1, self.n_seg), self.seg)
@@ -649,8 +653,11 @@ def _fmt_ci(s: dict[str, Any], channel: str) -> str:
 
 
 def sensitivity_markdown(result: dict[str, Any]) -> str:
-    """One markdown table: setting, case, CP and VP errors with 95 % CIs per channel, the
-    periodic-orbit offsets, and VP's chosen ``(sigma_r, T)`` (time means over the case)."""
+    """Return one markdown table of a sensitivity run.
+
+    Per setting and case: CP and VP errors with 95 % CIs per channel, the periodic-orbit
+    offsets, and VP's chosen ``(sigma_r, T)`` (time means over the case).
+    """
     lines = [
         f"{result['runs']} CP + {result['runs']} VP runs per case, {result['duration_s']:g} s each, "
         f"seed {result['seed']}. Errors: mean of the time-mean |eq. (6)| [cm/s] and |eq. (10)| [deg/s] "
@@ -675,8 +682,11 @@ def sensitivity_markdown(result: dict[str, Any]) -> str:
 
 
 def study_markdown(result: dict[str, Any]) -> str:
-    """A markdown table of a study (reduced or walker): per case, CP and VP errors with 95 %
-    CIs per channel, VP's mean choice, and the failures (diverged runs; falls on the walker)."""
+    """Return a markdown table of a study (reduced or walker).
+
+    Per case: CP and VP errors with 95 % CIs per channel, VP's mean choice, and the
+    failures (diverged runs; falls on the walker).
+    """
     lines = [
         f"{result['runs']} CP + {result['runs']} VP runs per case, {result['duration_s']:g} s each, "
         f"seed {result['seed']}. Mean of the time-mean |eq. (6)| [cm/s] and |eq. (10)| [deg/s], 95 % CI.",

@@ -1,0 +1,1 @@
+"""Data shipped with the package: the intercontinental delay trace (``intercontinental_delay.csv``)."""

@@ -22,8 +22,11 @@ def _run_config(args: argparse.Namespace) -> int:
 
 
 def add_config_parser(sub: Any) -> None:
-    """``bipedtele config [--config F] [--set K=V]``: validate a profile and print it as JSON
-    (secrets shown as ``"***"``; paths as resolved, see :mod:`bipedtele.config`)."""
+    """Add ``bipedtele config [--config F] [--set K=V]``.
+
+    It validates a profile and prints it as JSON (secrets shown as ``"***"``; paths as
+    resolved, see :mod:`bipedtele.config`).
+    """
     p = sub.add_parser("config", help="validate a config profile and print it as JSON (secrets shown as ***)")
     add_config_args(p)
     p.set_defaults(func=_run_config)

@@ -89,7 +89,7 @@ def _progress_bar(total: int) -> Iterator[Callable[[int], None] | None]:
 
 
 def _walker_backend() -> Any:
-    """The walker study, registered by the follower package (the core never imports it)."""
+    """Return the walker study, registered by the follower package (the core never imports it)."""
     from importlib import metadata
 
     for ep in metadata.entry_points(group="bipedtele.study_backends"):
@@ -182,8 +182,11 @@ def add_surfaces_parser(sub: Any) -> None:
 
 
 def add_study_parser(sub: Any) -> None:
-    """``bipedtele study [--runs N] [--seed S] [--json F] [--plot F.png] [--sensitivity | --walker]
-    [--markdown F]`` (Fig. 8, Sec. 4)."""
+    """Add ``bipedtele study`` (Fig. 8, Sec. 4).
+
+    ``bipedtele study [--runs N] [--seed S] [--json F] [--plot F.png] [--sensitivity | --walker]
+    [--markdown F]``.
+    """
     p = sub.add_parser("study", help="CP vs VP numerical study over the delay cases (Fig. 8)")
     p.add_argument("--runs", type=int, default=None,
                    help="runs per scheme and case (default 500; 100 with --sensitivity; 3 with --walker)")

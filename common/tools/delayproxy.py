@@ -68,6 +68,7 @@ class DirectionStats:
     late_s: list[float] = field(default_factory=list)
 
     def record_late(self, late: float, keep: int = 10000) -> None:
+        """Keep how late [s] a chunk went out (the last ``keep`` values)."""
         self.late_s.append(late)
         if len(self.late_s) > keep:
             del self.late_s[: len(self.late_s) - keep]

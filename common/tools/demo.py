@@ -75,7 +75,7 @@ def _say(line: str) -> None:
 
 
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that is free right now."""
+    """Return a TCP port on 127.0.0.1 that is free right now."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
@@ -106,8 +106,10 @@ class DemoPlan:
     link: VethLink | None = None
 
     def commands(self) -> dict[str, list[str]]:
-        """Command lines of the processes, in start order (four with the proxy, three with
-        netem, each prefixed by ``ip netns exec NS``)."""
+        """Return the command lines of the processes, in start order.
+
+        Four with the proxy; three with netem, each prefixed by ``ip netns exec NS``.
+        """
         exe = [sys.executable, "-m", "bipedtele.cli"]
         common = ["--config", self.profile]
         for item in self.overrides:
@@ -151,7 +153,7 @@ class DemoPlan:
         }
 
     def netem_plan(self, t_end: float) -> list[str]:
-        """The netem backend's commands as text lines: setup, ``tc`` over time, teardown.
+        """Return the netem backend's commands as text lines: setup, ``tc`` over time, teardown.
 
         Parameters
         ----------
@@ -224,7 +226,8 @@ def run_demo(
 
     Unless ``quiet``, a live status line (:mod:`bipedtele.tools.demostatus`: passes k/
     ``passes_total``, elapsed, h1 + h2, falls, contacts, running speed errors) is written
-    about once a second while the leader runs."""
+    about once a second while the leader runs.
+    """
     from bipedtele.recording import read_records
     from bipedtele.tools.report import compute_report, format_report
 
@@ -291,7 +294,7 @@ def parse_delay_scale(text: str) -> float:
 
 
 def scale_delay_spec(spec: str, k: float, folder: Path, name: str) -> str:
-    """A delay model spec whose delays are ``k`` times those of ``spec``.
+    """Return a delay model spec whose delays are ``k`` times those of ``spec``.
 
     Constant, uniform and normal models get their times scaled; a trace is written,
     scaled, to ``folder/delay-NAME-xK.csv`` (its times kept) and named by its path.
@@ -341,7 +344,7 @@ def _netem_usable() -> tuple[bool, str]:
 
 
 def _backend(requested: str, dry_run: bool) -> str:
-    """The backend to use: ``auto`` resolved (and said), ``netem`` checked."""
+    """Return the backend to use: ``auto`` resolved (and said), ``netem`` checked."""
     if requested == "auto":
         ok, why = _netem_usable()
         chosen = "netem" if ok else "proxy"

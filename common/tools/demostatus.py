@@ -173,8 +173,10 @@ def format_status(st: LiveStatus, elapsed_s: float) -> str:
 
 
 class StatusPrinter:
-    """Writes the status about once a second: on a terminal one line rewritten in place,
-    otherwise plain lines at most every ``plain_every_s`` seconds.
+    """Writer of the status, about once a second.
+
+    On a terminal one line rewritten in place, otherwise plain lines at most every
+    ``plain_every_s`` seconds.
 
     Parameters
     ----------
@@ -212,8 +214,10 @@ class StatusPrinter:
         self._shown = False
 
     def update(self, force: bool = False) -> str | None:
-        """Read what the recording gained and write the line when one is due (or
-        ``force``). Returns the line written, if any."""
+        """Read what the recording gained and write the line when one is due (or ``force``).
+
+        Returns the line written, if any.
+        """
         now = self.clock()
         if not force and now < self._next:
             return None

@@ -1,4 +1,4 @@
-"""``bipedtele health``: is a router reachable, is a leader or follower present?
+"""``bipedtele health``: check that a router is reachable or a leader or follower present.
 
 Used by the docker compose healthchecks and handy by hand. Opens a short-lived Zenoh
 session from the profile's ``[network]`` section (as a client when it names endpoints to

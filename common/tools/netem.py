@@ -38,7 +38,7 @@ def tc_commands(
     distribution: str | None = None,
     loss: str | None = None,
 ) -> list[list[str]]:
-    """The ``tc`` command lines for an action.
+    """Return the ``tc`` command lines for an action.
 
     Parameters
     ----------

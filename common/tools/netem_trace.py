@@ -41,7 +41,7 @@ def _us(seconds: float) -> str:
 
 
 def netem_args(model: DelayModel, t: float = 0.0) -> list[str]:
-    """netem options realising ``model`` at time ``t`` [s] of the run.
+    """Netem options realising ``model`` at time ``t`` [s] of the run.
 
     Parameters
     ----------
@@ -62,7 +62,7 @@ def netem_args(model: DelayModel, t: float = 0.0) -> list[str]:
 
 
 def replay_times(model: DelayModel, t_end: float = math.inf) -> Iterator[float]:
-    """Times in ``(0, t_end]`` [s], in order, at which ``model``'s qdisc must change.
+    """Return the times in ``(0, t_end]`` [s], in order, at which ``model``'s qdisc must change.
 
     A trace changes at each of its rows, looped over its period: at every ``t`` where
     :meth:`TraceDelay.delay_s` lands on a row (``t`` = a row's time modulo the period, plus

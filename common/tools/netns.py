@@ -43,7 +43,9 @@ def _run(cmd: list[str], timeout: float = 20.0) -> subprocess.CompletedProcess[s
 
 @dataclass
 class VethLink:
-    """Namespaces ``bt-dl-TAG`` (leader side) and ``bt-df-TAG`` (follower side), veth ends
+    """Two network namespaces joined by a veth pair.
+
+    Namespaces ``bt-dl-TAG`` (leader side) and ``bt-df-TAG`` (follower side), veth ends
     ``btdl-TAG`` and ``btdf-TAG``.
 
     Parameters
@@ -76,7 +78,7 @@ class VethLink:
         return self.leader_ip if side == LEADER else self.follower_ip
 
     def setup_commands(self) -> list[list[str]]:
-        """The ``ip`` commands that make the two namespaces and the veth pair."""
+        """Return the ``ip`` commands that make the two namespaces and the veth pair."""
         l_ns, f_ns = self.ns[LEADER], self.ns[FOLLOWER]
         l_dev, f_dev = self.dev[LEADER], self.dev[FOLLOWER]
         return [
@@ -94,7 +96,7 @@ class VethLink:
         ]
 
     def teardown_commands(self) -> list[list[str]]:
-        """The commands :meth:`remove` runs (after killing what runs inside)."""
+        """Return the commands :meth:`remove` runs (after killing what runs inside)."""
         return [["ip", "netns", "del", self.ns[LEADER]], ["ip", "netns", "del", self.ns[FOLLOWER]]]
 
     def exec_prefix(self, side: str) -> list[str]:
@@ -133,11 +135,11 @@ class VethLink:
         return self
 
     def namespaces(self) -> list[str]:
-        """The namespaces made so far (and not yet deleted)."""
+        """Return the namespaces made so far (and not yet deleted)."""
         return [n for n in self.created if not n.startswith("veth:")]
 
     def pids(self) -> list[int]:
-        """Processes inside the two namespaces."""
+        """Return the processes inside the two namespaces."""
         out: list[int] = []
         for ns in self.namespaces():
             res = _run(["ip", "netns", "pids", ns])
@@ -181,8 +183,10 @@ class VethLink:
 
 
 class CockpitRelay:
-    """Makes the leader's cockpit (``127.0.0.1:PORT`` in its namespace) reachable on the
-    host's ``127.0.0.1:PORT``.
+    """Relay that makes the leader's cockpit reachable from the host.
+
+    The cockpit listens on ``127.0.0.1:PORT`` in the leader's namespace; the relay serves
+    the host's ``127.0.0.1:PORT``.
 
     The listening socket is made here, in the host's namespace, and handed (inherited
     descriptor) to a relay process started inside the leader's namespace, which connects

@@ -309,7 +309,7 @@ def _status_increase(run: _Run, key: str) -> int:
 
 
 def _delay_source(run: _Run) -> tuple[list[float], list[tuple[float, float]]]:
-    """The best delay signal: ``estimates``, else ``leader/state``, else per-message."""
+    """Return the best delay signal: ``estimates``, else ``leader/state``, else per-message."""
     if run.delay:
         return run.delay_t, run.delay
     if run.state_delay:
@@ -318,7 +318,7 @@ def _delay_source(run: _Run) -> tuple[list[float], list[tuple[float, float]]]:
 
 
 def _delays(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(times [s], h1 and h2 [s] as an (n, 2) array) inside the window."""
+    """Return (times [s], h1 and h2 [s] as an (n, 2) array) inside the window."""
     t, d = _delay_source(run)
     ta = np.asarray(t, dtype=float)
     da = np.asarray(d, dtype=float).reshape(-1, 2)
@@ -327,7 +327,7 @@ def _delays(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, np.ndar
 
 
 def compute_report(records: Iterable[Record], follower: Iterable[Record] | None = None) -> dict[str, Any]:
-    """The Table 2 columns of one run.
+    """Return the Table 2 columns of one run.
 
     Parameters
     ----------
@@ -410,7 +410,9 @@ def _steps_from_footfalls(
     footfalls: Sequence[tuple[float, float, tuple[float, float, float], float, tuple[float, float] | None]],
     run: _Run | None = None,
 ) -> list[tuple[float, float, float, float, float]]:
-    """Steps between consecutive footfalls: (dt [s], speed [cm/s], turn [deg/s], ref forward, ref turn).
+    """Return the steps between consecutive footfalls.
+
+    Each row: (dt [s], speed [cm/s], turn [deg/s], ref forward, ref turn).
 
     ``footfalls`` are ``(t_recv, t, pose, step_s, ref)`` in time order; a pair counts when
     ``0 < t1 - t0 <= 1.5 step_s`` of the second. ``ref`` missing: the mean of ``run``'s
@@ -431,7 +433,7 @@ def _steps_from_footfalls(
 
 
 def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tuple[float, float, float, float, float]]:
-    """Steps approximated by windows of one step time (T/2) of the feedback poses.
+    """Return the steps approximated by windows of one step time (T/2) of the feedback poses.
 
     Over the feedback inside the task window in state ``walking``, on the feedback's own
     time ``t``: consecutive windows of T/2 [s] (T of the latest feedback at the window's
@@ -480,7 +482,7 @@ def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tupl
 
 
 def _odometry_steps(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, str | None]:
-    """(steps as an (n, 5) array, source): from footfalls if any, else from feedback windows."""
+    """Return (steps as an (n, 5) array, source): from footfalls if any, else from feedback windows."""
     ff = sorted((f for f in run.footfalls if window[0] <= f[0] <= window[1]), key=lambda f: f[1])
     steps, source = _steps_from_footfalls(ff, run), "footfalls"
     if not steps:
@@ -661,7 +663,7 @@ _ROWS = (
 
 
 def format_report(report: dict[str, Any], title: str = "") -> str:
-    """The report as a small two-column table (the paper's Table 2 plus falls/contacts)."""
+    """Return the report as a small two-column table (the paper's Table 2 plus falls/contacts)."""
     lines = [title] if title else []
     for key, label, unit in _ROWS:
         v = report.get(key)

@@ -88,7 +88,7 @@ def make_message_key(path: str | Path) -> Path:
 
 
 def make_password() -> str:
-    """A random password: 32 characters of ``[A-Za-z0-9_-]`` (192 bits; no ``:``)."""
+    """Return a random password: 32 characters of ``[A-Za-z0-9_-]`` (192 bits; no ``:``)."""
     return secrets.token_urlsafe(24)
 
 
@@ -150,7 +150,7 @@ def _openssl(*args: str) -> None:
 
 
 def make_certs(out_dir: str | Path, router_names: Sequence[str], ca_dir: str | Path | None = None) -> CertFiles:
-    """A private CA, the router's server certificate and the two client certificates.
+    """Make a private CA, the router's server certificate and the two client certificates.
 
     The same files as ``scripts/make-certs.sh``: EC P-256 keys; the CA (10 years) with
     ``CA:TRUE``; ``router`` (825 days) with ``router_names`` as subjectAltName (DNS names
@@ -234,7 +234,7 @@ def _issue(out: Path, name: str, alt: str, eku: str, ca_pem: Path, ca_key: Path)
 
 
 def task_course() -> dict[str, Any]:
-    """The paper's task course: the ``[world]`` table of the shipped ``localhost-delay`` profile."""
+    """Return the paper's task course: the ``[world]`` table of the shipped ``localhost-delay`` profile."""
     text = resources.files("bipedtele.configs").joinpath("localhost-delay.toml").read_text(encoding="utf-8")
     world = tomllib.loads(text).get("world")
     if not isinstance(world, dict) or not world.get("obstacles"):

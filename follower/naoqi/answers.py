@@ -1,6 +1,8 @@
-"""Checks on what NAOqi answers: every value the bridge uses is validated here, so a
-wrong type or shape from the robot becomes a clear :class:`RobotError`, never a crash
-deeper in the loop."""
+"""Checks on what NAOqi answers.
+
+Every value the bridge uses is validated here, so a wrong type or shape from the robot becomes a clear :class:`RobotError`, never a crash
+deeper in the loop.
+"""
 
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ def as_bool(value: Any, what: str) -> bool:
 
 
 def decode_image(value: Any) -> np.ndarray:
-    """An ALVideoDevice ``getImageRemote`` answer as an H x W x 3 uint8 RGB image.
+    """Return an ALVideoDevice ``getImageRemote`` answer as an H x W x 3 uint8 RGB image.
 
     The answer is ``[width, height, layers, colorspace, ts_s, ts_us, data, camera, ...]``
     with ``data`` the ``width * height * layers`` raw bytes (kRGBColorSpace: 3 layers).

@@ -81,7 +81,7 @@ class NaoqiConfig:
         return 2.0 * self.min_step_period_s, 2.0 * self.max_step_period_s
 
     def resolved_password(self) -> str:
-        """The password, read from ``password_file`` where set.
+        """Return the password, read from ``password_file`` where set.
 
         Raises
         ------

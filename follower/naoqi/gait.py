@@ -55,7 +55,7 @@ class MoveConfig:
     step_height_m: float
 
     def as_naoqi(self) -> list[list[object]]:
-        """The move config as ALMotion takes it: ``[[name, value], ...]``."""
+        """Return the move config as ALMotion takes it: ``[[name, value], ...]``."""
         return [
             ["MaxStepX", self.max_step_x_m],
             ["MaxStepY", self.max_step_y_m],
@@ -66,7 +66,7 @@ class MoveConfig:
 
 
 def walk_limits(cfg: NaoqiConfig) -> WalkLimits:
-    """The :class:`WalkLimits` of a NAO with settings ``cfg``."""
+    """Return the :class:`WalkLimits` of a NAO with settings ``cfg``."""
     return WalkLimits(
         max_forward_m_s=cfg.max_forward_m_s,
         max_turn_rad_s=cfg.max_turn_rad_s,
@@ -75,7 +75,7 @@ def walk_limits(cfg: NaoqiConfig) -> WalkLimits:
 
 
 def move_config_for(cmd: WalkCommand, cfg: NaoqiConfig) -> tuple[MoveConfig, WalkCommand]:
-    """The move call realising ``cmd`` on NAO, and the command it realises.
+    """Return the move call realising ``cmd`` on NAO, and the command it realises.
 
     Parameters
     ----------

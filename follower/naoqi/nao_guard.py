@@ -79,6 +79,7 @@ class Guard(object):
         self._next_retry = 0.0
 
     def heartbeat(self, owner):
+        """Take a heartbeat from ``owner`` (arming the guard); return the lapse [s]."""
         now = self._clock()
         with self._lock:
             if owner != self.owner:
@@ -93,6 +94,7 @@ class Guard(object):
         return self.lapse_s
 
     def release(self, owner):
+        """Disarm the guard when ``owner`` is the one it follows; return whether it did."""
         with self._lock:
             if owner != self.owner or not self.armed:
                 return False
@@ -102,6 +104,7 @@ class Guard(object):
             return True
 
     def status(self):
+        """Return the guard's state and counters as a dict."""
         with self._lock:
             since = None if self.last_beat is None else self._clock() - self.last_beat
             return {"armed": self.armed, "owner": self.owner, "since_last_s": since, "beats": self.beats,
@@ -143,15 +146,19 @@ class GuardService(object):
         self._guard = guard
 
     def version(self):
+        """Return the guard's version."""
         return VERSION
 
     def heartbeat(self, owner):
+        """Take a heartbeat from ``owner``; return the lapse [s]."""
         return float(self._guard.heartbeat(str(owner)))
 
     def release(self, owner):
+        """Disarm the guard for ``owner``; return whether it did."""
         return bool(self._guard.release(str(owner)))
 
     def status(self):
+        """Return the guard's state and counters as JSON."""
         return json.dumps(self._guard.status(), sort_keys=True)
 
 
@@ -312,7 +319,7 @@ def _close(session):
 
 
 def build_parser(parser=None):
-    """The guard's command-line options (also used by ``bipedtele nao-guard``)."""
+    """Return the guard's command-line options (also used by ``bipedtele nao-guard``)."""
     if parser is None:
         parser = argparse.ArgumentParser(prog="nao_guard.py", description=__doc__.splitlines()[0])
     parser.add_argument("--url", "--naoqi-url", dest="url", default=None,
@@ -328,7 +335,7 @@ def build_parser(parser=None):
 
 
 def check_args(args):
-    """The URL and lapse from ``args``, or raise ValueError with one line saying what is allowed."""
+    """Return the URL and lapse from ``args``, or raise ValueError with one line saying what is allowed."""
     url = args.url
     if url is None:
         url = "tcp://%s:%d" % (args.pip or "127.0.0.1", args.pport or 9559) if (args.pip or args.pport) else DEFAULT_URL
@@ -353,6 +360,7 @@ def serve(url, lapse_s, user="", password=""):
 
 
 def main(argv=None):
+    """Run the guard until a signal; return the exit code."""
     args = build_parser().parse_args(argv)
     handlers = [logging.StreamHandler(sys.stderr)]  # type: list[logging.Handler]
     if args.log_file:

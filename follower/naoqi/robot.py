@@ -244,7 +244,7 @@ class NaoqiRobot(FollowerRobot):
             self._release(quiet=False)
 
     def _stop_over_new_session(self) -> None:
-        """The link is down at exit: try once to reach NAOqi again just to ``stopMove``."""
+        """Try once more to reach NAOqi, just to ``stopMove`` (the link is down at exit)."""
         cfg = self.config
         try:
             session = open_session(cfg.url, cfg.user, cfg.resolved_password(), min(cfg.connect_timeout_s, 2.0))
@@ -328,7 +328,7 @@ class NaoqiRobot(FollowerRobot):
         )
 
     def footfall(self) -> Footfall | None:
-        """The latest step-period sample of the odometry while walking (None before the first)."""
+        """Return the latest step-period sample of the odometry while walking (None before the first)."""
         return self._steps.footfall
 
     def send_walk(self, cmd: WalkCommand) -> WalkCommand:
@@ -375,11 +375,11 @@ class NaoqiRobot(FollowerRobot):
             self._try("ALMotion", "stopMove")
 
     def advance(self, dt: float) -> None:
-        """A real robot's time passes by itself: returns at once."""
+        """Return at once: a real robot's time passes by itself."""
         self._require()
 
     def capture(self, camera: Camera = "head") -> np.ndarray | None:
-        """A QVGA RGB frame (240 x 320 x 3, uint8) from NAO's top camera; ``None`` for ``scene``.
+        """Return a QVGA RGB frame (240 x 320 x 3, uint8) from NAO's top camera; ``None`` for ``scene``.
 
         Raises
         ------
@@ -437,7 +437,7 @@ class NaoqiRobot(FollowerRobot):
         return self._wait(self._start(service, method, *args), service, method, timeout_s)
 
     def _try(self, service: str, method: str, *args: Any) -> None:
-        """A call whose failure is logged, not raised (shutdown and safety paths)."""
+        """Call ``service.method``, logging a failure instead of raising it (shutdown and safety paths)."""
         try:
             self._call(service, method, *args)
         except RobotError as exc:

@@ -18,7 +18,7 @@ LOG = logging.getLogger(__name__)
 
 
 def import_qi() -> Any:
-    """The ``qi`` module, or a :class:`RobotError` saying how to install it."""
+    """Return the ``qi`` module, or a :class:`RobotError` saying how to install it."""
     try:
         import qi
     except ImportError:
@@ -35,7 +35,7 @@ class UserTokenAuthenticator:
         self._data = {"user": user, "token": token}
 
     def initialAuthData(self) -> dict[str, str]:
-        """The first (and only) message of the exchange."""
+        """Return the first (and only) message of the exchange."""
         return dict(self._data)
 
     def _processAuth(self, data: Any) -> dict[str, str]:
@@ -51,18 +51,20 @@ class UserTokenAuthenticatorFactory:
         self._token = token
 
     def newAuthenticator(self) -> UserTokenAuthenticator:
-        """A fresh authenticator for one connection."""
+        """Return a fresh authenticator for one connection."""
         return UserTokenAuthenticator(self.user, self._token)
 
     def authVersionMajor(self) -> int:
+        """Return the protocol's major version."""
         return 1
 
     def authVersionMinor(self) -> int:
+        """Return the protocol's minor version."""
         return 0
 
 
 def open_session(url: str, user: str, password: str, timeout_s: float) -> Any:
-    """A connected ``qi.Session`` to ``url``.
+    """Return a connected ``qi.Session`` to ``url``.
 
     Parameters
     ----------
