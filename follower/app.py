@@ -80,17 +80,20 @@ class FollowerApp:
         self.robot_name = robot_name or self.fcfg.robot
         try:
             self.spec = robot_spec(self.robot_name)
+        except ValueError as exc:
+            raise ConfigError(f"--robot: {exc}") from None
+        self.realtime = self.fcfg.realtime if realtime is None else realtime
+        simulated = "robot " + " or ".join(repr(n) for n in robot_names() if robot_spec(n).simulated)
+        if not self.realtime and not self.spec.simulated:
+            raise ConfigError(f"--realtime off with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})")
+        if reset_on_leader and not self.spec.simulated:
+            raise ConfigError(f"--reset-on-leader with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})")
+        self.reset_on_leader = reset_on_leader
+        try:
             # Every setting is checked (the robot's section too) before anything is written.
             self.robot: FollowerRobot = make_robot(self.robot_name, config=cfg)
         except ValueError as exc:
             raise ConfigError(f"--robot: {exc}") from None
-        self.realtime = self.fcfg.realtime if realtime is None else realtime
-        simulated = ", ".join(n for n in robot_names() if robot_spec(n).simulated)
-        if not self.realtime and not self.spec.simulated:
-            raise ConfigError(f"--realtime off with robot {self.robot_name!r}: allowed: only with a simulated robot ({simulated})")
-        if reset_on_leader and not self.spec.simulated:
-            raise ConfigError(f"--reset-on-leader with robot {self.robot_name!r}: allowed: only with a simulated robot ({simulated})")
-        self.reset_on_leader = reset_on_leader
         self.duration_s = duration_s
         self.node = Node(cfg, "follower", record=record)  # a bad key file or --record fails here
         # The command gate follows one leader session (another takes over only after the

@@ -19,7 +19,7 @@ ever got through ends with exit code :data:`EXIT_NOT_REACHED` (3).
 from __future__ import annotations
 
 import argparse
-import contextlib
+import functools
 import logging
 import math
 import os
@@ -31,54 +31,28 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.auth import load_message_auth
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.clock import ClockSync, DelayEstimator
-from bipedtele.clocklink import ClockLink
+from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
-from bipedtele.leader.devices import SimFalcon, SimFalconParams
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, prediction_fields
 from bipedtele.leader.reach import CommandReach
-from bipedtele.messages import (
-    ClockPing,
-    ClockPong,
-    Command,
-    Feedback,
-    Status,
-    VideoFrame,
-    new_session_id,
-)
-from bipedtele.shutdown import shutdown_on_signals
-from bipedtele.transport import (
-    Keys,
-    LatestReceiver,
-    PresenceWatcher,
-    Publishers,
-    Received,
-    declare_presence,
-    open_session,
-)
+from bipedtele.messages import Command, Feedback, Status, VideoFrame
+from bipedtele.node import Node, StepClock
+from bipedtele.transport import LatestReceiver, PresenceWatcher, Publishers, Received
 
-__all__ = ["add_leader_parser", "main"]
+__all__ = ["LeaderApp", "add_leader_parser", "main"]
 
 LOG = logging.getLogger(__name__)
 
 
 def _make_device(cfg: Config, name: str) -> LeaderDevice:
-    lc = cfg.section("leader")
-    if name == "sim-falcon":
-        params = SimFalconParams(
-            mass_kg=lc.mass_kg, viscous_n_s_m=lc.viscous_n_s_m, coulomb_n=lc.coulomb_n,
-            gravity_n=(lc.gravity_n[0], lc.gravity_n[1]),
-        )  # fmt: skip
-        return SimFalcon(params)
     try:
-        # Hardware drivers read their own section ([falcon], [joystick]) from the profile.
+        # Every device reads its own settings ([leader], [falcon], [joystick]) from the profile.
         return make_device(name, config=cfg)
     except ValueError as exc:
         raise ConfigError(f"--device {name!r}: {exc}") from None
@@ -186,6 +160,203 @@ def _cockpit_token() -> str | None:
         raise ConfigError(f"{COCKPIT_TOKEN_ENV}: {exc}") from None
 
 
+class LeaderApp:
+    """The leader program on the node runtime (see the module docstring).
+
+    Every argument and setting is checked when it is built (one line, exit 2); nothing
+    is opened, served or written before :meth:`run`. Parameters are those of :func:`main`.
+    """
+
+    def __init__(
+        self,
+        cfg: Config,
+        *,
+        operator_name: str | None = None,
+        device_name: str | None = None,
+        duration_s: float | None = None,
+        realtime: bool | None = None,
+        record: Path | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.lc = lc = cfg.section("leader")
+        self.op_name = operator_name or lc.operator
+        self.dev_name = device_name or lc.device
+        self.realtime = lc.realtime if realtime is None else realtime
+        self.duration = lc.duration_s if duration_s is None else duration_s
+        if self.op_name not in OPERATORS:
+            raise ConfigError(f"--operator {self.op_name!r}: allowed: {', '.join(OPERATORS)}")
+        if self.op_name == "browser" and not lc.cockpit:
+            raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
+        self.device = _make_device(cfg, self.dev_name)  # a bad name fails here, before any I/O
+        self.token = _cockpit_token() if lc.cockpit else None
+        self.cockpit: Any = None  # the cockpit server, once it runs (the browser operator reads it)
+        self.loop: LeaderLoop | None = None
+        self.aux: _Aux | None = None
+        try:
+            operator: Operator | None = make_operator(
+                self.op_name, cfg, workspace_m=self.device.limits.workspace_m,
+                joystick=self._joystick if lc.cockpit else None, hold_script=bool(self.duration),
+            )  # fmt: skip
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        if not self.device.simulated:
+            operator = None  # a person holds a physical device
+            LOG.info("device %s is held by a person: operator model %s not used", self.dev_name, self.op_name)
+        self.operator = operator
+        self.node = Node(cfg, "leader", record=record)  # a bad key file or --record fails here
+        self.estimator = DelayEstimator(cfg.section("clock").delay_window_s)
+        # The feedback gate follows one follower session; its live sid binds the clock link.
+        self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s)
+        self.reach = CommandReach(self._commands_sent)
+        self.clock: Callable[[], float] = time.time if self.realtime else StepClock(1.0 / lc.haptic_rate_hz)
+        # The predictive display's fields (docs/cockpit.md): the pilot's own predictor when
+        # it steers on one, else one fed here from the same samples.
+        live = getattr(operator, "live", None)
+        self.own_live = live is None
+        self.live: LivePredictor = LivePredictor(DelayPredictor(tau_s=lc.pilot_predict_tau_s)) if live is None else live
+        self.predict_every = max(1, round(lc.cmd_rate_hz / lc.cockpit_rate_hz))
+        self._fb_rx: LatestReceiver[Feedback] | None = None
+
+    # ------------------------------------------------------------------ wiring
+
+    def _joystick(self) -> tuple[float, float, float] | None:
+        return self.cockpit.joystick() if self.cockpit is not None else None
+
+    def _commands_sent(self) -> int:
+        return self.loop.seq if self.loop is not None else 0
+
+    def _on_feedback(self, got: Received[Feedback]) -> None:
+        self.reach.on_feedback(got.msg)
+
+    def _on_video(self, got: Received[VideoFrame]) -> None:
+        if self.cockpit is not None:
+            msg = got.msg
+            self.cockpit.publish_video(msg.camera, msg.jpeg, msg.t_capture)
+
+    def _latest_feedback(self) -> tuple[Feedback, float] | None:
+        got = self._fb_rx.latest() if self._fb_rx is not None else None
+        return (got.msg, got.t_recv) if got is not None else None
+
+    def _send_command(self, cmd: Command) -> None:
+        self.node.pubs.cmd.put(cmd)
+        self.node.record("cmd/sent", cmd, cmd.t)
+
+    def _on_sample(self, snap: dict[str, Any]) -> None:
+        """Each loop sample (the loop fed the operator already): prediction, cockpit, recording."""
+        if self.loop is not None:
+            fb = self.loop.feedback
+            if self.own_live:
+                self.live.observe(snap, fb.t if fb is not None else None)
+                if fb is not None and snap["seq"] % self.predict_every == 0:
+                    self.live.predict(snap["t"], fb.pose, fb.eta, fb.t, fb.h1_s)
+            snap.update(prediction_fields(self.live.last))
+        if self.aux is not None:
+            snap.update(self.aux.extras())
+        if self.cockpit is not None:
+            self.cockpit.publish_sample(snap)
+        self.node.record("leader/state", snap, snap["t"])
+
+    def _start_cockpit(self) -> Any:
+        lc = self.lc
+        from bipedtele.leader.cockpit import CockpitServer
+
+        try:
+            cockpit = CockpitServer(
+                lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=self.token,
+                allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
+                course=_map_course(self.cfg),
+            ).start()  # fmt: skip
+        except OSError as exc:
+            raise ConfigError(
+                f"leader.cockpit_port = {lc.cockpit_port}: cannot serve on {lc.cockpit_host} "
+                f"({exc.strerror or exc}); allowed: a free port, or 0 for any"
+            ) from None
+        self.node.on_close(cockpit.stop)
+        return cockpit
+
+    # ------------------------------------------------------------------ run
+
+    def run(self, stats: dict[str, Any] | None = None) -> int:
+        """Run until done, ``duration_s`` or a signal; return the exit code (see :func:`main`)."""
+        lc, node = self.lc, self.node
+        with node:
+            # Python threads (Zenoh callbacks, cockpit, recorder) hand the GIL back to the
+            # haptic loop sooner than the default 5 ms.
+            node.on_close(functools.partial(sys.setswitchinterval, sys.getswitchinterval()))
+            sys.setswitchinterval(0.0005)
+            node.declare_presence()
+            presence = node.watch_presence("follower")
+            try:
+                node.enter(self.device)
+            except DeviceError as exc:
+                LOG.error("device %s: %s", self.dev_name, exc)
+                return 1
+            # Configuration, session and device are good: now the cockpit and the recording.
+            if lc.cockpit:
+                self.cockpit = self._start_cockpit()
+            recorder = node.start_recording(
+                {"operator": self.op_name, "device": self.dev_name}, jpeg_every=10
+            )
+            self._fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
+                                       estimator=self.estimator, on_message=self._on_feedback)  # fmt: skip
+            node.receive(node.keys.video, VideoFrame, SequenceGate(), topic="video/recv", on_message=self._on_video)
+            status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid)
+            node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
+            self.loop = loop = LeaderLoop(
+                self.device, self.operator, self.cfg.section("control"), self._send_command, self._latest_feedback,
+                cfg=lc, clock=self.clock, estimator=self.estimator, conservative_rtt=node.round_trip,
+                on_sample=self._on_sample, sid=node.sid,
+            )  # fmt: skip
+            self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
+                                             node.record, self.reach))  # fmt: skip
+            LOG.info(
+                "leader ready: robot %s, device %s, operator %s, %s%s", self.cfg.section("robot").id, self.dev_name,
+                self.op_name if self.operator is not None else "(person)",
+                "real time" if self.realtime else "as fast as possible",
+                f", cockpit {self.cockpit.url}" if self.cockpit is not None else "",
+            )  # fmt: skip
+            if self.cockpit is not None:
+                LOG.info("cockpit: open %s", self.cockpit.url)
+            node.event("start", {"operator": self.op_name})
+            t_start = time.time()
+            self._run_loop(loop)
+            elapsed = time.time() - t_start
+            done = loop.done
+            aux.record_progress(time.time())  # the last pass may have ended the run just now
+            node.event("done" if done else "stop", {"elapsed_s": elapsed})
+            loop.send_stop()
+            never_reached = self.reach.never_reached
+            if never_reached:
+                node.event("commands_not_reaching", {"commands": loop.seq})
+            path = recorder.path if recorder is not None else None
+            summary = _summary(loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime, self.reach)
+            if stats is not None:
+                stats.update(loop.period_stats.summary(loop.dt))
+                stats.update(
+                    missed_ticks=loop.missed_ticks, commands=loop.seq, feedback=loop.feedback_count,
+                    drops=node.drops.total, done=done, elapsed_s=elapsed,
+                    progress=self.operator.progress() if self.operator is not None else {},
+                    cockpit=self.cockpit.stats if self.cockpit is not None else {},
+                    acknowledged=self.reach.acknowledged, never_reached=never_reached,
+                    slew_limited_ticks=loop.slew_limited_ticks,
+                )  # fmt: skip
+        print(summary, flush=True)  # noqa: T201 - the program's one-line result
+        return EXIT_NOT_REACHED if never_reached else 0
+
+    def _run_loop(self, loop: LeaderLoop) -> None:
+        """The haptic loop in the main thread: paced in real time, or stepped as fast as possible."""
+        stop = self.node.stop
+        if self.realtime:
+            loop.run(stop=stop, duration_s=self.duration or None, until_done=True)
+            return
+        clock = self.clock
+        assert isinstance(clock, StepClock)
+        limit = round(self.duration * self.lc.haptic_rate_hz) if self.duration else None
+        while not stop.is_set() and not loop.done and (limit is None or clock.ticks < limit):
+            loop.tick(now=clock())
+            clock.advance()
+
+
 def main(
     cfg: Config,
     *,
@@ -196,11 +367,11 @@ def main(
     record: Path | None = None,
     stats: dict[str, Any] | None = None,
 ) -> int:
-    """Run the leader program. Returns the exit code (0: clean end; 1: the device failed;
-    :data:`EXIT_NOT_REACHED`: the follower was there but none of our commands reached it).
+    """Run the leader program; return the exit code.
 
-    Nothing is served or recorded before the configuration is valid and the Zenoh session
-    is open: the cockpit and the recording start after both.
+    0: clean end; 1: the device failed; :data:`EXIT_NOT_REACHED`: the follower was there
+    but none of our commands reached it. Nothing is served or recorded before the
+    configuration is valid and the Zenoh session is open.
 
     Parameters
     ----------
@@ -221,223 +392,11 @@ def main(
     stats : dict, optional
         Filled at the end with the loop's figures (period statistics, counters, progress).
     """
-    lc = cfg.section("leader")
-    op_name = operator_name or lc.operator
-    dev_name = device_name or lc.device
-    rt = lc.realtime if realtime is None else realtime
-    duration = lc.duration_s if duration_s is None else duration_s
-    if op_name not in OPERATORS:
-        raise ConfigError(f"--operator {op_name!r}: allowed: {', '.join(OPERATORS)}")
-    if op_name == "browser" and not lc.cockpit:
-        raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
-    if record is not None and record.exists():
-        raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)")
-    device = _make_device(cfg, dev_name)  # a bad name fails here, before any I/O
-    token = _cockpit_token() if lc.cockpit else None
-    cockpit_ref: list[Any] = []  # the cockpit, once it runs (the browser operator reads it)
-
-    def joystick() -> tuple[float, float, float] | None:
-        return cockpit_ref[0].joystick() if cockpit_ref else None
-
-    try:
-        operator: Operator | None = make_operator(
-            op_name, cfg, workspace_m=device.limits.workspace_m,
-            joystick=joystick if lc.cockpit else None, hold_script=bool(duration),
-        )  # fmt: skip
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    if not isinstance(device, SimFalcon):
-        operator = None  # a person holds a physical device
-        LOG.info("device %s is held by a person: operator model %s not used", dev_name, op_name)
-    keys = Keys(cfg.section("robot").id)
-    ck = cfg.section("clock")
-    ntp = ck.mode == "ntp"
-    sync = ClockSync(ck.ping_window) if ntp else None
-    rec_cfg = cfg.section("record")
-    auth = load_message_auth(cfg.section("network"))  # a bad key file fails here, before any I/O
-    drops = DropCounter("leader")
-    estimator = DelayEstimator(ck.delay_window_s)
-    sid = new_session_id()
-    # The feedback gate follows one follower session; its live sid binds the clock link.
-    fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s)
-    loop_ref: list[LeaderLoop] = []
-    reach = CommandReach(lambda: loop_ref[0].seq if loop_ref else 0)
-
-    with contextlib.ExitStack() as stack:
-        stop = stack.enter_context(shutdown_on_signals())
-        # Python threads (Zenoh callbacks, cockpit, recorder) hand the GIL back to the
-        # haptic loop sooner than the default 5 ms.
-        stack.callback(sys.setswitchinterval, sys.getswitchinterval())
-        sys.setswitchinterval(0.0005)
-
-        session = stack.enter_context(open_session(cfg.section("network")))
-        pubs = stack.enter_context(Publishers(session, keys, auth=auth))
-        stack.enter_context(declare_presence(session, keys, "leader"))
-        presence = stack.enter_context(PresenceWatcher(session, keys, "follower"))
-        try:
-            stack.enter_context(device)
-        except DeviceError as exc:
-            LOG.error("device %s: %s", dev_name, exc)
-            return 1
-
-        # Configuration, session and device are good: now the cockpit and the recording.
-        cockpit = None
-        if lc.cockpit:
-            from bipedtele.leader.cockpit import CockpitServer
-
-            try:
-                cockpit = CockpitServer(
-                    lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=token,
-                    allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
-                    course=_map_course(cfg),
-                ).start()  # fmt: skip
-            except OSError as exc:
-                raise ConfigError(
-                    f"leader.cockpit_port = {lc.cockpit_port}: cannot serve on {lc.cockpit_host} "
-                    f"({exc.strerror or exc}); allowed: a free port, or 0 for any"
-                ) from None
-            stack.callback(cockpit.stop)
-            cockpit_ref.append(cockpit)
-        recorder = None
-        if record is not None or rec_cfg.enabled:
-            from bipedtele.recording import recording_for_run
-
-            recorder = stack.enter_context(recording_for_run(
-                record, rec_cfg.dir, "leader", flush_s=rec_cfg.flush_s, jpeg_every=10,
-                metadata={"role": "leader", "operator": op_name, "device": dev_name, "config": cfg.to_dict()},
-            ))  # fmt: skip
-            record = recorder.path
-
-        def rec(topic: str, msg: Any, t: float) -> None:
-            if recorder is not None:
-                recorder.write(topic, msg, t)
-
-        def on_feedback(r: Received[Any]) -> None:
-            reach.on_feedback(r.msg)
-            rec("feedback/recv", r.msg, r.t_recv)
-
-        def on_video(r: Received[Any]) -> None:
-            msg: VideoFrame = r.msg
-            if cockpit is not None:
-                cockpit.publish_video(msg.camera, msg.jpeg, msg.t_capture)
-            rec("video/recv", msg, r.t_recv)
-
-        def on_status(r: Received[Any]) -> None:
-            rec("status/recv", r.msg, r.t_recv)
-
-        # Every stamped message: authenticated (when a key is set), converted to our clock
-        # (ntp) and dropped when stamped too far ahead of it.
-        checks: dict[str, Any] = dict(auth=auth, clock_sync=sync, max_future_s=ck.max_future_s)
-        fb_rx: LatestReceiver[Feedback] = stack.enter_context(LatestReceiver(
-            session, keys.feedback, Feedback, drops, fb_gate, estimator=estimator,
-            on_message=on_feedback, **checks,
-        ))  # fmt: skip
-        stack.enter_context(LatestReceiver(
-            session, keys.video, VideoFrame, drops, SequenceGate(), on_message=on_video, **checks,
-        ))  # fmt: skip
-        status_rx: LatestReceiver[Status] = stack.enter_context(LatestReceiver(
-            session, keys.status, Status, drops, SequenceGate(), on_message=on_status, ignore_sid=sid, **checks,
-        ))  # fmt: skip
-        # Clock pings: answered and sent off the haptic loop, bound to the followed follower.
-        link = stack.enter_context(ClockLink(
-            pubs.clock.put, sid, sync=sync, drops=drops, ping_rate_hz=ck.ping_rate_hz,
-            answer_rate_hz=ck.answer_rate_hz, peer_sid=lambda: fb_gate.live_sid,
-        ))  # fmt: skip
-        stack.enter_context(LatestReceiver(
-            session, keys.clock, (ClockPing, ClockPong), drops, ignore_sid=sid, auth=auth,
-            on_message=link.on_message,
-        ))  # fmt: skip
-
-        def latest_feedback() -> tuple[Feedback, float] | None:
-            got = fb_rx.latest()
-            return (got.msg, got.t_recv) if got is not None else None
-
-        def send_command(cmd: Command) -> None:
-            pubs.cmd.put(cmd)
-            rec("cmd/sent", cmd, cmd.t)
-
-        aux_holder: list[_Aux] = []
-        # The predictive display's fields (docs/cockpit.md): the pilot's own predictor when
-        # it steers on one, else one fed here from the same samples.
-        live = getattr(operator, "live", None)
-        own_live = live is None
-        if own_live:
-            live = LivePredictor(DelayPredictor(tau_s=lc.pilot_predict_tau_s))
-        predict_every = max(1, round(lc.cmd_rate_hz / lc.cockpit_rate_hz))
-
-        def on_sample(snap: dict[str, Any]) -> None:  # the loop fed the operator already
-            if live is not None and loop_ref:
-                fb = loop_ref[0].feedback
-                if own_live:
-                    live.observe(snap, fb.t if fb is not None else None)
-                    if fb is not None and snap["seq"] % predict_every == 0:
-                        live.predict(snap["t"], fb.pose, fb.eta, fb.t, fb.h1_s)
-                snap.update(prediction_fields(live.last))
-            if aux_holder:
-                snap.update(aux_holder[0].extras())
-            if cockpit is not None:
-                cockpit.publish_sample(snap)
-            rec("leader/state", snap, snap["t"])
-
-        ticks = [0]
-        if rt:
-            clock: Callable[[], float] = time.time
-        else:
-            t0_wall = time.time()
-
-            def clock() -> float:
-                return t0_wall + ticks[0] * (1.0 / lc.haptic_rate_hz)
-
-        rtt_fn: Callable[[], float | None] | None = None
-        if sync is not None and ck.conservative_split:
-            ntp_sync = sync
-
-            def rtt_fn() -> float | None:  # read at every use: the estimate improves
-                return ntp_sync.rtt
-        loop = LeaderLoop(
-            device, operator, cfg.section("control"), send_command, latest_feedback, cfg=lc,
-            clock=clock, estimator=estimator, conservative_rtt=rtt_fn, on_sample=on_sample, sid=sid,
-        )  # fmt: skip
-        loop_ref.append(loop)
-        aux = stack.enter_context(_Aux(loop, pubs, cfg, status_rx, presence, drops, rec, reach))
-        aux_holder.append(aux)
-        LOG.info(
-            "leader ready: robot %s, device %s, operator %s, %s%s", cfg.section("robot").id, dev_name,
-            op_name if operator is not None else "(person)", "real time" if rt else "as fast as possible",
-            f", cockpit {cockpit.url}" if cockpit is not None else "",
-        )  # fmt: skip
-        if cockpit is not None:
-            LOG.info("cockpit: open %s", cockpit.url)
-        rec("events", {"event": "start", "operator": op_name}, time.time())
-        t_start = time.time()
-        if rt:
-            loop.run(stop=stop, duration_s=duration or None, until_done=True)
-        else:
-            limit = round(duration * lc.haptic_rate_hz) if duration else None
-            while not stop.is_set() and not loop.done and (limit is None or ticks[0] < limit):
-                loop.tick(now=clock())
-                ticks[0] += 1
-        elapsed = time.time() - t_start
-        done = loop.done
-        aux.record_progress(time.time())  # the last pass may have ended the run just now
-        rec("events", {"event": "done" if done else "stop", "elapsed_s": elapsed}, time.time())
-        loop.send_stop()
-        never_reached = reach.never_reached
-        if never_reached:
-            rec("events", {"event": "commands_not_reaching", "commands": loop.seq}, time.time())
-        summary = _summary(loop, op_name, operator, elapsed, drops, record, rt, reach)
-        if stats is not None:
-            stats.update(loop.period_stats.summary(loop.dt))
-            stats.update(
-                missed_ticks=loop.missed_ticks, commands=loop.seq, feedback=loop.feedback_count,
-                drops=drops.total, done=done, elapsed_s=elapsed,
-                progress=operator.progress() if operator is not None else {},
-                cockpit=cockpit.stats if cockpit is not None else {},
-                acknowledged=reach.acknowledged, never_reached=never_reached,
-                slew_limited_ticks=loop.slew_limited_ticks,
-            )  # fmt: skip
-    print(summary, flush=True)  # noqa: T201 - the program's one-line result
-    return EXIT_NOT_REACHED if never_reached else 0
+    app = LeaderApp(
+        cfg, operator_name=operator_name, device_name=device_name, duration_s=duration_s,
+        realtime=realtime, record=record,
+    )  # fmt: skip
+    return app.run(stats)
 
 
 def _map_course(cfg: Config) -> list[tuple[float, float, float]]:

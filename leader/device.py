@@ -105,6 +105,9 @@ class LeaderDevice(abc.ABC):
     """Base class of every leader device. See the module docstring for the contract."""
 
     name: ClassVar[str] = ""
+    #: Capability flag: True when a simulated operator's hand moves the device (operator
+    #: models drive it, :meth:`set_operator` accepts a hand); False when a person holds it.
+    simulated: ClassVar[bool] = False
     limits: DeviceLimits = DeviceLimits()
 
     @property

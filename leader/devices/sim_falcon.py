@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 from bipedtele.leader.device import (
@@ -96,14 +97,28 @@ class SimFalcon(LeaderDevice):
         Workspace, force limit and servo rate (Falcon defaults).
     x0 : sequence of float, optional
         Initial handle position [m] (clipped to the workspace).
+    config : Config, optional
+        A loaded profile: ``params`` from its ``[leader]`` section (mass_kg,
+        viscous_n_s_m, coulomb_n, gravity_n) when ``params`` is not given.
     """
+
+    #: Moved by a simulated operator's hand (operator models drive it).
+    simulated: ClassVar[bool] = True
 
     def __init__(
         self,
         params: SimFalconParams | None = None,
         limits: DeviceLimits | None = None,
         x0: tuple[float, float] = (0.0, 0.0),
+        *,
+        config: Any = None,
     ) -> None:
+        if params is None and config is not None:
+            lc = config.section("leader")
+            params = SimFalconParams(
+                mass_kg=lc.mass_kg, viscous_n_s_m=lc.viscous_n_s_m, coulomb_n=lc.coulomb_n,
+                gravity_n=(lc.gravity_n[0], lc.gravity_n[1]),
+            )  # fmt: skip
         self.params = params or SimFalconParams()
         self.limits = limits or DeviceLimits()
         w = self.limits.workspace_m
