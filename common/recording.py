@@ -58,7 +58,7 @@ from typing import IO, Any
 
 import msgpack
 from bipedtele import __version__, schemas
-from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame
+from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame, message_fields
 from mcap.exceptions import McapError
 from mcap.records import Channel, Metadata, Schema
 from mcap.records import Message as McapMessage
@@ -119,7 +119,7 @@ class Record:
 
 
 def _fields(cls: type[Message]) -> tuple[str, ...]:
-    return tuple(f.name for f in dataclasses.fields(cls))
+    return message_fields(cls)
 
 
 _FIELD_CACHE: dict[type[Message], tuple[str, ...]] = {}
@@ -422,8 +422,9 @@ class Recorder:
     def stats(self) -> dict[str, int]:
         """Counters of the writer.
 
-        ``written``, ``dropped_full``, ``dropped_closed``, ``dropped_unencodable``, ``jpeg_skipped``, ``nonfinite_nulled`` (messages in which
-        a NaN or inf was written as null), ``flushes``.
+        ``written``, ``dropped_full``, ``dropped_closed``, ``dropped_unencodable``,
+        ``jpeg_skipped``, ``nonfinite_nulled`` (messages in which a NaN or inf was written
+        as null), ``flushes``.
         """
         with self._lock:
             return dict(self._stats)
