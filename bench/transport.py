@@ -2,7 +2,7 @@
 two processes) against a bare zenoh-python ping-pong of the same payload size, and the
 accuracy of `bipedtele delay-proxy`.
 
-    .venv/bin/python bench/transport.py [--quick]
+    .venv/bin/python bench/transport.py [--quick] [--no-proxy]
 
 Prints p50/p99/max of the round trips at 100 Hz and 1 kHz for both, the p50 ratio
 (goal: ours within 1.3x of bare), and the proxy's measured-minus-configured delay per
@@ -240,6 +240,7 @@ def bench_proxy(quick: bool) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer samples")
+    ap.add_argument("--no-proxy", action="store_true", help="the round trips only (skip the delay-proxy accuracy)")
     ap.add_argument("--echo", metavar="ENDPOINT", help=argparse.SUPPRESS)
     ap.add_argument("--seconds", type=float, default=60.0, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -249,7 +250,8 @@ def main() -> int:
         return 0
     print(f"bench/transport.py  (python {sys.version.split()[0]}, zenoh {Path(zenoh.__file__).parent.name})")
     bench_roundtrip(args.quick)
-    bench_proxy(args.quick)
+    if not args.no_proxy:
+        bench_proxy(args.quick)
     return 0
 
 

@@ -25,6 +25,7 @@ is authenticated outside this module (:mod:`bipedtele.auth`).
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from typing import Annotated, Any, ClassVar, Final, Literal, TypeAlias, Union, get_type_hints
@@ -124,14 +125,15 @@ Counters: TypeAlias = Annotated[
 ]
 
 
-def _zeros2() -> list[float]:
-    return [0.0, 0.0]
+# Default factories: C callables (no Python frame per field when a message is built).
+_zeros2: Final[functools.partial[list[float]]] = functools.partial(list, (0.0, 0.0))
+_zeros3: Final[functools.partial[list[float]]] = functools.partial(list, (0.0, 0.0, 0.0))
 
 
 # --------------------------------------------------------------------------- messages
 
 
-class Message(Struct, frozen=True, gc=False, tag_field="k"):
+class Message(Struct, frozen=True, gc=False, tag_field="k", forbid_unknown_fields=True):
     """Envelope shared by every message.
 
     Attributes
@@ -217,7 +219,7 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
     z_r: Speeds = field(default_factory=_zeros2)
     eta: Speeds = field(default_factory=_zeros2)
     ref: Speeds = field(default_factory=_zeros2)
-    pose: Pose = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    pose: Pose = field(default_factory=_zeros3)
     sonar: Ranges = field(default_factory=_zeros2)
     f_v: Forces = field(default_factory=_zeros2)
     h1_s: Delay = 0.0
@@ -313,9 +315,13 @@ def message_fields(cls: type[Message]) -> tuple[str, ...]:
 # --------------------------------------------------------------------------- codec
 #
 # On the wire every field is required, while the classes give every field a default (so
-# that code builds messages field by field). Decoding therefore goes through a twin of
-# each class with the same fields, types and tag but no defaults; the twin's values then
-# fill the public class positionally (both have the same field order).
+# that code builds messages field by field). msgspec fills a field left out with its
+# default, so :func:`decode` counts the map's keys (the msgpack header, read in O(1)):
+# unknown keys are refused by msgspec (``forbid_unknown_fields``), so a map with fewer
+# keys than the class has fields lacks one. A twin of each class with the same fields
+# and tag but no defaults then names it (error path only). Decoding straight into the
+# public classes keeps the happy path to one C call: a conversion step from the twins
+# would cost more than msgspec's decoding itself, once per message from cold caches.
 
 
 def _wire_twin(cls: type[Message]) -> type[Struct]:
@@ -330,11 +336,16 @@ for _cls in MESSAGE_TYPES.values():
     if _cls.__struct_config__.tag != _cls.KIND:  # pragma: no cover - programming error
         raise TypeError(f"{_cls.__name__}: tag {_cls.__struct_config__.tag!r} is not KIND {_cls.KIND!r}")
 
-_TWINS: Final[dict[type[Struct], type[Message]]] = {_wire_twin(c): c for c in MESSAGE_TYPES.values()}
 _ENCODER: Final = msgspec.msgpack.Encoder()
-_DECODER: Final[msgspec.msgpack.Decoder[Any]] = msgspec.msgpack.Decoder(Union[tuple(_TWINS)])  # noqa: UP007
+_DECODER: Final[msgspec.msgpack.Decoder[Any]] = msgspec.msgpack.Decoder(Union[tuple(MESSAGE_TYPES.values())])  # noqa: UP007
+_TWIN_DECODER: Final[msgspec.msgpack.Decoder[Any]] = msgspec.msgpack.Decoder(
+    Union[tuple(_wire_twin(c) for c in MESSAGE_TYPES.values())]  # noqa: UP007
+)
+#: Keys of a complete map of each class: the tag ``k`` and every field.
+_KEYS: Final[dict[type[Message], int]] = {c: 1 + len(c.__struct_fields__) for c in MESSAGE_TYPES.values()}
 _PATH = re.compile(r"`\$\.(\w+)")
 _MISSING = re.compile(r"missing required field `(\w+)`")
+_UNKNOWN = re.compile(r"unknown field `")
 
 
 def encode(msg: Message) -> bytes:
@@ -344,6 +355,8 @@ def encode(msg: Message) -> bytes:
 
 def _reason(error: str) -> str:
     """Return the counter reason of a msgspec validation error message."""
+    if _UNKNOWN.search(error) is not None:
+        return "bad_field"
     missing = _MISSING.search(error)
     if missing is not None:
         name = missing.group(1)
@@ -378,7 +391,7 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None
     if len(payload) > MAX_MESSAGE_BYTES:
         raise MessageError("too_large", f"{len(payload)} bytes")
     try:
-        wire = _DECODER.decode(payload)
+        msg: Message = _DECODER.decode(payload)
     except msgspec.ValidationError as exc:
         # msgspec stops at the first wrong value; bytes that are not one whole msgpack
         # object at all count as not_msgpack however early they went wrong (error path only)
@@ -389,7 +402,21 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None
         raise MessageError(_reason(str(exc)), str(exc)) from None
     except Exception as exc:  # DecodeError, UnicodeDecodeError, RecursionError, ...
         raise MessageError("not_msgpack", f"{type(exc).__name__}: {exc}") from None
-    cls = _TWINS[type(wire)]
+    cls = msg.__class__
     if expect is not None and cls is not expect:
         raise MessageError("unknown_kind", f"k={cls.KIND!r}, expected {expect.KIND!r}")
-    return cls(*msgspec.structs.astuple(wire))
+    # a successful decode saw a map: fixmap (0x80-0x8f), map16 (0xde) or map32 (0xdf)
+    head = payload[0]
+    n = head & 0x0F if head < 0xDE else int.from_bytes(payload[1:3] if head == 0xDE else payload[1:5], "big")
+    if n != _KEYS[cls]:
+        raise _incomplete(payload, n, _KEYS[cls])
+    return msg
+
+
+def _incomplete(payload: bytes | bytearray | memoryview, n: int, want: int) -> MessageError:
+    """Return the error of a map with the wrong number of keys (the twin names a missing field)."""
+    try:
+        _TWIN_DECODER.decode(payload)
+    except msgspec.ValidationError as exc:
+        return MessageError(_reason(str(exc)), str(exc))
+    return MessageError("bad_field", f"{n} keys for {want} fields: a key appears twice")

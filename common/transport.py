@@ -50,7 +50,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -420,20 +419,16 @@ class Stamper:
     def __init__(self, sid: int | None = None, clock: Callable[[], float] = time.time) -> None:
         self.sid = sid if sid is not None else new_session_id()
         self._clock = clock
-        self._seq = itertools.count(1)
-        self._lock = threading.Lock()
+        # next() on an itertools.count is one C call under the GIL: thread-safe, no lock
+        self._next_seq = itertools.count(1).__next__
 
     def make(self, cls: type[M], **fields: Any) -> M:
-        """A new message of type ``cls`` with the next seq and the current time."""
-        with self._lock:
-            seq = next(self._seq)
-        return cls(sid=self.sid, seq=seq, t=self._clock(), **fields)
+        """Return a new message of type ``cls`` with the next seq and the current time."""
+        return cls(sid=self.sid, seq=self._next_seq(), t=self._clock(), **fields)
 
     def restamp(self, msg: M) -> M:
-        """A copy of ``msg`` with this stamper's sid, the next seq and the current time."""
-        with self._lock:
-            seq = next(self._seq)
-        return msgspec.structs.replace(msg, sid=self.sid, seq=seq, t=self._clock())
+        """Return a copy of ``msg`` with this stamper's sid, the next seq and the current time."""
+        return msgspec.structs.replace(msg, sid=self.sid, seq=self._next_seq(), t=self._clock())
 
 
 class MessagePublisher:
@@ -446,6 +441,7 @@ class MessagePublisher:
 
     def __init__(self, publisher: zenoh.Publisher, key: str, auth: MessageAuth | None = None) -> None:
         self._pub = publisher
+        self._put = publisher.put
         self.key = key
         self.auth = auth
         self.sent = 0
@@ -455,7 +451,7 @@ class MessagePublisher:
         payload = encode(msg)
         if self.auth is not None:
             payload = self.auth.sign(payload, self.key)
-        self._pub.put(payload)
+        self._put(payload)
         self.sent += 1
 
     def put_bytes(self, payload: bytes) -> None:
@@ -520,6 +516,9 @@ class Publishers:
         self._lock = threading.Lock()
 
     def _get(self, name: str) -> MessagePublisher:
+        pub = self._pubs.get(name)  # declared already: no lock (a dict read is atomic)
+        if pub is not None:
+            return pub
         with self._lock:
             pub = self._pubs.get(name)
             if pub is None:
@@ -568,8 +567,7 @@ class Publishers:
 # --------------------------------------------------------------------------- receiving
 
 
-@dataclass(frozen=True)
-class Received(Generic[M]):
+class Received(msgspec.Struct, Generic[M], frozen=True, gc=False):
     """A valid message and its local receive time.
 
     Attributes
@@ -608,6 +606,8 @@ class _Receiver(Generic[M]):
         self.key = key
         self._on_message = on_message
         self._expect: tuple[type[M], ...] = expect if isinstance(expect, tuple) else (expect,)
+        # one expected class: decode() refuses the others itself; several: checked after
+        self._decode_as: type[M] | None = self._expect[0] if len(self._expect) == 1 else None
         self.drops = drops
         self.gate = gate
         self.estimator = estimator
@@ -624,41 +624,42 @@ class _Receiver(Generic[M]):
         self._sub = session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs once per message in Zenoh's callback thread, from cold caches: each check
+        # below is kept, with as few Python calls as the checks allow.
         t_recv = self._clock()
+        drops = self.drops
         try:
             payload = sample.payload.to_bytes()
             if self.auth is not None:
                 try:
                     payload = self.auth.verify(payload, self._mac_topic or str(sample.key_expr))
                 except MacError as exc:
-                    self.drops.drop(exc.reason, f"{self.key}: {exc.detail}")
+                    drops.drop(exc.reason, f"{self.key}: {exc.detail}")
                     return
             try:
-                msg = decode(payload, self._expect[0] if len(self._expect) == 1 else None)
+                msg = decode(payload, self._decode_as)
             except MessageError as exc:
-                self.drops.drop(exc.reason, exc.detail)
+                drops.drop(exc.reason, exc.detail)
                 return
-            if not isinstance(msg, self._expect):
-                self.drops.drop("unknown_kind", f"k={msg.KIND!r}")
+            if self._decode_as is None and not isinstance(msg, self._expect):
+                drops.drop("unknown_kind", f"k={msg.KIND!r}")
                 return
-            if self._ignore_sid is not None and msg.sid == self._ignore_sid:
+            if msg.sid == self._ignore_sid:
                 return  # our own message on a shared key (clock, status)
             t_sent = msg.t
             sync = self.clock_sync
             if sync is not None:
                 if not sync.ready:
-                    self.drops.drop("clock_not_synced", f"{self.key}: the peer's clock offset is not known yet")
+                    drops.drop("clock_not_synced", f"{self.key}: the peer's clock offset is not known yet")
                     return
                 t_sent = sync.to_local(t_sent)
             if self.max_future_s is not None and t_sent - t_recv > self.max_future_s:
-                self.drops.drop(
-                    "future", f"{self.key}: sid={msg.sid} seq={msg.seq} stamped {t_sent - t_recv:.3f} s ahead"
-                )
+                drops.drop("future", f"{self.key}: sid={msg.sid} seq={msg.seq} stamped {t_sent - t_recv:.3f} s ahead")
                 return
             if self.gate is not None:
                 reason = self.gate.accept(msg)
                 if reason is not None:
-                    self.drops.drop(reason, f"sid={msg.sid} seq={msg.seq}")
+                    drops.drop(reason, f"sid={msg.sid} seq={msg.seq}")
                     return
             if self.estimator is not None:
                 # a delay is never negative: a message seemingly received before it was
@@ -669,7 +670,7 @@ class _Receiver(Generic[M]):
             if self._on_message is not None:
                 self._on_message(rec)
         except Exception as exc:  # never let a bad sample kill Zenoh's callback thread
-            self.drops.drop("receiver_error", f"{type(exc).__name__}: {exc}")
+            drops.drop("receiver_error", f"{type(exc).__name__}: {exc}")
 
     def _deliver(self, rec: Received[M]) -> None:
         raise NotImplementedError
