@@ -289,7 +289,7 @@ class FollowerLoop:
         return True
 
     def _after_reset(self, now: float) -> None:
-        """The robot was put back on its start pose: forget the walk state and the latch."""
+        """Forget the walk state and the latch: the robot was put back on its start pose."""
         self.counters["resets"] += 1
         self.reference.reset()
         self.equivalent.reset()
@@ -301,7 +301,7 @@ class FollowerLoop:
     # ------------------------------------------------------------------ faults
 
     def fault(self, exc: BaseException) -> None:
-        """A tick or a robot call failed: stop the robot if it can be reached, forget the walk.
+        """Stop the robot if it can be reached and forget the walk: a tick or a robot call failed.
 
         Counted as ``robot_faults``; the state becomes ``error`` and a Status says so.
         Never raises. The next successful tick stops the robot again before anything else
@@ -402,7 +402,7 @@ class FollowerLoop:
         self._fallen = obs.fallen
 
     def _control(self, now: float, obs: RobotObservation) -> FollowerTelemetry:
-        """The period's control update: (40)/(30) when due, (28) and (29), the walk or stop."""
+        """Run the period's control update: (40)/(30) when due, (28) and (29), the walk or stop."""
         tel = self.telemetry
         h1_est = self.h1.value(now)
         h1 = _delay(tel.h1_s if h1_est is None else h1_est)
@@ -476,7 +476,7 @@ class FollowerLoop:
         self._ref_n += 1
 
     def _walk(self, ref: np.ndarray, eta_meas: np.ndarray, f_v: np.ndarray, now: float) -> tuple[WalkCommand | None, str]:
-        """Reference model (28) and one walk command; a robot refusing to walk stands."""
+        """Run the reference model (28) and send one walk command; a robot refusing to walk stands."""
         eta_cmd = self.reference.step(ref, eta_meas, self._choice_s_r, np.array([f_v[0], 0.0]), eta_max=self.eta_max)
         try:
             sent = self.robot.send_walk(
@@ -540,7 +540,7 @@ class FollowerLoop:
         )
 
     def status(self, now: float) -> Status:
-        """A Status message with the loop's counters."""
+        """Return a Status message with the loop's counters."""
         self._st_seq += 1
         return Status(
             sid=self.sid,
@@ -569,7 +569,7 @@ class FollowerLoop:
 
 
 def _delay(h: float | None) -> float:
-    """A delay sample made safe for the control laws: finite, in [0, 60] s."""
+    """Return a delay sample made safe for the control laws: finite, in [0, 60] s."""
     if h is None or not math.isfinite(h):
         return 0.0
     return min(max(float(h), 0.0), _MAX_DELAY_S)

@@ -61,7 +61,8 @@ def _make_device(cfg: Config, name: str) -> LeaderDevice:
 class _Aux:
     """The leader's slow duties in a side thread (about 20 Hz): status out, follower status
     in, presence, events of the operator's progress, the command-reach check. (Clock pings
-    run in their own :class:`~bipedtele.clocklink.ClockLink` thread.)"""
+    run in their own :class:`~bipedtele.clocklink.ClockLink` thread.)
+    """
 
     def __init__(
         self, loop: LeaderLoop, pubs: Publishers, cfg: Config, status_rx: LatestReceiver[Status],
@@ -344,7 +345,7 @@ class LeaderApp:
         return EXIT_NOT_REACHED if never_reached else 0
 
     def _run_loop(self, loop: LeaderLoop) -> None:
-        """The haptic loop in the main thread: paced in real time, or stepped as fast as possible."""
+        """Run the haptic loop in the main thread: paced in real time, or stepped as fast as possible."""
         stop = self.node.stop
         if self.realtime:
             loop.run(stop=stop, duration_s=self.duration or None, until_done=True)
@@ -401,7 +402,8 @@ def main(
 
 def _map_course(cfg: Config) -> list[tuple[float, float, float]]:
     """The obstacles the cockpit's map draws (the pilot's course: ``[leader]
-    pilot_obstacles``, else the ``[world]`` obstacles); empty when neither is set."""
+    pilot_obstacles``, else the ``[world]`` obstacles); empty when neither is set.
+    """
     lc, world = cfg.section("leader"), cfg.sections.get("world")
     if not lc.pilot_obstacles and not getattr(world, "obstacles", None):
         return []

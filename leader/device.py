@@ -97,7 +97,8 @@ class OperatorHand(Protocol):
 
     def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
         """Force [N] per axis on the handle at device time ``t`` [s], position ``x_m`` [m]
-        and velocity ``dx_m`` [m/s]."""
+        and velocity ``dx_m`` [m/s].
+        """
         ...
 
 
