@@ -90,7 +90,7 @@ def _object(name: str, properties: Mapping[str, Schema], required: list[str], *,
 
 
 def _hint_schema(hint: Any) -> Schema:
-    """The JSON Schema of a Python type hint (the subset the messages and samples use)."""
+    """Return the JSON Schema of a Python type hint (the subset the messages and samples use)."""
     origin = get_origin(hint)
     if origin in (Union, types.UnionType):
         args = get_args(hint)
@@ -227,8 +227,11 @@ def compressed_image_schema() -> Schema:
 
 @functools.cache
 def video_header_schema() -> Schema:
-    """A :class:`VideoFrame` recorded without its JPEG (``jpeg_skipped``: thinned out by
-    the recorder's ``jpeg_every``; false when the frame came without one)."""
+    """Return the schema of a :class:`VideoFrame` recorded without its JPEG.
+
+    ``jpeg_skipped``: thinned out by the recorder's ``jpeg_every``; false when the frame
+    came without one.
+    """
     header = _video_header_properties()
     props = {**header, "jpeg_skipped": {"type": "boolean"}}
     return _object(VIDEO_HEADER, props, [*header, "jpeg_skipped"],
@@ -328,7 +331,7 @@ EVENT_FIELDS: Final[dict[str, Schema]] = {
 
 
 def _value_schema(value: Any) -> Schema:
-    """The (nullable) schema of one recorded value, judged from the value itself."""
+    """Return the (nullable) schema of one recorded value, judged from the value itself."""
     if value is None:
         return {}
     if isinstance(value, bool):
@@ -350,8 +353,10 @@ def _value_schema(value: Any) -> Schema:
 
 def sample_schema(name: str, sample: Mapping[str, Any], known: Mapping[str, Schema] | None = None,
                   required: list[str] | None = None, description: str = "") -> Schema:  # fmt: skip
-    """The schema of a channel of maps: ``known`` keys as given, every other key of
-    ``sample`` (the first map written) typed from its value, all nullable.
+    """Return the schema of a channel of maps.
+
+    ``known`` keys as given, every other key of ``sample`` (the first map written) typed
+    from its value, all nullable.
 
     Parameters
     ----------

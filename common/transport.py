@@ -330,7 +330,7 @@ def _open_timeout_s(net: NetworkConfig, rtt_s: float, checked: set[str]) -> floa
 
 
 def _refusal(net: NetworkConfig, checked: set[str], timeout_s: float, zenoh_reason: str) -> LinkError:
-    """The LinkError of a client whose endpoint checks passed but whose session did not open."""
+    """Return the LinkError of a client whose endpoint checks passed but whose session did not open."""
     within = f"no session within {timeout_s:g} s"
     if not checked:  # udp, quic, ws...: not checked beforehand
         return LinkError(
@@ -470,7 +470,7 @@ class MessagePublisher:
 
 
 def declare_control_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
-    """Publisher for control traffic: express, real-time priority, drop on congestion."""
+    """Declare a publisher for control traffic: express, real-time priority, drop on congestion."""
     pub = session.declare_publisher(
         key,
         express=True,
@@ -481,7 +481,7 @@ def declare_control_publisher(session: zenoh.Session, key: str, auth: MessageAut
 
 
 def declare_video_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
-    """Publisher for video: low priority, drop on congestion (latest-only by nature)."""
+    """Declare a publisher for video: low priority, drop on congestion (latest-only by nature)."""
     pub = session.declare_publisher(
         key,
         priority=zenoh.Priority.DATA_LOW,
@@ -532,22 +532,27 @@ class Publishers:
 
     @property
     def cmd(self) -> MessagePublisher:
+        """Publisher of Commands (leader -> follower)."""
         return self._get("cmd")
 
     @property
     def feedback(self) -> MessagePublisher:
+        """Publisher of Feedback (follower -> leader)."""
         return self._get("feedback")
 
     @property
     def clock(self) -> MessagePublisher:
+        """Publisher of Clock pings and pongs."""
         return self._get("clock")
 
     @property
     def status(self) -> MessagePublisher:
+        """Publisher of Status messages."""
         return self._get("status")
 
     @property
     def video(self) -> MessagePublisher:
+        """Publisher of Video frames (video QoS)."""
         return self._get("video")
 
     def close(self) -> None:
@@ -741,12 +746,12 @@ class LatestReceiver(_Receiver[M]):
             self.count += 1
 
     def latest(self) -> Received[M] | None:
-        """The newest valid message (kept; None before the first)."""
+        """Return the newest valid message (kept; None before the first)."""
         with self._lock:
             return self._latest
 
     def take(self) -> Received[M] | None:
-        """The newest valid message if it was not taken before, else None."""
+        """Return the newest valid message if it was not taken before, else None."""
         with self._lock:
             if not self._fresh:
                 return None
@@ -780,7 +785,7 @@ class MessageReceiver(_Receiver[M]):
             self.drops.drop("overflow", self.key)
 
     def get(self, timeout: float | None = None) -> Received[M] | None:
-        """The oldest queued message, or None.
+        """Return the oldest queued message, or None.
 
         ``timeout`` [s]: None or 0 does not wait; a positive value waits at most that long.
         """
