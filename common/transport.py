@@ -424,11 +424,13 @@ class Stamper:
 
     def make(self, cls: type[M], **fields: Any) -> M:
         """Return a new message of type ``cls`` with the next seq and the current time."""
-        return cls(sid=self.sid, seq=self._next_seq(), t=self._clock(), **fields)
+        msg: M = cls(sid=self.sid, seq=self._next_seq(), t=self._clock(), **fields)
+        return msg
 
     def restamp(self, msg: M) -> M:
         """Return a copy of ``msg`` with this stamper's sid, the next seq and the current time."""
-        return msgspec.structs.replace(msg, sid=self.sid, seq=self._next_seq(), t=self._clock())
+        out: M = msgspec.structs.replace(msg, sid=self.sid, seq=self._next_seq(), t=self._clock())
+        return out
 
 
 class MessagePublisher:
