@@ -92,7 +92,7 @@ def identify_dp(T: float, *, control: ControlConfig | None = None, sim: SimConfi
 
 
 def st_eps(control: ControlConfig) -> float:
-    """The joint servo the online choice (30) picks with the default weights: the lower bound."""
+    """Return the joint servo eps the online choice (30) picks with the default weights: the lower bound."""
     return float(control.eps_range[0])
 
 

@@ -117,7 +117,7 @@ def _joint(name: str, kind: str, parent: str, child: str, xyz: tuple[float, floa
 
 
 def nao_urdf(geom: NaoGeometry | None = None, effort_nm: float = 10.0) -> str:
-    """The URDF text of the simulated NAO.
+    """Return the URDF text of the simulated NAO.
 
     The base link is the torso (origin at NAO's torso frame, 85 mm above the hip joints);
     each leg is the chain hip yaw (z) - hip roll (x) - hip pitch (y) - knee pitch (y) -

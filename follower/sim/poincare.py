@@ -221,8 +221,10 @@ class WalkerServo:
             self.step()
 
     def touchdown_due(self, foot: str, lead_s: float = 0.0) -> float | None:
-        """Start time [s] of the gait step that ends with the touchdown of ``foot``, when
-        that touchdown is at most ``lead_s`` [s] away; None otherwise."""
+        """Return the start time [s] of the gait step that ends with the touchdown of ``foot``.
+
+        Only when that touchdown is at most ``lead_s`` [s] away; None otherwise.
+        """
         g = self.robot.gait
         step = g.step
         if step is None or step[0] != "walk" or g.stance == foot:
@@ -230,8 +232,10 @@ class WalkerServo:
         return step[1] if step[1] + g.cycle_s / 2.0 - lead_s <= self.robot._t + 1e-6 else None
 
     def run_to_section(self, foot: str, lead_s: float = 0.0) -> int:
-        """Run control periods until the next section: the first tick at most ``lead_s``
-        before a touchdown of ``foot`` (a later touchdown than the one of the current tick).
+        """Run control periods until the next section.
+
+        The section is the first tick at most ``lead_s`` before a touchdown of ``foot`` (a
+        later touchdown than the one of the current tick).
 
         Returns the number of control periods run. Raises :class:`RuntimeError` when no
         touchdown comes within two cycles (the robot stopped).
@@ -269,7 +273,7 @@ class WalkerServo:
         self.fallen = fallen
 
     def state(self) -> np.ndarray:
-        """The map's state now (order :func:`state_names`)."""
+        """Return the map's state now (order :func:`state_names`)."""
         r = self.robot
         c, body = r._client, r._robot
         pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=c)
@@ -482,7 +486,7 @@ class WalkerMap:
         return worst
 
     def analyse(self) -> WalkerMapResult:
-        """Fixed point, Jacobian (26) by central differences, spectral radius."""
+        """Compute the fixed point, the Jacobian (26) by central differences and its spectral radius."""
         x0 = self.steady()
         sv = self.servo
         d = perturbation_sizes(self.settings.delta_scale)
@@ -519,7 +523,7 @@ def walker_rho(s_r: Any, T: float, eps: float, **kw: Any) -> WalkerMapResult:
 
 
 def grid(sigmas: Sequence[float], Ts: Sequence[float]) -> list[tuple[float, float]]:
-    """The ``(sigma_r, T)`` points of a grid, sigma-major."""
+    """Return the ``(sigma_r, T)`` points of a grid, sigma-major."""
     return [(float(s), float(t)) for s in sigmas for t in Ts]
 
 
@@ -535,7 +539,7 @@ def alignment_quantum(physics_hz: float, control_rate_hz: float) -> float:
 
 
 def operating_point(control: ControlConfig, sim: SimConfig, control_rate_hz: float = 50.0) -> dict[str, Any]:
-    """The follower's parameters at zero delay: (40) then (30), as the robot applies them.
+    """Return the follower's parameters at zero delay: (40) then (30), as the robot applies them.
 
     The robot clamps ``T`` and ``eps`` to what it accepts; ``T`` is then rounded to the
     nearest cycle whose touchdowns fall on control ticks (:func:`alignment_quantum`).
@@ -589,8 +593,9 @@ def poincare_grid(
     settings: MapSettings | None = None,
     jobs: int = 1,
 ) -> dict[str, Any]:
-    """The walker's and the reduced model's radii over ``sigma_r`` (both channels) x ``T``,
-    plus the follower's operating point (:func:`operating_point`).
+    """Compute the walker's and the reduced model's radii over ``sigma_r`` x ``T``.
+
+    Both channels' ``sigma_r``; plus the follower's operating point (:func:`operating_point`).
 
     Returns
     -------
@@ -637,10 +642,13 @@ def poincare_grid(
 
 
 def plot_poincare(data: dict[str, Any]) -> Any:
-    """Fig. 6 counterpart: ``rho_walker``, the walker's measured contraction and the reduced
-    model's ``max|l_hybrid|`` (paper and calibrated) over ``sigma_r`` x ``T``; the plane at 1
-    marks the stability limit; the red dot is the follower's operating point (its
-    ``sigma_r`` axis value is the forward channel's)."""
+    """Draw the Fig. 6 counterpart.
+
+    ``rho_walker``, the walker's measured contraction and the reduced model's
+    ``max|l_hybrid|`` (paper and calibrated) over ``sigma_r`` x ``T``; the plane at 1 marks
+    the stability limit; the red dot is the follower's operating point (its ``sigma_r`` axis
+    value is the forward channel's).
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
