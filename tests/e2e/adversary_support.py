@@ -298,8 +298,7 @@ def _wait_for(pred: Any, seconds: float) -> bool:
 
 def cmd_poison(a: argparse.Namespace) -> dict[str, Any]:
     """One command with the leader's sid and the largest sequence number."""
-    import dataclasses
-
+    import msgspec
     from bipedtele.messages import Command, encode
 
     att = Attacker(a)
@@ -310,7 +309,7 @@ def cmd_poison(a: argparse.Namespace) -> dict[str, Any]:
             att.out["error"] = "no command seen"
             return att.out
         real = next(m for m in seen if isinstance(m, Command))
-        forged = dataclasses.replace(real, seq=MAX_SEQ, t=time.time())
+        forged = msgspec.structs.replace(real, seq=MAX_SEQ, t=time.time())
         att.put(att.key("cmd"), encode(forged))
         att.out.update(leader_sid=real.sid, leader_seq=real.seq, seq=MAX_SEQ, t=forged.t)
     return att.out
@@ -322,8 +321,7 @@ def cmd_future(a: argparse.Namespace) -> dict[str, Any]:
     Targets are forged in the order given, ``--gap`` seconds apart, each right after a real
     message of its kind arrived (or, if none comes within 0.5 s, after the last one seen).
     """
-    import dataclasses
-
+    import msgspec
     from bipedtele.messages import Command, Feedback, encode
 
     att = Attacker(a)
@@ -354,7 +352,7 @@ def cmd_future(a: argparse.Namespace) -> dict[str, Any]:
             _wait_for(lambda name=name, n0=n0: last[name][0] > n0, 0.5)
             msg = last[name][1]
             t = time.time() + a.ahead
-            att.put(att.key(name), encode(dataclasses.replace(msg, seq=msg.seq + 1, t=t)))
+            att.put(att.key(name), encode(msgspec.structs.replace(msg, seq=msg.seq + 1, t=t)))
             done[name] = {"sid": msg.sid, "seq": msg.seq + 1, "t": t, "t_put": time.time()}
     att.out["forged"] = done
     return att.out
@@ -506,8 +504,7 @@ def _patch_time(payload: bytes, t: float) -> bytes | None:
 
 def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
     """Replays, re-stamped copies of signed payloads and unsigned forgeries, on cmd and feedback."""
-    import dataclasses
-
+    import msgspec
     from bipedtele.messages import Command, encode
 
     att = Attacker(a)
@@ -557,7 +554,7 @@ def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
                     sent[f"restamped_{name}"] += 1
             if last_cmd:
                 real = last_cmd[0]
-                forged = encode(dataclasses.replace(real, seq=real.seq + 1, t=now, ref=[a.forward, a.turn]))
+                forged = encode(msgspec.structs.replace(real, seq=real.seq + 1, t=now, ref=[a.forward, a.turn]))
                 own.add(forged)
                 att.put(att.key("cmd"), forged)
                 sent["unsigned_cmd"] += 1
