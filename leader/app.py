@@ -37,6 +37,7 @@ from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
+from bipedtele.leader.device_specs import device_names, device_spec
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, prediction_fields
@@ -52,6 +53,7 @@ LOG = logging.getLogger(__name__)
 
 def _make_device(cfg: Config, name: str) -> LeaderDevice:
     try:
+        device_spec(name)  # a name that is not offered fails before any driver loads
         # Every device reads its own settings ([leader], [falcon], [joystick]) from the profile.
         return make_device(name, config=cfg)
     except ValueError as exc:
@@ -455,7 +457,7 @@ def add_leader_parser(sub: Any) -> None:
     p = sub.add_parser("leader", help="run the operator's side (haptic device, operator model, cockpit)")
     add_config_args(p)
     p.add_argument("--operator", choices=OPERATORS, help="operator model (default: [leader] operator)")
-    p.add_argument("--device", help="leader device, e.g. sim-falcon (default: [leader] device)")
+    p.add_argument("--device", choices=device_names(), help="leader device (default: [leader] device)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (0: no limit)")
     p.add_argument("--realtime", choices=["on", "off"], help="pace in real time (default: [leader] realtime)")
     p.add_argument("--record", metavar="FILE", help="MCAP file (default: a new leader-<time>.mcap in [record] dir)")

@@ -19,11 +19,10 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from bipedtele.config import Config, param, resolve_section
+from bipedtele.config import Config, resolve_section
 from bipedtele.leader.device import (
     DeviceError,
     DeviceNotConnectedError,
@@ -31,28 +30,13 @@ from bipedtele.leader.device import (
     LeaderDevice,
     register_device,
 )
+from bipedtele.leader.device_specs import FalconConfig
 from bipedtele.leader.devices import falcon_protocol as fp
 from bipedtele.leader.devices.falcon_usb import FalconUsb, load_libftdi
 
 __all__ = ["FalconConfig", "FalconDevice"]
 
 LOG = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class FalconConfig:
-    """The ``[falcon]`` section."""
-
-    firmware_file: str = param("", doc="Novint firmware image (e.g. nvent_firmware.bin from libnifalcon); needed once per power-up")
-    homing_timeout_s: float = param(60.0, lo=1.0, hi=600.0, unit="s", doc="give up homing after this long")
-    io_rate_hz: float = param(1000.0, lo=100.0, hi=2000.0, unit="Hz", doc="I/O loop rate")
-    force_gain: float = param(1.0, lo=0.0, hi=10.0, doc="scale of motor efforts (libnifalcon's units: effort = -(dtheta/dp) F)")
-    hold_stiffness_n_m: float = param(150.0, lo=0.0, hi=2000.0, unit="N/m", doc="spring holding the unused vertical axis at the centre")
-    hold_damping_n_s_m: float = param(3.0, lo=0.0, hi=100.0, unit="N s/m", doc="damper on the vertical axis")
-    center_z_m: float = param(0.11, lo=0.05, hi=0.2, unit="m", doc="z of the workspace centre (grip rest point)")
-    enable_button: int = param(-1, lo=-1, hi=3, doc="grip button (bit 0-3) used as the dead-man switch, reported as button 0; -1: none, and no buttons are reported")
-    io_timeout_s: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="no status packet for this long: the Falcon is gone")
-
 
 
 @register_device("falcon")

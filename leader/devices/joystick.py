@@ -20,11 +20,10 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from bipedtele.config import Config, param, resolve_section
+from bipedtele.config import Config, resolve_section
 from bipedtele.leader.device import (
     DeviceError,
     DeviceNotConnectedError,
@@ -32,28 +31,11 @@ from bipedtele.leader.device import (
     LeaderDevice,
     register_device,
 )
+from bipedtele.leader.device_specs import JoystickConfig
 
 __all__ = ["JoystickConfig", "JoystickDevice", "ff_direction"]
 
 LOG = logging.getLogger(__name__)
-
-FFMode = Literal["auto", "constant", "rumble", "none"]
-
-
-@dataclass(frozen=True)
-class JoystickConfig:
-    """The ``[joystick]`` section: which evdev device and how its axes map."""
-
-    device: str = param("", doc="/dev/input/eventN, or part of the device name; empty: the first device with the two axes")
-    axis_forward: str = param("ABS_Y", doc="evdev axis giving handle axis 0 (forward speed)")
-    axis_turn: str = param("ABS_X", doc="evdev axis giving handle axis 1 (turn)")
-    invert_forward: bool = param(True, doc="stick forward reads negative on most pads: invert so forward is +")
-    invert_turn: bool = param(True, doc="stick left reads negative: invert so left (counter-clockwise) is +")
-    deadzone: float = param(0.05, lo=0.0, hi=0.5, doc="central dead zone, fraction of the half range")
-    force_feedback: FFMode = param("auto", doc="auto: constant force if supported, else rumble, else none")
-    ff_rate_hz: float = param(100.0, lo=1.0, hi=1000.0, unit="Hz", doc="largest effect update rate")
-    enable_button: str = param("", doc="dead-man button, reported as button 0 (e.g. BTN_SOUTH, BTN_TRIGGER): walking only while held; empty: none, and no buttons are reported")
-
 
 def ff_direction(force_n: np.ndarray) -> int:
     """Linux force-feedback direction (0..0xFFFF) of a handle force.

@@ -1,0 +1,56 @@
+"""Leader devices: the driver-free spec table, the ``--device`` choices built from it, and
+the follower and router processes kept free of leader device drivers."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from bipedtele.config import load_config
+from bipedtele.leader.device import DEVICES, make_device
+from bipedtele.leader.device_specs import DEVICE_SPECS, device_names, device_spec
+
+pytestmark = pytest.mark.timeout(120)
+
+_PROBE = """
+import sys
+from bipedtele.config import load_config
+cfg = load_config("default")
+cfg.section("joystick"); cfg.section("falcon")
+import bipedtele.follower.app, bipedtele.tools.router
+loaded = sorted(m for m in sys.modules if m.startswith("bipedtele.leader."))
+print(" ".join(loaded))
+"""
+
+
+def test_follower_and_router_load_no_leader_device_driver() -> None:
+    out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=60, check=True)
+    loaded = out.stdout.split()
+    assert not [m for m in loaded if m.startswith("bipedtele.leader.devices")], loaded
+    assert "bipedtele.leader.app" not in loaded
+
+
+def test_every_spec_has_its_driver_and_every_driver_its_spec() -> None:
+    make_device("sim-falcon", config=load_config("default"))  # loads the built-in drivers
+    assert set(DEVICES) == set(DEVICE_SPECS)
+    cfg = load_config("default")
+    for name in device_names():
+        spec = device_spec(name)
+        assert spec.name == name and spec.section in cfg.sections
+        assert DEVICES[name].simulated is spec.simulated  # type: ignore[attr-defined]
+
+
+def test_unknown_device_names_the_allowed_ones() -> None:
+    with pytest.raises(ValueError, match="allowed: falcon, joystick, sim-falcon"):
+        device_spec("nope")
+
+
+def test_leader_device_choices_come_from_the_specs() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "leader", "--device", "nope", "--help"],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert out.returncode == 2, out.stderr  # argparse: a bad choice, one line, exit 2
+    for name in device_names():
+        assert name in out.stderr
