@@ -200,9 +200,11 @@ class FollowerApp:
     def _run_realtime(
         self, robot: FollowerRobot, loop: FollowerLoop, supervisor: RobotSupervisor, video: VideoStreamer
     ) -> None:
-        """Real time: a tick every period; between ticks the robot's time moves on one step
-        at a time on the wall clock, and a command that arrives is applied before the next
-        step (:meth:`FollowerLoop.pickup`)."""
+        """Run in real time: a tick every period, the robot's time moved on step by step between.
+
+        Between ticks the robot's time moves on one step at a time on the wall clock, and
+        a command that arrives is applied before the next step (:meth:`FollowerLoop.pickup`).
+        """
         step_s = self.spec.step_s(self.cfg)
         n_sub = max(1, math.ceil(self.dt / step_s - 1e-9)) if step_s else 1
         sub_dt = self.dt / n_sub

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 from bipedtele.config import param
 from bipedtele.follower.robots import robot_names
 

@@ -54,8 +54,10 @@ class RobotNotConnectedError(RobotError):
 
 
 class WalkRefusedError(RobotError):
-    """``send_walk`` refused on purpose (e.g. no watchdog guards a real NAO): the robot
-    stopped itself and stands; the message says why and what to do. Not a fault."""
+    """``send_walk`` refused on purpose (e.g. no watchdog guards a real NAO).
+
+    The robot stopped itself and stands; the message says why and what to do. Not a fault.
+    """
 
 
 @dataclass(frozen=True)
@@ -102,7 +104,7 @@ class WalkCommand:
     eps_s: float = 0.1
 
     def clamped(self, limits: WalkLimits) -> WalkCommand:
-        """This command within ``limits`` (non-finite values become 0 / the nearest bound)."""
+        """Return this command within ``limits`` (non-finite values become 0 / the nearest bound)."""
 
         def clip(v: float, lo: float, hi: float, fallback: float) -> float:
             return float(np.clip(v, lo, hi)) if math.isfinite(v) else fallback
@@ -220,7 +222,7 @@ class FollowerRobot(abc.ABC):
         """Let ``dt`` seconds of robot time pass (the simulator steps; real robots return)."""
 
     def footfall(self) -> Footfall | None:
-        """The latest touchdown (None: none yet, or the robot reports none).
+        """Return the latest touchdown (None: none yet, or the robot reports none).
 
         Robots that can tell when a foot lands (or sample their odometry once per step)
         override this; the loop calls it right after ``observe()``.
@@ -228,7 +230,7 @@ class FollowerRobot(abc.ABC):
         return None
 
     def capture(self, camera: Camera = "head") -> np.ndarray | None:
-        """An RGB image (H x W x 3, uint8) from ``camera``, or None if it has no such camera."""
+        """Return an RGB image (H x W x 3, uint8) from ``camera``, or None if it has no such camera."""
         return None
 
     def __enter__(self: R) -> R:

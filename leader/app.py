@@ -61,9 +61,11 @@ def _make_device(cfg: Config, name: str) -> LeaderDevice:
 
 
 class _Aux:
-    """The leader's slow duties in a side thread (about 20 Hz): status out, follower status
-    in, presence, events of the operator's progress, the command-reach check. (Clock pings
-    run in their own :class:`~bipedtele.clocklink.ClockLink` thread.)
+    """The leader's slow duties in a side thread (about 20 Hz).
+
+    Status out, follower status in, presence, events of the operator's progress, the
+    command-reach check. (Clock pings run in their own
+    :class:`~bipedtele.clocklink.ClockLink` thread.)
     """
 
     def __init__(
@@ -403,8 +405,10 @@ def main(
 
 
 def _map_course(cfg: Config) -> list[tuple[float, float, float]]:
-    """The obstacles the cockpit's map draws (the pilot's course: ``[leader]
-    pilot_obstacles``, else the ``[world]`` obstacles); empty when neither is set.
+    """Return the obstacles the cockpit's map draws.
+
+    The pilot's course (``[leader] pilot_obstacles``), else the ``[world]`` obstacles;
+    empty when neither is set.
     """
     lc, world = cfg.section("leader"), cfg.sections.get("world")
     if not lc.pilot_obstacles and not getattr(world, "obstacles", None):

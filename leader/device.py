@@ -96,8 +96,9 @@ class OperatorHand(Protocol):
     """A simulated operator's hand: the force f_h it puts on the handle (eq. 1)."""
 
     def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
-        """Force [N] per axis on the handle at device time ``t`` [s], position ``x_m`` [m]
-        and velocity ``dx_m`` [m/s].
+        """Return the force [N] per axis on the handle.
+
+        At device time ``t`` [s], position ``x_m`` [m] and velocity ``dx_m`` [m/s].
         """
         ...
 

@@ -216,9 +216,11 @@ class LeaderLoop:
             self.state = "running" if fresh else "feedback_stale"
 
     def _slew(self, now: float, target: np.ndarray) -> np.ndarray:
-        """``target`` [N] moved from the force applied last by at most
-        ``force_rate_max_n_s`` times the clock time since the previous tick (one nominal
-        period at the first tick, at most 50 ms after a stall), per axis."""
+        """Return ``target`` [N] slew-limited from the force applied last.
+
+        Moved by at most ``force_rate_max_n_s`` times the clock time since the previous
+        tick (one nominal period at the first tick, at most 50 ms after a stall), per axis.
+        """
         step = self.dt if self._force_t is None else min(max(now - self._force_t, 0.0), 0.05)
         self._force_t = now
         limit = self.cfg.force_rate_max_n_s * step
@@ -328,8 +330,10 @@ class LeaderLoop:
         return snap
 
     def send_stop(self, repeats: int = 3) -> None:
-        """Zero the force and send ``enable = False`` commands (the follower stops and
-        stands at once instead of waiting for its watchdog)."""
+        """Zero the force and send ``enable = False`` commands.
+
+        The follower stops and stands at once instead of waiting for its watchdog.
+        """
         try:
             self.device.apply_force(np.zeros(2))
         except Exception as exc:  # the device may already be gone
@@ -386,8 +390,10 @@ class LeaderLoop:
         until_done: bool = True,
         mono: Callable[[], float] = time.perf_counter,
     ) -> None:
-        """Run in real time until ``stop`` is set, :meth:`stop` is called, ``duration_s``
-        [s] passed or (``until_done``) the operator finished.
+        """Run in real time until stopped, ``duration_s`` [s] passed or the operator finished.
+
+        It stops when ``stop`` is set, :meth:`stop` is called, ``duration_s`` passed or
+        (``until_done``) the operator finished.
 
         Each tick advances the device by the real time elapsed since the previous one, so
         a simulated device stays in real time even after an overrun.

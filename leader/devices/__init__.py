@@ -1,5 +1,8 @@
-"""Leader devices. Importing this package registers the built-in devices, so that
-``bipedtele.leader.device.make_device("sim-falcon")`` works.
+"""Leader devices: importing this package registers the built-in device drivers.
+
+After the import ``bipedtele.leader.device.make_device("sim-falcon")`` works. What the
+program knows about a device before loading its driver (name, settings section,
+capability) is in :mod:`bipedtele.leader.device_specs`.
 
 Hardware drivers (``falcon``, ``joystick``) live in their own modules here and register
 themselves the same way; they must import cleanly without their hardware or libraries

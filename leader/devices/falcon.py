@@ -71,6 +71,7 @@ class FalconDevice(LeaderDevice):
 
     @property
     def is_connected(self) -> bool:
+        """True between ``connect()`` and ``disconnect()``."""
         return self._usb is not None
 
     def connect(self) -> None:
@@ -112,7 +113,7 @@ class FalconDevice(LeaderDevice):
         usb.close()
 
     def read(self) -> HandleState:
-        """The grip on the two handle axes [m] (within +-0.05 m)."""
+        """Read the grip on the two handle axes [m] (within +-0.05 m)."""
         self._require()
         with self._lock:
             p, v, buttons, t = self._p.copy(), self._v.copy(), self._buttons, self._t_status
@@ -131,7 +132,7 @@ class FalconDevice(LeaderDevice):
         return f.copy()
 
     def advance(self, dt: float) -> None:
-        """The I/O thread services the Falcon: returns at once (raises if it failed)."""
+        """Return at once: the I/O thread services the Falcon (raise if it failed)."""
         self._require()
 
     # ------------------------------------------------------------------ internals

@@ -59,7 +59,7 @@ CENTER = np.array([0.0, 0.0, 0.11])
 
 
 def encode_command(efforts: np.ndarray, leds: int = 0, homing: bool = False) -> bytes:
-    """The 16-byte host -> Falcon packet for three motor ``efforts`` (int16)."""
+    """Return the 16-byte host -> Falcon packet for three motor ``efforts`` (int16)."""
     out = bytearray(16)
     out[0], out[15] = ord("<"), ord(">")
     for i, v in enumerate(np.asarray(efforts).astype(np.int64)):
@@ -72,7 +72,7 @@ def encode_command(efforts: np.ndarray, leds: int = 0, homing: bool = False) -> 
 
 
 def decode_status(packet: bytes) -> tuple[np.ndarray, int, int]:
-    """Encoder counts (int16 x 3), homed bits (bit i: motor i) and grip buttons of a packet.
+    """Return the encoder counts (int16 x 3), homed bits (bit i: motor i) and grip buttons of a packet.
 
     Raises
     ------
@@ -97,7 +97,7 @@ def encoder_angles(counts: np.ndarray) -> np.ndarray:
 
 
 def encoder_counts(theta1: np.ndarray) -> np.ndarray:
-    """Encoder counts (nearest integers) of arm angles theta1 [rad] (for fakes and tests)."""
+    """Return the encoder counts (nearest integers) of arm angles theta1 [rad] (for fakes and tests)."""
     return np.rint((np.degrees(np.asarray(theta1, dtype=float)) - THETA_OFFSET_DEG) / DEG_PER_COUNT).astype(np.int64)
 
 
@@ -130,7 +130,7 @@ def arm_angles(p: np.ndarray) -> np.ndarray:
 
 
 def angle_jacobian(p: np.ndarray, h: float = 1e-5) -> np.ndarray:
-    """d theta1 / d p [rad/m] at ``p`` by central differences (3 x 3)."""
+    """Return d theta1 / d p [rad/m] at ``p`` by central differences (3 x 3)."""
     jac = np.empty((3, 3))
     for j in range(3):
         dp = np.zeros(3)

@@ -100,26 +100,31 @@ class FalconUsb:
         self.normal_mode()
 
     def close(self) -> None:
+        """Close the USB device and free the context. Idempotent."""
         if self.ctx is not None:
             self.lib.ftdi_usb_close(self.ctx)
             self.lib.ftdi_free(self.ctx)
             self.ctx = None
 
     def normal_mode(self) -> None:
+        """Set the normal-mode link: 1 ms latency timer, the normal baud rate."""
         self._check(self.lib.ftdi_set_latency_timer(self.ctx, 1), "set latency timer")
         self._check(self.lib.ftdi_set_baudrate(self.ctx, _NORMAL_BAUD), "set baud rate")
 
     def write(self, data: bytes) -> None:
+        """Write ``data`` to the Falcon; raise :class:`DeviceError` unless all of it went."""
         n = self._check(self.lib.ftdi_write_data(self.ctx, data, len(data)), "USB write")
         if n != len(data):
             raise DeviceError(f"falcon: USB write sent {n} of {len(data)} bytes")
 
     def read(self, size: int) -> bytes:
+        """Read at most ``size`` bytes (what is there now)."""
         buf = ctypes.create_string_buffer(size)
         n = self._check(self.lib.ftdi_read_data(self.ctx, buf, size), "USB read")
         return buf.raw[:n]
 
     def read_exact(self, size: int, timeout_s: float) -> bytes:
+        """Read ``size`` bytes, or fewer if ``timeout_s`` [s] passes first."""
         out = bytearray()
         deadline = time.monotonic() + timeout_s
         while len(out) < size and time.monotonic() < deadline:

@@ -103,6 +103,7 @@ class JoystickDevice(LeaderDevice):
 
     @property
     def is_connected(self) -> bool:
+        """True between ``connect()`` and ``disconnect()``."""
         return self._dev is not None
 
     def connect(self) -> None:

@@ -140,6 +140,7 @@ class SimFalcon(LeaderDevice):
 
     @property
     def is_connected(self) -> bool:
+        """True between ``connect()`` and ``disconnect()``."""
         return self._connected
 
     def connect(self) -> None:
@@ -158,10 +159,12 @@ class SimFalcon(LeaderDevice):
             raise DeviceNotConnectedError(f"device {self.name!r}: call connect() first")
 
     def read(self) -> HandleState:
+        """Read the handle now (button 0, the dead-man, is always held)."""
         self._need()
         return HandleState(t=self._t, x_m=self._x.copy(), dx_m=self._dx.copy(), buttons=(True,))
 
     def apply_force(self, force_n: np.ndarray) -> np.ndarray:
+        """Command a force [N] per axis; return the force applied (clamped to the limit)."""
         self._need()
         self._f_m = self.clamp_force(force_n)
         return self._f_m.copy()
