@@ -87,7 +87,7 @@ class LeaderConfig:
     )
     pilot_clearance_m: float = param(0.35, lo=0.05, hi=5.0, unit="m", doc="lateral clearance from an obstacle's edge")
     pilot_approach_m: float = param(0.7, lo=0.1, hi=10.0, unit="m", doc="waypoint distance before/after an obstacle")
-    pilot_lookahead_m: float = param(0.35, lo=0.05, hi=5.0, unit="m", doc="pure-pursuit look-ahead distance")
+    pilot_lookahead_m: float = param(0.5, lo=0.05, hi=5.0, unit="m", doc="pure-pursuit look-ahead distance")
     pilot_speed_cm_s: float = param(8.0, lo=0.0, lo_open=True, hi=100.0, unit="cm/s", doc="cruise forward speed")
     pilot_turn_max_deg_s: float = param(20.0, lo=0.0, lo_open=True, hi=360.0, unit="deg/s", doc="largest turn speed asked")
     pilot_slow_range_m: float = param(0.45, lo=0.0, hi=5.0, unit="m", doc="slow down when a sonar reads below this")

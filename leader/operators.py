@@ -355,7 +355,7 @@ class PilotOperator(Operator):
         passes: int = 10,
         clearance_m: float = 0.35,
         approach_m: float = 0.7,
-        lookahead_m: float = 0.35,
+        lookahead_m: float = 0.5,
         speed_cm_s: float = 6.0,
         turn_max_deg_s: float = 9.0,
         slow_range_m: float = 0.45,
