@@ -19,6 +19,13 @@ servo, :class:`~bipedtele.follower.sim.poincare.WalkerServo`):
     ``v(t) = v1 + (v0 - v1) exp(-(t - t_d)/tau)``; ``k_v = M / tau``. The fit's root mean
     square error, the dead time ``t_d`` and the steady gain are reported.
 
+The reduced model's reset (22) only loses speed: its ``dp`` lies in (0, 1] (and so does
+``control.calibrated_dp``). A measured median above 1 (the hip of eq. (8) a few per cent
+faster in the first control period after a touchdown than in the last before, as with the
+gait that walks at the commanded ground speed) means the impact costs the walker no speed;
+the model then gets ``dp = 1`` (:func:`model_dp`), and the measured median is reported
+next to it.
+
 Then the walker's spectral radius (:mod:`.poincare`) at a few ``(sigma_r, T)`` is set next
 to the reduced model's with the paper's values and with the calibrated ones. The config
 switch ``control.hybrid_model = "calibrated"`` (with ``control.calibrated_dp`` and
@@ -45,7 +52,7 @@ from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.poincare import MapSettings, WalkerMap, operating_point
 from scipy.optimize import curve_fit
 
-__all__ = ["add_calibrate_parser", "calibrate", "identify_dp", "identify_speed_response"]
+__all__ = ["add_calibrate_parser", "calibrate", "identify_dp", "identify_speed_response", "model_dp"]
 
 LOG = logging.getLogger(__name__)
 
@@ -89,6 +96,16 @@ def identify_dp(T: float, *, control: ControlConfig | None = None, sim: SimConfi
     q25, q75 = np.percentile(ratios, [25, 75])
     return {"dp": float(np.median(ratios)), "dp_iqr": [float(q25), float(q75)],
             "dp_step": float(np.median(step_ratios)), "touchdowns": len(ratios), "T": T}
+
+
+def model_dp(measured: float) -> float:
+    """Return the reduced model's reset factor for a measured median ``dp``: clipped to (0, 1].
+
+    Raises :class:`ValueError` for a measured ratio <= 0 (the walker stopped or reversed).
+    """
+    if not measured > 0.0:
+        raise ValueError(f"measured dp {measured!r}: the walker did not walk forward across its impacts")
+    return min(float(measured), 1.0)
 
 
 def st_eps(control: ControlConfig) -> float:
@@ -164,7 +181,8 @@ def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = N
     st = settings or MapSettings()
     reset = identify_dp(T, control=control, sim=sim, settings=st)
     resp = identify_speed_response(T, control=control, sim=sim, settings=st)
-    calibrated = dataclasses.replace(control, hybrid_model="calibrated", calibrated_dp=reset["dp"],
+    dp = model_dp(reset["dp"])
+    calibrated = dataclasses.replace(control, hybrid_model="calibrated", calibrated_dp=dp,
                                      calibrated_k_v=resp["k_v"]).hybrid()
     if points is None:
         op = operating_point(control, sim)
@@ -187,8 +205,8 @@ def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = N
     err_cal = [abs(r["rho_reduced_calibrated"] - r["rho_walker"]) for r in rows]
     return {
         "dp": reset, "speed_response": resp,
-        "calibrated": {"dp": reset["dp"], "k_v": resp["k_v"]},
-        "set": ["control.hybrid_model=\"calibrated\"", f"control.calibrated_dp={reset['dp']:.4f}",
+        "calibrated": {"dp": dp, "k_v": resp["k_v"]},
+        "set": ["control.hybrid_model=\"calibrated\"", f"control.calibrated_dp={dp:.4f}",
                 f"control.calibrated_k_v={resp['k_v']:.4f}"],
         "points": rows,
         "max_abs_error": {"paper": max(err_paper), "calibrated": max(err_cal)},
@@ -211,7 +229,7 @@ def _run(args: argparse.Namespace) -> int:
     r, s = out["dp"], out["speed_response"]
     sys.stdout.write(
         f"dp = {r['dp']:.3f} (IQR {r['dp_iqr'][0]:.3f}-{r['dp_iqr'][1]:.3f}, {r['touchdowns']} touchdowns; "
-        f"half-step ratio {r['dp_step']:.3f})\n"
+        f"half-step ratio {r['dp_step']:.3f}); the model's dp {out['calibrated']['dp']:.3f} (reset (22) in (0, 1])\n"
         f"speed response: tau = {s['tau_s']:.2f} s, dead time {s['dead_time_s']:.2f} s, k_v = M/tau = {s['k_v']:.3f}, "
         f"v_hip gain {s['gain']:.3f}, ground-speed gain {s['ground_gain']:.3f}, fit rms {s['rms']:.3f} cm/s\n"
     )
