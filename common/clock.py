@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 __all__ = ["ClockSync", "DelayEstimator", "SyncSample", "conservative_delays"]
 
+_INF = math.inf
+
 
 class DelayEstimator:
     """Time-windowed moving average of one-way delays.
@@ -65,6 +67,8 @@ class DelayEstimator:
 
     #: Largest delay sample kept [s] (larger ones are clamped; keeps the sum finite).
     MAX_SAMPLE_S = 1.0e9
+    #: Updates between two exact re-sums of the running sum (bounds its rounding drift).
+    _FSUM_EVERY = 100_000
 
     def __init__(self, window_s: float = 1.0, max_samples: int = 65536) -> None:
         if not (window_s > 0 and math.isfinite(window_s)):
@@ -77,7 +81,7 @@ class DelayEstimator:
         self._sum = 0.0
         self._last_recv = -math.inf
         self._lock = threading.Lock()
-        self._updates = 0
+        self._until_fsum = self._FSUM_EVERY
 
     def update(self, t_sent: float, t_recv: float) -> None:
         """Add one message.
@@ -90,19 +94,28 @@ class DelayEstimator:
         t_recv : float
             Local receive time [s].
         """
-        if not (math.isfinite(t_sent) and math.isfinite(t_recv)):
+        # Once per received message: no function calls besides the lock and the append.
+        if not (-_INF < t_sent < _INF and -_INF < t_recv < _INF):  # NaN fails too
             return
         with self._lock:
-            t_recv = max(t_recv, self._last_recv)
-            self._last_recv = t_recv
-            delay = min(max(t_recv - t_sent, 0.0), self.MAX_SAMPLE_S)
-            self._samples.append((t_recv, delay))
+            if t_recv < self._last_recv:
+                t_recv = self._last_recv
+            else:
+                self._last_recv = t_recv
+            delay = t_recv - t_sent
+            if not delay > 0.0:
+                delay = 0.0
+            elif delay > self.MAX_SAMPLE_S:
+                delay = self.MAX_SAMPLE_S
+            samples = self._samples
+            samples.append((t_recv, delay))
             self._sum += delay
-            if len(self._samples) > self._max:
-                self._sum -= self._samples.popleft()[1]
-            self._updates += 1
-            if self._updates % 100_000 == 0:  # bound floating-point drift of the running sum
-                self._sum = math.fsum(d for _, d in self._samples)
+            if len(samples) > self._max:
+                self._sum -= samples.popleft()[1]
+            self._until_fsum -= 1
+            if not self._until_fsum:  # bound floating-point drift of the running sum
+                self._until_fsum = self._FSUM_EVERY
+                self._sum = math.fsum(d for _, d in samples)
 
     def value(self, now: float) -> float | None:
         """Mean one-way delay [s] of the samples received in ``(now - window_s, now]``.
