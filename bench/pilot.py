@@ -106,7 +106,7 @@ def run(model: str, scale: float) -> dict[str, float]:
         robot.publish(t)
         t += dt
     log = np.array(robot.log)
-    n = int(round(0.4 / dt))
+    n = round(0.4 / dt)
     k = len(log) // n
     steps = log[: k * n].reshape(k, n, 5).mean(axis=1)
     moving = np.abs(steps[:, 3]) > 0.5
