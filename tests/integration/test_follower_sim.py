@@ -2,7 +2,7 @@
 
 Covers issue 4's loop-level "done when" items: straight walk through the controllers,
 watchdog stop, the obstacle slow-down by the fictitious force, and z_e continuous across
-impacts while v_hip jumps. Robot-level gait tests live in test_sim_walk.py.
+impacts (and converging) whatever v_hip does. Robot-level gait tests live in test_sim_walk.py.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ class SimRun:
         self.cmd_t = 0.0
         self.seq = 0
         self.published: list[object] = []
+        self.stances: list[str] = []  # the sim gait's stance foot at each tick
         self.loop = FollowerLoop(
             self.robot, cfg.section("control"), cfg.section("follower"),
             lambda: (self.cmd, self.cmd_t) if self.cmd else None, self.published.append,
@@ -49,6 +50,7 @@ class SimRun:
                 self.cmd, self.cmd_t = Command(sid=3, seq=self.seq, t=self.t, ref=list(ref), h2_s=0.2), self.t
             tel = self.loop.tick()
             out.append(_snapshot(tel))
+            self.stances.append(self.robot.gait.stance)
             self.robot.advance(self.loop.dt)
             self.t += self.loop.dt
         return out
@@ -112,17 +114,33 @@ def test_obstacle_ahead_slows_the_robot_before_contact(sim) -> None:
     assert tels[-1].obs.pose[0] < 0.6
 
 
-def test_z_e_is_continuous_across_impacts_while_v_hip_jumps(sim) -> None:
+def test_z_e_is_continuous_across_impacts_and_converges(sim) -> None:
+    """z_e, what the leader feels, shows no trace of the robot's impacts and reaches 5 cm/s.
+
+    z_e is the equivalent follower (29), driven by the reference only. With the gait that
+    walks at the commanded ground speed the measured v_hip moves by a few tenths of a cm/s
+    at a heel strike (it used to jump by more than 1 cm/s); whatever it does, z_e must follow
+    a smooth first-order rise: monotone, no kink at the touchdowns, small steps.
+    """
     run = sim()
     tels = run.run(20.0, (5.0, 0.0))
-    late = [t for t in tels if t.obs.t > 5.0]
-    v_hip = np.array([t.obs.v_hip_m_s * 100 for t in late])
-    z_e = np.array([t.z_e[0] for t in late])
-    dv, dz = np.abs(np.diff(v_hip)), np.abs(np.diff(z_e))
-    # v_hip (eq. 8 on the stance leg) jumps at heel strike, many times a cycle's worth of change;
-    # z_e moves by a tiny amount per control period.
-    assert dv.max() > 1.0, f"v_hip max step {dv.max():.3f} cm/s"
+    late = [k for k, t in enumerate(tels) if t.obs.t > 5.0]
+    v_hip = np.array([tels[k].obs.v_hip_m_s * 100 for k in late])
+    z_e = np.array([tels[k].z_e[0] for k in late])
+    stance = [run.stances[k] for k in late]
+    touch = [k for k in range(1, len(stance)) if stance[k] != stance[k - 1]]
+    assert len(touch) >= 30, f"{len(touch)} touchdowns in 15 s: the robot did not walk"
+    assert not any(t.obs.fallen for t in tels)
+    assert 4.0 < float(np.mean(v_hip[-200:])) < 6.0  # the robot walks at about the reference
+    dz = np.diff(z_e)
+    assert dz.min() > -1e-9, "z_e stepped back"  # a monotone rise toward the reference
     assert dz.max() < 0.05, f"z_e max step {dz.max():.4f} cm/s"
-    assert dv.max() > 50 * dz.max()
+    # no kink: a first-order rise changes its step by dt/tau (about 0.5 %) per period; an
+    # impact leaking into z_e would change it by the size of the step itself
+    kink = np.abs(np.diff(dz))
+    assert kink.max() < 0.05 * dz.max(), f"z_e kink {kink.max():.2e} vs step {dz.max():.2e}"
+    # the measured speed does move at the touchdowns, far more than z_e does per period
+    dv_touch = np.array([abs(v_hip[k] - v_hip[k - 1]) for k in touch])
+    assert dv_touch.max() > 10 * dz.max(), f"v_hip step at touchdown {dv_touch.max():.3f} cm/s"
     # z_e converges to the reference (time constant D/k_s = 4.5 s on the forward channel).
     assert math.isclose(float(z_e[-1]), 5.0, abs_tol=0.3)
