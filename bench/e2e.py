@@ -29,8 +29,12 @@ follower (client of the router), the leader (scripted, client through the proxy)
 Since issue 13 a command that arrives between two follower ticks is applied at once
 (event-driven pickup: the receiver wakes the loop, which re-runs the period's update and
 publishes the acknowledging feedback), so "wait for the next control tick" is the wake-up
-latency. Measured on the 2-CPU dev machine, 10 s at 50 Hz: overhead p50 9.69 ms before,
-1.34 ms after (every command -> feedback of it or newer: 15.8 ms -> 2.5 ms p50).
+latency. Measured on the 2-CPU dev machine, 10 s at 50 Hz (``--rates 50 --no-video``):
+overhead p50 9.69 ms before, 1.34 ms after in a first copy (every command -> feedback of
+it or newer: 15.8 ms -> 2.5 ms p50); in the shared tree once recording worked again, three
+runs: overhead p50 0.69 / 0.84 / 0.65 ms, p99 1.71 / 1.04 / 1.23 ms (command -> first
+feedback p50 1.95 / 1.88 / 1.75 ms against a bare round trip of 1.25 / 1.04 / 1.10 ms;
+every command is now echoed, so the "every command" row equals the first).
 
 Goals (issues 6, 13): overhead p50 < 2 ms; video p50 < 60 ms. Figures are what they are.
 """
