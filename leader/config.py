@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from bipedtele.config import param
+from bipedtele.leader.device_specs import device_names
 
 __all__ = ["LeaderConfig"]
 
@@ -36,7 +37,7 @@ def _default_script() -> list[list[float]]:
 class LeaderConfig:
     """Leader program settings (see leader/loop.py and leader/app.py)."""
 
-    device: str = param("sim-falcon", doc="leader device: sim-falcon (or falcon, joystick where installed)")
+    device: str = param("sim-falcon", doc="leader device: sim-falcon, falcon or joystick; see leader/device_specs.py")
     operator: Literal["scripted", "pilot", "browser"] = param(
         "scripted", doc="who moves a simulated device: scripted profile, obstacle pilot, browser joystick"
     )
@@ -109,6 +110,8 @@ class LeaderConfig:
     cockpit_max_clients: int = param(4, lo=1, hi=100, doc="most browser connections to the cockpit at once")
 
     def __post_init__(self) -> None:
+        if self.device not in device_names():
+            raise ValueError(f"device: {self.device!r}: allowed: {', '.join(repr(n) for n in device_names())}")
         for name in ("g_m", "gravity_n"):
             if len(getattr(self, name)) != 2:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: allowed: a list of exactly 2 numbers [N]")

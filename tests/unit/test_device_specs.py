@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config import ConfigError, load_config
 from bipedtele.leader.device import DEVICES, make_device
 from bipedtele.leader.device_specs import DEVICE_SPECS, device_names, device_spec
 
@@ -15,7 +15,7 @@ pytestmark = pytest.mark.timeout(120)
 
 _PROBE = """
 import sys
-from bipedtele.config import load_config
+from bipedtele.config import ConfigError, load_config
 cfg = load_config("default")
 cfg.section("joystick"); cfg.section("falcon")
 import bipedtele.follower.app, bipedtele.tools.router
@@ -54,3 +54,8 @@ def test_leader_device_choices_come_from_the_specs() -> None:
     assert out.returncode == 2, out.stderr  # argparse: a bad choice, one line, exit 2
     for name in device_names():
         assert name in out.stderr
+
+
+def test_a_profile_naming_an_unknown_device_fails_at_load_naming_the_allowed_ones() -> None:
+    with pytest.raises(ConfigError, match=r"device.*'nope'.*allowed: 'falcon', 'joystick', 'sim-falcon'"):
+        load_config("default", ['leader.device="nope"'])
