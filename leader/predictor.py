@@ -36,7 +36,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = ["CommandLog", "DelayPredictor", "LivePredictor", "PredictedPose", "prediction_fields"]
 
@@ -206,8 +205,7 @@ class DelayPredictor:
         ref = self.commands.refs_at(t[:-1] - h1)
         if self.tau_s > 0.0:
             a = math.exp(-dt / self.tau_s)
-            # s[k+1] = a s[k] + (1 - a) ref[k], s[0] = (v0, w0): lfilter's y[k] is s[k+1].
-            nxt = lfilter([1.0 - a], [1.0, -a], ref, axis=0, zi=[[a * v0, a * w0]])[0]
+            nxt = _first_order(a, np.array([v0, w0]), ref)
         else:
             nxt = ref
         sp = np.vstack([[v0, w0], nxt])  # (n + 1, 2): v [cm/s], w [deg/s]
@@ -345,6 +343,27 @@ def _num(v: object) -> float | None:
         return None
     f = float(v)
     return f if math.isfinite(f) else None
+
+
+def _first_order(a: float, s0: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Run ``s[k+1] = a s[k] + (1 - a) ref[k]`` from ``s[0] = s0``; return ``s[1:]``.
+
+    Closed form ``s[k] = a^k (s0 + (1 - a) sum_{j<k} a^-(j+1) ref[j])`` with numpy (no scipy
+    import on the leader's start); a plain loop where ``a^-n`` would overflow.
+    """
+    n = len(ref)
+    if n == 0:
+        return np.zeros((0, 2))
+    if -n * math.log(a) < 600.0:
+        k = np.arange(1, n + 1, dtype=float)[:, None]
+        inv = a ** (-k)
+        return a**k * (s0 + (1.0 - a) * np.cumsum(ref * inv, axis=0))
+    out = np.empty((n, 2))
+    s = np.asarray(s0, dtype=float).copy()
+    for i in range(n):
+        s = a * s + (1.0 - a) * ref[i]
+        out[i] = s
+    return out
 
 
 def prediction_fields(pred: tuple[PredictedPose, PredictedPose] | None) -> dict[str, float]:
