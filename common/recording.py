@@ -57,6 +57,7 @@ from types import TracebackType
 from typing import IO, Any
 
 import msgpack
+import msgspec
 from bipedtele import __version__, schemas
 from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame, message_fields
 from mcap.exceptions import McapError
@@ -432,7 +433,7 @@ class Recorder:
     def write(
         self,
         topic: str,
-        msg: Message | Mapping[str, Any],
+        msg: Message | msgspec.Struct | Mapping[str, Any],
         t_recv: float,
         t_log: float | None = None,
     ) -> bool:
@@ -443,9 +444,11 @@ class Recorder:
         topic : str
             Channel name (``cmd/sent``, ``feedback/recv``, ``video/recv``, ``leader/state``,
             ``events``, ...; ``docs/recording.md`` lists those the programs write).
-        msg : Message, dataclass or dict
+        msg : Message, msgspec Struct, dataclass or dict
             A wire message (kept by reference: messages are values, never changed after
-            sending), another frozen dataclass, or a map of plain values (numbers, strings,
+            sending), another msgspec Struct such as the leader's
+            :class:`~bipedtele.telemetry.LeaderSample` (copied, recorded as its map on the
+            channel's schema), another frozen dataclass, or a map of plain values (numbers, strings,
             None, bytes, lists, dicts; numpy values are converted). A map is copied at once
             (a flat map of scalars with one dict copy, anything else deeply), so the caller
             may reuse it afterwards.
@@ -472,8 +475,10 @@ class Recorder:
         try:
             if isinstance(msg, Message):
                 obj: Any = msg
+            elif isinstance(msg, msgspec.Struct):
+                obj = msg.__copy__()  # the leader's sample: a shallow copy (its values are scalars)
             elif msg.__class__ is dict and _SCALARS.issuperset(map(type, msg.values())):
-                obj = dict(msg)  # the common case (the leader's sample): one C-level copy
+                obj = dict(msg)  # a flat map: one C-level copy
             elif dataclasses.is_dataclass(msg) and not isinstance(msg, type):
                 params = getattr(type(msg), "__dataclass_params__", None)
                 obj = msg if params is not None and params.frozen else _plain(_dataclass_dict(msg))
@@ -608,6 +613,8 @@ class Recorder:
 
     def _encode(self, topic: str, obj: Any) -> tuple[int, bytes]:
         """Return the channel and the JSON payload of one queued message (writer thread)."""
+        if isinstance(obj, msgspec.Struct) and not isinstance(obj, Message):
+            obj = msgspec.to_builtins(obj)  # e.g. a LeaderSample: its map, None kept as null
         if isinstance(obj, dict):
             data = obj
             if topic.startswith("video/") and "jpeg" in data and not self._keep_jpeg(topic):

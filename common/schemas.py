@@ -16,8 +16,11 @@ Foxglove's MCAP reader understands. The schemas come from three sources:
   ``foxglove.CompressedImage`` (``timestamp`` {sec, nsec}, ``frame_id``, ``data`` as base64,
   ``format``) with the :class:`~bipedtele.messages.VideoFrame` header fields beside them;
   frames recorded without their JPEG use :func:`video_header_schema`.
-- **Maps** (``leader/state``, ``events`` and any other topic written as a dict): a fixed
-  table of the keys the programs write (:data:`LEADER_STATE_FIELDS`, :data:`EVENT_FIELDS`)
+- **The leader's sample** (``leader/state``): msgspec's JSON Schema of
+  :class:`bipedtele.telemetry.LeaderSample` (:data:`LEADER_STATE_FIELDS`, units in the
+  descriptions).
+- **Maps** (``events`` and any other topic written as a dict, ``leader/state`` written as a
+  dict by tests and tools): a fixed table of keys (:data:`LEADER_STATE_FIELDS`, :data:`EVENT_FIELDS`)
   merged with :func:`sample_schema`, which types every other key from the first map
   written on the channel (number, integer, boolean, string, array of numbers, object;
   every one nullable). Keys that appear only later are still recorded (the schemas allow
@@ -36,6 +39,7 @@ from typing import Any, Final, Union, get_args, get_origin, get_type_hints
 
 import msgspec
 from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame, message_fields
+from bipedtele.telemetry import LeaderSample
 
 __all__ = [
     "COMPRESSED_IMAGE",
@@ -247,70 +251,32 @@ def _t(type_: str | list[str], description: str) -> Schema:
 
 _NUM_OR_NULL: Final = ["number", "null"]
 
-#: Keys of the leader's ``leader/state`` sample (the loop's cockpit sample, see
-#: ``docs/cockpit.md``), with their JSON types and units. Derived from the keys and value
-#: types a leader run writes (``bipedtele demo``: every key, its types over the run);
-#: numbers are nullable (a delay estimate is null until it is warm, a non-finite value is
-#: written as null).
-LEADER_STATE_FIELDS: Final[dict[str, Schema]] = {
-    "t": _t("number", "time of the sample [s, time.time()]"),
-    "t_device": _t(_NUM_OR_NULL, "time of the device reading [s]"),
-    "seq": _t("integer", "sequence number of the command sent with this sample"),
-    "ref_v": _t(_NUM_OR_NULL, "commanded forward speed k_g x_m [cm/s]"),
-    "ref_w": _t(_NUM_OR_NULL, "commanded turn speed k_g x_m [deg/s]"),
-    "x_v": _t(_NUM_OR_NULL, "handle position, forward axis [m]"),
-    "x_w": _t(_NUM_OR_NULL, "handle position, turn axis [m]"),
-    "dx_v": _t(_NUM_OR_NULL, "handle velocity, forward axis [m/s]"),
-    "dx_w": _t(_NUM_OR_NULL, "handle velocity, turn axis [m/s]"),
-    "force_v": _t(_NUM_OR_NULL, "force on the handle f_m, forward axis [N]"),
-    "force_w": _t(_NUM_OR_NULL, "force on the handle f_m, turn axis [N]"),
-    "h1_ms": _t(_NUM_OR_NULL, "forward delay estimate h1 [ms]"),
-    "h2_ms": _t(_NUM_OR_NULL, "backward delay estimate h2 [ms]"),
-    "delay_ms": _t(_NUM_OR_NULL, "h1 + h2 [ms]"),
-    "alpha_m_v": _t(_NUM_OR_NULL, "leader damping, forward axis [N s/m]"),
-    "alpha_m_w": _t(_NUM_OR_NULL, "leader damping, turn axis [N s/m]"),
-    "gain": _t(_NUM_OR_NULL, "k_g in use"),
-    "enable": _t("boolean", "the operator holds the device"),
-    "leader_state": _t("string", "leader loop state"),
-    "link": _t("string", "link state (waiting, ok, stale, no follower)"),
-    "feedback_age_ms": _t(_NUM_OR_NULL, "age of the latest feedback [ms]"),
-    "z_e_v": _t(_NUM_OR_NULL, "equivalent follower speed z_e, forward [cm/s]"),
-    "z_e_w": _t(_NUM_OR_NULL, "equivalent follower speed z_e, turn [deg/s]"),
-    "z_r_v": _t(_NUM_OR_NULL, "observer estimate z_r, forward [cm/s]"),
-    "z_r_w": _t(_NUM_OR_NULL, "observer estimate z_r, turn [deg/s]"),
-    "eta_v": _t(_NUM_OR_NULL, "measured forward speed v_hip [cm/s]"),
-    "eta_w": _t(_NUM_OR_NULL, "measured turn rate [deg/s]"),
-    "s_r_v": _t(_NUM_OR_NULL, "follower real damping, forward"),
-    "s_r_w": _t(_NUM_OR_NULL, "follower real damping, turn"),
-    "s_e_v": _t(_NUM_OR_NULL, "follower equivalent damping, forward"),
-    "s_e_w": _t(_NUM_OR_NULL, "follower equivalent damping, turn"),
-    "T": _t(_NUM_OR_NULL, "walking cycle time [s]"),
-    "eps": _t(_NUM_OR_NULL, "joint-servo gain [s]"),
-    "state": _t(["string", "null"], "follower state from the latest feedback"),
-    "pose_x": _t(_NUM_OR_NULL, "reported robot x [m]"),
-    "pose_y": _t(_NUM_OR_NULL, "reported robot y [m]"),
-    "pose_yaw": _t(_NUM_OR_NULL, "reported robot yaw [rad]"),
-    "sonar_l": _t(_NUM_OR_NULL, "left sonar range [m]"),
-    "sonar_r": _t(_NUM_OR_NULL, "right sonar range [m]"),
-    "f_v_t": _t(_NUM_OR_NULL, "fictitious force, tangential"),
-    "f_v_n": _t(_NUM_OR_NULL, "fictitious force, normal"),
-    "operator": _t(["string", "null"], "operator model"),
-    "intended_v": _t(_NUM_OR_NULL, "operator's intended forward speed [cm/s]"),
-    "intended_w": _t(_NUM_OR_NULL, "operator's intended turn speed [deg/s]"),
-    "passes_done": _t("integer", "pilot passes completed"),
-    "pred_x": _t(_NUM_OR_NULL, "predicted present robot x [m]"),
-    "pred_y": _t(_NUM_OR_NULL, "predicted present robot y [m]"),
-    "pred_yaw": _t(_NUM_OR_NULL, "predicted present robot yaw [rad]"),
-    "ahead_x": _t(_NUM_OR_NULL, "robot x predicted h1 ahead [m]"),
-    "ahead_y": _t(_NUM_OR_NULL, "robot y predicted h1 ahead [m]"),
-    "ahead_yaw": _t(_NUM_OR_NULL, "robot yaw predicted h1 ahead [rad]"),
-    "ahead_dt": _t(_NUM_OR_NULL, "how far ahead of the present [s]"),
-    "follower_present": _t("boolean", "the follower's presence is seen"),
-    "watchdog": _t("integer", "follower watchdog stops"),
-    "falls": _t("integer", "follower falls"),
-    "collisions": _t("integer", "follower obstacle contacts"),
-    "follower_text": _t("string", "follower status text"),
-}
+
+def _type_list(prop: Schema) -> Schema:
+    """Write msgspec's ``anyOf: [{type: X}, {type: null}]`` as ``type: [X, "null"]``.
+
+    Foxglove and most JSON Schema readers handle the type list better; the default
+    (None for every optional field) is dropped, as for the wire messages.
+    """
+    out = {k: v for k, v in prop.items() if k != "default"}
+    alts = out.get("anyOf")
+    if isinstance(alts, list) and all(isinstance(a, dict) and set(a) == {"type"} for a in alts):
+        del out["anyOf"]
+        out["type"] = [a["type"] for a in alts]
+    return out
+
+
+def _leader_state_fields() -> dict[str, Schema]:
+    generated = msgspec.json.schema(LeaderSample)
+    body = generated.get("$defs", {}).get(LeaderSample.__name__, generated)
+    return {name: _type_list(prop) for name, prop in body["properties"].items()}
+
+
+#: Property schemas of the leader's ``leader/state`` sample, from the msgspec type
+#: :class:`bipedtele.telemetry.LeaderSample` (units in each ``description``): every field
+#: but ``t`` is nullable (a delay estimate is null until it is warm, a non-finite value is
+#: written as null, an older recording may lack a key).
+LEADER_STATE_FIELDS: Final[dict[str, Schema]] = _leader_state_fields()
 
 #: Keys of ``events`` maps (``docs/recording.md``, Events) and their JSON types.
 EVENT_FIELDS: Final[dict[str, Schema]] = {
@@ -384,9 +350,13 @@ def sample_schema(name: str, sample: Mapping[str, Any], known: Mapping[str, Sche
     return _object(name, props, list(required or []), description=description, additional=True)
 
 
-def leader_state_schema(sample: Mapping[str, Any]) -> Schema:
-    """``bipedtele.LeaderState``: :data:`LEADER_STATE_FIELDS` plus the first sample's other keys."""
-    return sample_schema(LEADER_STATE, sample, LEADER_STATE_FIELDS, ["t"],
+def leader_state_schema(sample: Mapping[str, Any] | None = None) -> Schema:
+    """``bipedtele.LeaderState``: the :class:`~bipedtele.telemetry.LeaderSample` fields.
+
+    Plus, for a channel written as maps, the first map's other keys (typed from their
+    values); ``t`` is required, other keys are allowed.
+    """
+    return sample_schema(LEADER_STATE, sample or {}, LEADER_STATE_FIELDS, ["t"],
                          description="The leader loop's sample (one per command)")  # fmt: skip
 
 

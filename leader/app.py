@@ -40,10 +40,11 @@ from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
 from bipedtele.leader.device_specs import device_names, device_spec
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
-from bipedtele.leader.predictor import DelayPredictor, LivePredictor, prediction_fields
+from bipedtele.leader.predictor import DelayPredictor, LivePredictor
 from bipedtele.leader.reach import CommandReach
 from bipedtele.messages import Command, Feedback, Status, VideoFrame
 from bipedtele.node import Node, StepClock
+from bipedtele.telemetry import LeaderSample
 from bipedtele.transport import LatestReceiver, PresenceWatcher, Publishers, Received
 
 __all__ = ["LeaderApp", "add_leader_parser", "main"]
@@ -106,18 +107,17 @@ class _Aux:
         self._stop.set()
         self._thread.join(5.0)
 
-    def extras(self) -> dict[str, Any]:
-        """Cockpit fields from the follower's status and the link."""
+    def fill(self, sample: LeaderSample) -> None:
+        """Fill the sample's fields from the follower's status and presence."""
         st = self.follower_status
-        out: dict[str, Any] = {"follower_present": self.presence.alive}
+        sample.follower_present = alive = self.presence.alive
         if st is not None:
-            out["watchdog"] = st.counters.get("watchdog_stops", st.counters.get("watchdog", 0))
-            out["falls"] = st.counters.get("falls", 0)
-            out["collisions"] = st.counters.get("collisions", 0)
-            out["follower_text"] = st.text
-        if not self.presence.alive:
-            out["link"] = "no follower"
-        return out
+            sample.watchdog = st.counters.get("watchdog_stops", st.counters.get("watchdog", 0))
+            sample.falls = st.counters.get("falls", 0)
+            sample.collisions = st.counters.get("collisions", 0)
+            sample.follower_text = st.text
+        if not alive:
+            sample.link = "no follower"
 
     def _run(self) -> None:
         lc, ck = self.cfg.section("leader"), self.cfg.section("clock")
@@ -246,20 +246,28 @@ class LeaderApp:
         self.node.pubs.cmd.put(cmd)
         self.node.record("cmd/sent", cmd, cmd.t)
 
-    def _on_sample(self, snap: dict[str, Any]) -> None:
-        """Each loop sample (the loop fed the operator already): prediction, cockpit, recording."""
+    def _on_sample(self, sample: LeaderSample) -> None:
+        """Complete each loop sample (the loop fed the operator already), then show and record it.
+
+        Fills the prediction fields and the follower's status; the sample is not changed
+        after it went to the cockpit and the recorder.
+        """
         if self.loop is not None:
             fb = self.loop.feedback
             if self.own_live:
-                self.live.observe(snap, fb.t if fb is not None else None)
-                if fb is not None and snap["seq"] % self.predict_every == 0:
-                    self.live.predict(snap["t"], fb.pose, fb.eta, fb.t, fb.h1_s)
-            snap.update(prediction_fields(self.live.last))
+                self.live.observe(sample, fb.t if fb is not None else None)
+                if fb is not None and (sample.seq or 0) % self.predict_every == 0:
+                    self.live.predict(sample.t, fb.pose, fb.eta, fb.t, fb.h1_s)
+            if self.live.last is not None:
+                now, ahead = self.live.last
+                sample.pred_x, sample.pred_y, sample.pred_yaw = now.x, now.y, now.yaw
+                sample.ahead_x, sample.ahead_y, sample.ahead_yaw = ahead.x, ahead.y, ahead.yaw
+                sample.ahead_dt = ahead.t - now.t
         if self.aux is not None:
-            snap.update(self.aux.extras())
+            self.aux.fill(sample)
         if self.cockpit is not None:
-            self.cockpit.publish_sample(snap)
-        self.node.record("leader/state", snap, snap["t"])
+            self.cockpit.publish_sample(sample)
+        self.node.record("leader/state", sample, sample.t)
 
     def _start_cockpit(self) -> Any:
         lc = self.lc

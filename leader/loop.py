@@ -21,8 +21,9 @@ Every haptic tick (1 kHz by default) the loop
 6. lets the device time pass (a simulated device integrates eq. 1 with the operator's
    hand attached);
 7. at ``cmd_rate_hz`` updates the operator model and sends a :class:`Command`
-   (``ref = k_g x_m``), and refreshes the telemetry snapshot read by the cockpit and the
-   recorder.
+   (``ref = k_g x_m``), and makes the telemetry sample
+   (:class:`bipedtele.telemetry.LeaderSample`) read by the operator model, the cockpit and
+   the recorder.
 
 The loop is transport-agnostic: it gets ``send_command(Command)`` and
 ``latest_feedback() -> (Feedback, t_recv) | None`` callables, so tests drive it in
@@ -40,7 +41,6 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 from bipedtele.clock import DelayEstimator, conservative_delays
@@ -52,10 +52,14 @@ from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operators import Operator
 from bipedtele.messages import Command, Feedback, new_session_id
 from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
+from bipedtele.telemetry import LeaderSample
 
 __all__ = ["LeaderLoop"]
 
 LOG = logging.getLogger(__name__)
+
+#: The link state shown for each loop state (others as they are).
+_LINK = {"starting": "waiting", "running": "ok", "feedback_stale": "stale"}
 
 #: Recompute (40) when h1 or h2 moved by more than this [s].
 _DAMPING_STEP_S = 0.0005
@@ -94,7 +98,9 @@ class LeaderLoop:
     sid : int, optional
         Session id of the commands (random by default).
     on_sample : callable, optional
-        Called with the telemetry snapshot at every command (cockpit, recorder).
+        Called with the telemetry sample (:class:`~bipedtele.telemetry.LeaderSample`) at
+        every command, after the operator model saw it; the program completes it and
+        hands it to the cockpit and the recorder.
     """
 
     def __init__(
@@ -111,7 +117,7 @@ class LeaderLoop:
         delay_window_s: float = 1.0,
         conservative_rtt: Callable[[], float | None] | None = None,
         sid: int | None = None,
-        on_sample: Callable[[dict[str, Any]], None] | None = None,
+        on_sample: Callable[[LeaderSample], None] | None = None,
     ) -> None:
         self.device = device
         self.operator = operator
@@ -155,7 +161,7 @@ class LeaderLoop:
         self.enable = True
         self.state = "starting"
         self.last_command: Command | None = None
-        self.snapshot: dict[str, Any] = {}
+        self.sample: LeaderSample | None = None
         self.period_stats = PeriodStats()
         self.missed_ticks = 0
         self._stop = threading.Event()
@@ -281,53 +287,55 @@ class LeaderLoop:
         except Exception as exc:  # a transport hiccup must not stop the haptic loop
             LOG.warning("sending a command failed: %s", exc)
         self.last_command = cmd
-        self.snapshot = self._make_snapshot(now, t_dev, cmd)
+        self.sample = sample = self._make_sample(now, t_dev, cmd)
         if self.operator is not None:
-            self.operator.observe_sample(self.snapshot)  # e.g. the pilot's predictor
+            self.operator.observe_sample(sample)  # e.g. the pilot's predictor
         if self._on_sample is not None:
-            self._on_sample(self.snapshot)
+            self._on_sample(sample)
 
-    def _make_snapshot(self, now: float, t_dev: float, cmd: Command) -> dict[str, Any]:
+    def _make_sample(self, now: float, t_dev: float, cmd: Command) -> LeaderSample:
         fb = self._fb
-        ms = lambda h: None if h is None else 1000.0 * h  # noqa: E731
-        snap: dict[str, Any] = {
-            "t": now,
-            "t_device": t_dev,
-            "ref_v": cmd.ref[0],
-            "ref_w": cmd.ref[1],
-            "x_v": float(self.x_m[0]),
-            "x_w": float(self.x_m[1]),
-            "dx_v": float(self.dx_m[0]),
-            "dx_w": float(self.dx_m[1]),
-            "force_v": float(self.force[0]),
-            "force_w": float(self.force[1]),
-            "h1_ms": ms(self.h1),
-            "h2_ms": ms(self.h2),
-            "delay_ms": None if self.h1 is None or self.h2 is None else 1000.0 * (self.h1 + self.h2),
-            "alpha_m_v": float(self.alpha_m[0]),
-            "alpha_m_w": float(self.alpha_m[1]),
-            "gain": self.gain,
-            "enable": self.enable,
-            "leader_state": self.state,
-            "link": {"starting": "waiting", "running": "ok", "feedback_stale": "stale"}.get(self.state, self.state),
-            "feedback_age_ms": None if fb is None else 1000.0 * (now - self._fb_recv),
-            "seq": cmd.seq,
-        }
+        h1, h2 = self.h1, self.h2
+        sample = LeaderSample(
+            t=now,
+            t_device=t_dev,
+            seq=cmd.seq,
+            ref_v=cmd.ref[0],
+            ref_w=cmd.ref[1],
+            x_v=float(self.x_m[0]),
+            x_w=float(self.x_m[1]),
+            dx_v=float(self.dx_m[0]),
+            dx_w=float(self.dx_m[1]),
+            force_v=float(self.force[0]),
+            force_w=float(self.force[1]),
+            h1_ms=None if h1 is None else 1000.0 * h1,
+            h2_ms=None if h2 is None else 1000.0 * h2,
+            delay_ms=None if h1 is None or h2 is None else 1000.0 * (h1 + h2),
+            alpha_m_v=float(self.alpha_m[0]),
+            alpha_m_w=float(self.alpha_m[1]),
+            gain=float(self.gain),
+            enable=self.enable,
+            leader_state=self.state,
+            link=_LINK.get(self.state, self.state),
+            feedback_age_ms=None if fb is None else 1000.0 * (now - self._fb_recv),
+        )
         if fb is not None:
-            snap.update(
-                z_e_v=fb.z_e[0], z_e_w=fb.z_e[1], z_r_v=fb.z_r[0], z_r_w=fb.z_r[1],
-                eta_v=fb.eta[0], eta_w=fb.eta[1], s_r_v=fb.s_r[0], s_r_w=fb.s_r[1],
-                s_e_v=fb.s_e[0], s_e_w=fb.s_e[1], T=fb.T, eps=fb.eps, state=fb.state,
-                pose_x=fb.pose[0], pose_y=fb.pose[1], pose_yaw=fb.pose[2],
-                sonar_l=fb.sonar[0], sonar_r=fb.sonar[1], f_v_t=fb.f_v[0], f_v_n=fb.f_v[1],
-            )  # fmt: skip
+            sample.z_e_v, sample.z_e_w = fb.z_e
+            sample.z_r_v, sample.z_r_w = fb.z_r
+            sample.eta_v, sample.eta_w = fb.eta
+            sample.s_r_v, sample.s_r_w = fb.s_r
+            sample.s_e_v, sample.s_e_w = fb.s_e
+            sample.T, sample.eps, sample.state = fb.T, fb.eps, fb.state
+            sample.pose_x, sample.pose_y, sample.pose_yaw = fb.pose
+            sample.sonar_l, sample.sonar_r = fb.sonar
+            sample.f_v_t, sample.f_v_n = fb.f_v
         if self.operator is not None:
             prog = self.operator.progress()
-            snap["operator"] = prog.get("operator")
-            snap["intended_v"], snap["intended_w"] = prog.get("intended", [0.0, 0.0])
+            sample.operator = prog.get("operator")
+            sample.intended_v, sample.intended_w = prog.get("intended", [0.0, 0.0])
             if "passes_done" in prog:
-                snap["passes_done"] = prog["passes_done"]
-        return snap
+                sample.passes_done = int(prog["passes_done"])
+        return sample
 
     def send_stop(self, repeats: int = 3) -> None:
         """Zero the force and send ``enable = False`` commands.

@@ -28,13 +28,14 @@ import abc
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, PredictedPose
 from bipedtele.messages import Feedback
+from bipedtele.telemetry import LeaderSample
 
 __all__ = [
     "DEFAULT_COURSE",
@@ -140,11 +141,11 @@ class Operator(abc.ABC):
         """f_h [N] (the :class:`bipedtele.leader.device.OperatorHand` protocol)."""
         return self.hand.hand_force(t, x_m, dx_m)
 
-    def observe_sample(self, sample: Mapping[str, Any]) -> None:  # noqa: B027 - optional hook
+    def observe_sample(self, sample: LeaderSample) -> None:  # noqa: B027 - optional hook
         """Observe the loop's telemetry sample made right after each command.
 
-        The sample holds what was sent, the delay estimates, the clocks; models that use
-        it override this.
+        The sample (:class:`~bipedtele.telemetry.LeaderSample`) holds what was sent, the
+        delay estimates, the clocks; models that use it override this.
         """
 
     @property
@@ -556,11 +557,11 @@ class PilotOperator(Operator):
         use = self.predicted[0] if self.predict == "now" else self.predicted[1]
         return np.array([use.x, use.y]), use.yaw
 
-    def observe_sample(self, sample: Mapping[str, Any]) -> None:
+    def observe_sample(self, sample: LeaderSample) -> None:
         """Feed the loop sample to the predictor (see the class docstring)."""
         if self.live is not None:
             fb = self._fb_seen
-            self.live.observe(dict(sample), fb.t if fb is not None else None)
+            self.live.observe(sample, fb.t if fb is not None else None)
 
     @property
     def done(self) -> bool:

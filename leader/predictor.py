@@ -36,6 +36,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from bipedtele.telemetry import LeaderSample
 
 __all__ = ["CommandLog", "DelayPredictor", "LivePredictor", "PredictedPose", "prediction_fields"]
 
@@ -290,22 +291,22 @@ class LivePredictor:
         self.h1_s: float | None = None
         self.last: tuple[PredictedPose, PredictedPose] | None = None
 
-    def observe(self, sample: dict[str, object], feedback_t: float | None) -> None:
+    def observe(self, sample: LeaderSample, feedback_t: float | None) -> None:
         """Take one loop sample (see the class docstring).
 
         ``feedback_t`` is the stamp ``Feedback.t`` [s] of the feedback the sample was
-        made with (None: none yet).
+        made with (None: none yet). Missing or non-finite values are skipped.
         """
-        t, t_dev = _num(sample.get("t")), _num(sample.get("t_device"))
+        t, t_dev = _num(sample.t), _num(sample.t_device)
         if t is None:
             return
         if t_dev is not None:
             self.dev_offset = t - t_dev
-        rv, rw = _num(sample.get("ref_v")), _num(sample.get("ref_w"))
-        enabled = sample.get("enable", True) is not False
+        rv, rw = _num(sample.ref_v), _num(sample.ref_w)
+        enabled = sample.enable is not False
         self.predictor.add_command(t, (rv or 0.0, rw or 0.0) if enabled else (0.0, 0.0))
-        age, h2 = _num(sample.get("feedback_age_ms")), _num(sample.get("h2_ms"))
-        h1 = _num(sample.get("h1_ms"))
+        age, h2 = _num(sample.feedback_age_ms), _num(sample.h2_ms)
+        h1 = _num(sample.h1_ms)
         if h1 is not None:
             self.h1_s = h1 / 1000.0
         if feedback_t is not None and age is not None and h2 is not None:

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from bipedtele.recording import RecordDecoder
+from bipedtele.telemetry import LeaderSample, sample_from_map
 from mcap.stream_reader import StreamReader
 
 __all__ = ["LiveStatus", "RecordingTail", "StatusPrinter", "format_status"]
@@ -132,16 +133,9 @@ class LiveStatus:
             elif event == "pass" and isinstance(d.get("n"), int):
                 self.passes = max(self.passes, int(d["n"]))
         elif topic == "leader/state":
-            h1, h2 = _num(d.get("h1_ms")), _num(d.get("h2_ms"))
-            if h1 is not None and h2 is not None:
-                self.delay_ms = h1 + h2
-            for key, attr in (("falls", "falls"), ("collisions", "contacts")):
-                n = _num(d.get(key))
-                if n is not None:
-                    setattr(self, attr, max(getattr(self, attr), int(n)))
-            done = _num(d.get("passes_done"))
-            if done is not None:
-                self.passes = max(self.passes, int(done))
+            sample = sample_from_map(d)
+            if sample is not None:
+                self._add_sample(sample)
         elif topic == "feedback/recv" and self.started:
             ref, eta = d.get("ref"), d.get("eta")
             if isinstance(ref, list) and isinstance(eta, list) and len(ref) >= 2 and len(eta) >= 2:
@@ -151,6 +145,17 @@ class LiveStatus:
                     s0, s1 = self._err_sum
                     self._err_sum = (s0 + abs(r0 - e0), s1 + abs(r1 - e1))
                     self._err_n += 1
+
+    def _add_sample(self, sample: LeaderSample) -> None:
+        h1, h2 = _num(sample.h1_ms), _num(sample.h2_ms)
+        if h1 is not None and h2 is not None:
+            self.delay_ms = h1 + h2
+        if sample.falls is not None:
+            self.falls = max(self.falls, sample.falls)
+        if sample.collisions is not None:
+            self.contacts = max(self.contacts, sample.collisions)
+        if sample.passes_done is not None:
+            self.passes = max(self.passes, sample.passes_done)
 
     @property
     def errors(self) -> tuple[float, float] | None:

@@ -59,6 +59,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from bipedtele.recording import Record, RecordingError, read_records
+from bipedtele.telemetry import LeaderSample, sample_from_map
 from bipedtele.tools.plots import require_matplotlib
 
 if TYPE_CHECKING:
@@ -164,6 +165,22 @@ def _positive_pair(h1: Any, h2: Any) -> tuple[float, float] | None:
     return a, b
 
 
+def _add_state(run: _Run, t: float, sample: LeaderSample) -> None:
+    """Fold one ``leader/state`` sample in: delay estimates, handle and fictitious forces."""
+    pair = _positive_pair(sample.h1_ms, sample.h2_ms)
+    if pair is not None:
+        run.state_delay_t.append(t)
+        run.state_delay.append((pair[0] / 1000.0, pair[1] / 1000.0))
+    fv, fw = _num(sample.force_v), _num(sample.force_w)
+    if fv is not None and fw is not None:
+        run.state_force_t.append(t)
+        run.state_force.append((fv, fw))
+    ft, fn = _num(sample.f_v_t), _num(sample.f_v_n)
+    if ft is not None and fn is not None:
+        run.state_fv_t.append(t)
+        run.state_fv.append((ft, fn))
+
+
 def _collect(records: Iterable[Record]) -> _Run:
     run = _Run()
     for rec in records:
@@ -229,20 +246,10 @@ def _collect(records: Iterable[Record]) -> _Run:
             if f is not None:
                 run.force_t.append(t)
                 run.force.append(f)
-        elif topic == "leader/state":  # the leader loop's cockpit sample (ms, N)
-            h1, h2 = _num(d.get("h1_ms")), _num(d.get("h2_ms"))
-            pair = _positive_pair(h1, h2)
-            if pair is not None:
-                run.state_delay_t.append(t)
-                run.state_delay.append((pair[0] / 1000.0, pair[1] / 1000.0))
-            fv, fw = _num(d.get("force_v")), _num(d.get("force_w"))
-            if fv is not None and fw is not None:
-                run.state_force_t.append(t)
-                run.state_force.append((fv, fw))
-            ft, fn = _num(d.get("f_v_t")), _num(d.get("f_v_n"))
-            if ft is not None and fn is not None:
-                run.state_fv_t.append(t)
-                run.state_fv.append((ft, fn))
+        elif topic == "leader/state":  # the leader loop's sample (ms, N)
+            sample = sample_from_map(d)
+            if sample is not None:
+                _add_state(run, t, sample)
         elif topic == "events":
             ev = d.get("event")
             if not isinstance(ev, str):

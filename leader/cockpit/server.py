@@ -80,6 +80,7 @@ from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 from bipedtele.drops import DropCounter
+from bipedtele.telemetry import LeaderSample, sample_to_json
 
 __all__ = ["LOCAL_HOSTS", "SAMPLE_KEYS", "CockpitServer"]
 
@@ -158,6 +159,13 @@ def _clean(value: Any) -> Any:
     if isinstance(value, Mapping):
         return {str(k): _clean(v) for k, v in list(value.items())[:64]}
     return str(value)[:200]
+
+
+def _sample_json(sample: LeaderSample | dict[str, Any]) -> str:
+    """Return one telemetry sample as JSON text (non-finite numbers as null)."""
+    if isinstance(sample, LeaderSample):
+        return sample_to_json(sample).decode()
+    return json.dumps({str(k): _clean(v) for k, v in sample.items()}, allow_nan=False)
 
 
 def _parse_joy(text: str) -> tuple[float, float]:
@@ -267,13 +275,13 @@ class CockpitServer:
         self.telemetry_hz = float(telemetry_hz)
         self._period = 1.0 / self.telemetry_hz
         # Latest values, written by publisher threads (single reference assignments).
-        self._sample: tuple[int, dict[str, Any]] | None = None
+        self._sample: tuple[int, LeaderSample | dict[str, Any]] | None = None
         self._sample_n = itertools.count(1)  # next() is atomic under the GIL
         self._frames: dict[str, tuple[int, float, bytes]] = {}
         self._frame_n = itertools.count(1)
         self._joy: tuple[float, float, float] | None = None
         # Server-thread state.
-        self._history: deque[tuple[int, dict[str, Any]]] = deque(
+        self._history: deque[tuple[int, str]] = deque(  # (number, sample as JSON text)
             maxlen=max(1, int(history_s * self.telemetry_hz))
         )
         self._clients: set[_Client] = set()
@@ -363,12 +371,19 @@ class CockpitServer:
 
     # ------------------------------------------------------------------ publishing
 
-    def publish_sample(self, sample: Mapping[str, Any]) -> None:
+    def publish_sample(self, sample: LeaderSample | Mapping[str, Any]) -> None:
         """Offer the latest telemetry sample (keys in :data:`SAMPLE_KEYS`; others as text).
 
         Cheap and non-blocking; only the newest sample per telemetry period is sent.
+
+        Parameters
+        ----------
+        sample : LeaderSample or Mapping
+            The leader's :class:`~bipedtele.telemetry.LeaderSample` (kept by reference:
+            the caller must not change it afterwards; its unset fields are not sent), or a
+            map (copied; values that are not JSON are sent as text).
         """
-        self._sample = (next(self._sample_n), dict(sample))
+        self._sample = (next(self._sample_n), sample if isinstance(sample, LeaderSample) else dict(sample))
 
     def publish_video(self, camera: str, jpeg: bytes, t: float) -> None:
         """Offer the latest JPEG of ``camera`` captured at ``t`` [s].
@@ -461,7 +476,7 @@ class CockpitServer:
             latest = self._sample
             if latest is not None and latest[0] != last:
                 last = latest[0]
-                self._history.append((last, {str(k): _clean(v) for k, v in latest[1].items()}))
+                self._history.append((last, _sample_json(latest[1])))
 
     # ------------------------------------------------------------------ access
 
@@ -637,9 +652,7 @@ class CockpitServer:
                     new = [s for n, s in self._history if n > client.last_sample]
                     if new:
                         client.last_sample = self._history[-1][0]
-                        await ws.send_str(
-                            json.dumps({"type": "samples", "samples": new}, allow_nan=False)
-                        )
+                        await ws.send_str('{"type":"samples","samples":[' + ",".join(new) + "]}")
                         self._counters["samples_pushed"] += len(new)
                 client.wake.clear()
                 for camera, (n, t, jpeg) in list(self._frames.items()):

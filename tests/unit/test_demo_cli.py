@@ -58,7 +58,7 @@ def test_status_line_format() -> None:
     assert format_status(st, 3.2) == "passes 0/10 | 3 s | h1+h2 - | falls 0 | contacts 0 | err -"
     st.add("events", {"event": "start"})
     st.add("events", {"event": "pass", "n": 3, "side": "left"})
-    st.add("leader/state", {"h1_ms": 160.4, "h2_ms": 211.9, "falls": 1, "collisions": 2})
+    st.add("leader/state", {"t": 1.0, "h1_ms": 160.4, "h2_ms": 211.9, "falls": 1, "collisions": 2})
     st.add("feedback/recv", {"ref": [8.0, 10.0], "eta": [7.0, 4.0]})
     st.add("feedback/recv", {"ref": [8.0, -10.0], "eta": [8.5, -12.0]})
     st.add("feedback/recv", {"ref": [8.0, None], "eta": [8.5, -12.0]})  # not a number: skipped

@@ -225,9 +225,11 @@ def test_commands_at_the_command_rate_with_ref_k_g_x_m():
     assert sent[-1].t - sent[-2].t == pytest.approx(0.01)
     # The handle went where the scripted hand pushed it (it yields to the force feedback).
     assert sent[-1].ref[0] > 2.0 and sent[-1].ref[1] < -2.0
-    assert loop.snapshot["ref_v"] == sent[-1].ref[0]
+    sample = loop.sample
+    assert sample is not None and sample.seq == sent[-1].seq and sample.t == sent[-1].t
+    assert sample.ref_v == sent[-1].ref[0] and sample.ref_w == sent[-1].ref[1]
     for key in ("t", "ref_v", "ref_w", "z_e_v", "force_v", "h1_ms", "h2_ms", "alpha_m_v", "state", "link"):
-        assert key in loop.snapshot
+        assert getattr(sample, key) is not None, key
 
 
 def test_operator_done_disables_the_command():

@@ -22,6 +22,7 @@ from bipedtele.leader.operators import (
     make_operator,
 )
 from bipedtele.messages import Command, Feedback
+from bipedtele.telemetry import LeaderSample
 
 K_G = [160.0, 200.0]
 ROBOT_RADIUS = 0.15  # m: NAO's half shoulder width
@@ -302,11 +303,11 @@ def test_predicting_pilot_cruises_fast_under_the_intercontinental_trace(scale: f
             t_recv, fb = got
         op.update(t, fb)
         robot.command(t, op.intended)
-        op.observe_sample({  # what the leader loop's sample carries after each command
-            "t": t, "t_device": t, "ref_v": op.intended[0], "ref_w": op.intended[1], "enable": True,
-            "h1_ms": 1e3 * robot.h1f(t), "h2_ms": 1e3 * robot.h2f(t),
-            "feedback_age_ms": None if fb is None else 1e3 * (t - t_recv),
-        })  # fmt: skip
+        op.observe_sample(LeaderSample(  # what the leader loop's sample carries after each command
+            t=t, t_device=t, ref_v=float(op.intended[0]), ref_w=float(op.intended[1]), enable=True,
+            h1_ms=1e3 * robot.h1f(t), h2_ms=1e3 * robot.h2f(t),
+            feedback_age_ms=None if fb is None else 1e3 * (t - t_recv),
+        ))  # fmt: skip
         robot.step(t, dt, course)
         robot.publish(t)
         turns.append(float(op.intended[1]))
