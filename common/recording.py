@@ -60,6 +60,7 @@ import msgpack
 import msgspec
 from bipedtele import __version__, schemas
 from bipedtele.messages import SCHEMA_VERSION, Message, VideoFrame, message_fields
+from bipedtele.telemetry import numpy_hook
 from mcap.exceptions import McapError
 from mcap.records import Channel, Metadata, Schema
 from mcap.records import Message as McapMessage
@@ -476,7 +477,7 @@ class Recorder:
             if isinstance(msg, Message):
                 obj: Any = msg
             elif isinstance(msg, msgspec.Struct):
-                obj = msg.__copy__()  # the leader's sample: a shallow copy (its values are scalars)
+                obj = msgspec.structs.replace(msg)  # the leader's sample: a shallow copy (scalars)
             elif msg.__class__ is dict and _SCALARS.issuperset(map(type, msg.values())):
                 obj = dict(msg)  # a flat map: one C-level copy
             elif dataclasses.is_dataclass(msg) and not isinstance(msg, type):
@@ -614,7 +615,7 @@ class Recorder:
     def _encode(self, topic: str, obj: Any) -> tuple[int, bytes]:
         """Return the channel and the JSON payload of one queued message (writer thread)."""
         if isinstance(obj, msgspec.Struct) and not isinstance(obj, Message):
-            obj = msgspec.to_builtins(obj)  # e.g. a LeaderSample: its map, None kept as null
+            obj = msgspec.to_builtins(obj, enc_hook=numpy_hook)  # e.g. a LeaderSample: its map
         if isinstance(obj, dict):
             data = obj
             if topic.startswith("video/") and "jpeg" in data and not self._keep_jpeg(topic):

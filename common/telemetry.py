@@ -19,7 +19,7 @@ from typing import Annotated, Any
 
 import msgspec
 
-__all__ = ["LeaderSample", "sample_from_map", "sample_to_json"]
+__all__ = ["LeaderSample", "numpy_hook", "sample_from_map", "sample_to_json"]
 
 
 def _d(text: str) -> msgspec.Meta:
@@ -155,7 +155,21 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     follower_text: Annotated[str | None, _d("follower status text")] = None
 
 
-_ENCODER = msgspec.json.Encoder()
+def numpy_hook(obj: Any) -> Any:
+    """Return a numpy scalar or array as plain Python values (msgspec's ``enc_hook``).
+
+    Raises
+    ------
+    NotImplementedError
+        ``obj`` is something else (msgspec then reports it as unsupported).
+    """
+    tolist = getattr(obj, "tolist", None)
+    if tolist is None:
+        raise NotImplementedError(f"cannot encode a {type(obj).__name__}")
+    return tolist()
+
+
+_ENCODER = msgspec.json.Encoder(enc_hook=numpy_hook)
 
 
 def sample_to_json(sample: LeaderSample) -> bytes:
@@ -169,7 +183,8 @@ def sample_to_json(sample: LeaderSample) -> bytes:
     Returns
     -------
     bytes
-        UTF-8 JSON, every field present (None as ``null``).
+        UTF-8 JSON; fields left at None are left out (as the keys a sample lacks),
+        numpy numbers are written as plain numbers.
     """
     return _ENCODER.encode(sample)
 

@@ -11,6 +11,7 @@ import pytest
 from bipedtele.cli import main
 from bipedtele.messages import Command, Feedback, Status
 from bipedtele.recording import Recorder, read_records
+from bipedtele.telemetry import LeaderSample
 from bipedtele.tools.report import REPORT_KEYS, compute_report, fictitious_intervals, plot_report
 
 
@@ -82,15 +83,19 @@ def test_window_without_task_events_uses_commands(tmp_path: Path) -> None:
     assert report["passes"] is None  # no task events: a follower's file
 
 
-def test_leader_state_records_and_short_event_names(tmp_path: Path) -> None:
-    """The leader program records its cockpit sample on ``leader/state`` and ``start``/``done``."""
+@pytest.mark.parametrize("typed", [True, False], ids=["LeaderSample", "map"])
+def test_leader_state_records_and_short_event_names(tmp_path: Path, typed: bool) -> None:
+    """The leader program records its sample on ``leader/state`` and ``start``/``done``.
+
+    The program writes a :class:`LeaderSample`; an older file holds the same keys as a map."""
     path = tmp_path / "leader.mcap"
     with Recorder(path) as rec:
         rec.write("events", {"event": "start", "operator": "pilot"}, 50.0)
         for k, (h1, h2) in enumerate(((None, None), (120.0, 130.0), (100.0, 200.0))):
             t = 50.0 + k
             rec.write("cmd/sent", Command(seq=k, t=t, ref=[3.0, 0.0]), t)
-            rec.write("leader/state", {"t": t, "h1_ms": h1, "h2_ms": h2, "force_v": 0.1, "force_w": 0.0}, t)
+            state = {"t": t, "h1_ms": h1, "h2_ms": h2, "force_v": 0.1, "force_w": 0.0}
+            rec.write("leader/state", LeaderSample(**state) if typed else state, t)
             rec.write("feedback/recv", Feedback(t=t - 0.1, ref=[3.0, 1.0], eta=[2.0, 1.0]), t)
         rec.write("events", {"event": "done", "elapsed_s": 2.5}, 52.5)
     records = list(read_records(path))
