@@ -26,6 +26,7 @@ from bipedtele.control.online import solve_exact
 from bipedtele.delaymodels import parse_delay_model
 from bipedtele.leader.operators import course_from_config, make_operator
 from bipedtele.messages import Feedback
+from bipedtele.telemetry import LeaderSample
 
 
 class ReferenceModelRobot:
@@ -97,11 +98,11 @@ def run(model: str, scale: float) -> dict[str, float]:
             t_recv, fb = got
         op.update(t, fb)
         robot.command(t, op.intended)
-        op.observe_sample({
-            "t": t, "t_device": t, "ref_v": op.intended[0], "ref_w": op.intended[1], "enable": True,
-            "h1_ms": 1e3 * robot.h1f(t), "h2_ms": 1e3 * robot.h2f(t),
-            "feedback_age_ms": None if fb is None else 1e3 * (t - t_recv),
-        })  # fmt: skip
+        op.observe_sample(LeaderSample(
+            t=t, t_device=t, ref_v=float(op.intended[0]), ref_w=float(op.intended[1]), enable=True,
+            h1_ms=1e3 * robot.h1f(t), h2_ms=1e3 * robot.h2f(t),
+            feedback_age_ms=None if fb is None else 1e3 * (t - t_recv),
+        ))  # fmt: skip
         robot.step(t, dt, course)
         robot.publish(t)
         t += dt

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from bipedtele.telemetry import LeaderSample
 
-__all__ = ["CommandLog", "DelayPredictor", "LivePredictor", "PredictedPose", "prediction_fields"]
+__all__ = ["CommandLog", "DelayPredictor", "LivePredictor", "PredictedPose"]
 
 
 @dataclass(frozen=True)
@@ -365,19 +365,3 @@ def _first_order(a: float, s0: np.ndarray, ref: np.ndarray) -> np.ndarray:
         s = a * s + (1.0 - a) * ref[i]
         out[i] = s
     return out
-
-
-def prediction_fields(pred: tuple[PredictedPose, PredictedPose] | None) -> dict[str, float]:
-    """Return the telemetry fields of a prediction (empty for None).
-
-    ``pred_x``, ``pred_y`` [m], ``pred_yaw`` [rad] (the present) and ``ahead_x``,
-    ``ahead_y``, ``ahead_yaw``, ``ahead_dt`` [s] (the pose h1 later, and how far ahead of
-    the present it is).
-    """
-    if pred is None:
-        return {}
-    now, ahead = pred
-    return {
-        "pred_x": now.x, "pred_y": now.y, "pred_yaw": now.yaw,
-        "ahead_x": ahead.x, "ahead_y": ahead.y, "ahead_yaw": ahead.yaw, "ahead_dt": ahead.t - now.t,
-    }  # fmt: skip
