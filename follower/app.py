@@ -27,6 +27,7 @@ from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
 from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.realtime import RealtimeStepper
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot
 from bipedtele.follower.robots import robot_names, robot_spec
 from bipedtele.follower.supervisor import RobotSupervisor
@@ -209,18 +210,25 @@ class FollowerApp:
         n_sub = max(1, math.ceil(self.dt / step_s - 1e-9)) if step_s else 1
         sub_dt = self.dt / n_sub
         self.pacer = pacer = Pacer(sub_dt, clock=time.monotonic)
+        stepper = RealtimeStepper(pacer, n_sub)
         start_t = self.clock()
-        while not self.node.stopping:
+
+        def tick() -> None:
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)
-            for _ in range(n_sub):
-                supervisor.advance(sub_dt)
-                while not pacer.wait() and not self.node.stopping:
-                    if robot.is_connected:
-                        loop.pickup()
-            if self._over(start_t):
-                break
+
+        def pickup() -> None:
+            if robot.is_connected:
+                loop.pickup()
+
+        stepper.run(
+            tick, lambda: supervisor.advance(sub_dt), pickup,
+            lambda: self.node.stopping or self._over(start_t),
+        )  # fmt: skip
+        if stepper.caught_up_steps or stepper.dropped_steps:
+            LOG.info("real time: %d steps caught up after overruns, %d given up (lag over %.2f s)",
+                     stepper.caught_up_steps, stepper.dropped_steps, stepper.max_lag_steps * sub_dt)  # fmt: skip
 
 
 def main(
