@@ -22,6 +22,7 @@ import contextlib
 import ctypes
 import ctypes.util
 import logging
+import math
 import os
 import sys
 import threading
@@ -94,6 +95,10 @@ class Pacer:
     def deadline(self) -> float:
         """Next deadline on the grid [s, clock time]."""
         return self.start + (self.k + 1) * self.period_s
+
+    def passed(self) -> int:
+        """Return how many grid deadlines have passed since :attr:`start` (the clock's now)."""
+        return math.floor((self.clock() - self.start) / self.period_s)
 
     @property
     def stopped(self) -> bool:

@@ -73,8 +73,7 @@ class RealtimeStepper:
             for _ in range(self.steps_per_tick):
                 advance()
                 self.steps += 1
-                due = math.floor((pacer.clock() - pacer.start) / pacer.period_s)  # deadlines passed
-                lag = due - base - self.steps
+                lag = pacer.passed() - base - self.steps
                 if lag >= 0:  # this step's deadline passed while stepping: no wait, next step now
                     if lag > self.max_lag_steps:
                         self.dropped_steps += lag - self.max_lag_steps

@@ -54,27 +54,27 @@ def test_robot_time_keeps_up_with_the_wall_clock_when_frames_overrun_steps() -> 
     def cost(n: int) -> float:
         return 0.010 if n % 12 == 0 else 0.0005  # a render every 12 steps (2 cameras, 10 fps)
 
-    stepper, wall, ticks = _run(cost, 20.0)
+    stepper, grid_time, ticks = _run(cost, 20.0)  # time on the fake clock, not wall-clock speed
     robot_time = stepper.steps * STEP
-    assert robot_time == pytest.approx(wall, abs=3 * STEP), (robot_time, wall)
+    assert robot_time == pytest.approx(grid_time, abs=3 * STEP), (robot_time, grid_time)
     assert stepper.caught_up_steps > 0 and stepper.dropped_steps == 0
     assert ticks == pytest.approx(stepper.steps / 5, abs=1)  # a control tick every 5 steps
 
 
 def test_without_overruns_every_step_waits_for_its_deadline() -> None:
-    stepper, wall, _ = _run(lambda n: 0.0005, 5.0)
-    assert stepper.steps * STEP == pytest.approx(wall, abs=2 * STEP)
+    stepper, grid_time, _ = _run(lambda n: 0.0005, 5.0)
+    assert stepper.steps * STEP == pytest.approx(grid_time, abs=2 * STEP)
     assert stepper.caught_up_steps == 0 and stepper.dropped_steps == 0
 
 
 def test_a_robot_slower_than_real_time_gives_up_the_lag_beyond_the_bound() -> None:
     """Every step costs twice its own time: the stepper never waits, keeps at most
     ``max_lag_s`` of lag, and counts the steps it gave up."""
-    stepper, wall, _ = _run(lambda n: 2 * STEP, 10.0, max_lag_s=0.25)
+    stepper, grid_time, _ = _run(lambda n: 2 * STEP, 10.0, max_lag_s=0.25)
     assert stepper.dropped_steps > 0
-    lag = wall - stepper.steps * STEP - stepper.dropped_steps * STEP
+    lag = grid_time - stepper.steps * STEP - stepper.dropped_steps * STEP
     assert lag <= 0.25 + 2 * STEP
-    assert stepper.steps * STEP == pytest.approx(wall / 2, rel=0.01)
+    assert stepper.steps * STEP == pytest.approx(grid_time / 2, rel=0.01)
 
 
 def test_steps_per_tick_must_be_positive() -> None:
