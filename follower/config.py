@@ -25,6 +25,11 @@ class FollowerConfig:
     max_cmd_age_s: float = param(
         1.5, lo=0.05, hi=30.0, unit="s", doc="commands older than this (sender time) are dropped; above the worst delay"
     )
+    backlog_window_s: float = param(
+        10.0, lo=1.0, hi=120.0, unit="s",
+        doc="baseline delay = minimum h1 of the commands applied over this window; a command delayed more than "
+        "watchdog_s beyond it is an outage's backlog and dropped (cmd_backlog)",
+    )
     param_update_s: float = param(
         0.005, lo=0.0, hi=1.0, unit="s", doc="recompute (40) and (30) when h1 or h2 moved by more than this"
     )

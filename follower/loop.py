@@ -22,8 +22,14 @@ touchdown on the loop clock [s], ``pose`` [m, m, rad], ``step_s`` the step that 
 and ``ref`` the mean reference applied over the ticks since the previous footfall
 [cm/s, deg/s]. The report turns consecutive footfalls into the odometry speed error.
 
-Safety: with no new command for ``watchdog_s`` (local receive time) or ``enable`` false,
-the robot stops and stands. A fall (torso tilt) stops it, is counted (every fall) and
+Safety: with no new command for ``watchdog_s`` (local receive time) the robot stops and
+stands (``watchdog_stops``, event ``watchdog_stop``); a command with ``enable`` false, the
+operator releasing, stops it as a normal end (``operator_stops``, event ``operator_stop``).
+No outage's backlog reaches the robot: a command delayed more than ``watchdog_s`` beyond
+the path's baseline delay (the minimum h1 of the commands applied over the last
+``backlog_window_s``, :class:`~bipedtele.follower.backlog.DelayBaseline`) is dropped
+(``cmd_backlog``), and one sent before the command applied last (same leader session) is
+dropped too (``cmd_reordered``): after an outage walking resumes on fresh commands only. A fall (torso tilt) stops it, is counted (every fall) and
 **latches**: the robot walks again only after the operator re-arms (a command with
 ``enable`` false, then true) once it stands again. A command stamped ahead of the local
 clock by more than ``max_future_s`` is ignored and counted (``cmd_future``); every delay
@@ -62,6 +68,7 @@ from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.drops import DropCounter
+from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
@@ -207,7 +214,10 @@ class FollowerLoop:
         self.counters: dict[str, int] = {
             "cmd_accepted": 0, "cmd_too_old": 0, "cmd_future": 0, "watchdog_stops": 0, "falls": 0,
             "collisions": 0, "robot_faults": 0, "walk_refused": 0, "leader_sessions": 0, "resets": 0,
+            "operator_stops": 0, "cmd_backlog": 0, "cmd_reordered": 0,
         }
+        self.baseline = DelayBaseline(window_s=cfg.backlog_window_s, relearn_s=cfg.backlog_window_s)
+        self._next_backlog_log = -math.inf
         self._cmd: Command | None = None
         self._cmd_recv = -math.inf
         self._period: _PeriodStart | None = None
@@ -278,6 +288,29 @@ class FollowerLoop:
         if now - t_sent > self.cfg.max_cmd_age_s:
             self.counters["cmd_too_old"] += 1
             return False
+        delay = max(0.0, t_recv - t_sent)
+        base = self.baseline.value(now)
+        if base is not None and delay > base + self.cfg.watchdog_s:
+            # Queued in the path (an outage's backlog): older than the watchdog beyond
+            # the path's usual delay. Walking resumes on fresh commands only.
+            self.counters["cmd_backlog"] += 1
+            if self.baseline.dropped(now, delay):
+                LOG.warning("every command for %.0f s came %.2f s or more late: the path's delay changed, "
+                            "baseline now %.3f s", self.baseline.relearn_s, delay, self.baseline.value(now))  # fmt: skip
+            elif now >= self._next_backlog_log:
+                self._next_backlog_log = now + 5.0
+                LOG.warning(
+                    "dropping a command queued in the path: delay %.3f s, baseline %.3f s, watchdog %.2f s (%d so far)",
+                    delay, base, self.cfg.watchdog_s, self.counters["cmd_backlog"],
+                )
+            return False
+        last = self._cmd
+        if last is not None and msg.sid == last.sid and msg.t < last.t:
+            # Never apply a command sent before one already applied (the gate orders by
+            # seq; this holds whatever the sender's seq and clock did).
+            self.counters["cmd_reordered"] += 1
+            return False
+        self.baseline.accepted(now, delay)
         self._cmd = msg
         self._cmd_recv = t_recv
         self.counters["cmd_accepted"] += 1
@@ -438,10 +471,17 @@ class FollowerLoop:
         else:
             if self._walking_cmd or self._stop_pending:
                 if self._walking_cmd:
-                    self.counters["watchdog_stops"] += 1
-                    why = "operator released" if self._cmd is not None and not self._cmd.enable else "no fresh command"
-                    LOG.warning("stopping: %s", why)
-                    self._on_event("watchdog_stop", {"t": now, "why": why})
+                    released = (
+                        self._cmd is not None and not self._cmd.enable and now - self._cmd_recv <= self.cfg.watchdog_s
+                    )
+                    if released:  # a normal end: the operator let go
+                        self.counters["operator_stops"] += 1
+                        LOG.info("stopping: operator released")
+                        self._on_event("operator_stop", {"t": now, "why": "operator released"})
+                    else:
+                        self.counters["watchdog_stops"] += 1
+                        LOG.warning("stopping: no fresh command")
+                        self._on_event("watchdog_stop", {"t": now, "why": "no fresh command"})
                 self._walking_cmd = self._stop_pending = False
                 self.robot.stop()
             self.reference.reset(z_r=self.reference.z_r)

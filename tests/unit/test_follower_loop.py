@@ -98,6 +98,10 @@ def test_released_device_stops_the_robot() -> None:
         h.robot.advance(h.loop.dt)
         h.t += h.loop.dt
     assert h.robot.stopping and h.loop.telemetry.state in ("stopping", "standing")
+    # a normal end, not a watchdog stop (issue 19)
+    assert h.loop.counters["operator_stops"] == 1 and h.loop.counters["watchdog_stops"] == 0
+    assert [e for e, _ in h.events] == ["operator_stop"]
+    assert h.loop.status(h.t).counters["operator_stops"] == 1
 
 
 def test_commands_older_than_the_age_limit_are_dropped() -> None:
@@ -475,4 +479,99 @@ def test_a_release_picked_up_between_ticks_stops_the_robot_at_once() -> None:
     h.command(0.0, 0.0, enable=False)
     assert h.loop.pickup() is True
     assert h.robot.stops >= 1 and h.loop.telemetry.state in ("stopping", "standing")
-    assert h.loop.counters["watchdog_stops"] == 1
+    assert h.loop.counters["operator_stops"] == 1 and h.loop.counters["watchdog_stops"] == 0
+
+
+# ---------------------------------------------------------------- an outage's backlog (issue 19)
+
+
+def _drive(h: Harness, until: float, applied: list[int]) -> None:
+    """Tick every period and pick up every arrival at its own time (event-driven) until ``until``."""
+    arrivals = sorted({ta for ta, _ in h.sent if h.t < ta < until})
+    next_tick = h.t
+    for ta in [*arrivals, until]:
+        while next_tick <= ta:
+            h.t = next_tick
+            h.loop.tick()
+            if h.loop._cmd is not None and (not applied or applied[-1] != h.loop._cmd.seq):
+                applied.append(h.loop._cmd.seq)
+            h.robot.advance(h.loop.dt)
+            next_tick += h.loop.dt
+        if ta < until:
+            h.t = ta
+            if h.loop.pickup():
+                assert h.loop._cmd is not None
+                applied.append(h.loop._cmd.seq)
+    h.t = until
+
+
+def test_the_backlog_of_an_outage_never_reaches_the_robot_walking_resumes_on_fresh_commands() -> None:
+    """Steady commands 180 ms late, a 3 s outage, then the queued commands in a burst (0.7-3.2 s
+    beyond the usual delay, all in sequence order, the youngest within ``max_cmd_age_s``),
+    then fresh ones: none of the burst is applied, walking resumes on the first fresh one."""
+    h = Harness(KinematicRobot(), h1=0.18)
+    base = 0.18
+    applied: list[int] = []
+    t_out = h.t + 10.0
+    t = h.t
+    while t < t_out:  # steady: a command every 10 ms, 180 ms on the way
+        h.command(5.0, 0.0, sent_at=t)
+        t += 0.01
+    # the outage: commands sent over 2.5 s are queued in the path, the rest of it lost
+    burst_at = t_out + 3.17 + base
+    burst: list[int] = []
+    while t < t_out + 2.5:
+        h.seq += 1
+        burst.append(h.seq)
+        h.sent.append((burst_at + 0.0002 * len(burst), Command(sid=7, seq=h.seq, t=t, ref=[5.0, 0.0], h2_s=0.2)))
+        t += 0.01
+    ages = [ta - c.t - base for ta, c in h.sent if c.seq in burst]
+    assert min(ages) == pytest.approx(0.7, abs=0.05) and max(ages) == pytest.approx(3.2, abs=0.05)
+    fresh_from = burst_at + 0.1
+    first_fresh = h.seq + 1
+    t = fresh_from - base
+    while t < fresh_from + 5.0:
+        h.command(5.0, 0.0, sent_at=t)
+        t += 0.01
+
+    _drive(h, t_out + 1.0, applied)
+    assert h.loop.counters["watchdog_stops"] == 1 and h.loop.telemetry.state in ("stopping", "standing")
+    n_walks = len(h.robot.sent)
+    _drive(h, fresh_from - 0.001, applied)  # the burst has come and gone
+    c = h.loop.counters
+    assert not set(applied) & set(burst), "a command of the outage's backlog reached the robot"
+    assert c["cmd_backlog"] > 0 and c["cmd_backlog"] + c["cmd_too_old"] == len(burst), c
+    assert len(h.robot.sent) == n_walks, "the robot was sent a walk from the backlog"
+    assert h.loop.telemetry.state == "standing"
+    _drive(h, fresh_from + 0.0001, applied)  # the first fresh command, picked up
+    assert applied[-1] == first_fresh and h.loop.telemetry.state == "walking"
+    _drive(h, fresh_from + 5.0, applied)
+    assert h.robot.v > 0.03 and h.loop.telemetry.state == "walking"
+    assert c["watchdog_stops"] == 1 and c["operator_stops"] == 0 and c["cmd_reordered"] == 0
+    st = h.loop.status(h.t).counters
+    assert st["cmd_backlog"] == c["cmd_backlog"] and st["operator_stops"] == 0
+
+
+def test_a_lasting_change_of_the_path_delay_is_learned_after_the_backlog_window() -> None:
+    """The path's delay jumps from 0.18 to 0.9 s and stays: dropped as backlog for
+    ``backlog_window_s``, then the baseline is learned again and the robot walks."""
+    h = Harness(KinematicRobot(), h1=0.18, follower__backlog_window_s="5.0")
+    h.run(6.0, v=5.0)
+    h.h1 = 0.9
+    h.run(4.0, v=5.0)
+    assert h.loop.counters["cmd_backlog"] > 100 and h.loop.telemetry.state == "standing"
+    h.run(4.0, v=5.0)
+    assert h.loop.baseline.relearned == 1
+    assert h.loop.baseline.value(h.t) == pytest.approx(0.9, abs=0.02)
+    assert h.loop.telemetry.state == "walking" and h.robot.v > 0.01
+
+
+def test_a_command_sent_before_the_one_applied_is_never_applied() -> None:
+    h = Harness(KinematicRobot())
+    h.run(3.0, v=5.0)
+    last = h.loop._cmd
+    assert last is not None
+    h.seq += 1
+    h.sent.append((h.t, Command(sid=7, seq=h.seq, t=last.t - 0.05, ref=[-5.0, 0.0])))
+    assert h.loop.pickup() is False
+    assert h.loop.counters["cmd_reordered"] == 1 and h.loop._cmd is last
