@@ -321,6 +321,18 @@ class EmulatedLink:
         LOG.info("netns: %s (%s) <-> link-emu in %s <-> %s (%s)", self.ns[SIDE_A], self.a_ip, self.ns[MIDDLE], self.ns[SIDE_B], self.b_ip)
         return self
 
+    def pin_neighbours(self) -> None:
+        """Make A's and B's ARP entries for each other permanent (no ARP crosses a lossy wire)."""
+        mac = {}
+        for side in (SIDE_A, SIDE_B):
+            out = _run(["ip", "-n", self.ns[side], "-o", "link", "show", "dev", self.dev[side]]).stdout.split()
+            mac[side] = out[out.index("link/ether") + 1]
+        for side, other in ((SIDE_A, SIDE_B), (SIDE_B, SIDE_A)):
+            self._step([
+                "ip", "-n", self.ns[side], "neigh", "replace", self.ip(other), "lladdr", mac[other],
+                "dev", self.dev[side], "nud", "permanent",
+            ])  # fmt: skip
+
     def add_host(self, side: str, ip: str) -> str:
         """Put a new namespace behind side A or B, on a bridge in that side's namespace.
 
