@@ -11,7 +11,11 @@ nothing bypasses the delay.
 kernel: two network namespaces joined by a veth pair, the leader in one, the follower and
 the router in the other, h1 as netem on the leader's end and h2 on the follower's, a trace
 replayed by ``tc qdisc change`` at its own sample rate (:mod:`bipedtele.tools.netem_trace`);
-the namespaces go on exit, also on Ctrl-C. ``auto`` takes netem where it can and the
+the namespaces go on exit, also on Ctrl-C. ``--delay-backend packet`` (root, no netem
+needed) puts the per-packet link emulator (``bipedtele link-emu``, docs/linkemu.md) between
+a leader namespace and a router + follower namespace (:class:`EmulatedLink`): h1 forward,
+h2 backward, plus ``--loss``, ``--rate-up``/``--rate-down`` and ``--outage`` if given; its
+counters land in ``RUN_DIR/linkemu.json``. ``auto`` takes netem where it can and the
 proxy otherwise, and says which. ``--dry-run`` prints the plan (the processes, and for
 netem every ``ip``/``tc`` command with its time) and starts nothing. The demo prints the cockpit URL, waits for the operator to
 finish the task (or ``--duration``), stops every process cleanly (SIGTERM, then SIGKILL
@@ -52,18 +56,29 @@ from bipedtele.delaymodels import (
     UniformDelay,
     parse_delay_model,
 )
+from bipedtele.impairments import parse_loss, parse_outage, parse_rate
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.tools.demostatus import StatusPrinter
 from bipedtele.tools.netem import netem_available
 from bipedtele.tools.netem_trace import NetemReplayer, schedule
-from bipedtele.tools.netns import FOLLOWER, LEADER, CockpitRelay, NetnsError, VethLink
+from bipedtele.tools.netns import (
+    FOLLOWER,
+    LEADER,
+    MIDDLE,
+    SIDE_A,
+    SIDE_B,
+    CockpitRelay,
+    EmulatedLink,
+    NetnsError,
+    VethLink,
+)
 
 __all__ = ["DemoPlan", "add_demo_parser", "parse_delay_scale", "run_demo", "scale_delay_spec"]
 
 LOG = logging.getLogger(__name__)
 
 DEFAULT_DELAY = ("trace:intercontinental:h1", "trace:intercontinental:h2")
-BACKENDS = ("proxy", "netem", "auto")
+BACKENDS = ("proxy", "netem", "packet", "auto")
 #: The leader reads its cockpit token from this variable (see docs/cockpit.md).
 COCKPIT_TOKEN_ENV = "BIPEDTELE_COCKPIT_TOKEN"
 
@@ -103,7 +118,16 @@ class DemoPlan:
     backend: str = "proxy"
     #: The cockpit's per-run access token (given to the leader in its environment).
     cockpit_token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
-    link: VethLink | None = None
+    link: VethLink | EmulatedLink | None = None
+    #: Impairment arguments of ``link-emu`` besides the delays (packet backend).
+    impairments: list[str] = field(default_factory=list)
+
+    def emulator_args(self) -> list[str]:
+        """Return the ``link-emu`` arguments of the packet backend (forward = leader -> follower)."""
+        return [
+            "--forward", self.forward, "--backward", self.backward, "--t0", f"{self.t0:.6f}",
+            "--stats-json", str(self.run_dir / "linkemu.json"), *self.impairments,
+        ]  # fmt: skip
 
     def commands(self) -> dict[str, list[str]]:
         """Return the command lines of the processes, in start order.
@@ -115,11 +139,17 @@ class DemoPlan:
         for item in self.overrides:
             common += ["--set", item]
         if self.backend == "netem":
-            if self.link is None:
+            if not isinstance(self.link, VethLink):
                 raise ValueError("the netem backend needs a VethLink")
             router_ep = f"tcp/{self.link.follower_ip}:{self.router_port}"
             leader_ep = router_ep  # across the veth pair
             in_l, in_f = self.link.exec_prefix(LEADER), self.link.exec_prefix(FOLLOWER)
+        elif self.backend == "packet":
+            if not isinstance(self.link, EmulatedLink):
+                raise ValueError("the packet backend needs an EmulatedLink")
+            router_ep = f"tcp/{self.link.b_ip}:{self.router_port}"
+            leader_ep = router_ep  # across the emulated wire
+            in_l, in_f = self.link.exec_prefix(SIDE_A), self.link.exec_prefix(SIDE_B)
         else:
             router_ep = f"tcp/127.0.0.1:{self.router_port}"
             leader_ep = f"tcp/127.0.0.1:{self.proxy_port}"
@@ -135,7 +165,7 @@ class DemoPlan:
         if self.duration_s is not None:
             leader += ["--duration", f"{self.duration_s:g}"]
         out = {"router": [*in_f, *exe, "router", *common, "--listen", router_ep]}
-        if self.backend != "netem":
+        if self.backend == "proxy":
             out["proxy"] = [
                 *exe, "delay-proxy", "--listen", f"127.0.0.1:{self.proxy_port}",
                 "--target", f"127.0.0.1:{self.router_port}",
@@ -160,7 +190,7 @@ class DemoPlan:
         t_end : float
             How far to list the trace replay [s].
         """
-        if self.link is None:
+        if not isinstance(self.link, VethLink):
             raise ValueError("the netem backend needs a VethLink")
         link = self.link
         lines = [
@@ -178,6 +208,24 @@ class DemoPlan:
             *(" ".join(c) for c in link.teardown_commands()),
         ]
         return lines
+
+    def packet_plan(self) -> list[str]:
+        """Return the packet backend's setup, emulator and teardown commands as text lines."""
+        if not isinstance(self.link, EmulatedLink):
+            raise ValueError("the packet backend needs an EmulatedLink")
+        link = self.link
+        emu = [*link.exec_prefix(MIDDLE), sys.executable, "-m", "bipedtele.tools.linkemu",
+               "--a", link.dev["ma"], "--b", link.dev["mb"], *self.emulator_args()]  # fmt: skip
+        return [
+            f"# packet backend: leader in {link.ns[SIDE_A]} ({link.a_ip}), follower and router in "
+            f"{link.ns[SIDE_B]} ({link.b_ip}), link-emu in {link.ns[MIDDLE]}",
+            "# setup (the ethtool steps run as ioctls)",
+            *(" ".join(c) for c in link.setup_commands()),
+            "# emulator (forward = leader -> follower = h1, backward = h2)",
+            shlex.join(emu),
+            "# teardown (after stopping the processes inside the namespaces)",
+            *(" ".join(c) for c in link.teardown_commands()),
+        ]
 
 
 @dataclass
@@ -250,6 +298,16 @@ def run_demo(
                 return 1
             if not plan.headless:
                 network.enter_context(CockpitRelay(plan.link, plan.cockpit_port))
+        elif plan.backend == "packet" and isinstance(plan.link, EmulatedLink):
+            plan.link.emulator_args = plan.emulator_args()
+            plan.link.log_path = plan.run_dir / "linkemu.log"
+            try:
+                network.enter_context(plan.link)
+            except NetnsError as exc:
+                sys.stderr.write(f"bipedtele demo: packet backend: {exc}\n")
+                return 1
+            if not plan.headless:
+                network.enter_context(CockpitRelay(plan.link, plan.cockpit_port, side=SIDE_A))
         procs = network.enter_context(_processes(plan))
         if not plan.headless:
             _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/?token={plan.cockpit_token}")
@@ -353,14 +411,39 @@ def _backend(requested: str, dry_run: bool) -> str:
     if requested == "netem" and not dry_run:
         ok, why = _netem_usable()
         if not ok:
-            raise ConfigError(f"--delay-backend netem: {why}; allowed here: proxy, or auto")
+            raise ConfigError(f"--delay-backend netem: {why}; allowed here: proxy, or auto (or packet, as root)")
+    if requested == "packet" and not dry_run and os.geteuid() != 0:
+        raise ConfigError("--delay-backend packet: network namespaces and raw sockets need root; allowed here: proxy, or auto")
     return requested
+
+
+def _impairments(args: argparse.Namespace, backend: str) -> list[str]:
+    """Return the ``link-emu`` arguments of ``--loss``, ``--rate-up/down``, ``--outage`` (checked)."""
+    given = [f for f, v in (("--loss", args.loss), ("--rate-up", args.rate_up), ("--rate-down", args.rate_down),
+                            ("--outage", args.outage)) if v]  # fmt: skip
+    if given and backend != "packet":
+        raise ConfigError(f"{given[0]}: allowed only with --delay-backend packet (the delay {backend} carries no loss, rate or outage)")
+    out: list[str] = []
+    if args.loss:
+        parse_loss(args.loss)
+        out += ["--loss-forward", args.loss, "--loss-backward", args.loss]
+    for value, name in ((args.rate_up, "forward"), (args.rate_down, "backward")):
+        if value:
+            parse_rate(value)
+            out += [f"--rate-{name}", value]
+    for spec in args.outage:
+        parse_outage(spec)
+        out += ["--outage-forward", spec, "--outage-backward", spec]
+    return out
 
 
 def _dry_run(plan: DemoPlan) -> int:
     """Print what the demo would start and, for netem, every ``ip``/``tc`` command."""
     for name, cmd in plan.commands().items():
         _say(f"# process {name}: {shlex.join(cmd)}")
+    if plan.backend == "packet":
+        for line in plan.packet_plan():
+            _say(line)
     if plan.backend == "netem":
         forward, backward = parse_delay_model(plan.forward), parse_delay_model(plan.backward)
         traces = [m for m in (forward, backward) if isinstance(m, TraceDelay)]
@@ -392,6 +475,12 @@ def _run(args: argparse.Namespace) -> int:
         backward = scale_delay_spec(backward, scale, run_dir, "backward")
     record = Path(args.record) if args.record else run_dir / "leader.mcap"
     backend = _backend(args.delay_backend, args.dry_run)
+    impairments = _impairments(args, backend)
+    link: VethLink | EmulatedLink | None = None
+    if backend == "netem":
+        link = VethLink()
+    elif backend == "packet":
+        link = EmulatedLink()
     plan = DemoPlan(
         run_dir=run_dir,
         profile=args.config,
@@ -403,7 +492,8 @@ def _run(args: argparse.Namespace) -> int:
         headless=args.headless,
         record=record,
         backend=backend,
-        link=VethLink() if backend == "netem" else None,
+        link=link,
+        impairments=impairments,
     )
     if args.dry_run:
         return _dry_run(plan)
@@ -429,8 +519,13 @@ def add_demo_parser(sub: Any) -> None:
     p.add_argument(
         "--delay-backend", default="proxy", choices=BACKENDS,
         help="proxy (user space, default), netem (root, kernel sch_netem: two namespaces and a "
-        "veth pair) or auto (netem where available, else the proxy)",
+        "veth pair), packet (root: the per-packet link emulator between two namespaces, see "
+        "docs/linkemu.md) or auto (netem where available, else the proxy)",
     )  # fmt: skip
+    p.add_argument("--loss", default=None, metavar="SPEC", help="packet backend: loss each way (1%%, ge:p=1%%,r=30%%)")
+    p.add_argument("--rate-up", default=None, metavar="RATE", help="packet backend: leader -> follower rate cap (e.g. 2mbit)")
+    p.add_argument("--rate-down", default=None, metavar="RATE", help="packet backend: follower -> leader rate cap (e.g. 8mbit)")
+    p.add_argument("--outage", action="append", default=[], metavar="SPEC", help="packet backend: outage both ways, at=30s,for=3s[,every=60s] (repeatable)")
     p.add_argument(
         "--delay-scale", default="1", metavar="K",
         help="multiply every delay of the chosen models by K (0 to 10; e.g. 2: the trace with its delays doubled)",

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
-__all__ = ["FOLLOWER", "LEADER", "SIDE_A", "SIDE_B", "CockpitRelay", "EmulatedLink", "NetnsError", "VethLink"]
+__all__ = ["FOLLOWER", "LEADER", "MIDDLE", "SIDE_A", "SIDE_B", "CockpitRelay", "EmulatedLink", "NetnsError", "VethLink"]
 
 LOG = logging.getLogger(__name__)
 
@@ -489,14 +489,16 @@ class CockpitRelay:
 
     Parameters
     ----------
-    link : VethLink
+    link : VethLink or EmulatedLink
         Created namespaces.
     port : int
         The cockpit's port, the same on both sides.
+    side : str
+        The leader's side (``LEADER`` for a VethLink, ``SIDE_A`` for an EmulatedLink).
     """
 
-    def __init__(self, link: VethLink, port: int) -> None:
-        self.link, self.port = link, port
+    def __init__(self, link: VethLink | EmulatedLink, port: int, side: str = LEADER) -> None:
+        self.link, self.port, self.side = link, port, side
         self.proc: subprocess.Popen[bytes] | None = None
 
     def __enter__(self) -> CockpitRelay:
@@ -505,7 +507,7 @@ class CockpitRelay:
             sock.bind(("127.0.0.1", self.port))
             sock.listen(16)
             fd = sock.fileno()
-            cmd = [*self.link.exec_prefix(LEADER), sys.executable, "-m", "bipedtele.tools.netns", "relay", str(fd), str(self.port)]
+            cmd = [*self.link.exec_prefix(self.side), sys.executable, "-m", "bipedtele.tools.netns", "relay", str(fd), str(self.port)]
             self.proc = subprocess.Popen(cmd, pass_fds=[fd], start_new_session=True)
         return self
 
