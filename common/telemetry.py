@@ -19,7 +19,10 @@ from typing import Annotated, Any
 
 import msgspec
 
-__all__ = ["LeaderSample", "numpy_hook", "sample_from_map", "sample_to_json"]
+__all__ = ["LINK_STATES", "LeaderSample", "numpy_hook", "sample_from_map", "sample_to_json"]
+
+#: The link states the leader's sample carries (``link``), machine-readable.
+LINK_STATES: tuple[str, ...] = ("waiting", "ok", "lossy", "capacity-limited", "stale", "lost", "no-follower")
 
 
 def _d(text: str) -> msgspec.Meta:
@@ -56,9 +59,36 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     leader_state : str or None
         Leader loop state (``starting``, ``running``, ``feedback_stale``, ``stopped``).
     link : str or None
-        Link state (``waiting``, ``ok``, ``stale``, ``no follower``).
+        Link state, as the leader measures it (:data:`LINK_STATES`): ``waiting``, ``ok``,
+        ``lossy``, ``capacity-limited``, ``stale``, ``lost``, ``no-follower``. (Recordings
+        before issue 19 hold ``waiting``, ``ok``, ``stale``, ``no follower``.)
     feedback_age_ms : float or None
-        Age of the latest feedback [ms].
+        Time since the feedback in use was received [ms] (the loop's; the force fades
+        after ``feedback_timeout_s``).
+    link_lost_s : float or None
+        State ``lost``: time since the last feedback arrived [s].
+    fb_age_ms : float or None
+        Age of the newest feedback accepted: now minus its send time on the leader's clock [ms].
+    loss_pct : float or None
+        Feedback lost over the last 2 s (sequence gaps) [%].
+    rx_kbps : float or None
+        Payload received over the last 2 s on feedback, video and status (goodput) [kbit/s].
+    tx_kbps : float or None
+        What the follower says it sends (its Status counter ``tx_bps``) [kbit/s].
+    capacity_limited : bool or None
+        The follower says its sending is limited by the path's capacity (``capacity_limited``).
+    video_fps : float or None
+        Video frames received per second over the last 2 s, all cameras [1/s].
+    video_quality : int or None
+        JPEG quality the follower encodes with (its ``video_quality``) [1-100].
+    video_bytes : int or None
+        Size of the newest video frame received [bytes].
+    video_width, video_height : int or None
+        Image size of the newest video frame [px].
+    fb_arrived : int or None
+        Feedback arrived so far (accepted by the receiver).
+    fb_too_old : int or None
+        Feedback refused so far as older than the age bound.
     z_e_v, z_e_w, z_r_v, z_r_w, eta_v, eta_w : float or None
         From the latest feedback: equivalent speed z_e, observer estimate z_r and measured
         speed eta; forward [cm/s], turn [deg/s].
@@ -115,8 +145,23 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     gain: Annotated[float | None, _d("link gain in use (0 to 1)")] = None
     enable: Annotated[bool | None, _d("the operator holds the device")] = None
     leader_state: Annotated[str | None, _d("leader loop state")] = None
-    link: Annotated[str | None, _d("link state (waiting, ok, stale, no follower)")] = None
-    feedback_age_ms: Annotated[float | None, _d("age of the latest feedback [ms]")] = None
+    link: Annotated[
+        str | None, _d("link state (waiting, ok, lossy, capacity-limited, stale, lost, no-follower)")
+    ] = None
+    feedback_age_ms: Annotated[float | None, _d("time since the feedback in use was received [ms]")] = None
+    link_lost_s: Annotated[float | None, _d("state lost: time since the last feedback arrived [s]")] = None
+    fb_age_ms: Annotated[float | None, _d("age of the newest feedback accepted, since it was sent [ms]")] = None
+    loss_pct: Annotated[float | None, _d("feedback lost over the last 2 s [%]")] = None
+    rx_kbps: Annotated[float | None, _d("payload received over the last 2 s (goodput) [kbit/s]")] = None
+    tx_kbps: Annotated[float | None, _d("what the follower says it sends [kbit/s]")] = None
+    capacity_limited: Annotated[bool | None, _d("the follower says the path's capacity limits it")] = None
+    video_fps: Annotated[float | None, _d("video frames received per second, all cameras [1/s]")] = None
+    video_quality: Annotated[int | None, _d("JPEG quality the follower encodes with [1-100]")] = None
+    video_bytes: Annotated[int | None, _d("size of the newest video frame [bytes]")] = None
+    video_width: Annotated[int | None, _d("width of the newest video frame [px]")] = None
+    video_height: Annotated[int | None, _d("height of the newest video frame [px]")] = None
+    fb_arrived: Annotated[int | None, _d("feedback arrived so far (accepted by the receiver)")] = None
+    fb_too_old: Annotated[int | None, _d("feedback refused so far as older than the age bound")] = None
     z_e_v: Annotated[float | None, _d("equivalent follower speed z_e, forward [cm/s]")] = None
     z_e_w: Annotated[float | None, _d("equivalent follower speed z_e, turn [deg/s]")] = None
     z_r_v: Annotated[float | None, _d("observer estimate z_r, forward [cm/s]")] = None

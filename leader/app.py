@@ -11,9 +11,17 @@ Order: arguments and configuration are checked first (one line, exit 2), then th
 opens and the device connects; only then does the cockpit serve (its address, with the
 run's access token, is logged as ``cockpit: open http://HOST:PORT/?token=TOKEN``) and the
 recording start. While the follower is present, :class:`~bipedtele.leader.reach.CommandReach`
-watches that its feedback acknowledges our commands: if none does for 1.5 s a WARNING says
-``commands not reaching the robot: refused by the router's ACL?``, and a run in which none
-ever got through ends with exit code :data:`EXIT_NOT_REACHED` (3).
+watches that its feedback acknowledges our commands: if none does for 1.5 s a WARNING names
+the cause the evidence points to (the follower heard: ``commands not reaching the robot:
+refused by the router's ACL?``; nothing heard: ``link lost: no feedback for N s (path or
+router down?)``), and a run in which none ever got through ends with exit code
+:data:`EXIT_NOT_REACHED` (3).
+
+:class:`~bipedtele.leader.linkquality.LinkQuality` measures the link from what arrives
+(feedback age, loss, goodput, video rate); feedback older than its bound is refused
+(counted as the drop ``fb_too_old``) and never reaches the loop; the link state in the
+sample (``link``) is its verdict, and the leader's Status carries ``rx_bps``,
+``fb_loss_ppm`` and ``fb_age_ms`` for the follower to adapt its rates.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
@@ -38,11 +47,12 @@ from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
 from bipedtele.leader.device_specs import device_names, device_spec
+from bipedtele.leader.linkquality import LinkQuality, LinkReport
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor
 from bipedtele.leader.reach import CommandReach
-from bipedtele.messages import Command, Feedback, Status, VideoFrame
+from bipedtele.messages import MAX_SEQ, Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.telemetry import LeaderSample
 from bipedtele.transport import LatestReceiver, PresenceWatcher, Publishers, Received
@@ -72,9 +82,11 @@ class _Aux:
     def __init__(
         self, loop: LeaderLoop, pubs: Publishers, cfg: Config, status_rx: LatestReceiver[Status],
         presence: PresenceWatcher, drops: DropCounter, record: Callable[[str, Any, float], None],
-        reach: CommandReach | None = None,
+        reach: CommandReach | None = None, link: LinkQuality | None = None,
     ) -> None:  # fmt: skip
         self.reach = reach
+        self.link = link or LinkQuality(feedback_timeout_s=cfg.section("leader").feedback_timeout_s)
+        self._not_synced = 0  # drops counted as clock_not_synced so far
         self.loop, self.pubs, self.cfg = loop, pubs, cfg
         self.status_rx, self.presence = status_rx, presence
         self.drops, self.record = drops, record
@@ -107,17 +119,24 @@ class _Aux:
         self._stop.set()
         self._thread.join(5.0)
 
-    def fill(self, sample: LeaderSample) -> None:
-        """Fill the sample's fields from the follower's status and presence."""
+    def report(self, now: float | None = None) -> LinkReport:
+        """Return the link's figures and state now (presence and the follower's counters)."""
         st = self.follower_status
-        sample.follower_present = alive = self.presence.alive
+        return self.link.report(
+            now, follower_present=self.presence.alive, follower_counters=st.counters if st is not None else None
+        )
+
+    def fill(self, sample: LeaderSample) -> None:
+        """Fill the sample's fields from the follower's status, presence and the link's figures."""
+        st = self.follower_status
+        sample.follower_present = self.presence.alive
+        counters = st.counters if st is not None else {}
         if st is not None:
-            sample.watchdog = st.counters.get("watchdog_stops", st.counters.get("watchdog", 0))
-            sample.falls = st.counters.get("falls", 0)
-            sample.collisions = st.counters.get("collisions", 0)
+            sample.watchdog = counters.get("watchdog_stops", counters.get("watchdog", 0))
+            sample.falls = counters.get("falls", 0)
+            sample.collisions = counters.get("collisions", 0)
             sample.follower_text = st.text
-        if not alive:
-            sample.link = "no follower"
+        fill_link(sample, self.report(), counters)
 
     def _run(self) -> None:
         lc, ck = self.cfg.section("leader"), self.cfg.section("clock")
@@ -127,13 +146,15 @@ class _Aux:
             now_m, now = time.monotonic(), time.time()
             try:
                 got = self.status_rx.take()
-                if got is not None:
+                if got is not None and got.msg.role == "follower":
                     self.follower_status = got.msg
+                self._heard_unsynced()
                 if now_m >= next_status:
                     next_status = now_m + 1.0 / lc.status_rate_hz
                     counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
                     counters.update(commands=self.loop.seq, feedback=self.loop.feedback_count,
                                     missed_ticks=self.loop.missed_ticks)  # fmt: skip
+                    counters.update(link_counters(self.report(now)))
                     self._status_seq += 1
                     st = Status(sid=self.loop.sid, seq=self._status_seq, t=now, role="leader",
                                 state=self.loop.state, counters=counters, text=text)  # fmt: skip
@@ -144,6 +165,64 @@ class _Aux:
                     self.reach.check(self.presence.alive)
             except Exception as exc:  # a bad moment on the network must not end the program
                 LOG.warning("leader side thread: %s", exc)
+
+    def _heard_unsynced(self) -> None:
+        """Messages dropped only because our clock is not synced to the peer's yet: the path works."""
+        n = self.drops.counts().get("clock_not_synced", 0)
+        if n > self._not_synced and self.reach is not None:
+            self.reach.on_heard()
+        self._not_synced = n
+
+
+#: Largest value of a Status counter.
+_COUNTER_MAX = MAX_SEQ
+
+
+def _counter(value: float) -> int:
+    """Return ``value`` as a Status counter: rounded, clamped to ``0 .. MAX_SEQ``."""
+    if not math.isfinite(value):
+        return _COUNTER_MAX if value > 0 else 0
+    return min(max(round(value), 0), _COUNTER_MAX)
+
+
+def link_counters(rep: LinkReport) -> dict[str, int]:
+    """Return the leader's link figures as Status counters (the follower adapts to them).
+
+    ``rx_bps`` (payload received over the last 2 s [bit/s]), ``fb_loss_ppm`` (feedback
+    loss over the last 2 s [ppm]) and ``fb_age_ms`` (age of the newest feedback now [ms]);
+    a figure that is not known yet is left out.
+    """
+    out: dict[str, int] = {}
+    if rep.rx_bps is not None:
+        out["rx_bps"] = _counter(rep.rx_bps)
+    if rep.loss_ppm is not None:
+        out["fb_loss_ppm"] = _counter(rep.loss_ppm)
+    if rep.fb_age_s is not None:
+        out["fb_age_ms"] = _counter(1000.0 * rep.fb_age_s)
+    return out
+
+
+def fill_link(sample: LeaderSample, rep: LinkReport, counters: dict[str, int]) -> None:
+    """Set the sample's link fields from a link report and the follower's Status counters.
+
+    A follower counter that is missing leaves its field unset (unknown).
+    """
+    sample.link = rep.state
+    sample.link_lost_s = rep.lost_s
+    sample.fb_age_ms = None if rep.fb_age_s is None else 1000.0 * rep.fb_age_s
+    sample.loss_pct = None if rep.loss_ppm is None else rep.loss_ppm / 1e4
+    sample.rx_kbps = None if rep.rx_bps is None else rep.rx_bps / 1000.0
+    sample.video_fps = rep.video_fps
+    sample.video_bytes = rep.video_bytes
+    sample.video_width = rep.video_width
+    sample.video_height = rep.video_height
+    sample.fb_arrived = rep.fb_arrived
+    sample.fb_too_old = rep.fb_too_old
+    tx = counters.get("tx_bps")
+    sample.tx_kbps = None if tx is None else tx / 1000.0
+    sample.video_quality = counters.get("video_quality")
+    cap = counters.get("capacity_limited")
+    sample.capacity_limited = None if cap is None else cap == 1
 
 
 #: Exit code of a run in which the follower was there but none of our commands reached it.
@@ -213,6 +292,9 @@ class LeaderApp:
         # The feedback gate follows one follower session; its live sid binds the clock link.
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s)
         self.reach = CommandReach(self._commands_sent)
+        self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
+        self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
+        self._fb_ok: Received[Feedback] | None = None  # the newest feedback young enough to use
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(1.0 / lc.haptic_rate_hz)
         # The predictive display's fields (docs/cockpit.md): the pilot's own predictor when
         # it steers on one, else one fed here from the same samples.
@@ -230,16 +312,42 @@ class LeaderApp:
     def _commands_sent(self) -> int:
         return self.loop.seq if self.loop is not None else 0
 
+    def _size(self, msg: Message) -> int:
+        """Payload size of a received message [bytes]: its encoding (as the sender's) plus the MAC.
+
+        The receiver does not hand over the size it read; msgpack encodes a decoded
+        message back to the same bytes.
+        """
+        return len(encode(msg)) + self._mac_bytes
+
     def _on_feedback(self, got: Received[Feedback]) -> None:
-        self.reach.on_feedback(got.msg)
+        """Every feedback the receiver accepted (Zenoh's thread): reach, link, age bound."""
+        msg = got.msg
+        self.reach.on_feedback(msg)
+        t_sent = self.node.to_local(msg.t)
+        if self.link.on_feedback(msg.sid, msg.seq, t_sent, got.t_recv, self._size(msg)):
+            self._fb_ok = got
+        else:
+            self.node.drops.drop(
+                "fb_too_old",
+                f"feedback sid={msg.sid} seq={msg.seq} sent {got.t_recv - t_sent:.1f} s ago "
+                f"(bound {self.link.max_age_s(got.t_recv):.1f} s): not shown as live",
+            )  # fmt: skip
 
     def _on_video(self, got: Received[VideoFrame]) -> None:
+        msg = got.msg
+        self.reach.on_heard()
+        self.link.on_video(got.t_recv, self._size(msg), msg.width, msg.height)
         if self.cockpit is not None:
-            msg = got.msg
             self.cockpit.publish_video(msg.camera, msg.jpeg, msg.t_capture)
 
+    def _on_status(self, got: Received[Status]) -> None:
+        if got.msg.role == "follower":
+            self.reach.on_heard()
+            self.link.on_status(got.t_recv, self._size(got.msg))
+
     def _latest_feedback(self) -> tuple[Feedback, float] | None:
-        got = self._fb_rx.latest() if self._fb_rx is not None else None
+        got = self._fb_ok
         return (got.msg, got.t_recv) if got is not None else None
 
     def _send_command(self, cmd: Command) -> None:
@@ -313,7 +421,8 @@ class LeaderApp:
             self._fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
                                        estimator=self.estimator, on_message=self._on_feedback)  # fmt: skip
             node.receive(node.keys.video, VideoFrame, SequenceGate(), topic="video/recv", on_message=self._on_video)
-            status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid)
+            status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid,
+                                     on_message=self._on_status)  # fmt: skip
             node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
             self.loop = loop = LeaderLoop(
                 self.device, self.operator, self.cfg.section("control"), self._send_command, self._latest_feedback,
@@ -321,7 +430,7 @@ class LeaderApp:
                 on_sample=self._on_sample, sid=node.sid,
             )  # fmt: skip
             self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
-                                             node.record, self.reach))  # fmt: skip
+                                             node.record, self.reach, self.link))  # fmt: skip
             LOG.info(
                 "leader ready: robot %s, device %s, operator %s, %s%s", self.cfg.section("robot").id, self.dev_name,
                 self.op_name if self.operator is not None else "(person)",
@@ -338,19 +447,22 @@ class LeaderApp:
             aux.record_progress(time.time())  # the last pass may have ended the run just now
             node.event("done" if done else "stop", {"elapsed_s": elapsed})
             loop.send_stop()
-            never_reached = self.reach.never_reached
+            never_reached = self.reach.never_acknowledged
             if never_reached:
                 node.event("commands_not_reaching", {"commands": loop.seq})
             path = recorder.path if recorder is not None else None
-            summary = _summary(loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime, self.reach)
+            summary = _summary(loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime, self.reach,
+                               self.link)  # fmt: skip
             if stats is not None:
                 stats.update(loop.period_stats.summary(loop.dt))
                 stats.update(
-                    missed_ticks=loop.missed_ticks, commands=loop.seq, feedback=loop.feedback_count,
+                    missed_ticks=loop.missed_ticks, commands=loop.seq, feedback=self.link.fb_arrived,
+                    feedback_used=loop.feedback_count, fb_too_old=self.link.fb_too_old,
                     drops=node.drops.total, done=done, elapsed_s=elapsed,
                     progress=self.operator.progress() if self.operator is not None else {},
                     cockpit=self.cockpit.stats if self.cockpit is not None else {},
-                    acknowledged=self.reach.acknowledged, never_reached=never_reached,
+                    acknowledged=self.reach.acknowledged, never_reached=self.reach.never_reached,
+                    never_acknowledged=never_reached, link_lost_warnings=self.reach.lost_warnings,
                     slew_limited_ticks=loop.slew_limited_ticks,
                 )  # fmt: skip
         print(summary, flush=True)  # noqa: T201 - the program's one-line result
@@ -431,14 +543,26 @@ def _map_course(cfg: Config) -> list[tuple[float, float, float]]:
 def _summary(
     loop: LeaderLoop, op_name: str, operator: Operator | None, elapsed: float,
     drops: DropCounter, record: Path | None, rt: bool, reach: CommandReach | None = None,
+    link: LinkQuality | None = None,
 ) -> str:  # fmt: skip
+    """Return the program's one-line result.
+
+    ``N feedback received`` counts the feedback that arrived (accepted by the receiver:
+    MAC, decoding, send-time checks, gate), then in brackets how many the loop took (it
+    takes the newest at each 1 kHz tick) and how many were refused as too old.
+    """
     parts = [f"leader: operator {op_name}"]
     prog = operator.progress() if operator is not None else {}
     if "passes_done" in prog:
         parts.append(f"{prog['passes_done']}/{prog['passes']} passes")
     parts.append("done" if loop.done else "stopped")
     parts.append(f"{elapsed:.1f} s")
-    parts.append(f"{loop.seq} commands sent, {loop.feedback_count} feedback received, {drops.total} dropped")
+    if link is not None:
+        received = (f"{link.fb_arrived} feedback received ({loop.feedback_count} used by the loop, "
+                    f"{link.fb_too_old} too old)")  # fmt: skip
+    else:
+        received = f"{loop.feedback_count} feedback received"
+    parts.append(f"{loop.seq} commands sent, {received}, {drops.total} dropped")
     if loop.h1 is not None and loop.h2 is not None:
         parts.append(f"last delay h1+h2 {1000 * (loop.h1 + loop.h2):.0f} ms")
     parts.append(f"max |f_m| now {float(np.abs(loop.force).max()):.2f} N")
@@ -450,6 +574,8 @@ def _summary(
         parts.append(f"recording {record}")
     if reach is not None and reach.never_reached:
         parts.append("NO COMMAND REACHED THE ROBOT (refused by the router's ACL? log in as a leader user)")
+    elif reach is not None and reach.never_acknowledged:
+        parts.append("NO COMMAND ACKNOWLEDGED BY THE ROBOT (link lost: nothing heard from the follower; path or router down?)")
     return ", ".join(parts)
 
 

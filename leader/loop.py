@@ -58,7 +58,8 @@ __all__ = ["LeaderLoop"]
 
 LOG = logging.getLogger(__name__)
 
-#: The link state shown for each loop state (others as they are).
+#: The link state shown for each loop state (others as they are); the program replaces it
+#: with the measured one (bipedtele.leader.linkquality).
 _LINK = {"starting": "waiting", "running": "ok", "feedback_stale": "stale"}
 
 #: Recompute (40) when h1 or h2 moved by more than this [s].

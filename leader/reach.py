@@ -13,10 +13,23 @@ by a follower that hears nobody now, does not count once our own numbers pass it
 follower that does not fill ``cmd_seq`` (0: none applied) acknowledges only by walking.
 
 While the follower is present (liveliness) and this leader sends commands, no
-acknowledgement for ``window_s`` gives one WARNING line, ``commands not reaching the
-robot: refused by the router's ACL? ...``; an acknowledgement after it gives one INFO line.
+acknowledgement for ``window_s`` gives one WARNING line naming the cause the evidence
+points to:
+
+- the follower is *heard* (its feedback, status or video arrived within ``window_s``, or a
+  message of its was dropped only because our clock is not synced to its yet): the path
+  and the router work, so the commands are refused on the way, ``commands not reaching
+  the robot: refused by the router's ACL? ...`` (a leader logged in as the follower's user
+  receives the follower's status but no feedback);
+- nothing is heard from the follower (a stalled or cut path, a router down: its presence
+  may still linger): ``link lost: no feedback for N s (path or router down?)``; the ACL
+  is not named, nothing says our commands were refused.
+
+An acknowledgement after it gives one INFO line; a change of cause gives a new WARNING.
 At the end, :attr:`CommandReach.never_reached` tells whether a run that had the follower
-there for a whole window got no command through at all (the leader then exits non-zero).
+heard for a whole window got no command through at all (refused: the leader then exits
+non-zero), :attr:`CommandReach.never_acknowledged` whether a run that had the follower
+present for a whole window saw no acknowledgement whatever the cause.
 
 Why not also "the follower stands while we command motion": a follower legitimately stands
 under commanded motion (a fall waiting for the operator to re-arm, a robot without its
@@ -32,9 +45,15 @@ from collections.abc import Callable
 
 from bipedtele.messages import Feedback
 
-__all__ = ["CommandReach"]
+__all__ = ["LOST", "REFUSED", "CommandReach"]
 
 LOG = logging.getLogger("bipedtele.leader")
+
+
+#: The WARNING of the refused case (tests and launchers grep for it).
+REFUSED = "commands not reaching the robot: refused by the router's ACL?"
+#: The WARNING of the lost case starts with this.
+LOST = "link lost: no feedback for"
 
 
 class CommandReach:
@@ -52,8 +71,8 @@ class CommandReach:
 
     Notes
     -----
-    :meth:`on_feedback` runs on the receiver's thread, :meth:`check` on a slow side thread
-    (about 20 Hz); both are cheap.
+    :meth:`on_feedback` and :meth:`on_heard` run on the receivers' threads, :meth:`check`
+    on a slow side thread (about 20 Hz); all are cheap.
     """
 
     def __init__(
@@ -72,16 +91,22 @@ class CommandReach:
         self.feedback = 0
         self.acknowledged = 0
         self._last_ack: float | None = None
+        self._last_fb: float | None = None  # the newest feedback arrived (monotonic)
+        self._last_heard: float | None = None  # anything of the follower's arrived
         self._since: float | None = None  # follower present and commands going out since
-        self._warned = False
+        self._warned: str | None = None  # the cause last warned about: "refused", "lost"
         self.warnings = 0
-        self.exposed = False  # the follower was there for a whole window of commands
+        self.lost_warnings = 0
+        self.exposed = False  # the follower was heard for a whole window of commands, none acknowledged
+        self.present_window = False  # the follower was present for a whole window of commands
 
     def on_feedback(self, fb: Feedback) -> None:
         """Take one received feedback (any thread)."""
         sent = self._sent_seq()
+        now = self._clock()
         with self._lock:
             self.feedback += 1
+            self._last_fb = self._last_heard = now
             base = self._baseline.setdefault(fb.sid, fb.cmd_seq)
             if fb.cmd_seq:
                 ok = 1 <= fb.cmd_seq <= sent and fb.cmd_seq != base
@@ -89,7 +114,16 @@ class CommandReach:
                 ok = fb.state == "walking" and sent > 0
             if ok:
                 self.acknowledged += 1
-                self._last_ack = self._clock()
+                self._last_ack = now
+
+    def on_heard(self) -> None:
+        """Something of the follower's arrived other than feedback (status, video; any thread).
+
+        Evidence that the path and the router work.
+        """
+        now = self._clock()
+        with self._lock:
+            self._last_heard = now
 
     @property
     def ever_reached(self) -> bool:
@@ -98,12 +132,20 @@ class CommandReach:
 
     @property
     def never_reached(self) -> bool:
-        """Whether the commands never reached the follower.
+        """Whether the commands were refused on the way for the whole run.
 
-        True when the follower was present for a whole window while we sent commands, and
-        not one of them was acknowledged.
+        True when the follower was heard (the link worked) for a whole window while we
+        sent commands, and not one of them was acknowledged.
         """
         return self.exposed and not self.ever_reached
+
+    @property
+    def never_acknowledged(self) -> bool:
+        """True when the follower was present for a whole window of commands and none was acknowledged.
+
+        Refused (:attr:`never_reached`) or lost: the run reached nothing that we know of.
+        """
+        return self.present_window and not self.ever_reached
 
     def check(self, follower_present: bool) -> None:
         """Update the verdict; log when it changes (call it a few times per second)."""
@@ -114,25 +156,38 @@ class CommandReach:
         if self._since is None:
             self._since = now
         with self._lock:
-            last_ack, feedback = self._last_ack, self.feedback
+            last_ack, last_fb, last_heard, feedback = self._last_ack, self._last_fb, self._last_heard, self.feedback
         recent = last_ack is not None and now - last_ack < self.window_s
         if recent:
-            if self._warned:
+            if self._warned is not None:
                 LOG.info("commands reach the robot again (the follower's feedback acknowledges them)")
-                self._warned = False
+                self._warned = None
             return
         if now - self._since < self.window_s:
             return
-        self.exposed = True
-        if not self._warned:
-            self._warned = True
-            self.warnings += 1
-            why = (
-                f"the follower is present but its feedback acknowledges none of our commands ({feedback} heard)"
-                if feedback
-                else "the follower is present but no feedback arrives"
-            )
+        self.present_window = True
+        heard = last_heard is not None and now - last_heard < self.window_s
+        if heard:
+            self.exposed = True
+            if self._warned != "refused":
+                self._warned = "refused"
+                self.warnings += 1
+                fb_fresh = last_fb is not None and now - last_fb < self.window_s
+                why = (
+                    f"the follower is present but its feedback acknowledges none of our commands ({feedback} heard)"
+                    if fb_fresh
+                    else "the follower is present and heard but no feedback arrives"
+                )
+                LOG.warning(
+                    "%s (%s for %.1f s; the leader must log in as a user of network.publishers_allowed)",
+                    REFUSED, why, self.window_s,
+                )  # fmt: skip
+            return
+        if self._warned != "lost":
+            self._warned = "lost"
+            self.lost_warnings += 1
+            silent = now - (last_fb if last_fb is not None else self._since)
             LOG.warning(
-                "commands not reaching the robot: refused by the router's ACL? (%s for %.1f s; "
-                "the leader must log in as a user of network.publishers_allowed)", why, self.window_s,
+                "%s %.1f s (path or router down?): nothing heard from the follower while its presence is "
+                "still seen; commands may or may not reach it", LOST, silent,
             )  # fmt: skip

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 
 import pytest
-from bipedtele.leader.reach import CommandReach
+from bipedtele.leader.reach import LOST, REFUSED, CommandReach
 from bipedtele.messages import Feedback
 
 FOLLOWER = 77
@@ -64,11 +64,41 @@ def test_refused_commands_are_told_within_2_s_once(caplog: pytest.LogCaptureFixt
     assert reach.never_reached and reach.warnings == 1
 
 
-def test_no_feedback_at_all_while_present_is_told(caplog: pytest.LogCaptureFixture) -> None:
+def test_no_feedback_while_the_follower_is_heard_is_told_as_refused(caplog: pytest.LogCaptureFixture) -> None:
+    # A leader logged in as the follower's user: the router forwards the follower's
+    # status (2 Hz) to it, never its feedback, and drops its commands.
+    reach, clock, sent = make()
+    for _ in range(30):
+        run(reach, clock, sent, 0.1, None)
+        reach.on_heard()  # a status of the follower every 0.1 s here
+    (line,) = warnings(caplog)
+    assert line.startswith(REFUSED) and "no feedback arrives" in line
+    assert reach.never_reached and reach.never_acknowledged
+
+
+def test_nothing_heard_while_present_is_a_lost_link_not_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    # Presence lingers but nothing at all arrives from the start (a path that never
+    # carried anything): the router's ACL is not blamed.
     reach, clock, sent = make()
     run(reach, clock, sent, 3.0, None)
     (line,) = warnings(caplog)
-    assert "no feedback arrives" in line and reach.never_reached
+    assert line.startswith(LOST) and "ACL" not in line
+    assert not reach.never_reached and reach.never_acknowledged
+
+
+def test_a_stalled_link_is_told_as_lost_not_as_refused(caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 19: commands got through, then the path stalled (no feedback, no status) while
+    the follower's presence was still seen; the leader blamed the router's ACL."""
+    reach, clock, sent = make()
+    run(reach, clock, sent, 5.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    t_stall = clock.t
+    run(reach, clock, sent, 4.0, None)  # the stall: nothing arrives, presence still seen
+    (line,) = warnings(caplog)
+    assert "ACL" not in line and "refused" not in line
+    assert line.startswith("link lost: no feedback for") and "(path or router down?)" in line
+    silent = float(line.removeprefix("link lost: no feedback for").split(" s")[0])
+    assert 1.5 <= silent <= 2.0 and clock.t - t_stall >= silent
+    assert reach.ever_reached and not reach.never_reached and not reach.never_acknowledged
 
 
 def test_an_earlier_leaders_last_command_does_not_count() -> None:

@@ -32,7 +32,7 @@ def leader_state(seq: int) -> dict[str, Any]:
     sample: dict[str, Any] = {}
     for i, (key, schema) in enumerate(LEADER_STATE_FIELDS.items()):
         types = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
-        if key in ints:
+        if key in ints or "integer" in types:
             sample[key] = seq
         elif "number" in types:
             sample[key] = 0.25 * i - 3.0
