@@ -90,7 +90,8 @@ LOG = logging.getLogger("bipedtele.leader.cockpit")
 SAMPLE_KEYS: tuple[str, ...] = (
     "t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v", "force_w",
     "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
-    "state", "link", "watchdog", "falls", "passes_done",
+    "state", "link", "link_lost_s", "fb_age_ms", "loss_pct", "rx_kbps", "tx_kbps", "video_fps", "video_quality",
+    "watchdog", "falls", "passes_done",
     "pose_x", "pose_y", "pose_yaw", "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt",
 )  # fmt: skip
 

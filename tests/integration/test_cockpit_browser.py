@@ -41,6 +41,8 @@ def _sample(t: float, i: int) -> dict[str, object]:
         "alpha_m_v": 2.0 + 0.1 * math.sin(t), "alpha_m_w": 1.5, "s_r_v": 0.8, "s_r_w": 0.6,
         "T": 0.6 + 0.05 * math.sin(t), "eps": 0.5, "state": "walking", "link": "ok",
         "watchdog": "ok", "falls": 0, "passes_done": i // 200, "sonar_left_m": 0.8,
+        "fb_age_ms": 312.4, "loss_pct": 1.25, "rx_kbps": 850.2, "tx_kbps": 900.0, "video_fps": 9.8,
+        "video_quality": 60,
     }  # fmt: skip
 
 
@@ -118,6 +120,16 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             natural = page.evaluate("document.querySelector('img[data-camera=head]').naturalWidth")
             assert natural == 320
             assert page.locator("#st-link b").inner_text() == "ok"
+            # The link's figures, and its states in words.
+            assert page.locator("#st-age b").inner_text() == "312 ms"
+            assert page.locator("#st-loss b").inner_text() == "1.3 %"
+            assert page.locator("#st-rx b").inner_text() == "850 of 900 kbit/s"
+            assert page.locator("#st-video b").inner_text() == "9.8 fps, q60"
+            words = page.evaluate(
+                "[{link: 'lost', link_lost_s: 3.24}, {link: 'no-follower'}, {link: 'capacity-limited'}]"
+                ".map((s) => cockpit.linkWords(s))"
+            )
+            assert words == ["link lost for 3.2 s", "no follower", "capacity-limited"]
             assert "sonar_left_m" in page.locator("#other").inner_text()  # unknown key as text
             assert server.stats["frames_pushed"] >= 3 and server.stats["clients"] == 1
             assert server.joystick() is None

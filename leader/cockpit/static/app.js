@@ -4,7 +4,8 @@
 
 const KNOWN = new Set(["t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v",
   "force_w", "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
-  "state", "link", "watchdog", "falls", "passes_done", "pose_x", "pose_y", "pose_yaw",
+  "state", "link", "link_lost_s", "fb_age_ms", "loss_pct", "rx_kbps", "tx_kbps", "video_fps",
+  "video_quality", "watchdog", "falls", "passes_done", "pose_x", "pose_y", "pose_yaw",
   "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt"]);
 
 const state = {
@@ -36,7 +37,8 @@ const plots = [
     series: [{ key: "h1_ms", label: "h1", color: C.c },
              { key: "h2_ms", label: "h2", color: C.d },
              { label: "h1+h2", color: C.tot, fn: (s) =>
-               (typeof s.h1_ms === "number" && typeof s.h2_ms === "number") ? s.h1_ms + s.h2_ms : null }] }),
+               (typeof s.h1_ms === "number" && typeof s.h2_ms === "number") ? s.h1_ms + s.h2_ms : null },
+             { key: "fb_age_ms", label: "feedback age", color: C.robot, dash: [4, 3] }] }),
   new StripPlot(document.getElementById("plot-damping"), { title: "damping", unit: "",
     series: [{ key: "alpha_m_v", label: "alpha_m v", color: C.a },
              { key: "alpha_m_w", label: "alpha_m w", color: C.b },
@@ -50,7 +52,17 @@ const plots = [
 // ------------------------------------------------------------------ status panel
 
 const GOOD = new Set(["ok", "running", "walking", "standing", "up", "true"]);
-const WARN = new Set(["stale", "waiting", "starting", "stopping", "feedback_stale", "unknown"]);
+const WARN = new Set(["stale", "waiting", "starting", "stopping", "feedback_stale", "unknown",
+  "lossy", "capacity-limited"]);
+
+// The link state in words (docs/cockpit.md): "link lost for 3.2 s", "no follower", ...
+function linkWords(s) {
+  const v = String(s.link);
+  if (v === "lost") return typeof s.link_lost_s === "number" ? `link lost for ${s.link_lost_s.toFixed(1)} s` : "link lost";
+  if (v === "no-follower" || v === "no follower") return "no follower";
+  return v;
+}
+state.linkWords = linkWords;
 
 function setPill(id, value, cls) {
   const el = document.getElementById(id);
@@ -67,7 +79,19 @@ function classify(v) {
 }
 
 function showStatus(s) {
-  if (s.link !== undefined) setPill("st-link", String(s.link), classify(s.link));
+  if (s.link !== undefined) setPill("st-link", linkWords(s), classify(s.link));
+  if (typeof s.fb_age_ms === "number") {
+    setPill("st-age", `${s.fb_age_ms.toFixed(0)} ms`, s.fb_age_ms > 2000 ? "bad" : "unknown");
+  }
+  if (typeof s.loss_pct === "number") setPill("st-loss", `${s.loss_pct.toFixed(1)} %`, s.loss_pct > 2 ? "warn" : "ok");
+  if (typeof s.rx_kbps === "number") {
+    const of = typeof s.tx_kbps === "number" ? ` of ${s.tx_kbps.toFixed(0)}` : "";
+    setPill("st-rx", `${s.rx_kbps.toFixed(0)}${of} kbit/s`, s.link === "capacity-limited" ? "warn" : "unknown");
+  }
+  if (typeof s.video_fps === "number") {
+    const q = typeof s.video_quality === "number" ? `, q${s.video_quality}` : "";
+    setPill("st-video", `${s.video_fps.toFixed(1)} fps${q}`, "unknown");
+  }
   if (s.watchdog !== undefined) setPill("st-watchdog", String(s.watchdog), classify(s.watchdog));
   if (s.state !== undefined) setPill("st-state", String(s.state), classify(s.state));
   if (typeof s.falls === "number") setPill("st-falls", String(s.falls), s.falls > 0 ? "bad" : "ok");
