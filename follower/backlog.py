@@ -20,10 +20,10 @@ from __future__ import annotations
 import math
 from collections import deque
 
-__all__ = ["DelayBaseline"]
+__all__ = ["DelayBaseline", "WindowMin"]
 
 
-class _WindowMin:
+class WindowMin:
     """Minimum of ``(t, value)`` samples over a sliding time window (monotonic deque)."""
 
     def __init__(self, window_s: float) -> None:
@@ -31,6 +31,7 @@ class _WindowMin:
         self._q: deque[tuple[float, float]] = deque()
 
     def add(self, t: float, value: float) -> None:
+        """Add a sample ``value`` taken at ``t`` [s]."""
         q = self._q
         while q and q[-1][1] >= value:
             q.pop()
@@ -38,15 +39,18 @@ class _WindowMin:
         self.prune(t)
 
     def prune(self, now: float) -> None:
+        """Forget the samples older than the window at ``now`` [s]."""
         q = self._q
         while q and q[0][0] < now - self.window_s:
             q.popleft()
 
     def value(self, now: float) -> float | None:
+        """Return the minimum over the window at ``now`` [s] (None when empty)."""
         self.prune(now)
         return self._q[0][1] if self._q else None
 
     def clear(self) -> None:
+        """Forget every sample."""
         self._q.clear()
 
 
@@ -71,8 +75,8 @@ class DelayBaseline:
         if not (math.isfinite(window_s) and window_s > 0 and math.isfinite(relearn_s) and relearn_s > 0):
             raise ValueError(f"window_s = {window_s!r}, relearn_s = {relearn_s!r}: allowed: finite numbers of seconds > 0")
         self.relearn_s = float(relearn_s)
-        self._accepted = _WindowMin(window_s)
-        self._dropped = _WindowMin(window_s)
+        self._accepted = WindowMin(window_s)
+        self._dropped = WindowMin(window_s)
         self._held: float | None = None
         self._backlog_since: float | None = None
         self.relearned = 0

@@ -1,0 +1,330 @@
+"""What the robot's uplink delivers, and how the follower fits its traffic into it.
+
+The follower counts the payload bytes it sends (feedback, status, video: the encoded
+messages with their MAC, at the publish call) and the leader reports, in its Status, what
+it received (``rx_bps``: bits/s of follower -> leader payload over its last 2 s). Each
+Command carries ``h2_s``, the leader's estimate of the feedback path's delay (usable in
+both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
+
+- **rate rule.** The leader's ``rx_bps`` is below ``ratio`` (0.85) of what the follower sent
+  over the matching window (the leader's 2 s before the status was sent, shifted back by
+  h2): the path is capacity-limited and delivers ``rx_bps``. The first such signal sets
+  the capacity to ``rx_bps``; if it persists ``hold_s`` after a cut, the capacity is cut
+  again by ``decrease`` (0.7): the queue the path built must drain.
+- **delay rule.** h2 stays more than ``delay_rise_s`` (0.15 s) above its minimum over the
+  last ``h2_window_s`` (10 s) for more than ``delay_hold_s`` (1 s): a queue is building even
+  though the rates agree (the excess is small). Once per such episode the capacity is set
+  to at most ``rx_bps``. A rise that lasts ``relearn_s`` is the path's own (a slow delay
+  swing, a new route): the h2 minimum is taken again from the current h2.
+- **probing.** With no signal for ``hold_s`` (and the leader's status arriving), the
+  capacity grows by ``increase_bps_per_s`` per second (additive increase).
+
+Until the first signal the capacity is unknown (infinite): nothing is throttled. Loss
+alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
+a full one.
+
+:meth:`UplinkBudget.video_budget_bps` gives video what control leaves: capacity minus the
+measured control rate minus a margin (``margin`` of the capacity, at least
+``margin_min_bps``) so that a queue drains; :meth:`UplinkBudget.feedback_plan` says how
+control shrinks while limited (acknowledgements coalesced into the next tick's feedback,
+the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the capacity).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from bipedtele.follower.backlog import WindowMin
+
+__all__ = ["FeedbackPlan", "UplinkBudget"]
+
+_BIN_S = 0.1  # resolution of the sent-bytes history [s]
+_KEEP_S = 20.0  # sent-bytes history kept [s] (the window, shifted by h2 up to ~10 s)
+
+
+@dataclass(frozen=True)
+class FeedbackPlan:
+    """How the follower sends its feedback now.
+
+    Attributes
+    ----------
+    ack_each_command : bool
+        Publish a Feedback at once for every command picked up between ticks (True), or
+        let the next tick's feedback acknowledge it (at most one feedback per tick).
+    rate_hz : float
+        Periodic feedback rate [Hz].
+    """
+
+    ack_each_command: bool
+    rate_hz: float
+
+
+class UplinkBudget:
+    """Capacity estimate of the follower -> leader path and the budgets derived from it.
+
+    Parameters
+    ----------
+    clock : callable
+        Local clock [s] (the loop's clock; a fake one in tests).
+    window_s : float
+        The leader's ``rx_bps`` window [s] (2 s).
+    ratio : float
+        Rate rule: limited when ``rx_bps < ratio * tx`` over the matching window.
+    delay_rise_s, delay_hold_s : float
+        Delay rule: h2 above its recent minimum by more than ``delay_rise_s`` [s] for more
+        than ``delay_hold_s`` [s].
+    h2_window_s : float
+        Window of the h2 minimum [s].
+    relearn_s : float
+        A delay rise lasting this long [s] is the path's: the h2 minimum is taken again.
+    decrease : float
+        Multiplicative decrease of the capacity when a rate limit persists after a cut.
+    increase_bps_per_s : float
+        Additive increase while not limited [bit/s per s].
+    hold_s : float
+        Time between two cuts, and how long ``limited`` stays on after the last signal [s].
+    min_tx_bps : float
+        The rate rule is not judged below this sending rate [bit/s] (too few bytes).
+    floor_bps : float
+        The capacity estimate never goes below this [bit/s].
+    margin, margin_min_bps : float
+        Video's budget leaves ``max(margin * capacity, margin_min_bps)`` free [-, bit/s].
+    control_share : float
+        While limited, feedback uses at most this share of the capacity.
+    status_timeout_s : float
+        Without a leader status for this long [s] the capacity is not probed upward.
+    drain_s : float
+        Video's margin grows so that a queue of ``excess_s`` (h2 above its minimum) drains
+        in about this long [s].
+    """
+
+    def __init__(
+        self,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        window_s: float = 2.0,
+        ratio: float = 0.85,
+        delay_rise_s: float = 0.15,
+        delay_hold_s: float = 1.0,
+        h2_window_s: float = 10.0,
+        relearn_s: float = 5.0,
+        decrease: float = 0.7,
+        increase_bps_per_s: float = 20_000.0,
+        hold_s: float = 2.0,
+        min_tx_bps: float = 16_000.0,
+        floor_bps: float = 16_000.0,
+        margin: float = 0.1,
+        margin_min_bps: float = 8_000.0,
+        control_share: float = 0.6,
+        status_timeout_s: float = 5.0,
+        drain_s: float = 4.0,
+    ) -> None:
+        self._clock = clock
+        self.window_s = float(window_s)
+        self.ratio = float(ratio)
+        self.delay_rise_s = float(delay_rise_s)
+        self.delay_hold_s = float(delay_hold_s)
+        self.relearn_s = float(relearn_s)
+        self.decrease = float(decrease)
+        self.increase_bps_per_s = float(increase_bps_per_s)
+        self.hold_s = float(hold_s)
+        self.min_tx_bps = float(min_tx_bps)
+        self.floor_bps = float(floor_bps)
+        self.margin = float(margin)
+        self.margin_min_bps = float(margin_min_bps)
+        self.control_share = float(control_share)
+        self.status_timeout_s = float(status_timeout_s)
+        self.drain_s = float(drain_s)
+        self._lock = threading.Lock()
+        # sent bytes per bin: bin index -> [control, video]
+        self._bins: deque[tuple[int, list[int]]] = deque()
+        self._h2_min = WindowMin(h2_window_s)
+        self._h2: float | None = None
+        self._h2_base: float | None = None
+        self._rise_since: float | None = None
+        self._delay_episode = False
+        self._h2_hist: deque[tuple[float, float]] = deque()
+        self._cmd_times: deque[float] = deque()
+        #: h2 above its recent minimum [s] (a queue in the path, drained by video's margin).
+        self.excess_s = 0.0
+        self.capacity_bps = math.inf
+        self._last_signal = -math.inf
+        self._last_cut = -math.inf
+        self._last_status = -math.inf
+        self._last_update: float | None = None
+        self._fb_bits = 0.0  # EWMA of one feedback's size [bit]
+        #: The leader's latest figures (``rx_bps``, ``fb_loss_ppm``, ``fb_age_ms``).
+        self.leader: dict[str, int] = {}
+        self.signals = {"rate": 0, "delay": 0, "relearn": 0}
+
+    # ------------------------------------------------------------------ inputs
+
+    def sent(self, nbytes: int, video: bool = False, *, feedback: bool = False) -> None:
+        """Count ``nbytes`` of payload sent now (any thread).
+
+        Parameters
+        ----------
+        nbytes : int
+            Encoded message size with its MAC [bytes].
+        video : bool
+            A video frame (else control: feedback, status).
+        feedback : bool
+            A Feedback message (its size feeds the feedback rate plan).
+        """
+        b = int(self._clock() / _BIN_S)
+        with self._lock:
+            if not self._bins or self._bins[-1][0] != b:
+                self._bins.append((b, [0, 0]))
+                while self._bins and self._bins[0][0] < b - _KEEP_S / _BIN_S:
+                    self._bins.popleft()
+            self._bins[-1][1][1 if video else 0] += int(nbytes)
+            if feedback:
+                bits = 8.0 * nbytes
+                self._fb_bits = bits if self._fb_bits == 0.0 else 0.9 * self._fb_bits + 0.1 * bits
+
+    def on_h2(self, h2_s: float) -> None:
+        """Feed the leader's feedback-path delay estimate [s] (from each command's ``h2_s``)."""
+        if not math.isfinite(h2_s) or h2_s < 0:
+            return
+        now = self._clock()
+        self._h2 = float(h2_s)
+        self._h2_min.add(now, self._h2)
+        wmin = self._h2_min.value(now)
+        assert wmin is not None
+        # The baseline is held through a rise (a queue of ours draining for longer than
+        # the window is still measured against the delay before it).
+        if self._rise_since is None or self._h2_base is None or wmin < self._h2_base:
+            self._h2_base = wmin
+        base = self._h2_base
+        hist = self._h2_hist
+        hist.append((now, self._h2))
+        while hist and hist[0][0] < now - 2.0:
+            hist.popleft()
+        self._cmd_times.append(now)
+        while self._cmd_times and self._cmd_times[0] < now - self.window_s:
+            self._cmd_times.popleft()
+        self.excess_s = max(0.0, self._h2 - base)
+        if self.excess_s > self.delay_rise_s:
+            falling = self._h2 < max(h for _, h in hist) - 0.05  # a queue of ours draining
+            if self._rise_since is None:
+                self._rise_since = now
+            elif now - self._rise_since >= self.relearn_s and not falling:
+                # lasting: the path's own delay, not a queue of ours
+                self._h2_min.clear()
+                self._h2_min.add(now, self._h2)
+                self._h2_base = self._h2
+                self.excess_s = 0.0
+                self._rise_since = None
+                self._delay_episode = False
+                self.signals["relearn"] += 1
+        else:
+            self._rise_since = None
+            self._delay_episode = False
+
+    def on_leader_status(self, counters: Mapping[str, int], t_sent: float | None = None) -> None:
+        """Judge the path from a leader Status.
+
+        Parameters
+        ----------
+        counters : Mapping[str, int]
+            The status's counters; ``rx_bps`` missing or not an int: nothing is judged.
+        t_sent : float, optional
+            The status's send time on the local clock [s] (default: now; the forward
+            delay is small against the 2 s window).
+        """
+        now = self._clock()
+        self.leader = {k: v for k, v in counters.items() if k in ("rx_bps", "fb_loss_ppm", "fb_age_ms")
+                       and isinstance(v, int) and not isinstance(v, bool)}  # fmt: skip
+        rx = self.leader.get("rx_bps")
+        if rx is None:
+            return
+        self._last_status = now
+        ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
+        h2 = self._h2 or 0.0
+        tx = self._rate(ts - h2 - self.window_s, ts - h2)
+        rate_limited = tx >= self.min_tx_bps and rx < self.ratio * tx
+        delay_limited = self._rise_since is not None and now - self._rise_since >= self.delay_hold_s
+        if rate_limited:
+            self.signals["rate"] += 1
+            episode = now - self._last_signal < self.hold_s
+            self._last_signal = now
+            if not episode:  # the path delivers rx
+                self.capacity_bps = max(self.floor_bps, float(rx))
+                self._last_cut = now
+            elif ts - h2 - self.window_s >= self._last_cut:  # still over, judged on a window sent after the cut
+                self.capacity_bps = max(self.floor_bps, self.decrease * float(rx))
+                self._last_cut = now
+        elif delay_limited:
+            self._last_signal = now
+            if not self._delay_episode:
+                self.signals["delay"] += 1
+                self._delay_episode = True
+                self.capacity_bps = max(self.floor_bps, min(self.capacity_bps, float(rx)))
+                self._last_cut = now
+
+    def update(self) -> None:
+        """Probe upward (additive increase) while not limited; call it every tick."""
+        now = self._clock()
+        last, self._last_update = self._last_update, now
+        if last is None or not math.isfinite(self.capacity_bps):
+            return
+        if self.limited or now - self._last_status > self.status_timeout_s:
+            return
+        self.capacity_bps += self.increase_bps_per_s * max(0.0, now - last)
+
+    # ------------------------------------------------------------------ outputs
+
+    def _rate(self, a: float, b: float, which: int | None = None) -> float:
+        """Sent rate over ``[a, b)`` [bit/s]: control (0), video (1) or both (None)."""
+        if b <= a:
+            return 0.0
+        ia, ib = int(a / _BIN_S), int(b / _BIN_S)
+        total = 0
+        with self._lock:
+            for i, (c, v) in self._bins:
+                if ia <= i < ib:
+                    total += (c + v) if which is None else (c, v)[which]
+        return 8.0 * total / max(_BIN_S, (ib - ia) * _BIN_S)
+
+    def tx_bps(self, which: str | None = None) -> float:
+        """Sent rate over the last ``window_s`` [bit/s]: ``control``, ``video`` or all (None)."""
+        now = self._clock()
+        idx = None if which is None else ("control", "video").index(which)
+        return self._rate(now - self.window_s, now, idx)
+
+    @property
+    def limited(self) -> bool:
+        """True while the path is capacity-limited (a signal within the last ``hold_s``)."""
+        return self._clock() - self._last_signal < self.hold_s
+
+    def video_budget_bps(self) -> float | None:
+        """Video's budget [bit/s]: capacity - control's measured rate - margin; None: unlimited."""
+        cap = self.capacity_bps
+        if not math.isfinite(cap):
+            return None
+        # a queue in the path (h2 above its minimum) is drained within ``drain_s``
+        margin = max(self.margin * cap, self.margin_min_bps, cap * self.excess_s / self.drain_s)
+        return max(0.0, cap - self.tx_bps("control") - margin)
+
+    def feedback_plan(self, rate_hz: float) -> FeedbackPlan:
+        """How to send feedback now, given the configured rate ``rate_hz`` [Hz].
+
+        Every command is acknowledged at once, at ``rate_hz``, while that (the periodic
+        feedback plus one per command received) fits ``control_share`` of the capacity
+        (always while it is unknown). Otherwise the acknowledgements ride on the next
+        tick's feedback, and the rate is the highest of ``rate_hz``, 25 and 10 Hz that fits.
+        As the capacity is probed back up, the plan returns to full rate.
+        """
+        fits = self.control_share * self.capacity_bps
+        cmd_hz = len(self._cmd_times) / self.window_s
+        if not math.isfinite(fits) or (rate_hz + cmd_hz) * self._fb_bits <= fits:
+            return FeedbackPlan(True, rate_hz)
+        for hz in (rate_hz, 25.0, 10.0):
+            if hz <= rate_hz and hz * self._fb_bits <= fits:
+                return FeedbackPlan(False, hz)
+        return FeedbackPlan(False, min(rate_hz, 10.0))

@@ -1,0 +1,180 @@
+"""UplinkBudget (follower/capacity.py) on synthetic paths, with a fake clock.
+
+A fluid model of the robot's uplink: what the follower sends enters a FIFO queue drained
+at the path's capacity (none: infinite), a share ``loss`` is lost, the rest arrives after
+the path's base delay h2(t) plus the queue's delay. The leader sums what arrives over 2 s
+and sends ``rx_bps`` in its Status at 2 Hz (150 ms on the way back); each command (100 Hz)
+carries the leader's h2 (base + queue). The follower sends feedback (380 B; 50 Hz plus an
+acknowledgement per 100 Hz command unless coalesced), a status (600 B, 2 Hz), and video at
+``min(want, budget)``.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from collections.abc import Callable
+
+import pytest
+from bipedtele.delaymodels import parse_delay_model
+from bipedtele.follower.capacity import UplinkBudget
+
+pytestmark = pytest.mark.timeout(60)
+
+FB_BYTES = 380
+STATUS_BYTES = 600
+DT = 0.01
+
+
+class Sim:
+    def __init__(
+        self, cap_bps: float = math.inf, base_h2: Callable[[float], float] = lambda t: 0.18, loss: float = 0.0,
+        video_want_bps: float = 800_000.0,
+    ) -> None:  # fmt: skip
+        self.t = 1000.0
+        self.cap = cap_bps
+        self.base_h2 = base_h2
+        self.loss = loss
+        self.rng = random.Random(1)
+        self.want = video_want_bps
+        self.budget = UplinkBudget(lambda: self.t)
+        self.queue_bits = 0.0
+        self.arrivals: deque[tuple[float, float]] = deque()  # (arrival time, bits)
+        self.in_flight: deque[tuple[float, float]] = deque()
+        self.statuses: deque[tuple[float, dict[str, int], float]] = deque()  # (arrive, counters, t_sent)
+        self.next_status = self.t
+        self.next_fb = self.t
+        self.next_st = self.t
+        self.video_credit = 0.0
+        self.first_arrival: float | None = None
+        self.log: list[dict[str, float]] = []
+
+    def queue_s(self) -> float:
+        return self.queue_bits / self.cap if math.isfinite(self.cap) else 0.0
+
+    def send(self, nbytes: int, video: bool = False, feedback: bool = False) -> None:
+        self.budget.sent(nbytes, video, feedback=feedback)
+        if self.rng.random() >= self.loss:
+            self.queue_bits += 8 * nbytes
+
+    def step(self) -> None:
+        t, b = self.t, self.budget
+        b.on_h2(self.base_h2(t) + self.queue_s())  # the command of this period
+        plan = b.feedback_plan(50.0)
+        if plan.ack_each_command:
+            self.send(FB_BYTES, feedback=True)  # the acknowledgement of this command
+        if t >= self.next_fb:
+            self.next_fb += 1.0 / plan.rate_hz
+            self.send(FB_BYTES, feedback=True)
+        if t >= self.next_st:
+            self.next_st += 0.5
+            self.send(STATUS_BYTES)
+        vb = b.video_budget_bps()
+        rate = self.want if vb is None else min(self.want, vb)
+        self.video_credit += rate * DT / 8
+        while self.video_credit >= 10_000:  # 10 kB frames
+            self.video_credit -= 10_000
+            self.send(10_000, video=True)
+        # the path
+        out = self.queue_bits if not math.isfinite(self.cap) else min(self.queue_bits, self.cap * DT)
+        self.queue_bits -= out
+        if out:
+            self.in_flight.append((t + self.base_h2(t), out))  # queued already
+        while self.in_flight and self.in_flight[0][0] <= t:
+            self.arrivals.append(self.in_flight.popleft())
+        while self.arrivals and self.arrivals[0][0] < t - 2.0:
+            self.arrivals.popleft()
+        if self.first_arrival is None and self.arrivals:
+            self.first_arrival = self.arrivals[0][0]
+        if t >= self.next_status:  # the leader's status, 150 ms to the follower; rx once its window is warm
+            self.next_status += 0.5
+            counters = {"fb_loss_ppm": 0, "fb_age_ms": 200}
+            if self.first_arrival is not None and t - self.first_arrival >= 2.0:
+                counters["rx_bps"] = round(sum(bits for _, bits in self.arrivals) / 2.0)
+            self.statuses.append((t + 0.15, counters, t))
+        while self.statuses and self.statuses[0][0] <= t:
+            _, counters, ts = self.statuses.popleft()
+            b.on_leader_status(counters, ts)
+        b.update()
+        self.log.append({
+            "t": t, "tx": b.tx_bps(), "video_budget": -1.0 if vb is None else vb, "queue_s": self.queue_s(),
+            "limited": float(b.limited), "cap": b.capacity_bps,
+        })  # fmt: skip
+        self.t += DT
+
+    def run(self, seconds: float) -> list[dict[str, float]]:
+        n0 = len(self.log)
+        for _ in range(round(seconds / DT)):
+            self.step()
+        return self.log[n0:]
+
+
+def test_capped_at_300_kbit_s_with_video_wanting_800_the_budget_fits_under_the_cap_within_5_s() -> None:
+    sim = Sim(cap_bps=300_000.0)
+    sim.run(3.0)  # the leader's window warms up: rx_bps from 2 s on
+    first = sim.run(5.0)
+    assert any(r["limited"] for r in first)
+    settled = [r for r in first if r["t"] >= first[-1]["t"] - 1.0]
+    assert all(r["tx"] < 300_000 for r in settled), max(r["tx"] for r in settled)
+    rest = sim.run(30.0)
+    # under the cap on average, the queue drained and kept short, video still on
+    assert sum(r["tx"] for r in rest) / len(rest) < 300_000
+    # (the first 2 s, before the leader's window is warm, queue seconds; then AIMD's sawtooth)
+    late = rest[-1000:]
+    assert max(r["queue_s"] for r in late) < 0.75 and sum(r["queue_s"] for r in late) / len(late) < 0.3
+    assert min(r["video_budget"] for r in late) > 50_000  # video back on once the queue drained
+    # control shrank while limited: no acknowledgement per command
+    assert not sim.budget.feedback_plan(50.0).ack_each_command or not sim.budget.limited
+
+
+def test_uncapped_never_throttles() -> None:
+    sim = Sim()
+    log = sim.run(40.0)
+    assert all(r["video_budget"] == -1.0 and not r["limited"] for r in log)
+    assert sim.budget.feedback_plan(50.0) == sim.budget.feedback_plan(50.0).__class__(True, 50.0)
+    assert sim.budget.tx_bps() > 800_000
+
+
+def test_one_percent_random_loss_alone_does_not_throttle() -> None:
+    sim = Sim(loss=0.01)
+    log = sim.run(40.0)
+    assert not any(r["limited"] for r in log) and log[-1]["video_budget"] == -1.0
+
+
+@pytest.mark.parametrize("which", ["sine", "shipped"])
+def test_slow_delay_swings_alone_do_not_turn_video_off(which: str) -> None:
+    """+-200 ms over 10 s (a 20 s sine), and the shipped trace's h2: video keeps most of its rate."""
+    if which == "sine":
+        base = lambda t: 0.38 + 0.2 * math.sin(2 * math.pi * t / 20.0)  # noqa: E731
+    else:
+        model = parse_delay_model("trace:intercontinental:h2")
+        base = lambda t: model.delay_s(t - 1000.0)  # noqa: E731
+    sim = Sim(base_h2=base)
+    log = sim.run(120.0)
+    budgets = [r["video_budget"] for r in log]
+    known = [v for v in budgets if v >= 0]
+    assert not known or min(known) > 400_000, min(known)
+    sent_video = sim.budget.tx_bps("video")
+    assert sent_video > 400_000
+
+
+def test_a_leader_without_rx_bps_changes_nothing() -> None:
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+    for _ in range(500):
+        b.sent(10_000, video=True)
+        b.on_h2(0.2 if t[0] < 2 else 2.0)
+        b.on_leader_status({"fb_loss_ppm": 900_000})
+        b.update()
+        t[0] += 0.01
+    assert b.video_budget_bps() is None and not b.limited
+
+
+def test_bad_leader_figures_are_ignored() -> None:
+    t = [10.0]
+    b = UplinkBudget(lambda: t[0])
+    b.on_h2(float("nan"))
+    b.on_h2(-1.0)
+    b.on_leader_status({"rx_bps": True, "fb_age_ms": 3})  # a bool is no rate
+    assert b.video_budget_bps() is None and b.leader == {"fb_age_ms": 3}
