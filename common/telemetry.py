@@ -14,12 +14,13 @@ finite (NaN, inf) are written as ``null`` in JSON and read back as None.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Annotated, Any
 
 import msgspec
 
-__all__ = ["LINK_STATES", "LeaderSample", "numpy_hook", "sample_from_map", "sample_to_json"]
+__all__ = ["LINK_STATES", "LeaderSample", "link_words", "numpy_hook", "sample_from_map", "sample_to_json"]
 
 #: The link states the leader's sample carries (``link``), machine-readable.
 LINK_STATES: tuple[str, ...] = ("waiting", "ok", "lossy", "capacity-limited", "stale", "lost", "no-follower")
@@ -198,6 +199,25 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     falls: Annotated[int | None, _d("follower falls")] = None
     collisions: Annotated[int | None, _d("follower obstacle contacts")] = None
     follower_text: Annotated[str | None, _d("follower status text")] = None
+
+
+def link_words(state: str | None, lost_s: float | None = None) -> str:
+    """Return the link state in words for people (``link lost for 3.2 s``, ``no follower``).
+
+    Parameters
+    ----------
+    state : str or None
+        One of :data:`LINK_STATES` (others are returned as they are; None: ``-``).
+    lost_s : float or None
+        For ``lost``: how long no feedback arrived [s].
+    """
+    if state is None:
+        return "-"
+    if state == "lost":
+        return "link lost" if lost_s is None or not math.isfinite(lost_s) else f"link lost for {lost_s:.1f} s"
+    if state == "no-follower":
+        return "no follower"
+    return state
 
 
 def numpy_hook(obj: Any) -> Any:

@@ -58,32 +58,13 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from bipedtele.telemetry import LINK_STATES
+from bipedtele.telemetry import LINK_STATES, link_words
 
 __all__ = ["LINK_STATES", "LinkQuality", "LinkReport", "link_words"]
 
 
 #: Largest sequence gap counted as lost messages (a larger jump is a restart, not loss).
 _MAX_GAP = 10_000
-
-
-def link_words(state: str | None, lost_s: float | None = None) -> str:
-    """Return the link state in words for people (``link lost for 3.2 s``, ``no follower``).
-
-    Parameters
-    ----------
-    state : str or None
-        One of :data:`LINK_STATES` (others are returned as they are; None: ``-``).
-    lost_s : float or None
-        For ``lost``: how long no feedback arrived [s].
-    """
-    if state is None:
-        return "-"
-    if state == "lost":
-        return "link lost" if lost_s is None or not math.isfinite(lost_s) else f"link lost for {lost_s:.1f} s"
-    if state == "no-follower":
-        return "no follower"
-    return state
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ The leader's recorder closes an MCAP chunk and flushes the file about once a sec
 since its last call (no re-reading, no seeking back), :class:`LiveStatus` folds them into
 the figures of one line and :func:`format_status` writes it::
 
-    passes 3/10 | 64 s | h1+h2 372 ms | falls 0 | contacts 0 | err fwd 0.71 cm/s, turn 5.20 deg/s
+    passes 3/10 | 64 s | h1+h2 372 ms | falls 0 | contacts 0 | err fwd 0.71 cm/s, turn 5.20 deg/s | link ok: fb age 312 ms, loss 0.0 %, 850 kbit/s, video 9.8 fps q60
 
 Figures (all from the leader's recording):
 
@@ -16,7 +16,13 @@ Figures (all from the leader's recording):
 - falls, contacts: the follower's counters as the leader's samples carry them;
 - errors: running means of ``|ref - eta|`` over the ``feedback/recv`` records since the
   operator's ``start`` event (forward [cm/s], turn [deg/s]): the instantaneous tracking
-  error, the report's definition before the end-of-run report takes over.
+  error, the report's definition before the end-of-run report takes over;
+- link (once a sample carries it; recordings before issue 19 have none and the line ends
+  at ``err``): the latest sample's link state in words (``ok``, ``lossy``,
+  ``capacity-limited``, ``stale``, ``link lost for 3.2 s``, ``no follower``, ``waiting``),
+  the age of the newest feedback [ms], the feedback loss over the last 2 s [%], the goodput
+  received [kbit/s] and the video frames per second received with the follower's JPEG
+  quality; an unknown figure shows as ``-``.
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from bipedtele.recording import RecordDecoder
-from bipedtele.telemetry import LeaderSample, sample_from_map
+from bipedtele.telemetry import LeaderSample, link_words, sample_from_map
 from mcap.stream_reader import StreamReader
 
 __all__ = ["LiveStatus", "RecordingTail", "StatusPrinter", "format_status"]
@@ -121,6 +127,13 @@ class LiveStatus:
     falls: int = 0
     contacts: int = 0
     started: bool = False
+    link: str | None = None
+    link_lost_s: float | None = None
+    fb_age_ms: float | None = None
+    loss_pct: float | None = None
+    rx_kbps: float | None = None
+    video_fps: float | None = None
+    video_quality: int | None = None
     _err_sum: tuple[float, float] = (0.0, 0.0)
     _err_n: int = 0
 
@@ -156,6 +169,11 @@ class LiveStatus:
             self.contacts = max(self.contacts, sample.collisions)
         if sample.passes_done is not None:
             self.passes = max(self.passes, sample.passes_done)
+        if sample.link is not None:  # the link's figures as of the latest sample that has them
+            self.link, self.link_lost_s = sample.link, _num(sample.link_lost_s)
+            self.fb_age_ms, self.loss_pct = _num(sample.fb_age_ms), _num(sample.loss_pct)
+            self.rx_kbps, self.video_fps = _num(sample.rx_kbps), _num(sample.video_fps)
+            self.video_quality = sample.video_quality
 
     @property
     def errors(self) -> tuple[float, float] | None:
@@ -171,10 +189,21 @@ def format_status(st: LiveStatus, elapsed_s: float) -> str:
     delay = "-" if st.delay_ms is None else f"{st.delay_ms:.0f} ms"
     err = st.errors
     err_text = "-" if err is None else f"fwd {err[0]:.2f} cm/s, turn {err[1]:.2f} deg/s"
-    return (
+    line = (
         f"passes {st.passes}/{total} | {elapsed_s:.0f} s | h1+h2 {delay} | falls {st.falls} | "
         f"contacts {st.contacts} | err {err_text}"
     )
+    if st.link is None:
+        return line
+    age = "-" if st.fb_age_ms is None else f"{st.fb_age_ms:.0f} ms"
+    loss = "-" if st.loss_pct is None else f"{st.loss_pct:.1f} %"
+    rx = "-" if st.rx_kbps is None else f"{st.rx_kbps:.0f} kbit/s"
+    video = "-" if st.video_fps is None else f"{st.video_fps:.1f} fps"
+    if st.video_quality is not None:
+        video += f" q{st.video_quality}"
+    words = link_words(st.link, st.link_lost_s)
+    words = words if words.startswith("link ") else f"link {words}"
+    return f"{line} | {words}: fb age {age}, loss {loss}, {rx}, video {video}"
 
 
 class StatusPrinter:

@@ -68,6 +68,21 @@ def test_status_line_format() -> None:
     assert format_status(LiveStatus(), 0.0).startswith("passes 0/? |")
 
 
+def test_status_line_tells_the_link_in_words() -> None:
+    st = LiveStatus(passes_total=10)
+    st.add("leader/state", {"t": 1.0, "link": "ok", "fb_age_ms": 312.4, "loss_pct": 0.04, "rx_kbps": 850.2,
+                            "video_fps": 9.8, "video_quality": 60})  # fmt: skip
+    assert format_status(st, 5.0).endswith(
+        "| err - | link ok: fb age 312 ms, loss 0.0 %, 850 kbit/s, video 9.8 fps q60"
+    )
+    st.add("leader/state", {"t": 2.0, "link": "lost", "link_lost_s": 3.24, "fb_age_ms": 4100.0, "loss_pct": 12.5})
+    assert format_status(st, 6.0).endswith("| link lost for 3.2 s: fb age 4100 ms, loss 12.5 %, -, video -")
+    st.add("leader/state", {"t": 3.0, "link": "capacity-limited", "rx_kbps": 400.0})
+    assert "| link capacity-limited: fb age -, loss -, 400 kbit/s, video -" in format_status(st, 7.0)
+    st.add("leader/state", {"t": 4.0, "h1_ms": 100.0})  # a sample without the link keeps the last one
+    assert "capacity-limited" in format_status(st, 8.0)
+
+
 def _wait_records(tail: RecordingTail, n: int, timeout_s: float = 10.0) -> list[tuple[str, dict]]:
     got: list[tuple[str, dict]] = []
     deadline = time.monotonic() + timeout_s
