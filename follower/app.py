@@ -23,9 +23,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
+from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.realtime import RealtimeStepper
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot
@@ -33,7 +35,7 @@ from bipedtele.follower.robots import robot_names, robot_spec
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command, Feedback, Message, Status
+from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.pacer import Pacer
 from bipedtele.transport import LatestReceiver, MessagePublisher, Received
@@ -108,12 +110,21 @@ class FollowerApp:
         self.pacer: Pacer | None = None
         self._cmd_rx: LatestReceiver[Command] | None = None
         self._outlets: dict[type[Message], tuple[MessagePublisher, str]] = {}
+        # The uplink: bytes sent counted at the publish call, the leader's rx_bps in.
+        self.budget = UplinkBudget(self.clock)
+        self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
+        self._fb_times: list[float] = []
+        self._status_rx: LatestReceiver[Status] | None = None
+        self._video: VideoStreamer | None = None
 
     # ------------------------------------------------------------------ wiring
 
     def _take_command(self) -> tuple[Command, float] | None:
         got = self._cmd_rx.take() if self._cmd_rx is not None else None
-        return (got.msg, got.t_recv) if got is not None else None
+        if got is None:
+            return None
+        self.budget.on_h2(got.msg.h2_s)  # the leader's feedback-path delay
+        return got.msg, got.t_recv
 
     def _on_command(self, got: Received[Command]) -> None:  # Zenoh's thread: wake the loop
         if self.pacer is not None:
@@ -122,6 +133,44 @@ class FollowerApp:
     def _publish(self, msg: Message) -> None:
         pub, topic = self._outlets[type(msg)]
         self.node.send(pub, msg, topic)
+        fb = isinstance(msg, Feedback)
+        self.budget.sent(len(encode(msg)) + self._mac_bytes, feedback=fb)
+        if fb:
+            self._fb_times.append(self.clock())
+
+    def _publish_video(self, frame: VideoFrame) -> None:  # the video thread
+        self.node.pubs.video.put(frame)
+        self.budget.sent(len(encode(frame)) + self._mac_bytes, video=True)
+
+    def _adapt(self, loop: FollowerLoop) -> None:
+        """Once per tick: the leader's figures in, the feedback plan and video's budget out."""
+        got = self._status_rx.take() if self._status_rx is not None else None
+        if got is not None and got.msg.role == "leader":
+            self.budget.on_leader_status(got.msg.counters, self.node.to_local(got.msg.t))
+        self.budget.update()
+        plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz)
+        loop.ack_each_command, loop.feedback_rate_hz = plan.ack_each_command, plan.rate_hz
+        if self._video is not None:
+            self._video.set_budget(self.budget.video_budget_bps())
+
+    def _uplink_counters(self) -> dict[str, int]:
+        """Return the follower's uplink figures for its Status (docs/follower.md, Capacity)."""
+        b, now = self.budget, self.clock()
+        self._fb_times = [t for t in self._fb_times if t > now - 2.0]
+        vb = b.video_budget_bps()
+        out = {
+            "tx_bps": round(b.tx_bps()),
+            "feedback_hz": round(len(self._fb_times) / 2.0),
+            "capacity_limited": int(b.limited),
+        }
+        if self._video is not None:
+            video = self._video
+            full = video.max_fps * len(video.cameras) * video.frame_bits(0) if video.period else 0.0
+            out["video_budget_bps"] = round(min(full, 1e9) if vb is None else vb)
+            out.update(video.counters())
+        else:
+            out["video_budget_bps"] = 0
+        return out
 
     def _reset_robot(self, sid: int) -> bool:
         """``on_new_leader`` for ``--reset-on-leader``: the robot back on its start pose."""
@@ -160,6 +209,11 @@ class FollowerApp:
             pubs = node.pubs
             self._outlets = {Feedback: (pubs.feedback, "feedback/sent"), Status: (pubs.status, "status/sent")}
             loop = self._make_loop(robot)
+            loop.extra_counters = self._uplink_counters
+            # The leader's Status: what it receives of ours (rx_bps) for the uplink budget.
+            self._status_rx = node.receive(
+                node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid
+            )
             # Every accepted command: recorded and fed to h1 once, in the receiver.
             self._cmd_rx = node.receive(
                 node.keys.cmd, Command, self.gate, topic="cmd/recv", estimator=self.h1, on_message=self._on_command
@@ -167,9 +221,10 @@ class FollowerApp:
             backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
             video = node.enter(VideoStreamer(
-                robot, self.fcfg.cameras, self.fcfg.camera_fps, pubs.video.put, now=self.clock,
+                robot, self.fcfg.cameras, self.fcfg.camera_fps, self._publish_video, now=self.clock,
                 jpeg_quality=self.fcfg.jpeg_quality,
             ))  # fmt: skip
+            self._video = video
             node.link_clocks(peer_sid=lambda: self.gate.live_sid)
             LOG.info("follower %s ready: robot %s, key %s, %s", node.keys.cmd.split("/")[1], self.robot_name,
                      node.keys.cmd, "real time" if self.realtime else "as fast as possible")  # fmt: skip
@@ -190,6 +245,7 @@ class FollowerApp:
         assert isinstance(clock, StepClock)
         start_t = clock()
         while not self.node.stopping:
+            self._adapt(supervisor.loop)
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)
@@ -214,6 +270,7 @@ class FollowerApp:
         start_t = self.clock()
 
         def tick() -> None:
+            self._adapt(loop)
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)

@@ -216,6 +216,13 @@ class FollowerLoop:
             "collisions": 0, "robot_faults": 0, "walk_refused": 0, "leader_sessions": 0, "resets": 0,
             "operator_stops": 0, "cmd_backlog": 0, "cmd_reordered": 0,
         }
+        #: Publish a Feedback for every command picked up between ticks (False: the next
+        #: periodic feedback acknowledges it; the program clears it on a full uplink).
+        self.ack_each_command = True
+        #: Periodic feedback rate [Hz] (``feedback_rate_hz``; lowered on a full uplink).
+        self.feedback_rate_hz = float(cfg.feedback_rate_hz)
+        #: Extra Status counters (the program's uplink figures), merged into every Status.
+        self.extra_counters: Callable[[], dict[str, int]] | None = None
         self.baseline = DelayBaseline(window_s=cfg.backlog_window_s, relearn_s=cfg.backlog_window_s)
         self._next_backlog_log = -math.inf
         self._cmd: Command | None = None
@@ -375,7 +382,7 @@ class FollowerLoop:
         tel = self._control(now, obs)
         self._odometry(obs, now, tel.ref)
         if now >= self._next_fb:
-            self._next_fb = max(now, self._next_fb + 1.0 / self.cfg.feedback_rate_hz)
+            self._next_fb = max(now, self._next_fb + 1.0 / self.feedback_rate_hz)
             self._publish(self._feedback(now, obs))
         if now >= self._next_status:
             self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
@@ -407,7 +414,8 @@ class FollowerLoop:
             old_ref = self.telemetry.ref
             tel = self._control(now, start.obs)
             self._ref_sum = self._ref_sum + (np.asarray(tel.ref, dtype=float) - np.asarray(old_ref, dtype=float))
-            self._publish(self._feedback(now, start.obs))
+            if self.ack_each_command:  # else the next periodic feedback acknowledges it
+                self._publish(self._feedback(now, start.obs))
             return True
         except Exception as exc:
             LOG.warning("applying a new command between ticks failed: %s", exc)
@@ -596,6 +604,8 @@ class FollowerLoop:
         counters = dict(self.counters)
         if self._drops is not None:
             counters.update({f"drop_{k}": v for k, v in self._drops.counts().items()})
+        if self.extra_counters is not None:
+            counters.update(self.extra_counters())
         return counters
 
     def _status_note(self) -> str:

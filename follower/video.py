@@ -10,6 +10,13 @@ A camera fault costs frames, never the control loop: a capture that raises (a ro
 answer the bridge cannot decode, a camera that is busy or gone) or returns something that
 is not an H x W x 3 uint8 image is skipped and counted (``errors``), and logged at most
 every ``_LOG_EVERY_S`` seconds; an encoding failure is counted the same way.
+
+A budget (:meth:`VideoStreamer.set_budget`, bits/s; None: unlimited) makes the streamer
+fit the uplink: it picks a level (JPEG quality and size, QVGA down to QQVGA, see
+``LEVELS``) and a frame rate from the measured frame sizes, preferring at least
+``_GOOD_FPS`` frames/s per camera before quality, down to 1 frame/s at the lowest level,
+and off only when even that does not fit; a token bucket (rate: the budget) makes sure
+it never sends faster than the budget (a frame without tokens is dropped, ``throttled``).
 """
 
 from __future__ import annotations
@@ -30,6 +37,19 @@ __all__ = ["VideoStreamer"]
 LOG = logging.getLogger(__name__)
 
 _LOG_EVERY_S = 10.0  # at most one camera-error line per this many seconds
+_GOOD_FPS = 5.0  # frames/s per camera kept before quality is
+_CHOOSE_EVERY_S = 1.0  # the level is chosen again at most this often [s]
+_OVERHEAD_BYTES = 120  # a VideoFrame's fields and MAC around the JPEG [bytes]
+
+#: Levels, best first: (size scale, JPEG quality relative to the configured one, lowest
+#: absolute quality) and the expected frame size relative to level 0 until measured.
+LEVELS: tuple[tuple[float, float, float], ...] = (
+    (1.0, 1.0, 1.0),
+    (1.0, 0.6, 0.55),
+    (0.5, 0.6, 0.2),
+    (0.5, 0.3, 0.13),
+    (0.5, 0.125, 0.09),
+)
 
 
 class VideoStreamer:
@@ -79,6 +99,18 @@ class VideoStreamer:
         }
         self._next_log = -float("inf")
         self._unlogged = 0
+        self.max_fps = float(fps)
+        self.stats["throttled"] = 0
+        self._budget: float | None = None
+        self._level = 0
+        self._fps = float(fps)
+        self._frame_bits: dict[int, float] = {}  # measured bits per frame by level (EWMA)
+        self._tokens = 0.0
+        self._t_tokens: float | None = None
+        self._next_choose = -float("inf")
+        self._sent_times: list[float] = []
+        #: Width of the last frame sent [px].
+        self.width_sent = 0
 
     def __enter__(self) -> VideoStreamer:
         self.start()
@@ -106,10 +138,16 @@ class VideoStreamer:
         """Capture the cameras that are due at loop time ``t`` [s] (cheap when none is)."""
         if not self.period:
             return
+        if self._budget is not None and t >= self._next_choose:
+            self._next_choose = t + _CHOOSE_EVERY_S
+            self._choose()
+        if self._fps <= 0:
+            return
+        period = 1.0 / self._fps
         for cam in self.cameras:
             if t < self._next[cam]:
                 continue
-            self._next[cam] = max(t, self._next[cam] + self.period)
+            self._next[cam] = max(t, self._next[cam] + period)
             t0 = time.perf_counter()
             try:
                 image = self.robot.capture(cam)
@@ -152,10 +190,16 @@ class VideoStreamer:
                 cam, image, t_capture = self._slot
                 self._slot = None
             t0 = time.perf_counter()
+            with self._cv:
+                level = self._level
+            scale, _, _ = LEVELS[level]
+            quality = self.quality_at(level)
             try:
-                ok, buf = cv2.imencode(
-                    ".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self._quality]
-                )
+                bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+                if scale != 1.0:
+                    h, w = bgr.shape[:2]
+                    bgr = cv2.resize(bgr, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+                ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
             except cv2.error as exc:
                 ok, buf = False, None
                 LOG.debug("JPEG encoding: %s", exc)
@@ -163,22 +207,113 @@ class VideoStreamer:
             if not ok or buf is None:
                 self._error(cam, RuntimeError("JPEG encoding failed"))
                 continue
+            jpeg = buf.tobytes()
+            bits = 8.0 * (len(jpeg) + _OVERHEAD_BYTES)
+            if not self._spend(level, bits):
+                self.stats["throttled"] += 1
+                continue
             self._seq += 1
             frame = VideoFrame(
                 sid=self._sid,
                 seq=self._seq,
                 t=self._now(),
                 camera=cam,
-                width=int(image.shape[1]),
-                height=int(image.shape[0]),
+                width=bgr.shape[1],
+                height=bgr.shape[0],
                 t_capture=t_capture,
-                jpeg=buf.tobytes(),
+                jpeg=jpeg,
             )
             try:
                 self._publish(frame)
                 self.stats["published"] += 1
+                with self._cv:
+                    self._sent_times.append(self._now())
+                    self.width_sent = frame.width
             except Exception:  # a transport hiccup must not kill the video thread
                 LOG.exception("publishing a video frame failed")
+
+
+    # ------------------------------------------------------------------ budget
+
+    def quality_at(self, level: int) -> int:
+        """JPEG quality of ``level`` (10-100)."""
+        _, rel, _ = LEVELS[level]
+        return int(min(100, max(10, round(self._quality * rel))))
+
+    def set_budget(self, bps: float | None) -> None:
+        """Set video's budget [bit/s] (None: unlimited, the configured rate and quality)."""
+        with self._cv:
+            was, self._budget = self._budget, (None if bps is None else max(0.0, float(bps)))
+            if self._budget is None:
+                self._level, self._fps = 0, self.max_fps
+        if was is None and bps is not None:
+            self._next_choose = -float("inf")  # choose at the next capture
+
+    def frame_bits(self, level: int) -> float:
+        """Return the expected bits per frame at ``level``: measured there, else scaled from a measured level."""
+        with self._cv:
+            got = dict(self._frame_bits)
+        if level in got:
+            return got[level]
+        if got:
+            ref, bits = next(iter(got.items()))
+            return bits * LEVELS[level][2] / LEVELS[ref][2]
+        return 8.0 * 12_000 * LEVELS[level][2]  # a QVGA frame at quality 80: about 12 kB
+
+    def _choose(self) -> None:
+        """Pick the level and frame rate that fit the budget (see the module docstring)."""
+        budget = self._budget
+        if budget is None:
+            return
+        per_cam = budget / max(1, len(self.cameras))
+        best: tuple[int, float] | None = None
+        for level in range(len(LEVELS)):
+            fps = min(self.max_fps, per_cam / self.frame_bits(level))
+            if fps >= min(self.max_fps, _GOOD_FPS):
+                best = (level, fps)
+                break
+        if best is None:
+            last = len(LEVELS) - 1
+            fps = min(self.max_fps, per_cam / self.frame_bits(last))
+            best = (last, fps if fps >= 1.0 else 0.0)
+        with self._cv:
+            self._level, self._fps = best
+
+    def _spend(self, level: int, bits: float) -> bool:
+        """Token bucket: take ``bits`` if the budget allows (always when unlimited)."""
+        with self._cv:
+            old = self._frame_bits.get(level)
+            self._frame_bits[level] = bits if old is None else 0.7 * old + 0.3 * bits
+            budget = self._budget
+            now = self._now()
+            if budget is None:
+                self._t_tokens = None
+                return True
+            depth = max(0.5 * budget, 1.5 * bits)
+            if self._t_tokens is None:
+                self._tokens = depth
+            else:
+                self._tokens = min(depth, self._tokens + budget * max(0.0, now - self._t_tokens))
+            self._t_tokens = now
+            if self._tokens < bits:
+                return False
+            self._tokens -= bits
+            return True
+
+    def counters(self, window_s: float = 2.0) -> dict[str, int]:
+        """``video_fps_x10`` (frames/s x 10 sent over the last ``window_s``), ``video_quality``, ``video_width``."""
+        now = self._now()
+        with self._cv:
+            self._sent_times = [t for t in self._sent_times if t > now - window_s]
+            n = len(self._sent_times)
+            level, fps = self._level, self._fps
+            width = self.width_sent
+        on = self.period > 0 and fps > 0
+        return {
+            "video_fps_x10": round(10 * n / window_s),
+            "video_quality": self.quality_at(level) if on else 0,
+            "video_width": int(width) if on else 0,
+        }
 
 
 def _check_image(image: Any) -> None:

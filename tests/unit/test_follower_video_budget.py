@@ -1,0 +1,68 @@
+"""VideoStreamer under a budget (follower/video.py): it picks quality, size and rate to fit,
+never sends faster than the budget (token bucket), and is off only when 1 frame/s at the
+lowest level does not fit. Fake clock; the encoder thread is real."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from bipedtele.follower.video import LEVELS, VideoStreamer
+from bipedtele.messages import VideoFrame, encode
+
+pytestmark = pytest.mark.timeout(60)
+
+
+class Cam:
+    """A robot whose cameras return a noisy QVGA image (JPEG does not shrink noise much)."""
+
+    def __init__(self) -> None:
+        self.rng = np.random.default_rng(0)
+
+    def capture(self, cam: str) -> np.ndarray:
+        base = np.linspace(0, 255, 320, dtype=np.uint8)[None, :, None].repeat(240, 0).repeat(3, 2)
+        noise = self.rng.integers(0, 40, size=(240, 320, 3), dtype=np.uint8)
+        return base // 2 + noise
+
+
+def _run(budget: float | None, seconds: float = 12.0) -> tuple[list[VideoFrame], VideoStreamer]:
+    t = [0.0]
+    sent: list[VideoFrame] = []
+    v = VideoStreamer(Cam(), ["head", "scene"], 10.0, sent.append, now=lambda: t[0], jpeg_quality=80)  # type: ignore[arg-type]
+    v.set_budget(budget)
+    with v:
+        for _ in range(round(seconds * 50)):
+            v.maybe_capture(t[0])
+            for _ in range(200):  # let the encoder take the frame (latest-only slot)
+                with v._cv:
+                    if v._slot is None:
+                        break
+                time.sleep(0.001)
+            time.sleep(0.002)
+            t[0] += 0.02
+    return sent, v
+
+
+def test_unlimited_sends_the_configured_rate_and_quality() -> None:
+    sent, v = _run(None, 4.0)
+    assert len(sent) >= 70 and {f.width for f in sent} == {320}
+    assert v.counters()["video_quality"] == 80
+
+
+@pytest.mark.parametrize("budget", [400_000.0, 100_000.0, 30_000.0])
+def test_a_budget_is_never_exceeded_and_video_stays_on_while_one_frame_a_second_fits(budget: float) -> None:
+    sent, v = _run(budget)
+    late = [f for f in sent if f.t >= 4.0]
+    bits = sum(8 * len(encode(f)) for f in late)
+    assert late, "video went off although 1 frame/s at the lowest level fits"
+    assert bits <= budget * 8.0 * 1.1 + 0.5 * budget, (bits, budget)  # the rate plus the bucket's depth
+    if budget <= 100_000:
+        assert min(f.width for f in late) == 160  # QQVGA
+
+
+def test_off_only_when_even_one_frame_a_second_does_not_fit() -> None:
+    sent, v = _run(2_000.0)
+    assert not [f for f in sent if f.t >= 4.0]
+    assert v.counters()["video_fps_x10"] == 0
+    assert len(LEVELS) >= 3
