@@ -52,7 +52,7 @@ def test_unlimited_sends_the_configured_rate_and_quality() -> None:
 
 @pytest.mark.parametrize("budget", [400_000.0, 100_000.0, 30_000.0])
 def test_a_budget_is_never_exceeded_and_video_stays_on_while_one_frame_a_second_fits(budget: float) -> None:
-    sent, v = _run(budget)
+    sent, _ = _run(budget)
     late = [f for f in sent if f.t >= 4.0]
     bits = sum(8 * len(encode(f)) for f in late)
     assert late, "video went off although 1 frame/s at the lowest level fits"
