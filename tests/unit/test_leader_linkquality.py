@@ -199,3 +199,30 @@ def test_the_program_counts_what_arrives_and_hears_the_followers_status() -> Non
     rep = app.link.report(t + 2.0)
     assert rep.video_bytes is not None and rep.video_bytes > 5000 and rep.video_width == 320
     assert rep.rx_bps == pytest.approx(8 * (rep.video_bytes + len(encode(st))) / 2.0)
+
+
+def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> None:
+    """Issue 19: the summary said "4486 feedback received" for a run in which 8281 arrived
+    (the loop takes the newest at each tick; several can arrive between two)."""
+    from bipedtele.drops import DropCounter
+    from bipedtele.leader.app import _summary
+    from bipedtele.leader.devices import SimFalcon
+    from bipedtele.leader.loop import LeaderLoop
+
+    cfg = load_config("default", [])
+    dev = SimFalcon()
+    dev.connect()
+    lq, clock = make()
+    newest: list[tuple[Feedback, float]] = []
+    loop = LeaderLoop(dev, None, cfg.control, lambda c: None, lambda: newest[-1] if newest else None,
+                      cfg=cfg.leader, clock=clock)  # fmt: skip
+    for k in range(1, 101):  # 100 ticks, two feedback arrive before each
+        for j in (2 * k - 1, 2 * k):
+            fb = _fb(j, clock.t - 0.1)
+            if lq.on_feedback(fb.sid, fb.seq, fb.t, clock.t, FB_BYTES):
+                newest.append((fb, clock.t))
+        loop.tick(now=clock.t)
+        clock.t += 0.001
+    line = _summary(loop, "scripted", None, 0.1, DropCounter("t"), None, False, None, lq)
+    assert "200 feedback received (100 used by the loop, 0 too old)" in line
+    assert loop.feedback_count == 100
