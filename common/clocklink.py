@@ -20,6 +20,17 @@ link's thread answers and matches.
   sent, comes from the followed peer and shows a short hold time (see ClockSync; the
   reasons of the drops are counted).
 
+Ping rate, window and memory: the link does not build the ClockSync; the node does,
+as ``ClockSync(clock.ping_window)``, and gives the link ``clock.ping_rate_hz``. The
+ClockSync's ``window`` counts *exchanges*: its recent window spans ``ping_window /
+ping_rate_hz`` seconds (16 at 4 Hz: 4 s), the time its ``rtt`` (hence the conservative
+damping) takes to follow a queue and, outside a queue, a clock step. Its long memory
+``memory_s`` (60 s by default) is in *seconds*, whatever the ping rate (240 exchanges
+at 4 Hz): the least queued exchange of that time gives the offset while the recent
+window is queued, so a one-sided queue shorter than ``memory_s`` does not move the
+offset (issue 19). An answer held in a queue longer than the ClockSync's ``expire_s``
+(5 s) no longer matches a ping (``pong_unmatched``): the offset is then held as it is.
+
 Every message a link sends on the clock key carries its ``sid`` and one strictly
 increasing ``seq`` (pings and answers share the counter). The ``sid`` must be the one
 the peer's sequence gate binds to (the node's command or feedback sid), so that
@@ -82,7 +93,9 @@ class ClockLink:
         Time source for message stamps [s]: the same clock that stamps the receiver's
         ``t_recv`` (``time.time``), since ``t2`` comes from there and ``t3`` from here.
     ping_rate_hz : float
-        Pings per second in ntp mode [Hz] (> 0).
+        Pings per second in ntp mode [Hz] (> 0). With ``sync.window`` it sets how many
+        seconds the ClockSync's recent window spans (``window / ping_rate_hz``); its long
+        memory (``sync.memory_s``) is in seconds and does not depend on it.
     answer_rate_hz : float
         Most pings answered per second [Hz] (> 0; ``clock.answer_rate_hz``).
     peer_sid : callable

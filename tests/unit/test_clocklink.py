@@ -159,6 +159,40 @@ def test_pings_at_the_rate_and_feeds_matching_answers() -> None:
     assert sync.rtt == pytest.approx(0.08)
 
 
+def test_one_sided_queue_does_not_move_the_offset_through_the_link() -> None:
+    """Issue 19, item 3, end to end through the link as the nodes wire it
+    (``ClockSync(clock.ping_window)``, 4 Hz): 20 ms round trips, then the peer's answers
+    queue 2 s for 25 s (a capped uplink on the peer's side). Before the fix the offset
+    moved by 1 s once the 16 pings of the window were all queued; now it stays exact,
+    while ``rtt`` follows the queue (the damping is scheduled from it)."""
+    sync = ClockSync(16)
+    link, sent, clk, drops = make(sync=sync, peer=[PEER], ping_rate_hz=4.0)
+    pending: list[tuple[float, ClockPong]] = []
+    answered = 0
+    worst = 0.0
+    rtts: list[float] = []
+    for _ in range(int(60.0 / 0.0625)):  # 60 s in 62.5 ms steps
+        for t4, pong in [p for p in pending if p[0] <= clk.t]:
+            link.on_message(Rec(pong, t4))
+        pending = [p for p in pending if p[0] > clk.t]
+        link.poll()
+        for ping in pings(sent)[answered:]:
+            queued = 2.0 if 20.0 <= ping.t - 1000.0 < 45.0 else 0.0
+            pong, t4 = peer_answer(ping, ping.t, h=0.01)
+            pending.append((t4 + queued, pong))
+            answered += 1
+        if sync.ready:
+            worst = max(worst, abs(sync.offset - OFFSET))
+            if 30.0 <= clk.t - 1000.0 < 45.0:
+                assert sync.rtt is not None
+                rtts.append(sync.rtt)
+        clk.t += 0.0625
+    assert link.pongs_accepted > 200 and drops.counts() == {}
+    assert worst < 1e-6
+    assert rtts and min(rtts) == pytest.approx(2.020)
+    assert sync.queueing_s == pytest.approx(0.0, abs=1e-9) and sync.min_rtt == pytest.approx(0.020)
+
+
 def test_forged_pong_for_a_ping_never_sent_is_rejected() -> None:
     sync = ClockSync()
     link, sent, clk, drops = make(sync=sync)
