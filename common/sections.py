@@ -79,6 +79,12 @@ class NetworkConfig:
         "with publishers_allowed, turns on the deny-by-default ACL",
     )
     timeout_s: float = param(10.0, lo=0.1, hi=600.0, unit="s", doc="session open timeout")
+    links: Literal["single", "split", "split-tcp"] = param(
+        "single",
+        doc="single: one link per endpoint; split: control as QUIC/UDP datagrams, status and video "
+        "on links of their own (router: also listens on UDP); split-tcp: the same on TCP only "
+        "(docs/network.md)",
+    )
 
     def __post_init__(self) -> None:
         for ep in [*self.connect, *self.listen]:

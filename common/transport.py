@@ -50,6 +50,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -62,6 +63,7 @@ from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.linkcheck import STEP_TIMEOUT_S, LinkError, check_endpoint
+from bipedtele.linklayout import MAX_LINKS, client_endpoints, router_listen_endpoints
 from bipedtele.messages import Message, MessageError, decode, encode, new_session_id
 from bipedtele.sections import NetworkConfig
 
@@ -79,6 +81,7 @@ __all__ = [
     "access_control_json",
     "declare_control_publisher",
     "declare_presence",
+    "declare_status_publisher",
     "declare_video_publisher",
     "open_session",
     "zenoh_config",
@@ -93,6 +96,8 @@ M = TypeVar("M", bound=Message)
 OPEN_RTTS = 8.0
 #: ...and at least this long [s] (after the endpoint checks passed).
 OPEN_MIN_S = 3.0
+#: Session handshakes tried before giving up, each given twice the time of the one before.
+OPEN_TRIES = 2
 #: A refused connection (a router still starting) is retried this long [s].
 REFUSED_RETRY_S = 4.0
 
@@ -225,7 +230,10 @@ def zenoh_config(
         conf.insert_json5(key, json.dumps(value))
 
     put("mode", mode)
-    put("connect/endpoints", connect)
+    if router:
+        listen = router_listen_endpoints(listen, net.links)
+    put("connect/endpoints", client_endpoints(connect, net.links) if mode == "client" else connect)
+    put("transport/unicast/max_links", MAX_LINKS)
     if listen or mode != "client":
         # Explicit endpoints only; a peer with no listen endpoint listens nowhere rather
         # than on an ephemeral port of every interface.
@@ -329,30 +337,77 @@ def _open_timeout_s(net: NetworkConfig, rtt_s: float, checked: set[str]) -> floa
     return min(net.timeout_s, max(OPEN_MIN_S, OPEN_RTTS * rtt_s))
 
 
-def _refusal(net: NetworkConfig, checked: set[str], timeout_s: float, zenoh_reason: str) -> LinkError:
-    """Return the LinkError of a client whose endpoint checks passed but whose session did not open."""
-    within = f"no session within {timeout_s:g} s"
+def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason: str) -> LinkError:
+    """Return the LinkError of a client whose endpoint checks passed but whose session did not open.
+
+    Zenoh does not tell a client why its router closed a handshake, so the message says
+    what was seen (TCP, TLS accepted; no session after the tries) and names both causes
+    that fit: a refused login, which the router logs, or a path too slow or lossy for the
+    handshake.
+    """
+    within = f"no session after {OPEN_TRIES} tries in {spent_s:.1f} s"
     if not checked:  # udp, quic, ws...: not checked beforehand
         return LinkError(
             "open",
-            f"cannot open the Zenoh session: {zenoh_reason} (no router answered within {timeout_s:g} s, "
+            f"cannot open the Zenoh session: {zenoh_reason} (no router answered within {spent_s:.1f} s, "
             "or it refused this client's certificate or user/password)",
         )
     if "tls" in checked:
         seen = "TCP and TLS were accepted"
     else:
         seen = "TCP was accepted, by the router or by a relay in front of it"
+    slow = "or the router did not answer the handshake in time (a lossy or slow path; the router logs every refusal)"
     if net.user:
         return LinkError(
             "credentials",
-            f"the router refused the session: user/password refused for user {net.user!r} ({seen}; {within}); "
-            "check network.user and network.password_file against the router's credentials_file",
+            f"the router did not open a session ({seen}; {within}): user/password refused for user {net.user!r}, "
+            f"{slow}; check network.user and network.password_file against the router's credentials_file",
         )
     return LinkError(
         "credentials",
-        f"the router refused the session ({seen}; {within}): it may require a user/password "
-        "(network.user, network.password_file)" + ("" if "tls" in checked else " or TLS (a tls/ endpoint)"),
+        f"the router did not open a session ({seen}; {within}): it may require a user/password "
+        "(network.user, network.password_file)" + ("" if "tls" in checked else " or TLS (a tls/ endpoint)") + f", {slow}",
     )
+
+
+def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> zenoh.Session:
+    """Open a client session: endpoint checks, then up to OPEN_TRIES handshakes, each given twice as long.
+
+    A handshake over a lossy or slow path can outlast the first try's few round trips;
+    the next try doubles the time (within the profile's ``timeout_s`` in all). With
+    ``links = "split"``, a second try opens the ``split-tcp`` layout: a router whose
+    control link (UDP) never answers, behind a firewall that passes only TCP, is then
+    still reached, and the client says so.
+    """
+    rtt, checked = _preflight(net, connect)
+    timeout = _open_timeout_s(net, rtt, checked)
+    spent, first = 0.0, ""
+    for attempt in range(OPEN_TRIES):
+        budget = min(timeout * 2**attempt, net.timeout_s - spent)
+        if budget <= 0.05:
+            break
+        tcp_fallback = attempt > 0 and net.links == "split" and bool(checked)
+        if tcp_fallback:
+            conf = zenoh_config(replace(net, links="split-tcp"), connect=connect)
+        conf.insert_json5("connect/timeout_ms", json.dumps(int(budget * 1000)))
+        t0 = time.monotonic()
+        try:
+            session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            spent += time.monotonic() - t0
+            first = _zenoh_reason(exc)
+            if "Unable to connect" not in first:
+                raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
+            LOG.debug("no session with the router within %.1f s (try %d of %d)", budget, attempt + 1, OPEN_TRIES)
+            continue
+        if tcp_fallback:
+            LOG.warning(
+                "the router did not open the control link over UDP (QUIC) in time: control travels on a TCP "
+                "link of its own (a firewall that drops UDP to the router's port? network.links = \"split-tcp\" "
+                "says so up front; docs/network.md)"
+            )
+        return session
+    raise _refusal(net, checked, spent, first)
 
 
 @contextmanager
@@ -382,18 +437,13 @@ def open_session(
     connect = list(net.connect if connect is None else connect)
     conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
     client = mode == "client" and bool(connect)
-    timeout, checked = net.timeout_s, set[str]()
-    if client:
-        rtt, checked = _preflight(net, connect)
-        timeout = _open_timeout_s(net, rtt, checked)
-        conf.insert_json5("connect/timeout_ms", json.dumps(int(timeout * 1000)))
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:
-        first = _zenoh_reason(exc)
-        if client and "Unable to connect" in first:
-            raise _refusal(net, checked, timeout, first) from None
-        raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
+    if not client:
+        try:
+            session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            raise ConfigError(f"network: cannot open the Zenoh session: {_zenoh_reason(exc)}") from None
+    else:
+        session = _open_client(net, connect, conf)
     LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
     try:
         yield session
@@ -472,22 +522,41 @@ class MessagePublisher:
 
 
 def declare_control_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
-    """Declare a publisher for control traffic: express, real-time priority, drop on congestion."""
+    """Declare a publisher for control traffic: express, real-time priority, best effort, drop on congestion.
+
+    Best effort: with ``[network] links = "split"`` these messages travel on the control
+    link as datagrams, never retransmitted (each one supersedes the previous one;
+    :mod:`bipedtele.linklayout`). On a single link they travel as before.
+    """
     pub = session.declare_publisher(
         key,
         express=True,
         priority=zenoh.Priority.REAL_TIME,
         congestion_control=zenoh.CongestionControl.DROP,
+        reliability=zenoh.Reliability.BEST_EFFORT,
+    )
+    return MessagePublisher(pub, key, auth)
+
+
+def declare_status_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
+    """Declare a publisher for status messages: express, interactive priority, reliable (the status link)."""
+    pub = session.declare_publisher(
+        key,
+        express=True,
+        priority=zenoh.Priority.INTERACTIVE_LOW,
+        congestion_control=zenoh.CongestionControl.DROP,
+        reliability=zenoh.Reliability.RELIABLE,
     )
     return MessagePublisher(pub, key, auth)
 
 
 def declare_video_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
-    """Declare a publisher for video: low priority, drop on congestion (latest-only by nature)."""
+    """Declare a publisher for video: low priority, reliable, drop on congestion (latest-only by nature)."""
     pub = session.declare_publisher(
         key,
         priority=zenoh.Priority.DATA_LOW,
         congestion_control=zenoh.CongestionControl.DROP,
+        reliability=zenoh.Reliability.RELIABLE,
     )
     return MessagePublisher(pub, key, auth)
 
@@ -495,7 +564,7 @@ def declare_video_publisher(session: zenoh.Session, key: str, auth: MessageAuth 
 class Publishers:
     """The publishers of one robot's keys, declared on first use.
 
-    Attributes ``cmd``, ``feedback``, ``clock``, ``status`` (control QoS) and ``video``
+    Attributes ``cmd``, ``feedback``, ``clock`` (control QoS), ``status`` (status QoS) and ``video``
     (video QoS) are :class:`MessagePublisher` objects. ``close()`` (or leaving the
     ``with`` block) undeclares the ones that were declared.
 
@@ -508,7 +577,7 @@ class Publishers:
         :func:`bipedtele.auth.load_message_auth`).
     """
 
-    _CONTROL = ("cmd", "feedback", "clock", "status")
+    _CONTROL = ("cmd", "feedback", "clock")
 
     def __init__(self, session: zenoh.Session, keys: Keys, auth: MessageAuth | None = None) -> None:
         self._session = session
@@ -527,6 +596,8 @@ class Publishers:
                 key = getattr(self.keys, name)
                 if name == "video":
                     pub = declare_video_publisher(self._session, key, self.auth)
+                elif name == "status":
+                    pub = declare_status_publisher(self._session, key, self.auth)
                 else:
                     pub = declare_control_publisher(self._session, key, self.auth)
                 self._pubs[name] = pub
