@@ -242,6 +242,15 @@ def task_course() -> dict[str, Any]:
     return world
 
 
+def demo_control() -> dict[str, Any]:
+    """Return the demo's control tuning: the ``[control]`` table of the shipped ``localhost-delay`` profile."""
+    text = resources.files("bipedtele.configs").joinpath("localhost-delay.toml").read_text(encoding="utf-8")
+    control = tomllib.loads(text).get("control")
+    if not isinstance(control, dict) or not control:
+        raise RuntimeError("configs/localhost-delay.toml has no [control] table")  # a packaging bug
+    return control
+
+
 def _toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -288,6 +297,10 @@ _CLOCK_NOTE = (
     "# round trip is exact, its split only up to the path's asymmetry, so the stability\n"
     "# conditions use the safe bound h1 = h2 = round trip (conservative_split).\n"
 )
+_CONTROL_NOTE = (
+    "# The demo's control tuning (configs/localhost-delay.toml): the handle's reach mapped to\n"
+    "# the walker's speed range, and the reduced model of (30) calibrated on the walker.\n"
+)
 _WORLD_NOTE = (
     "# The paper's task course (Sec. 5, Fig. 10), as in configs/localhost-delay.toml: the\n"
     "# follower builds it in the simulator and the pilot operator steers around it, so both\n"
@@ -315,8 +328,10 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
             "credentials_file": "secrets/router-credentials.txt",
             "publishers_allowed": [LEADER_USER],
             "followers_allowed": [FOLLOWER_USER],
+            "links": "split",
             "timeout_s": 20.0,
         }, {
+            "links": "also listens on UDP (QUIC) at the same port: the clients' control link",
             "tls_mutual": "clients must show a certificate of this CA",
             "credentials_file": "user:password lines (leader, follower)",
             "publishers_allowed": "users with the leader's role (commands)",
@@ -337,12 +352,15 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
         "user": user,
         "password_file": f"secrets/{user}.pw",
         "message_key_file": "secrets/message.key",
+        "links": "split",
         "timeout_s": 20.0,
     }, {
+        "links": "control as QUIC datagrams; status and video on TLS links of their own",
         "connect": "the router's name, as in its certificate",
         "message_key_file": "the same key on robot and operator; never on the router",
     })  # fmt: skip
     parts += ["\n", net, "\n", _CLOCK_NOTE, _toml_table("clock", _CLOCK)]
+    parts += ["\n", _CONTROL_NOTE, _toml_table("control", demo_control())]
     if host == "operator":
         parts += ["\n", _toml_table("leader", {"operator": "pilot"}, {"operator": "walks the course below"})]
     parts += ["\n", _WORLD_NOTE, _toml_table("world", task_course())]
