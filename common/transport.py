@@ -64,7 +64,15 @@ from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.linkcheck import STEP_TIMEOUT_S, LinkError, check_endpoint
 from bipedtele.linklayout import MAX_LINKS, client_endpoints, router_listen_endpoints
-from bipedtele.messages import Message, MessageError, decode, encode, new_session_id
+from bipedtele.messages import (
+    MAX_JPEG_BYTES,
+    Message,
+    MessageError,
+    VideoFrame,
+    decode,
+    encode,
+    new_session_id,
+)
 from bipedtele.sections import NetworkConfig
 
 __all__ = [
@@ -654,10 +662,21 @@ class Received(msgspec.Struct, Generic[M], frozen=True, gc=False):
         The decoded message.
     t_recv : float
         Local receive time (``time.time()`` by default) [s].
+    nbytes : int
+        Size of the payload as it arrived (MAC included) [bytes].
     """
 
     msg: M
     t_recv: float
+    nbytes: int = 0
+
+
+#: Largest payload [bytes] a receiver reads of a control message (command, feedback,
+#: clock, status; a status with every counter and its text is under 4 kB) and of a video
+#: frame (the JPEG bound plus its envelope). Anything larger is dropped (``too_large``)
+#: before it is copied, authenticated or decoded.
+MAX_CONTROL_PAYLOAD = 16 * 1024
+MAX_VIDEO_PAYLOAD = MAX_JPEG_BYTES + 4 * 1024
 
 
 class _Receiver(Generic[M]):
@@ -686,6 +705,7 @@ class _Receiver(Generic[M]):
         self._expect: tuple[type[M], ...] = expect if isinstance(expect, tuple) else (expect,)
         # one expected class: decode() refuses the others itself; several: checked after
         self._decode_as: type[M] | None = self._expect[0] if len(self._expect) == 1 else None
+        self.max_bytes = MAX_VIDEO_PAYLOAD if VideoFrame in self._expect else MAX_CONTROL_PAYLOAD
         self.drops = drops
         self.gate = gate
         self.estimator = estimator
@@ -707,7 +727,12 @@ class _Receiver(Generic[M]):
         t_recv = self._clock()
         drops = self.drops
         try:
-            payload = sample.payload.to_bytes()
+            zbytes = sample.payload
+            nbytes = len(zbytes)
+            if nbytes > self.max_bytes:  # before the copy, the MAC and the decoder
+                drops.drop("too_large", f"{self.key}: {nbytes} bytes (at most {self.max_bytes})")
+                return
+            payload = zbytes.to_bytes()
             if self.auth is not None:
                 try:
                     payload = self.auth.verify(payload, self._mac_topic or str(sample.key_expr))
@@ -743,7 +768,7 @@ class _Receiver(Generic[M]):
                 # a delay is never negative: a message seemingly received before it was
                 # sent (clock offset error, rounding) counts as delay 0
                 self.estimator.update(t_sent if t_sent < t_recv else t_recv, t_recv)
-            rec = Received(msg, t_recv)
+            rec = Received(msg, t_recv, nbytes)
             self._deliver(rec)
             if self._on_message is not None:
                 self._on_message(rec)
