@@ -289,7 +289,7 @@ EVENT_FIELDS: Final[dict[str, Schema]] = {
     "commands": _t("integer", "commands sent (commands_not_reaching)"),
     "tilt_rad": _t(_NUM_OR_NULL, "torso tilt (fall) [rad]"),
     "pose": {"type": "array", "items": _NUMBER, "description": "robot pose x, y, yaw (collision)"},
-    "why": _t("string", "reason (watchdog_stop, walk_refused)"),
+    "why": _t("string", "reason (watchdog_stop, operator_stop, walk_refused)"),
     "robot_t": _t(_NUM_OR_NULL, "robot (simulation) time (footfall) [s]"),
     "step_s": _t(_NUM_OR_NULL, "length of the step just ended (footfall) [s]"),
     "ref": {"type": "array", "items": _NUMBER, "description": "reference in use (footfall) [cm/s, deg/s]"},

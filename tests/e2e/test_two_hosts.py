@@ -222,8 +222,7 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
     assert rogue["sid"] not in {r.data["sid"] for r in cmds}, "a non-leader's command reached the robot"
     assert len(cmds) > 100 and len({r.data["sid"] for r in cmds}) == 1
     events = [r.data for r in records(f_rec, "events")]
-    assert not any(e["event"] == "watchdog_stop" and e["why"] == "operator released" and e["t"] < t_teleop_end
-                   for e in events), events  # fmt: skip
+    assert not any(e["event"] == "operator_stop" and e["t"] < t_teleop_end for e in events), events
     fbs = [r.data for r in records(f_rec, "feedback/sent")]
     assert sum(1 for d in fbs if d["state"] == "walking") > 100
     assert not any(d["state"] == "fallen" for d in fbs)
