@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from bipedtele.config import ConfigError
+from bipedtele.tools.netem_trace import impairment_args
 
 __all__ = ["add_netem_parser", "netem_available", "tc_commands"]
 
@@ -37,6 +38,8 @@ def tc_commands(
     jitter: str | None = None,
     distribution: str | None = None,
     loss: str | None = None,
+    rate: str | None = None,
+    queue: str | None = None,
 ) -> list[list[str]]:
     """Return the ``tc`` command lines for an action.
 
@@ -51,7 +54,11 @@ def tc_commands(
     distribution : str
         Jitter distribution, one of ``DISTRIBUTIONS`` (needs a jitter).
     loss : str
-        Like ``0.1%``.
+        Like ``0.1%`` (random), or a Gilbert-Elliott burst model ``ge:p=1%,r=30%`` (the
+        packet emulator's specs, :mod:`bipedtele.impairments`).
+    rate, queue : str
+        A rate cap like ``600kbit`` and its queue like ``64kB`` (netem's ``rate`` and
+        ``limit`` in packets of 1500 bytes).
 
     Raises
     ------
@@ -80,9 +87,13 @@ def tc_commands(
             raise ConfigError(f"--distribution {distribution!r}: allowed: {', '.join(DISTRIBUTIONS)}")
         cmd += ["distribution", distribution]
     if loss is not None:
-        if not _LOSS.match(loss):
-            raise ConfigError(f"--loss {loss!r}: allowed: a percentage like 0.1%")
-        cmd += ["loss", loss]
+        if _LOSS.match(loss):
+            cmd += ["loss", loss]
+        elif loss.startswith("ge:"):
+            cmd += impairment_args(loss=loss)
+        else:
+            raise ConfigError(f"--loss {loss!r}: allowed: a percentage like 0.1%, or ge:p=1%,r=30%[,bad=100%][,good=0%]")
+    cmd += impairment_args(rate=rate, queue=queue)
     return [cmd]
 
 
@@ -131,7 +142,7 @@ def netem_available(
 
 def run(args: argparse.Namespace) -> int:
     """``bipedtele netem apply|clear|show``."""
-    cmds = tc_commands(args.action, args.dev, args.delay, args.jitter, args.distribution, args.loss)
+    cmds = tc_commands(args.action, args.dev, args.delay, args.jitter, args.distribution, args.loss, args.rate, args.queue)
     if args.dry_run:
         for c in cmds:
             print(" ".join(c))  # noqa: T201 (CLI output)
@@ -170,6 +181,8 @@ def add_netem_parser(sub: Any) -> None:
     p.add_argument("--delay", help="mean delay, e.g. 150ms (apply)")
     p.add_argument("--jitter", help="jitter, e.g. 20ms")
     p.add_argument("--distribution", help=f"jitter distribution: {', '.join(DISTRIBUTIONS)}")
-    p.add_argument("--loss", help="random loss, e.g. 0.1%%")
+    p.add_argument("--loss", help="random loss, e.g. 0.1%%, or bursts ge:p=1%%,r=30%%[,bad=100%%][,good=0%%]")
+    p.add_argument("--rate", help="rate cap, e.g. 600kbit")
+    p.add_argument("--queue", help="queue of the rate cap, e.g. 64kB (netem limit, 1500-byte packets)")
     p.add_argument("--dry-run", action="store_true", help="print the tc commands, change nothing")
     p.set_defaults(func=run)

@@ -21,14 +21,15 @@ import math
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO
 
 from bipedtele.delaymodels import ConstDelay, DelayModel, NormalDelay, TraceDelay, UniformDelay
+from bipedtele.impairments import GilbertElliott, RandomLoss, parse_loss, parse_queue, parse_rate
 from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
 
-__all__ = ["NETEM_LIMIT", "NetemReplayer", "netem_args", "replay_times", "schedule"]
+__all__ = ["NETEM_LIMIT", "NetemReplayer", "impairment_args", "netem_args", "replay_times", "schedule"]
 
 LOG = logging.getLogger(__name__)
 
@@ -40,7 +41,43 @@ def _us(seconds: float) -> str:
     return f"{round(seconds * 1e6)}us"
 
 
-def netem_args(model: DelayModel, t: float = 0.0) -> list[str]:
+def impairment_args(loss: str | None = None, rate: str | None = None, queue: str | None = None) -> list[str]:
+    """Netem options for loss, a rate cap and its queue, from the packet emulator's specs.
+
+    The same specs as ``bipedtele link-emu`` (:mod:`bipedtele.impairments`), so a netem
+    kernel runs the conditions the user-space emulator runs: random loss (``1%``) becomes
+    ``loss random 1%``; Gilbert-Elliott (``ge:p=1%,r=30%,bad=100%,good=0%``) becomes
+    netem's ``loss gemodel p r 1-h 1-k`` (h, k: the probability that a packet gets
+    *through* in the bad and good state); a rate (``600kbit``) becomes ``rate 600000bit``;
+    the queue (``64kB``), which netem counts in packets, becomes ``limit`` = bytes / 1500
+    (at least 1).
+
+    Raises
+    ------
+    ConfigError
+        A bad spec (one line, as the emulator says it).
+    """
+    args: list[str] = []
+    if loss:
+        model = parse_loss(loss)
+        if isinstance(model, RandomLoss):
+            args += ["loss", "random", _pct(model.p)]
+        elif isinstance(model, GilbertElliott):
+            args += ["loss", "gemodel", _pct(model.p), _pct(model.r), _pct(model.loss_bad), _pct(model.loss_good)]
+    if rate:
+        bps = parse_rate(rate)
+        if bps is not None:
+            args += ["rate", f"{round(bps)}bit"]
+    if queue:
+        args += ["limit", str(max(1, parse_queue(queue) // 1500))]
+    return args
+
+
+def _pct(p: float) -> str:
+    return f"{100.0 * p:g}%"
+
+
+def netem_args(model: DelayModel, t: float = 0.0, extra: Sequence[str] = ()) -> list[str]:
     """Netem options realising ``model`` at time ``t`` [s] of the run.
 
     Parameters
@@ -49,6 +86,9 @@ def netem_args(model: DelayModel, t: float = 0.0) -> list[str]:
         A const, uniform, normal or trace model.
     t : float
         Time since the run's origin [s] (traces only).
+    extra : sequence of str
+        More netem options (:func:`impairment_args`: loss, rate, limit); a ``limit`` there
+        replaces the default one.
     """
     if isinstance(model, UniformDelay):
         args = ["delay", _us(model.mean), _us(model.half_width)]
@@ -58,7 +98,9 @@ def netem_args(model: DelayModel, t: float = 0.0) -> list[str]:
         args = ["delay", _us(model.delay_s(t))]
     else:
         raise TypeError(f"netem cannot realise a {type(model).__name__}")
-    return [*args, "limit", str(NETEM_LIMIT)]
+    if "limit" in extra:
+        return [*args, *extra]
+    return [*args, *extra, "limit", str(NETEM_LIMIT)]
 
 
 def replay_times(model: DelayModel, t_end: float = math.inf) -> Iterator[float]:
@@ -96,7 +138,13 @@ class Step:
     command: list[str]
 
 
-def schedule(link: VethLink, forward: DelayModel, backward: DelayModel, t_end: float) -> Iterator[Step]:
+def schedule(
+    link: VethLink,
+    forward: DelayModel,
+    backward: DelayModel,
+    t_end: float,
+    extra: Mapping[str, Sequence[str]] | None = None,
+) -> Iterator[Step]:
     """Every ``tc`` command of a replay, in time order: the two ``add`` at 0, then changes.
 
     Parameters
@@ -107,17 +155,21 @@ def schedule(link: VethLink, forward: DelayModel, backward: DelayModel, t_end: f
         h1 (on the leader's end) and h2 (on the follower's end).
     t_end : float
         Length of the replay [s] (infinite: the replay never ends by itself).
+    extra : mapping, optional
+        Side (``leader``, ``follower``) -> more netem options for that end's egress
+        (:func:`impairment_args`), kept on every change.
     """
     models = {LEADER: forward, FOLLOWER: backward}
+    more = {side: list((extra or {}).get(side, ())) for side in models}
     for side, model in models.items():
-        yield Step(0.0, side, _command(link, side, "add", netem_args(model, 0.0)))
+        yield Step(0.0, side, _command(link, side, "add", netem_args(model, 0.0, more[side])))
     def tagged(order: int, side: str) -> Iterator[tuple[float, int, str]]:
         for t in replay_times(models[side], t_end):
             yield t, order, side
 
     changes = heapq.merge(*(tagged(order, side) for order, side in enumerate(models)))
     for t, _, side in changes:
-        yield Step(t, side, _command(link, side, "change", netem_args(models[side], t)))
+        yield Step(t, side, _command(link, side, "change", netem_args(models[side], t, more[side])))
 
 
 class NetemReplayer:
@@ -133,12 +185,21 @@ class NetemReplayer:
         Origin of the models (unix time [s]).
     t_end : float
         Replay length [s] (default: until :meth:`stop`).
+    extra : mapping, optional
+        Side -> more netem options (loss, rate, limit; :func:`impairment_args`).
     """
 
     def __init__(
-        self, link: VethLink, forward: DelayModel, backward: DelayModel, t0: float, t_end: float = math.inf
+        self,
+        link: VethLink,
+        forward: DelayModel,
+        backward: DelayModel,
+        t0: float,
+        t_end: float = math.inf,
+        extra: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
         self.link, self.forward, self.backward = link, forward, backward
+        self.extra = extra
         self.t0, self.t_end = t0, t_end
         self.changes = 0
         self.late_s: list[float] = []
@@ -148,7 +209,7 @@ class NetemReplayer:
 
     def start(self) -> NetemReplayer:
         """Add both qdiscs now (raises ``RuntimeError`` with tc's message if one fails), then replay."""
-        steps = schedule(self.link, self.forward, self.backward, self.t_end)
+        steps = schedule(self.link, self.forward, self.backward, self.t_end, self.extra)
         for _ in range(2):
             step = next(steps)
             res = subprocess.run(step.command, capture_output=True, text=True, timeout=20, check=False)

@@ -185,3 +185,52 @@ def test_demo_netem_backend_refused_in_one_line_where_it_cannot_run(tmp_path: Pa
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "--delay-backend netem:" in lines[0] and "allowed here: proxy, or auto" in lines[0]
     assert not (tmp_path / "r").exists()
+
+
+def test_loss_bursts_rate_and_queue_become_netem_options() -> None:
+    """The packet emulator's specs realised by netem (issue 19: the netem backend does the same)."""
+    from bipedtele.delaymodels import parse_delay_model
+    from bipedtele.tools.netem_trace import impairment_args, netem_args
+
+    assert impairment_args(loss="1%") == ["loss", "random", "1%"]
+    assert impairment_args(loss="ge:p=1%,r=30%,bad=80%,good=0.1%") == ["loss", "gemodel", "1%", "30%", "80%", "0.1%"]
+    assert impairment_args(rate="600kbit", queue="64kB") == ["rate", "600000bit", "limit", "42"]
+    assert impairment_args() == []
+    extra = impairment_args(loss="1%", rate="300kbit", queue="64kB")
+    assert netem_args(parse_delay_model("const:150ms"), 0.0, extra) == [
+        "delay", "150000us", "loss", "random", "1%", "rate", "300000bit", "limit", "42",
+    ]  # fmt: skip
+    assert netem_args(parse_delay_model("const:150ms"), 0.0, ["loss", "random", "1%"])[-2:] == ["limit", "10000"]
+    with pytest.raises(ConfigError, match="ge:p=P,r=R"):
+        impairment_args(loss="ge:q=1%")
+    assert tc_commands("apply", "eth0", "150ms", loss="ge:p=1%,r=30%", rate="600kbit", queue="32kB") == [
+        ["tc", "qdisc", "replace", "dev", "eth0", "root", "netem", "delay", "150ms",
+         "loss", "gemodel", "1%", "30%", "100%", "0%", "rate", "600000bit", "limit", "21"],
+    ]  # fmt: skip
+
+
+def test_dry_run_prints_loss_bursts_and_rate() -> None:
+    res = _netem("apply", "--dev", "lo", "--delay", "150ms", "--loss", "ge:p=1%,r=30%", "--rate", "600kbit",
+                 "--queue", "64kB", "--dry-run")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "tc qdisc replace dev lo root netem delay 150ms loss gemodel 1% 30% 100% 0% rate 600000bit limit 42"
+    res = _netem("apply", "--dev", "lo", "--delay", "150ms", "--rate", "fast", "--dry-run")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_replay_schedule_keeps_the_impairments_on_every_change() -> None:
+    from bipedtele.delaymodels import TraceDelay, parse_delay_model
+    from bipedtele.tools.netem_trace import impairment_args, schedule
+    from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
+
+    link = VethLink(tag="abcd")
+    up = impairment_args(rate="300kbit", queue="64kB")
+    steps = list(schedule(link, parse_delay_model("const:10ms"), TraceDelay([0.0, 0.1], [0.1, 0.2]), 0.25,
+                          extra={FOLLOWER: up, LEADER: impairment_args(loss="1%")}))  # fmt: skip
+    assert [s.t for s in steps] == pytest.approx([0.0, 0.0, 0.1, 0.2])
+    for s in steps:
+        tail = " ".join(s.command).split(" netem ", 1)[1]
+        if s.side == FOLLOWER:
+            assert tail.endswith("rate 300000bit limit 42"), tail
+        else:
+            assert tail.endswith("loss random 1% limit 10000"), tail
