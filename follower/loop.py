@@ -25,7 +25,7 @@ and ``ref`` the mean reference applied over the ticks since the previous footfal
 Safety: with no new command for ``watchdog_s`` (local receive time) the robot stops and
 stands (``watchdog_stops``, event ``watchdog_stop``); a command with ``enable`` false, the
 operator releasing, stops it as a normal end (``operator_stops``, event ``operator_stop``).
-No outage's backlog reaches the robot: a command delayed more than ``watchdog_s`` beyond
+No outage's backlog reaches the robot: after a silence longer than ``watchdog_s``, a command delayed more than ``watchdog_s`` beyond
 the path's baseline delay (the minimum h1 of the commands applied over the last
 ``backlog_window_s``, :class:`~bipedtele.follower.backlog.DelayBaseline`) is dropped
 (``cmd_backlog``), and one sent before the command applied last (same leader session) is
@@ -297,9 +297,11 @@ class FollowerLoop:
             return False
         delay = max(0.0, t_recv - t_sent)
         base = self.baseline.value(now)
-        if base is not None and delay > base + self.cfg.watchdog_s:
-            # Queued in the path (an outage's backlog): older than the watchdog beyond
-            # the path's usual delay. Walking resumes on fresh commands only.
+        if base is not None and delay > base + self.cfg.watchdog_s and t_recv - self._cmd_recv > self.cfg.watchdog_s:
+            # After a silence longer than the watchdog (an outage), a command delayed more
+            # than the watchdog beyond the path's usual delay was queued in the path: walking
+            # resumes on fresh commands only. While commands keep coming (no silence), a
+            # slow rise of the delay (the trace's peaks) is the path's and stays accepted.
             self.counters["cmd_backlog"] += 1
             if self.baseline.dropped(now, delay):
                 LOG.warning("every command for %.0f s came %.2f s or more late: the path's delay changed, "

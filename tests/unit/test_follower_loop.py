@@ -575,3 +575,19 @@ def test_a_command_sent_before_the_one_applied_is_never_applied() -> None:
     h.sent.append((h.t, Command(sid=7, seq=h.seq, t=last.t - 0.05, ref=[-5.0, 0.0])))
     assert h.loop.pickup() is False
     assert h.loop.counters["cmd_reordered"] == 1 and h.loop._cmd is last
+
+
+def test_a_delay_that_rises_while_commands_keep_coming_is_not_a_backlog() -> None:
+    """The shipped trace's peaks: the delay climbs 0.72 s above its 10 s minimum over 3 s while
+    commands keep arriving (never a silence of ``watchdog_s``): nothing is dropped as backlog
+    and the robot keeps walking (the rule applies after a silence only)."""
+    h = Harness(KinematicRobot(), h1=0.18)
+    h.run(6.0, v=5.0)
+    for _ in range(30):
+        h.h1 += 0.024
+        h.run(0.1, v=5.0)
+    assert h.h1 == pytest.approx(0.9)
+    h.run(1.0, v=5.0)
+    c = h.loop.counters
+    assert c["cmd_backlog"] == 0 and c["watchdog_stops"] == 0, c
+    assert h.loop.telemetry.state == "walking" and h.robot.v > 0.01
