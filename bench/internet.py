@@ -1,0 +1,562 @@
+"""Benchmark: issue 19's table, the README's two hosts on an emulated internet path.
+
+    .venv/bin/python bench/internet.py [--seconds 90] [--links split|single|single,split]
+        [--only trace,loss1,loss5,outage,lan600-video,lan600-novideo,lan300-video,lan300-novideo]
+        [--json F] [--workdir DIR] [--seed N]
+
+What a field engineer would do: ``bipedtele setup two-hosts --router-name router.bt.test``
+once, each of its three folders copied into the working folder of its own "host" (a network
+namespace), and on each host exactly the README's command from that folder::
+
+    bipedtele router   --config router/bipedtele.toml      # router host
+    bipedtele follower --config robot/bipedtele.toml       # robot host (+ --set follower.camera_fps=0: video off)
+    bipedtele leader   --config operator/bipedtele.toml --duration S   # operator host, the pilot
+
+TLS, logins, the deny-by-default ACL and the end-to-end message key as written. The
+per-packet link emulator (``bipedtele link-emu`` in ``EmulatedLink``'s middle namespace)
+sits between one host and the other two, which share a bridge behind side B
+(``EmulatedLink.add_host``); ``router.bt.test`` resolves to the router's address in every
+namespace (``/etc/netns/NS/hosts``):
+
+- intercontinental rows: operator | emulator | router + robot. Forward (operator -> router)
+  ``trace:intercontinental:h1``, backward ``h2``; loss both directions (independent);
+  the outage both directions at ``--outage-at`` s (default 40) of the emulator's origin,
+  which is set just before the leader starts;
+- LAN rows: robot | emulator | router + operator. No delay; the robot -> router direction
+  capped (``--rate-forward``) with a 64 kB queue.
+
+``--links single|split`` rewrites ``links`` in the three profiles (setup writes ``split``),
+so the same bench shows the old single-connection transport beside the split one.
+
+Per run (from the programs' logs and MCAP recordings; every namespace shares this
+machine's clock, so a message's receive time minus its send stamp ``t`` is its **true**
+one-way delay):
+
+- passes (``pilot: pass N/10 done`` in the leader's log), falls;
+- the follower's ``watchdog_stop`` / ``operator_stop`` events while the leader ran;
+- commands dropped by the follower as too old / backlog / reordered (its last Status);
+- h1 per command the follower's loop took (``cmd/recv``: receive time - ``t``; commands
+  superseded between two ticks are not recorded), h2 per feedback the leader received
+  (``feedback/recv``); p50/p99/max in ms;
+- video frames/s received by the leader; the fraction of the leader's samples (``leader/state``)
+  whose ``link`` is ``capacity-limited`` / ``lossy`` / ``lost``;
+- outage rows: the robot's stop latency (path cut to the first feedback the follower sent
+  in a state other than ``walking``), its restart latency (path back to the first feedback
+  in ``walking``), and the commands sent before the path returned that the follower applied
+  after it (count, oldest age);
+- the emulator's counters (``--stats-json``).
+
+A markdown table at the end; ``--json F`` writes every figure. Everything is torn down
+(processes, namespaces, ``/etc/netns`` entries) also on Ctrl-C. This script prints
+figures; it asserts nothing (tests/e2e/test_internet.py asserts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import re
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from bipedtele.recording import Record, read_records
+from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
+
+REPO = Path(__file__).resolve().parent.parent
+CLI = [sys.executable, "-m", "bipedtele.cli"]
+ROUTER_NAME = "router.bt.test"
+PORT = 7447
+HOSTS = ("router", "robot", "operator")
+LINK_STATES = ("capacity-limited", "lossy", "lost")
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One row: where the emulator sits and what it does."""
+
+    name: str
+    label: str
+    topology: str  # "intercontinental": operator | emu | router+robot; "lan": robot | emu | router+operator
+    emulator: tuple[str, ...] = ()  # impairments besides the delays
+    video: bool = True
+    outage: tuple[float, float] | None = None  # (at, for) [s] of the emulator's origin, both directions
+
+
+def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
+    """The issue's rows, by name."""
+    both = lambda opt, v: (f"--{opt}-forward", v, f"--{opt}-backward", v)  # noqa: E731
+    out = f"at={outage_at:g}s,for=3s"
+    lan = lambda rate: ("--rate-forward", rate, "--queue-forward", "64kB")  # noqa: E731
+    rows = [
+        Condition("trace", "shipped trace", "intercontinental"),
+        Condition("loss1", "+ 1 % loss", "intercontinental", both("loss", "1%")),
+        Condition("loss5", "+ 5 % loss", "intercontinental", both("loss", "5%")),
+        Condition("outage", "+ 3 s outage", "intercontinental", both("outage", out), outage=(outage_at, 3.0)),
+        Condition("lan600-video", "LAN 600 kbit/s uplink, video on", "lan", lan("600kbit")),
+        Condition("lan600-novideo", "LAN 600 kbit/s uplink, video off", "lan", lan("600kbit"), video=False),
+        Condition("lan300-video", "LAN 300 kbit/s uplink, video on", "lan", lan("300kbit")),
+        Condition("lan300-novideo", "LAN 300 kbit/s uplink, video off", "lan", lan("300kbit"), video=False),
+    ]
+    return {c.name: c for c in rows}
+
+
+# --------------------------------------------------------------------------- processes
+
+
+@dataclass
+class Proc:
+    name: str
+    popen: subprocess.Popen[bytes]
+    log_path: Path
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def log(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def tail(self, n: int = 15) -> str:
+        return "\n".join(self.log().splitlines()[-n:])
+
+    def wait_log(self, pattern: str, timeout_s: float) -> None:
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        while not rx.search(self.log()):
+            if not self.alive():
+                raise RuntimeError(f"{self.name} exited (rc {self.popen.returncode}) before {pattern!r}:\n{self.tail()}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"{self.name}: no {pattern!r} within {timeout_s:g} s:\n{self.tail()}")
+            time.sleep(0.1)
+
+    def stop(self, timeout_s: float = 10.0) -> int | None:
+        if self.alive():
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.popen.pid, signal.SIGTERM)
+            try:
+                return self.popen.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(self.popen.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            return self.popen.wait(timeout=5.0)
+        return None
+
+
+def start(name: str, args: list[str], *, netns: str, cwd: Path, log_dir: Path) -> Proc:
+    """``ip netns exec NS python -m bipedtele.cli ARGS`` in ``cwd``, output to ``log_dir/NAME.log``."""
+    log_path = log_dir / f"{name}.log"
+    with open(log_path, "wb") as log:
+        popen = subprocess.Popen(
+            ["ip", "netns", "exec", netns, *CLI, *args], stdout=log, stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL, start_new_session=True, cwd=cwd,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+    return Proc(name, popen, log_path)
+
+
+# --------------------------------------------------------------------------- setup
+
+
+def setup_two_hosts(out: Path) -> dict[str, list[str]]:
+    """Run ``bipedtele setup two-hosts`` once; return host -> the printed command (after ``bipedtele``)."""
+    r = subprocess.run(
+        [*CLI, "setup", "two-hosts", "--router-name", ROUTER_NAME, "--out", str(out)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    if r.returncode != 0:
+        raise RuntimeError(f"setup two-hosts failed: {r.stderr.strip()}")
+    commands = {}
+    for host in HOSTS:
+        m = re.search(rf"^\s*{host}:\s+bipedtele (.+)$", r.stdout, re.MULTILINE)
+        if not m:
+            raise RuntimeError(f"setup did not print the {host}'s command:\n{r.stdout}")
+        commands[host] = m.group(1).split()
+    return commands
+
+
+def copy_hosts(setup_out: Path, run_dir: Path, links: str | None) -> dict[str, Path]:
+    """Copy each host folder into ``run_dir/host-H/`` (modes kept); set ``links`` if given."""
+    homes = {}
+    for host in HOSTS:
+        home = run_dir / f"host-{host}"
+        home.mkdir(parents=True)
+        shutil.copytree(setup_out / host, home / host)
+        if links is not None:
+            prof = home / host / "bipedtele.toml"
+            text, n = re.subn(r'^links = "[a-z-]+"', f'links = "{links}"', prof.read_text(), flags=re.MULTILINE)
+            if n != 1:
+                raise RuntimeError(f"{prof}: no `links = ...` line to rewrite")
+            prof.write_text(text)
+        homes[host] = home
+    return homes
+
+
+@dataclass
+class Topology:
+    link: EmulatedLink
+    ns: dict[str, str]  # host -> namespace
+    ip: dict[str, str]
+    etc: list[Path] = field(default_factory=list)
+
+    def remove(self) -> None:
+        self.link.remove()
+        for d in self.etc:
+            shutil.rmtree(d, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def topology(kind: str, emulator_log: Path) -> Iterator[Topology]:
+    """The three hosts around the emulator (not started yet); torn down on exit."""
+    tag = secrets.token_hex(2)
+    n = int(tag, 16) % 250 + 2
+    a_ip, b_ip, c_ip = f"10.235.{n}.1", f"10.235.{n}.2", f"10.235.{n}.3"
+    link = EmulatedLink([], tag=tag, a_ip=a_ip, b_ip=b_ip, log_path=emulator_log, autostart=False)
+    top = Topology(link, {}, {})
+    try:
+        link.create()
+        link.pin_neighbours()  # no ARP request crosses a lossy wire
+        third = link.add_host(SIDE_B, c_ip)
+        alone = "operator" if kind == "intercontinental" else "robot"
+        other = "robot" if kind == "intercontinental" else "operator"
+        top.ns = {alone: link.ns[SIDE_A], "router": link.ns[SIDE_B], other: third}
+        top.ip = {alone: a_ip, "router": b_ip, other: c_ip}
+        for ns in top.ns.values():
+            d = Path("/etc/netns") / ns  # `ip netns exec` mounts d/hosts over /etc/hosts
+            d.mkdir(parents=True, exist_ok=True)
+            top.etc.append(d)
+            (d / "hosts").write_text(f"127.0.0.1 localhost\n{top.ip['router']} {ROUTER_NAME}\n")
+        yield top
+    finally:
+        top.remove()
+
+
+# --------------------------------------------------------------------------- one run
+
+
+def _ms(xs: list[float]) -> dict[str, float | None]:
+    if not xs:
+        return {"n": 0, "p50": None, "p99": None, "max": None}
+    a = 1000.0 * np.asarray(xs)
+    return {"n": len(xs), "p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
+
+
+def _recording(home: Path, role: str) -> Path | None:
+    files = sorted((home / "runs").glob(f"{role}-*.mcap"))
+    return files[-1] if files else None
+
+
+def _passes(log: str) -> int:
+    found = re.findall(r"pilot: pass (\d+)/\d+ done", log)
+    return int(found[-1]) if found else 0
+
+
+def analyse(
+    l_rec: list[Record], f_rec: list[Record], leader_log: str, *, outage_wall: tuple[float, float] | None,
+    startup_s: float = 0.0,
+) -> dict[str, Any]:  # fmt: skip
+    """Every figure of one run from the two recordings and the leader's log.
+
+    ``outage_wall``: (cut, return) in wall time; ``startup_s``: delays of messages sent in
+    the first seconds after the leader's first command are left out of ``*_after_startup``.
+    """
+    sent = [r for r in l_rec if r.topic == "cmd/sent"]
+    t_begin = sent[0].t_recv if sent else 0.0
+    t_end = sent[-1].t_recv if sent else 0.0
+    dur = max(1e-9, t_end - t_begin)
+    res: dict[str, Any] = {"passes": _passes(leader_log), "run_s": round(dur, 1), "commands_sent": len(sent)}
+    ev = [r for r in f_rec if r.topic == "events" and t_begin <= r.t_recv <= t_end]
+    res["watchdog_stops"] = sum(1 for r in ev if r.data.get("event") == "watchdog_stop")
+    res["operator_stops"] = sum(1 for r in ev if r.data.get("event") == "operator_stop")
+    res["falls"] = sum(1 for r in ev if r.data.get("event") == "fall")
+    res["collisions"] = sum(1 for r in ev if r.data.get("event") == "collision")
+    st = [r for r in f_rec if r.topic == "status/sent"]
+    counters = dict(st[-1].data.get("counters", {})) if st else {}
+    res["follower_counters"] = counters
+    for k in ("cmd_too_old", "cmd_backlog", "cmd_reordered", "cmd_accepted"):
+        res[k] = counters.get(k)
+    fb = [r for r in l_rec if r.topic == "feedback/recv" and r.t_recv <= t_end]
+    cmd = [r for r in f_rec if r.topic == "cmd/recv" and t_begin <= r.data["t"] <= t_end]
+    h2 = [(r.data["t"], r.t_recv - r.data["t"]) for r in fb]
+    h1 = [(r.data["t"], r.t_recv - r.data["t"]) for r in cmd]
+    res["h1_ms"] = _ms([d for _, d in h1])
+    res["h2_ms"] = _ms([d for _, d in h2])
+    res["h1_ms_after_startup"] = _ms([d for t, d in h1 if t >= t_begin + startup_s])
+    res["h2_ms_after_startup"] = _ms([d for t, d in h2 if t >= t_begin + startup_s])
+    res["h_source"] = "true one-way: follower cmd/recv and leader feedback/recv, receive time - send stamp t"
+    video = [r for r in l_rec if r.topic == "video/recv" and t_begin <= r.t_recv <= t_end]
+    res["video_fps"] = round(len(video) / dur, 2)
+    states = [r.data.get("link") for r in l_rec if r.topic == "leader/state" and t_begin <= r.t_recv <= t_end]
+    res["link_samples"] = len(states)
+    res["link_fraction"] = {s: (sum(1 for x in states if x == s) / len(states) if states else None) for s in LINK_STATES}
+    res["link_states_seen"] = sorted({str(x) for x in states})
+    fb_sent = [r for r in f_rec if r.topic == "feedback/sent"]
+    moved = [r.data["pose"] for r in fb_sent if r.data.get("pose")]
+    res["distance_m"] = (
+        round(float(np.sum(np.hypot(*np.diff(np.asarray(moved)[:, :2], axis=0).T))), 2) if len(moved) > 1 else 0.0
+    )
+    res["walking_fraction"] = (
+        sum(1 for r in fb_sent if r.data.get("state") == "walking") / len(fb_sent) if fb_sent else None
+    )
+    if outage_wall is not None:
+        res["outage"] = outage_figures(fb_sent, cmd, *outage_wall)
+        res["outage"]["cut_after_first_command_s"] = round(outage_wall[0] - t_begin, 1)
+    return res
+
+
+def outage_figures(fb_sent: list[Record], cmd: list[Record], cut: float, back: float) -> dict[str, Any]:
+    """Stop and restart latencies around an outage, and what of the backlog was applied after it."""
+    before = [r for r in fb_sent if r.t_recv < cut]
+    walking_at_cut = bool(before) and before[-1].data.get("state") == "walking"
+    stop = next((r.t_recv - cut for r in fb_sent if r.t_recv >= cut and r.data.get("state") != "walking"), None)
+    restart = next((r.t_recv - back for r in fb_sent if r.t_recv >= back and r.data.get("state") == "walking"), None)
+    last_cmd = max((r.t_recv for r in cmd if r.t_recv < cut + 3.0 and r.t_recv <= back), default=None)
+    # Sent before the path returned (5 ms margin: the operator's hop to the emulator), applied after.
+    stale = [r for r in cmd if r.data["t"] < back - 0.005 and r.t_recv >= back]
+    first_after = next((r for r in cmd if r.t_recv >= back), None)
+    return {
+        "cut_wall": cut, "back_wall": back, "walking_at_cut": walking_at_cut,
+        "stop_latency_s": None if stop is None else round(stop, 3),
+        "stop_after_last_command_s": (
+            None if stop is None or last_cmd is None else round(cut + stop - last_cmd, 3)
+        ),
+        "restart_latency_s": None if restart is None else round(restart, 3),
+        "first_command_after_s": None if first_after is None else round(first_after.t_recv - back, 3),
+        "stale_applied": len(stale),
+        "stale_oldest_age_s": round(max((r.t_recv - r.data["t"] for r in stale), default=0.0), 3),
+    }  # fmt: skip
+
+
+def operator_sockets(ns: str, out: Path) -> dict[str, int]:
+    """Count the operator host's TCP and UDP sockets to the router's port (``ss``), saved to ``out``."""
+    r = subprocess.run(["ip", "netns", "exec", ns, "ss", "-tuanp"], capture_output=True, text=True, timeout=20)
+    out.write_text(r.stdout + r.stderr)
+    mine = [ln.split() for ln in r.stdout.splitlines() if f":{PORT} " in ln + " "]
+    return {
+        "tcp": sum(1 for w in mine if w and w[0] == "tcp" and w[1] == "ESTAB"),
+        "udp": sum(1 for w in mine if w and w[0] == "udp"),
+    }
+
+
+def run_condition(
+    cond: Condition, links: str | None, seconds: float, setup_out: Path, commands: dict[str, list[str]],
+    run_dir: Path, *, seed: int = 1, startup_s: float = 5.0, say: Any = print,
+) -> dict[str, Any]:  # fmt: skip
+    """One run of ``cond`` with ``links`` (None: as setup wrote); return its figures."""
+    run_dir.mkdir(parents=True)
+    homes = copy_hosts(setup_out, run_dir, links)
+    stats = run_dir / "linkemu.json"
+    procs: list[Proc] = []
+    sockets: dict[str, int] | None = None
+    with topology(cond.topology, run_dir / "linkemu.log") as top:
+        base = ["--forward", "const:0ms", "--backward", "const:0ms"]
+        if cond.topology == "intercontinental":
+            base = ["--forward", "trace:intercontinental:h1", "--backward", "trace:intercontinental:h2"]
+        try:
+
+            def go(host: str, name: str, extra: list[str]) -> Proc:
+                p = start(name, [*commands[host], *extra], netns=top.ns[host], cwd=homes[host], log_dir=run_dir)
+                procs.append(p)
+                return p
+
+            def emulate() -> float:
+                t0 = time.time()
+                top.link.start_emulator([
+                    *base, *cond.emulator, "--t0", f"{t0:.6f}", "--seed", str(seed),
+                    "--stats-every", "10", "--stats-json", str(stats),
+                ])  # fmt: skip
+                return t0
+
+            router = go("router", "router", [])
+            router.wait_log(r"router: \S+ listening on", 60.0)
+            t0 = emulate() if cond.topology == "lan" else None  # the robot's path crosses it
+            follower = go("robot", "follower", [] if cond.video else ["--set", "follower.camera_fps=0"])
+            follower.wait_log(r"follower \S+ ready", 120.0)
+            if t0 is None:  # the origin of the trace and the outage: just before the leader starts
+                t0 = emulate()
+            leader = go("operator", "leader", ["--duration", f"{seconds:g}"])
+            deadline = time.monotonic() + seconds + 180.0  # bounded: start-up through the path, then S
+            t_ss: float | None = time.monotonic() + min(10.0, seconds / 2)
+            while leader.alive() and time.monotonic() < deadline:
+                if t_ss is not None and time.monotonic() > t_ss:  # which links the operator's host holds
+                    t_ss, sockets = None, operator_sockets(top.ns["operator"], run_dir / "ss-operator.txt")
+                if not follower.alive():
+                    say(f"  follower exited early:\n{follower.tail()}")
+                    break
+                time.sleep(0.5)
+            leader_rc = leader.stop(15.0)
+            follower.stop(15.0)
+            router.stop(10.0)
+        finally:
+            for p in procs:
+                p.stop(5.0)
+            top.link.stop_emulator()
+    res: dict[str, Any] = {"condition": cond.name, "label": cond.label, "links": links or "as written",
+                           "leader_rc": leader_rc, "run_dir": str(run_dir), "operator_sockets": sockets}  # fmt: skip
+    summary = [ln for ln in leader.log().splitlines() if ln.startswith("leader:")]
+    res["leader_summary"] = summary[-1] if summary else leader.tail(3)
+    l_path, f_path = _recording(homes["operator"], "leader"), _recording(homes["robot"], "follower")
+    if l_path is None or f_path is None:
+        res["error"] = f"no recording (leader {l_path}, follower {f_path}); leader log:\n{leader.tail()}"
+        return res
+    outage = (t0 + cond.outage[0], t0 + cond.outage[0] + cond.outage[1]) if cond.outage else None
+    res.update(analyse(list(read_records(l_path)), list(read_records(f_path)), leader.log(),
+                       outage_wall=outage, startup_s=startup_s))  # fmt: skip
+    try:
+        res["linkemu"] = json.loads(stats.read_text())
+    except (OSError, ValueError):
+        res["linkemu"] = None
+    return res
+
+
+# --------------------------------------------------------------------------- printing
+
+
+def _d(m: dict[str, Any]) -> str:
+    if not m or m.get("p50") is None:
+        return "-"
+    return f"{m['p50']:.0f}/{m['p99']:.0f}/{m['max']:.0f}"
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.0f}"
+
+
+def emu_line(e: dict[str, Any] | None) -> str:
+    if not e:
+        return "emulator: no counters"
+    parts = []
+    for d in ("forward", "backward"):
+        c = e.get(d, {})
+        drop = c.get("dropped", {})
+        parts.append(
+            f"{d} {c.get('forwarded', '?')} fr, drop loss/queue/outage {drop.get('loss', 0)}/{drop.get('queue', 0)}/"
+            f"{drop.get('outage', 0)}, queue max {c.get('queue_bytes_max', 0)} B"
+        )
+    return "emulator: " + "; ".join(parts)
+
+
+def row_line(r: dict[str, Any]) -> str:
+    if "error" in r:
+        return f"{r['label']} [{r['links']}]: ERROR {r['error']}"
+    lf = r["link_fraction"]
+    s = (
+        f"{r['label']} [{r['links']}]: {r['passes']} passes in {r['run_s']} s, dist {r['distance_m']} m, "
+        f"watchdog {r['watchdog_stops']}, operator stops {r['operator_stops']}, falls {r['falls']}, "
+        f"too old {r['cmd_too_old']}, backlog {r['cmd_backlog']}, h1 {_d(r['h1_ms'])} ms, h2 {_d(r['h2_ms'])} ms, "
+        f"video {r['video_fps']:.1f} fps, link cap/lossy/lost {_pct(lf['capacity-limited'])}/{_pct(lf['lossy'])}/"
+        f"{_pct(lf['lost'])} %"
+    )
+    if "outage" in r:
+        o = r["outage"]
+        s += (
+            f"; outage at +{o['cut_after_first_command_s']} s: stop {o['stop_latency_s']} s "
+            f"({o['stop_after_last_command_s']} s after the last command), restart {o['restart_latency_s']} s, "
+            f"stale applied {o['stale_applied']}"
+        )
+    return s
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    head = (
+        "| condition | links | passes | watchdog / operator stops | too old / backlog | h1 ms p50/p99/max | "
+        "h2 ms p50/p99/max | video fps | capacity-limited / lossy / lost % | outage stop / restart s, stale |\n"
+        "|---|---|---|---|---|---|---|---|---|---|"
+    )
+    out = [head]
+    for r in rows:
+        if "error" in r:
+            out.append(f"| {r['label']} | {r['links']} | error | | | | | | | |")
+            continue
+        lf = r["link_fraction"]
+        o = r.get("outage")
+        ot = "-" if o is None else f"{o['stop_latency_s']} / {o['restart_latency_s']}, {o['stale_applied']}"
+        out.append(
+            f"| {r['label']} | {r['links']} | {r['passes']} | {r['watchdog_stops']} / {r['operator_stops']} | "
+            f"{r['cmd_too_old']} / {r['cmd_backlog']} | {_d(r['h1_ms'])} | {_d(r['h2_ms'])} | {r['video_fps']:.1f} | "
+            f"{_pct(lf['capacity-limited'])} / {_pct(lf['lossy'])} / {_pct(lf['lost'])} | {ot} |"
+        )
+    return "\n".join(out)
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    all_conds = conditions()
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--seconds", type=float, default=90.0, help="the pilot's run per condition (leader --duration)")
+    p.add_argument("--only", default=",".join(all_conds), help=f"conditions, comma-separated: {','.join(all_conds)}")
+    p.add_argument("--links", default="split", help="single, split, or both as 'single,split' (profiles' [network] links)")
+    p.add_argument("--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)")
+    p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
+    p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
+    p.add_argument("--workdir", default=None, metavar="DIR", help="keep logs and recordings here (default: a temp dir, removed)")
+    args = p.parse_args(argv)
+    conds = conditions(args.outage_at)
+    names = [n.strip() for n in args.only.split(",") if n.strip()]
+    bad = [n for n in names if n not in conds]
+    links = [x.strip() for x in args.links.split(",") if x.strip()]
+    if bad or not names or any(x not in ("single", "split", "split-tcp") for x in links):
+        p.error(f"--only {args.only!r} / --links {args.links!r}: allowed: {', '.join(conds)}; single, split, split-tcp")
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        sys.stderr.write("bench/internet.py: needs root and iproute2 (network namespaces, raw sockets)\n")
+        return 2
+
+    def on_term(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)
+    work = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="bt-internet-"))
+    work.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    try:
+        setup_out = work / f"setup-{secrets.token_hex(2)}"
+        commands = setup_two_hosts(setup_out)
+        print(f"setup two-hosts: {setup_out}; commands: " + "; ".join(f"{h}: bipedtele {' '.join(c)}" for h, c in commands.items()))
+        for name in names:
+            for lk in links:
+                cond = conds[name]
+                t_start = time.monotonic()
+                print(f"--- {cond.label} [{lk}] ({args.seconds:g} s) ...", flush=True)
+                try:
+                    r = run_condition(cond, lk, args.seconds, setup_out, commands,
+                                      work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed)  # fmt: skip
+                except (RuntimeError, NetnsError) as exc:
+                    r = {"condition": name, "label": cond.label, "links": lk, "error": str(exc)}
+                r["wall_s"] = round(time.monotonic() - t_start, 1)
+                rows.append(r)
+                print(row_line(r))
+                print("  " + emu_line(r.get("linkemu")))
+                if "leader_summary" in r:
+                    print("  " + r["leader_summary"])
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        print("interrupted: torn down", file=sys.stderr)
+    finally:
+        if rows:
+            print()
+            print(table(rows))
+        if args.json:
+            Path(args.json).write_text(json.dumps({"seconds": args.seconds, "rows": rows}, indent=2, default=str) + "\n")
+        if not args.workdir:
+            shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
