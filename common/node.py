@@ -236,6 +236,8 @@ class Node:
         estimator: DelayEstimator | None = None,
         on_message: Callable[[Received[M]], None] | None = None,
         ignore_sid: int | None = None,
+        max_age_s: float | Callable[[float], float] | None = None,
+        on_too_old: Callable[[Received[M]], None] | None = None,
     ) -> LatestReceiver[M]:
         """Declare a receiver of ``key`` with the node's checks; it lives as long as the node.
 
@@ -255,6 +257,11 @@ class Node:
             Called with every accepted message in Zenoh's callback thread (keep it short).
         ignore_sid : int, optional
             Messages of this session (our own on a shared key) are ignored.
+        max_age_s : float or callable, optional
+            Messages sent longer ago are dropped (``too_old``) before the gate and the
+            estimator see them (a callable gets the receive time and returns the bound).
+        on_too_old : callable, optional
+            Called with each message refused as too old, instead of counting it.
         """
         record, recorder = self.record, self.recorder
 
@@ -268,7 +275,7 @@ class Node:
         rx: LatestReceiver[M] = LatestReceiver(
             self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
             auth=self.auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
-            on_message=accepted if wants else None,
+            on_message=accepted if wants else None, max_age_s=max_age_s, on_too_old=on_too_old,
         )  # fmt: skip
         return self.enter(rx)
 

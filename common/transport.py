@@ -20,7 +20,8 @@ Receivers never raise on bad input. In order, a payload is dropped and counted i
 decoded), it fails :func:`bipedtele.messages.decode` (the
 :class:`~bipedtele.messages.MessageError` reason), its send time is more than
 ``max_future_s`` ahead of the local clock (``future``) or the peer clock's offset is not
-known yet (``clock_not_synced``), or an optional :class:`~bipedtele.gate.SequenceGate`
+known yet (``clock_not_synced``), it was sent longer ago than ``max_age_s`` (``too_old``,
+before the gate: an old replay never binds it), or an optional :class:`~bipedtele.gate.SequenceGate`
 refuses it. Delay estimators never see a negative delay.
 
 Sessions: :func:`open_session` reads only the settings of the process's role; a client
@@ -41,6 +42,7 @@ Examples
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import logging
@@ -679,6 +681,10 @@ MAX_CONTROL_PAYLOAD = 16 * 1024
 MAX_VIDEO_PAYLOAD = MAX_JPEG_BYTES + 4 * 1024
 
 
+def _const(value: float, _t: float) -> float:
+    return value
+
+
 class _Receiver(Generic[M]):
     """Shared authentication/decoding/validation/gating for the receivers."""
 
@@ -697,9 +703,13 @@ class _Receiver(Generic[M]):
         on_message: Callable[[Received[M]], None] | None = None,
         auth: MessageAuth | None = None,
         max_future_s: float | None = None,
+        max_age_s: float | Callable[[float], float] | None = None,
+        on_too_old: Callable[[Received[M]], None] | None = None,
     ) -> None:
         if max_future_s is not None and not max_future_s > 0:
             raise ValueError(f"max_future_s = {max_future_s!r}: allowed: None or a number > 0 s")
+        if max_age_s is not None and not callable(max_age_s) and not max_age_s > 0:
+            raise ValueError(f"max_age_s = {max_age_s!r}: allowed: None, a number > 0 s or a callable")
         self.key = key
         self._on_message = on_message
         self._expect: tuple[type[M], ...] = expect if isinstance(expect, tuple) else (expect,)
@@ -712,6 +722,10 @@ class _Receiver(Generic[M]):
         self.clock_sync = clock_sync
         self.auth = auth
         self.max_future_s = max_future_s
+        self._max_age: Callable[[float], float] | None = (
+            None if max_age_s is None else max_age_s if callable(max_age_s) else functools.partial(_const, float(max_age_s))
+        )
+        self._on_too_old = on_too_old
         # the key expression the sender signed: ours when exact, else the sample's
         self._mac_topic = None if any(c in key for c in "*$") else key
         self._clock = clock
@@ -758,6 +772,15 @@ class _Receiver(Generic[M]):
                 t_sent = sync.to_local(t_sent)
             if self.max_future_s is not None and t_sent - t_recv > self.max_future_s:
                 drops.drop("future", f"{self.key}: sid={msg.sid} seq={msg.seq} stamped {t_sent - t_recv:.3f} s ahead")
+                return
+            max_age = self._max_age
+            if max_age is not None and t_recv - t_sent > max_age(t_recv):
+                # before the gate and the delay estimator: an old message (a replay, a
+                # queue's backlog) never binds the gate nor moves the delay estimate
+                if self._on_too_old is not None:
+                    self._on_too_old(Received(msg, t_recv, nbytes))
+                else:
+                    drops.drop("too_old", f"{self.key}: sid={msg.sid} seq={msg.seq} sent {t_recv - t_sent:.3f} s ago")
                 return
             if self.gate is not None:
                 reason = self.gate.accept(msg)
@@ -830,6 +853,14 @@ class LatestReceiver(_Receiver[M]):
         A message whose send time (on the local clock, after ``clock_sync``) is more
         than this ahead of its receive time [s] is dropped as ``future``
         (``[clock] max_future_s``). None: no check.
+    max_age_s : float or callable, optional
+        A message sent longer ago than this [s] (receive time minus send time on the
+        local clock; a callable is given the receive time and returns the bound) is
+        dropped as ``too_old`` before the gate and the delay estimator see it, so a
+        replay of old traffic never binds the gate. None: no check.
+    on_too_old : callable, optional
+        Called with a message refused as too old instead of counting the drop (the
+        caller counts it, e.g. the leader's ``fb_too_old``).
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:

@@ -216,7 +216,8 @@ class FollowerApp:
             )
             # Every accepted command: recorded and fed to h1 once, in the receiver.
             self._cmd_rx = node.receive(
-                node.keys.cmd, Command, self.gate, topic="cmd/recv", estimator=self.h1, on_message=self._on_command
+                node.keys.cmd, Command, self.gate, topic="cmd/recv", estimator=self.h1, on_message=self._on_command,
+                max_age_s=self.fcfg.max_cmd_age_s,  # before the gate: an old replay never binds it
             )
             backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))

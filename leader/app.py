@@ -419,7 +419,9 @@ class LeaderApp:
                 {"operator": self.op_name, "device": self.dev_name}, jpeg_every=10
             )
             self._fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
-                                       estimator=self.estimator, on_message=self._on_feedback)  # fmt: skip
+                                       estimator=self.estimator, on_message=self._on_feedback,
+                                       # too old: refused before the gate binds and h2 moves
+                                       max_age_s=self.link.max_age_s, on_too_old=self._on_feedback)  # fmt: skip
             node.receive(node.keys.video, VideoFrame, SequenceGate(), topic="video/recv", on_message=self._on_video)
             status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid,
                                      on_message=self._on_status)  # fmt: skip
