@@ -13,8 +13,10 @@ of whole valid messages are stopped by the receivers' sequence gate and send-tim
 checks, not by the tag.
 
 The first byte 0xc1 is the one byte msgpack never uses, so a signed payload is never
-taken for a message by a receiver without the key (it fails as ``not_msgpack``) and an
-unsigned one is never taken for a signed one (``no_mac``). Tags are checked in constant
+taken for a message by a receiver without the key (it is dropped as ``mac_unexpected``,
+whose line says that the peer has a key and this side none) and an unsigned one is never
+taken for a signed one (``no_mac``: the peer has no key). A wrong tag (``bad_mac``) says
+the two sides hold different keys. Tags are checked in constant
 time (:func:`hmac.compare_digest`) before anything is decoded. See docs/network.md.
 
 Examples
@@ -38,11 +40,16 @@ from bipedtele.config import ConfigError
 from bipedtele.sections import NetworkConfig
 
 __all__ = [
+    "BAD_MAC_LINE",
     "KEY_BYTES",
+    "KEY_REASONS",
     "MAC_MAGIC",
     "MAC_OVERHEAD",
+    "NO_MAC_LINE",
+    "UNEXPECTED_MAC_LINE",
     "MacError",
     "MessageAuth",
+    "is_signed",
     "load_message_auth",
     "write_message_key",
 ]
@@ -53,6 +60,25 @@ MAC_OVERHEAD: Final = len(MAC_MAGIC) + TAG_BYTES
 KEY_BYTES: Final = 32
 _MAX_TOPICS: Final = 256  # cached per-key-expression HMAC states (a robot uses about 5)
 _BLOCK: Final = 64  # SHA-256 block size [bytes]
+
+
+#: What each side says when the two ends do not hold the same key (one line, both sides).
+NO_MAC_LINE: Final = (
+    "the peer's messages carry no MAC but this side has a message_key_file "
+    "(set network.message_key_file on both sides, or forged messages)"
+)
+BAD_MAC_LINE: Final = "MAC mismatch: the two sides hold different message keys (or the messages were altered)"
+UNEXPECTED_MAC_LINE: Final = (
+    "the peer's messages carry a MAC but this side has no message_key_file "
+    "(set network.message_key_file on both sides)"
+)
+#: Drop reasons that say the two ends' keys differ (or someone forges).
+KEY_REASONS: Final = ("no_mac", "bad_mac", "mac_unexpected")
+
+
+def is_signed(payload: bytes) -> bool:
+    """Return whether ``payload`` is framed as a signed message (a keyless receiver refuses it by name)."""
+    return payload[:4] == MAC_MAGIC and len(payload) >= MAC_OVERHEAD
 
 
 class MacError(ValueError):
@@ -131,10 +157,10 @@ class MessageAuth:
             ``no_mac`` if the payload is not framed, ``bad_mac`` if the tag is wrong.
         """
         if payload[:4] != MAC_MAGIC or len(payload) < MAC_OVERHEAD:
-            raise MacError("no_mac", f"unsigned payload of {len(payload)} bytes")
+            raise MacError("no_mac", f"{NO_MAC_LINE} (unsigned payload of {len(payload)} bytes on {topic})")
         body = payload[MAC_OVERHEAD:]
         if not hmac.compare_digest(self.tag(body, topic), payload[4:MAC_OVERHEAD]):
-            raise MacError("bad_mac", f"wrong tag on {topic}")
+            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong tag on {topic})")
         return body
 
     def __repr__(self) -> str:

@@ -28,6 +28,16 @@ silent is not bound to a jump bound: its first newer message after more than
 ``max_rate_hz``, e.g. a tool running faster than real time, recovers after a burst of
 losses). With the message key set none of this can be forged (sid and seq are MAC'd) and
 replays are dropped as ``stale``/``duplicate`` while the session is bound.
+
+Without the message key (``rollback_after > 0``, the receivers' setting then) a jump is
+provisional: when ``rollback_after`` messages of the bound session in a row (consecutive
+seqs) arrive stale but newer than the seq accepted before the jump, the jump was not the
+sender's (a forged copy) and the gate rolls back to them (the last of them is accepted).
+So one forged message with a high seq blocks the real sender for at most
+``rollback_after - 1`` of its messages (2 at the default 3: 20 ms at the leader's 100 Hz
+commands), whatever its seq, instead of up to ``elapsed * max_rate_hz + seq_margin``.
+The receivers drop messages older than their age bound before the gate, so an old copy
+(finding 2: seq + 519 stamped 3,605 s old) never reaches it.
 """
 
 from __future__ import annotations
@@ -60,6 +70,10 @@ class SequenceGate:
         jump accepted after ``elapsed`` seconds to ``elapsed * max_rate_hz + seq_margin``.
     seq_margin : int
         Seq jump always allowed (>= 0): lost messages, bursts.
+    rollback_after : int
+        0: no rollback (with the message key: a jump cannot be forged). Otherwise this
+        many consecutive stale messages of the bound session, newer than the seq accepted
+        before the latest jumps, undo the jumps (module docstring).
 
     Notes
     -----
@@ -74,6 +88,7 @@ class SequenceGate:
         clock: Callable[[], float] = time.monotonic,
         max_rate_hz: float = 5000.0,
         seq_margin: int = 100,
+        rollback_after: int = 0,
     ) -> None:
         if not (math.isfinite(takeover_after_s) and takeover_after_s > 0):
             raise ValueError(f"takeover_after_s = {takeover_after_s!r}: allowed: a finite number of seconds > 0")
@@ -83,7 +98,14 @@ class SequenceGate:
             raise ValueError(f"seq_margin = {seq_margin!r}: allowed: an integer >= 0")
         self.takeover_after_s = float(takeover_after_s)
         self.max_rate_hz = float(max_rate_hz)
+        if rollback_after < 0:
+            raise ValueError(f"rollback_after = {rollback_after!r}: allowed: an integer >= 0")
         self.seq_margin = int(seq_margin)
+        self.rollback_after = int(rollback_after)
+        self.rollbacks = 0
+        self._pre_jump: int | None = None  # seq accepted before the first jump not yet confirmed
+        self._run_seq = -1  # newest of the current run of stale-but-newer messages
+        self._run = 0
         self._clock = clock
         self._lock = threading.Lock()
         self._sid: int | None = None
@@ -113,11 +135,28 @@ class SequenceGate:
             if sid == self._sid:
                 last = self._seq
                 if seq <= last:
-                    return "duplicate" if seq == last else "stale"
-                if live and seq - last > (elapsed if elapsed > 0.0 else 0.0) * self.max_rate_hz + self.seq_margin:
+                    if seq == last:
+                        return "duplicate"
+                    pre = self._pre_jump
+                    if pre is None or seq <= pre or self.rollback_after == 0:
+                        return "stale"
+                    # newer than the seq before a jump: the real sender's, if a run follows
+                    self._run = self._run + 1 if seq == self._run_seq + 1 else 1
+                    self._run_seq = seq
+                    if self._run < self.rollback_after:
+                        return "stale"
+                    self.rollbacks += 1
+                    self._pre_jump = None
+                    self._run, self._run_seq = 0, -1
+                elif live and seq - last > (elapsed if elapsed > 0.0 else 0.0) * self.max_rate_hz + self.seq_margin:
                     return "seq_jump"
+                elif seq > last + 1 and self._pre_jump is None:
+                    self._pre_jump = last
             elif live and self._sid is not None:
                 return "foreign_session"
+            else:
+                self._pre_jump = None
+                self._run, self._run_seq = 0, -1
             self._sid = sid
             self._seq = seq
             self._t_accept = now
@@ -167,3 +206,5 @@ class SequenceGate:
             self._sid = None
             self._seq = -1
             self._t_accept = -math.inf
+            self._pre_jump = None
+            self._run, self._run_seq = 0, -1

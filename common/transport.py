@@ -17,7 +17,7 @@ matters, go through the queue-style :class:`MessageReceiver`.
 Receivers never raise on bad input. In order, a payload is dropped and counted in a
 :class:`~bipedtele.drops.DropCounter` when: it fails authentication (``no_mac``,
 ``bad_mac``; with a :class:`~bipedtele.auth.MessageAuth`, checked before anything is
-decoded), it fails :func:`bipedtele.messages.decode` (the
+decoded; without one, a signed payload is ``mac_unexpected``), it fails :func:`bipedtele.messages.decode` (the
 :class:`~bipedtele.messages.MessageError` reason), its send time is more than
 ``max_future_s`` ahead of the local clock (``future``) or the peer clock's offset is not
 known yet (``clock_not_synced``), it was sent longer ago than ``max_age_s`` (``too_old``,
@@ -59,7 +59,7 @@ from typing import Any, Generic, TypeVar
 import msgspec
 import zenoh
 from bipedtele.acl import access_control_json, credential_users
-from bipedtele.auth import MacError, MessageAuth
+from bipedtele.auth import UNEXPECTED_MAC_LINE, MacError, MessageAuth, is_signed
 from bipedtele.clock import ClockSync, DelayEstimator
 from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
@@ -753,6 +753,9 @@ class _Receiver(Generic[M]):
                 except MacError as exc:
                     drops.drop(exc.reason, f"{self.key}: {exc.detail}")
                     return
+            elif is_signed(payload):  # not for the decoder: name the missing key, not msgpack
+                drops.drop("mac_unexpected", f"{self.key}: {UNEXPECTED_MAC_LINE}")
+                return
             try:
                 msg = decode(payload, self._decode_as)
             except MessageError as exc:

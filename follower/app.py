@@ -102,7 +102,8 @@ class FollowerApp:
         # The command gate follows one leader session (another takes over only after the
         # watchdog's silence): the only de-duplication of commands. Its live sid binds
         # the clock link.
-        self.gate = SequenceGate(takeover_after_s=self.fcfg.watchdog_s)
+        # Without the message key a forged high seq is rolled back after 3 real commands.
+        self.gate = SequenceGate(takeover_after_s=self.fcfg.watchdog_s, rollback_after=0 if self.node.auth else 3)
         self.h1 = DelayEstimator(cfg.section("clock").delay_window_s)
         self.dt = 1.0 / self.fcfg.control_rate_hz
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(self.dt)

@@ -51,7 +51,7 @@ from bipedtele.leader.linkquality import LinkQuality, LinkReport
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor
-from bipedtele.leader.reach import CommandReach
+from bipedtele.leader.reach import KEY_MISMATCH, CommandReach
 from bipedtele.messages import MAX_SEQ, Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.telemetry import LeaderSample
@@ -290,8 +290,9 @@ class LeaderApp:
         self.node = Node(cfg, "leader", record=record)  # a bad key file or --record fails here
         self.estimator = DelayEstimator(cfg.section("clock").delay_window_s)
         # The feedback gate follows one follower session; its live sid binds the clock link.
-        self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s)
-        self.reach = CommandReach(self._commands_sent)
+        # Without the message key a forged high seq is rolled back after 3 real feedbacks.
+        self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
+        self.reach = CommandReach(self._commands_sent, key_drops=self.node.drops.counts)
         self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
         self._fb_ok: Received[Feedback] | None = None  # the newest feedback young enough to use
@@ -574,7 +575,9 @@ def _summary(
             parts.append(f"loop {st['rate_hz']:.1f} Hz, p99 period error {1000 * st['err_p99_s']:.2f} ms")
     if record is not None:
         parts.append(f"recording {record}")
-    if reach is not None and reach.never_reached:
+    if reach is not None and reach.never_reached and reach.key_reason is not None:
+        parts.append(f"NO COMMAND REACHED THE ROBOT ({KEY_MISMATCH} {reach.key_line})")
+    elif reach is not None and reach.never_reached:
         parts.append("NO COMMAND REACHED THE ROBOT (refused by the router's ACL? log in as a leader user)")
     elif reach is not None and reach.never_acknowledged:
         parts.append("NO COMMAND ACKNOWLEDGED BY THE ROBOT (link lost: nothing heard from the follower; path or router down?)")

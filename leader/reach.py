@@ -25,6 +25,11 @@ points to:
   may still linger): ``link lost: no feedback for N s (path or router down?)``; the ACL
   is not named, nothing says our commands were refused.
 
+- the follower's messages arrive but are refused for their MAC (``no_mac``: it has no
+  key; ``mac_unexpected``: it has one and we do not; ``bad_mac``: the keys differ):
+  ``commands not reaching the robot: message keys do not match: ...`` with the line that
+  says which; the ACL is not named.
+
 An acknowledgement after it gives one INFO line; a change of cause gives a new WARNING.
 At the end, :attr:`CommandReach.never_reached` tells whether a run that had the follower
 heard for a whole window got no command through at all (refused: the leader then exits
@@ -43,15 +48,19 @@ import threading
 import time
 from collections.abc import Callable
 
+from bipedtele.auth import BAD_MAC_LINE, KEY_REASONS, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.messages import Feedback
 
-__all__ = ["LOST", "REFUSED", "CommandReach"]
+__all__ = ["KEY_MISMATCH", "LOST", "REFUSED", "CommandReach"]
 
 LOG = logging.getLogger("bipedtele.leader")
 
 
 #: The WARNING of the refused case (tests and launchers grep for it).
 REFUSED = "commands not reaching the robot: refused by the router's ACL?"
+#: The WARNING of a key problem starts with this; the line for the drop reason follows.
+KEY_MISMATCH = "commands not reaching the robot: message keys do not match:"
+_KEY_LINES: dict[str, str] = {"no_mac": NO_MAC_LINE, "bad_mac": BAD_MAC_LINE, "mac_unexpected": UNEXPECTED_MAC_LINE}
 #: The WARNING of the lost case starts with this.
 LOST = "link lost: no feedback for"
 
@@ -68,6 +77,10 @@ class CommandReach:
         before the warning [s] (1.5 s: said within 2 s, well above a round trip).
     clock : callable
         Monotonic time [s].
+    key_drops : callable, optional
+        ``() -> {reason: count}``: the node's drop counts. Messages refused for their MAC
+        (``no_mac``, ``bad_mac``, ``mac_unexpected``) within the window make the verdict a
+        key problem, named in one line (:data:`KEY_MISMATCH`), instead of the ACL.
 
     Notes
     -----
@@ -80,10 +93,16 @@ class CommandReach:
         sent_seq: Callable[[], int],
         window_s: float = 1.5,
         clock: Callable[[], float] = time.monotonic,
+        key_drops: Callable[[], dict[str, int]] | None = None,
     ) -> None:
         if not window_s > 0:
             raise ValueError(f"window_s must be > 0, got {window_s!r}")
         self._sent_seq = sent_seq
+        self._key_counts = key_drops
+        self._key_seen_counts: dict[str, int] = {}
+        self._key_last: tuple[float, str] | None = None
+        #: The drop reason of the last key problem (``no_mac``, ``bad_mac``, ``mac_unexpected``), or None.
+        self.key_reason: str | None = None
         self.window_s = float(window_s)
         self._clock = clock
         self._lock = threading.Lock()
@@ -115,6 +134,26 @@ class CommandReach:
             if ok:
                 self.acknowledged += 1
                 self._last_ack = now
+
+    def _key_problem(self, now: float) -> str | None:
+        """Return the key line when messages were refused for their MAC within the window, else None."""
+        if self._key_counts is None:
+            return None
+        counts = self._key_counts()
+        grew = {r: counts.get(r, 0) - self._key_seen_counts.get(r, 0) for r in KEY_REASONS}
+        self._key_seen_counts = {r: counts.get(r, 0) for r in KEY_REASONS}
+        worst = max(grew, key=lambda r: grew[r])
+        if grew[worst] > 0:
+            self._key_last = (now, worst)
+        if self._key_last is None or now - self._key_last[0] >= self.window_s:
+            return None
+        self.key_reason = self._key_last[1]
+        return _KEY_LINES[self._key_last[1]]
+
+    @property
+    def key_line(self) -> str:
+        """The line naming the last key problem (empty when there was none)."""
+        return _KEY_LINES.get(self.key_reason or "", "")
 
     def on_heard(self) -> None:
         """Something of the follower's arrived other than feedback (status, video; any thread).
@@ -167,6 +206,14 @@ class CommandReach:
             return
         self.present_window = True
         heard = last_heard is not None and now - last_heard < self.window_s
+        key = self._key_problem(now)
+        if key is not None:  # the follower's messages arrive but fail the MAC check
+            self.exposed = True
+            if self._warned != "key":
+                self._warned = "key"
+                self.warnings += 1
+                LOG.warning("%s %s", KEY_MISMATCH, key)
+            return
         if heard:
             self.exposed = True
             if self._warned != "refused":
