@@ -244,6 +244,9 @@ def zenoh_config(
         listen = router_listen_endpoints(listen, net.links)
     put("connect/endpoints", client_endpoints(connect, net.links) if mode == "client" else connect)
     put("transport/unicast/max_links", MAX_LINKS)
+    # Zenoh reassembles a fragmented message before anyone sees it: bound what one message
+    # may cost (the largest valid one is a video frame, MAX_VIDEO_PAYLOAD), 1 GiB by default.
+    put("transport/link/rx/max_message_size", MAX_ZENOH_MESSAGE)
     if listen or mode != "client":
         # Explicit endpoints only; a peer with no listen endpoint listens nowhere rather
         # than on an ephemeral port of every interface.
@@ -679,6 +682,8 @@ class Received(msgspec.Struct, Generic[M], frozen=True, gc=False):
 #: before it is copied, authenticated or decoded.
 MAX_CONTROL_PAYLOAD = 16 * 1024
 MAX_VIDEO_PAYLOAD = MAX_JPEG_BYTES + 4 * 1024
+#: Largest message Zenoh reassembles [bytes] (its defragmentation buffer; Zenoh drops larger).
+MAX_ZENOH_MESSAGE = MAX_VIDEO_PAYLOAD + 64 * 1024
 
 
 def _const(value: float, _t: float) -> float:
