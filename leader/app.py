@@ -380,10 +380,10 @@ class LeaderApp:
 
     def _start_cockpit(self) -> Any:
         lc = self.lc
-        from bipedtele.leader.cockpit import CockpitServer
+        from bipedtele.leader.cockpit import CockpitProcess
 
-        try:
-            cockpit = CockpitServer(
+        try:  # its own process: a flood of the web server never takes the haptic loop's CPU
+            cockpit = CockpitProcess(
                 lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=self.token,
                 allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
                 course=_map_course(self.cfg),

@@ -80,11 +80,20 @@ from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 from bipedtele.drops import DropCounter
+from bipedtele.leader.cockpit.guard import (
+    Guard,
+    GuardedHandler,
+    Limits,
+    Throttle,
+    descriptor_budget,
+)
 from bipedtele.telemetry import LeaderSample, sample_to_json
 
-__all__ = ["LOCAL_HOSTS", "SAMPLE_KEYS", "CockpitServer"]
+__all__ = ["LOCAL_HOSTS", "SAMPLE_KEYS", "CockpitServer", "EncodedSample"]
 
 LOG = logging.getLogger("bipedtele.leader.cockpit")
+#: Errors of the server's loop and of aiohttp: one line per kind per interval (:class:`Throttle`).
+ERR_LOG = logging.getLogger("bipedtele.leader.cockpit.errors")
 
 #: Telemetry keys the page plots or shows (others are shown as text). Units in docs/cockpit.md.
 SAMPLE_KEYS: tuple[str, ...] = (
@@ -118,6 +127,21 @@ _SECURITY_HEADERS = {
 _MIN_TOKEN_LEN = 16
 _TOKEN_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
 _Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+def _loop_error(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    """Log an error of the server's loop: one line per kind per interval, no traceback."""
+    exc = context.get("exception")
+    what = str(context.get("message", "error"))
+    ERR_LOG.error(f"cockpit: {what}" + (f": {type(exc).__name__}" if exc is not None else ""), exc_info=exc)
+
+
+def _throttle_logs(interval_s: float) -> None:
+    """Throttle the cockpit's error loggers and aiohttp's (idempotent)."""
+    for name in (ERR_LOG.name, "aiohttp.server", "aiohttp.web", "aiohttp.websocket"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, Throttle) for f in logger.filters):
+            logger.addFilter(Throttle(interval_s))
 
 
 def _hostname(value: str) -> tuple[str, int | None] | None:
@@ -162,8 +186,14 @@ def _clean(value: Any) -> Any:
     return str(value)[:200]
 
 
+class EncodedSample(str):
+    """A telemetry sample already encoded as JSON text (the cockpit process is fed these)."""
+
+
 def _sample_json(sample: LeaderSample | dict[str, Any]) -> str:
     """Return one telemetry sample as JSON text (non-finite numbers as null)."""
+    if isinstance(sample, EncodedSample):
+        return str(sample)
     if isinstance(sample, LeaderSample):
         return sample_to_json(sample).decode()
     return json.dumps({str(k): _clean(v) for k, v in sample.items()}, allow_nan=False)
@@ -243,7 +273,12 @@ class CockpitServer:
         allowed_hosts: Iterable[str] = (),
         max_clients: int = 4,
         course: Iterable[tuple[float, float, float]] = (),
+        limits: Limits | None = None,
+        on_joystick: Callable[[tuple[float, float, float]], None] | None = None,
     ) -> None:
+        self.limits = limits or Limits()
+        self._on_joystick = on_joystick
+        self.guard: Guard | None = None
         self.course = [[float(v) for v in ob] for ob in course]
         if any(len(ob) != 3 or not all(math.isfinite(v) for v in ob) for ob in self.course):
             raise ValueError("course: allowed: finite (x, y, radius) triples [m]")
@@ -290,6 +325,7 @@ class CockpitServer:
         self._refusals = DropCounter("cockpit/http")
         self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "connections": 0,
                           "refused_host": 0, "refused_token": 0, "refused_origin": 0, "refused_full": 0}  # fmt: skip
+        self._descriptors: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
@@ -339,6 +375,7 @@ class CockpitServer:
             raise RuntimeError("cockpit server already started")
         ready = threading.Event()
         failure: list[BaseException] = []
+        _throttle_logs(self.limits.log_interval_s)
         self._thread = threading.Thread(
             target=self._thread_main, args=(ready, failure), name="cockpit", daemon=True
         )
@@ -384,7 +421,8 @@ class CockpitServer:
             the caller must not change it afterwards; its unset fields are not sent), or a
             map (copied; values that are not JSON are sent as text).
         """
-        self._sample = (next(self._sample_n), sample if isinstance(sample, LeaderSample) else dict(sample))
+        keep = isinstance(sample, LeaderSample | EncodedSample)
+        self._sample = (next(self._sample_n), sample if keep else dict(sample))
 
     def publish_video(self, camera: str, jpeg: bytes, t: float) -> None:
         """Offer the latest JPEG of ``camera`` captured at ``t`` [s].
@@ -417,9 +455,16 @@ class CockpitServer:
 
         ``clients``, ``frames_pushed``, ``samples_pushed``, ``joystick_messages``,
         ``connections``, refusals (``refused_host``, ``refused_token``,
-        ``refused_origin``, ``refused_full``), ``bad_messages`` and ``bad_by_reason``.
+        ``refused_origin``, ``refused_full``), ``bad_messages`` and ``bad_by_reason``; the
+        guard's (:class:`~bipedtele.leader.cockpit.guard.Guard`): ``refused_conn_address``,
+        ``refused_conn_total``, ``closed_no_head``, ``refused_rate`` (429),
+        ``closed_unanswered``, ``lockouts``, ``open_connections``; ``nofile_soft``,
+        ``descriptors_used``, ``total_cap``.
         """
         out: dict[str, Any] = dict(self._counters)
+        if self.guard is not None:
+            out.update(self.guard.counters, open_connections=self.guard.total)
+        out.update(self._descriptors)
         out["clients"] = len(self._clients)
         out["bad_by_reason"] = self._drops.counts()
         out["bad_messages"] = self._drops.total
@@ -444,6 +489,10 @@ class CockpitServer:
 
     async def _serve(self, ready: threading.Event, failure: list[BaseException]) -> None:
         self._stopping = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(_loop_error)
+        total_cap, self._descriptors = descriptor_budget(self.limits)
+        guard = self.guard = Guard(self.limits, total_cap)
         app = web.Application(middlewares=[self._guard])
         app.on_response_prepare.append(self._add_headers)
         app.router.add_get("/", self._page)
@@ -452,14 +501,22 @@ class CockpitServer:
         app.router.add_get("/healthz", self._healthz)
         app.router.add_get("/favicon.ico", self._no_content)
         app.router.add_get("/video/{camera}.jpg", self._video_jpeg)
-        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=1.0)
+        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=1.0,
+                               keepalive_timeout=self.limits.idle_timeout_s)  # fmt: skip
         await runner.setup()
         self._runner = runner
+        listener: asyncio.Server | None = None
         try:
-            site = web.TCPSite(runner, self.host, self._req_port)
-            await site.start()
-            addresses = runner.addresses
-            self._port = int(addresses[0][1]) if addresses else self._req_port
+            manager = runner.server
+            assert manager is not None
+            kwargs = manager._kwargs  # what aiohttp's own factory passes (access log, keep-alive)
+
+            def connection() -> GuardedHandler:
+                return GuardedHandler(manager, guard=guard, on_refuse=self._conn_refused, loop=loop, **kwargs)
+
+            listener = await loop.create_server(connection, self.host or None, self._req_port,
+                                                reuse_address=True, backlog=128)  # fmt: skip
+            self._port = int(listener.sockets[0].getsockname()[1])
             ready.set()
             sampler = asyncio.create_task(self._sampler())
             await self._stopping.wait()
@@ -467,7 +524,12 @@ class CockpitServer:
             for client in list(self._clients):
                 await client.ws.close(code=1001, message=b"server stopping")
         finally:
+            if listener is not None:
+                listener.close()
             await runner.cleanup()
+
+    def _conn_refused(self, reason: str, addr: str) -> None:
+        self._refusals.drop(reason, addr)
 
     async def _sampler(self) -> None:
         """Take the latest sample every telemetry period into the history."""
@@ -497,19 +559,55 @@ class CockpitServer:
             return False
         return hmac.compare_digest(data, self._token_bytes)
 
+    def _limited(self, request: web.Request, *, bad_token: bool) -> web.StreamResponse | None:
+        """Count a refused request (against its address if ``bad_token``); its answer when limited.
+
+        An address locked out by failed tokens (``fail_max`` in ``fail_window_s``) gets 429
+        for ``lockout_s`` instead of the reason; beyond the global budget of refusal answers
+        the connection is aborted unanswered. None: not limited, the caller refuses with
+        the reason.
+        """
+        guard, addr = self.guard, request.remote or "?"
+        if guard is None:
+            return None
+        now = time.monotonic()
+        if not guard.may_answer(now):
+            if request.transport is not None:
+                request.transport.abort()
+            return web.Response(status=429)
+        if bad_token and guard.locked(addr, now):
+            guard.counters["refused_rate"] += 1
+            self._refusals.drop("rate_limited", addr)
+            return web.Response(
+                status=429, text="bipedtele cockpit: too many refused requests; try again later\n",
+                headers={"Retry-After": str(round(self.limits.lockout_s))},
+            )  # fmt: skip
+        if bad_token and guard.failed(addr, now):
+            self._refusals.drop("locked_out", f"{addr} for {self.limits.lockout_s:g} s")
+        return None
+
     @web.middleware
     async def _guard(self, request: web.Request, handler: _Handler) -> web.StreamResponse:
-        """Host allow-list and token on every request; sets the token cookie."""
+        """Host allow-list and token on every request; sets the token cookie.
+
+        A request with the right Host and token is always served; the others count against
+        their address (:meth:`_limited`).
+        """
         host = request.headers.get("Host")
-        if not self._host_ok(host):
+        in_query = request.query.get("token")
+        given = in_query if in_query is not None else request.cookies.get(self.cookie_name)
+        host_ok, token_ok = self._host_ok(host), bool(given) and self._token_ok(given or "")
+        if not (host_ok and token_ok):
+            limited = self._limited(request, bad_token=not token_ok)
+            if limited is not None:
+                return limited
+        if not host_ok:
             raise self._refuse(
                 "refused_host", "bad_host", f"Host {str(host)[:80]!r} from {request.remote}",
                 "this Host is not allowed (allowed: the listen address, localhost, 127.0.0.1, [::1] "
                 "and leader.cockpit_allowed_hosts)",
             )  # fmt: skip
-        in_query = request.query.get("token")
-        given = in_query if in_query is not None else request.cookies.get(self.cookie_name)
-        if not given or not self._token_ok(given):
+        if not token_ok:
             raise self._refuse(
                 "refused_token", "bad_token" if given else "no_token", f"{request.path} from {request.remote}",
                 "open the address the leader printed: http://HOST:PORT/?token=TOKEN",
@@ -582,6 +680,9 @@ class CockpitServer:
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._origin_ok(request):
+            limited = self._limited(request, bad_token=False)
+            if limited is not None:
+                return limited
             origin = request.headers.get("Origin")
             raise self._refuse(
                 "refused_origin", "bad_origin" if origin else "no_origin", f"Origin {str(origin)[:80]!r}",
@@ -624,7 +725,7 @@ class CockpitServer:
                 pusher.cancel()
             self._clients.discard(client)
             if moved_joystick and not any(True for _ in self._clients):
-                self._joy = (0.0, 0.0, time.time())  # the driver left: centre the stick
+                self._set_joy((0.0, 0.0, time.time()))  # the driver left: centre the stick
         return ws
 
     def _on_text(self, text: str) -> bool:
@@ -633,9 +734,14 @@ class CockpitServer:
         except ValueError as exc:
             self._drops.drop(str(exc), text[:80])
             return False
-        self._joy = (x, y, time.time())
+        self._set_joy((x, y, time.time()))
         self._counters["joystick_messages"] += 1
         return True
+
+    def _set_joy(self, joy: tuple[float, float, float]) -> None:
+        self._joy = joy
+        if self._on_joystick is not None:
+            self._on_joystick(joy)
 
     async def _push(self, client: _Client) -> None:
         """Send a browser what is new.

@@ -1,0 +1,241 @@
+"""What keeps the cockpit from being starved: timeouts, caps, a failed-request limit, quiet logs.
+
+Everything here runs in the cockpit's asyncio loop (one thread), so nothing is locked.
+
+- :class:`Limits`: the figures (``docs/cockpit.md``).
+- :func:`descriptor_budget`: raise the soft descriptor limit to the hard one and size the
+  total connection cap from what is left, keeping a reserve for everything else.
+- :class:`Guard`: connections per address and in total (refused at once beyond), failed
+  requests per address (after ``fail_max`` in ``fail_window_s`` an address gets 429 for
+  ``lockout_s``) and a global budget of refusal answers per second (beyond it a refused
+  request is closed without an answer).
+- :class:`GuardedHandler`: aiohttp's connection protocol with the caps applied when a
+  connection is accepted and a deadline for its first complete request head.
+- :class:`Throttle`: a logging filter, one line per kind per interval with a count and
+  no traceback (a flood must not fill the disk with tracebacks).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import resource
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from aiohttp.web_protocol import RequestHandler
+
+__all__ = ["Guard", "GuardedHandler", "Limits", "Throttle", "descriptor_budget"]
+
+LOG = logging.getLogger("bipedtele.leader.cockpit")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The cockpit's limits (times in seconds)."""
+
+    header_timeout_s: float = 5.0  #: a connection's first complete request head, at the latest
+    idle_timeout_s: float = 15.0  #: an idle keep-alive connection is closed after this
+    per_address: int = 32  #: connections at once from one client address
+    total: int = 256  #: connections at once in all (lowered by :func:`descriptor_budget`)
+    fail_max: int = 10  #: refused requests of one address in ``fail_window_s`` that lock it
+    fail_window_s: float = 10.0
+    lockout_s: float = 30.0  #: how long a locked address gets 429 (unless it has the token)
+    refusals_per_s: float = 50.0  #: refusal answers (403, 429) per second in all; beyond: closed
+    descriptor_reserve: int = 256  #: descriptors kept for the rest of the process
+    log_interval_s: float = 10.0  #: one log line per kind of error per interval
+
+
+def descriptor_budget(limits: Limits) -> tuple[int, dict[str, int]]:
+    """Raise the soft ``RLIMIT_NOFILE`` to the hard limit; return the total cap and the figures.
+
+    The cap is ``limits.total`` or half of the descriptors left after those in use and
+    ``descriptor_reserve``, whichever is smaller (at least 8).
+    """
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    want = 65536 if hard == resource.RLIM_INFINITY else hard
+    if soft != resource.RLIM_INFINITY and soft < want:
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+            soft = want
+    try:
+        used = len(os.listdir("/proc/self/fd"))
+    except OSError:  # pragma: no cover - not Linux
+        used = 64
+    limit = 1 << 20 if soft == resource.RLIM_INFINITY else soft
+    free = limit - used - limits.descriptor_reserve
+    cap = max(8, min(limits.total, free // 2))
+    return cap, {"nofile_soft": int(limit), "descriptors_used": used, "total_cap": cap}
+
+
+class Guard:
+    """Connection caps and the failed-request limit (one asyncio loop; no locks)."""
+
+    def __init__(self, limits: Limits | None = None, total_cap: int | None = None) -> None:
+        self.limits = limits or Limits()
+        self.total_cap = self.limits.total if total_cap is None else total_cap
+        self.per_address: dict[str, int] = {}
+        self.total = 0
+        self._fails: dict[str, deque[float]] = {}
+        self._locked_until: dict[str, float] = {}
+        self._budget = self.limits.refusals_per_s
+        self._budget_t = time.monotonic()
+        self.counters = {"refused_conn_address": 0, "refused_conn_total": 0, "closed_no_head": 0,
+                         "refused_rate": 0, "closed_unanswered": 0, "lockouts": 0}  # fmt: skip
+
+    # -- connections
+
+    def admit(self, addr: str) -> str | None:
+        """Count a new connection from ``addr``; the cap it hits (and is refused by) or None."""
+        if self.total >= self.total_cap:
+            self.counters["refused_conn_total"] += 1
+            return "too_many_connections"
+        n = self.per_address.get(addr, 0)
+        if n >= self.limits.per_address:
+            self.counters["refused_conn_address"] += 1
+            return "too_many_from_address"
+        self.per_address[addr] = n + 1
+        self.total += 1
+        return None
+
+    def release(self, addr: str) -> None:
+        """Uncount a connection admitted by :meth:`admit` (it closed)."""
+        n = self.per_address.get(addr, 0) - 1
+        if n > 0:
+            self.per_address[addr] = n
+        else:
+            self.per_address.pop(addr, None)
+        self.total = max(0, self.total - 1)
+
+    # -- refused requests
+
+    def locked(self, addr: str, now: float | None = None) -> bool:
+        """Tell whether ``addr`` is locked out (too many refused requests lately)."""
+        until = self._locked_until.get(addr)
+        if until is None:
+            return False
+        if (time.monotonic() if now is None else now) < until:
+            return True
+        del self._locked_until[addr]
+        return False
+
+    def failed(self, addr: str, now: float | None = None) -> bool:
+        """Count a refused request of ``addr``; True when this one locks the address."""
+        now = time.monotonic() if now is None else now
+        q = self._fails.setdefault(addr, deque())
+        q.append(now)
+        while q and now - q[0] > self.limits.fail_window_s:
+            q.popleft()
+        if len(q) < self.limits.fail_max:
+            return False
+        q.clear()
+        self._locked_until[addr] = now + self.limits.lockout_s
+        self.counters["lockouts"] += 1
+        if len(self._fails) > 10_000:  # many addresses: forget the quiet ones
+            self._fails = {a: d for a, d in self._fails.items() if d}
+        return True
+
+    def may_answer(self, now: float | None = None) -> bool:
+        """Take one refusal answer from the global budget (token bucket); False when spent."""
+        now = time.monotonic() if now is None else now
+        rate = self.limits.refusals_per_s
+        self._budget = min(rate, self._budget + (now - self._budget_t) * rate)
+        self._budget_t = now
+        if self._budget >= 1.0:
+            self._budget -= 1.0
+            return True
+        self.counters["closed_unanswered"] += 1
+        return False
+
+
+class GuardedHandler(RequestHandler):
+    """aiohttp's connection protocol, with the :class:`Guard`'s caps and a header deadline.
+
+    A connection over a cap is aborted in ``connection_made`` before aiohttp sees it;
+    one that has not sent a complete request head within ``header_timeout_s`` is closed.
+    (Idle keep-alive connections are closed by aiohttp's ``keepalive_timeout``, set to
+    ``idle_timeout_s``.)
+    """
+
+    def __init__(self, manager: Any, *, guard: Guard, on_refuse: Any, **kwargs: Any) -> None:
+        super().__init__(manager, **kwargs)
+        self._guard = guard
+        self._on_refuse = on_refuse
+        self._addr = ""
+        self._admitted = False
+        self._head_timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:  # noqa: D102
+        peer = transport.get_extra_info("peername")
+        addr = str(peer[0]) if isinstance(peer, tuple) and peer else "?"
+        why = self._guard.admit(addr)
+        if why is not None:
+            transport.abort()  # type: ignore[attr-defined]
+            self._on_refuse(why, addr)
+            return
+        self._addr, self._admitted = addr, True
+        super().connection_made(transport)
+        self._head_timer = self._loop.call_later(self._guard.limits.header_timeout_s, self._no_head)
+
+    def data_received(self, data: bytes) -> None:  # noqa: D102
+        super().data_received(data)
+        if self._head_timer is not None and self._request_count:
+            self._head_timer.cancel()
+            self._head_timer = None
+
+    def _no_head(self) -> None:
+        self._head_timer = None
+        if not self._request_count and self.transport is not None:
+            self._guard.counters["closed_no_head"] += 1
+            self.transport.abort()
+
+    def connection_lost(self, exc: BaseException | None) -> None:  # noqa: D102
+        if not self._admitted:
+            return
+        self._admitted = False
+        self._guard.release(self._addr)
+        if self._head_timer is not None:
+            self._head_timer.cancel()
+            self._head_timer = None
+        super().connection_lost(exc)
+
+
+class Throttle(logging.Filter):
+    """Let through one record per kind per ``interval_s``, with the count, never a traceback.
+
+    The kind is the logger's name and the message template (``record.msg``); a record let
+    through says how many of its kind were held back since the last one.
+    """
+
+    def __init__(self, interval_s: float = 10.0) -> None:
+        super().__init__()
+        self.interval_s = interval_s
+        self._last: dict[tuple[str, str], float] = {}
+        self._held: dict[tuple[str, str], int] = {}
+
+    def filter(self, record: logging.LogRecord) -> bool:  # noqa: D102
+        kind = (record.name, str(record.msg)[:200])
+        now = time.monotonic()
+        last = self._last.get(kind)
+        if last is not None and now - last < self.interval_s:
+            self._held[kind] = self._held.get(kind, 0) + 1
+            return False
+        self._last[kind] = now
+        held = self._held.pop(kind, 0)
+        if record.exc_info and record.exc_info[1] is not None:
+            exc = record.exc_info[1]
+            record.msg = f"{record.getMessage()}: {type(exc).__name__}: {exc}"
+            record.args = None
+        record.exc_info, record.exc_text, record.stack_info = None, None, None
+        if held:
+            record.msg = (
+                f"{record.getMessage()} (and {held} more like it in the last {self.interval_s:g} s)"
+            )
+            record.args = None
+        if len(self._last) > 1000:
+            self._last.clear()
+        return True
