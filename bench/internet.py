@@ -71,6 +71,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from bipedtele.delaymodels import parse_delay_model
 from bipedtele.recording import Record, read_records
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
 
@@ -267,12 +268,15 @@ def _passes(log: str) -> int:
 
 def analyse(
     l_rec: list[Record], f_rec: list[Record], leader_log: str, *, outage_wall: tuple[float, float] | None,
-    startup_s: float = 0.0,
+    startup_s: float = 0.0, emulated: tuple[str, str, float] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Every figure of one run from the two recordings and the leader's log.
 
     ``outage_wall``: (cut, return) in wall time; ``startup_s``: delays of messages sent in
-    the first seconds after the leader's first command are left out of ``*_after_startup``.
+    the first seconds after the leader's first command are left out of ``*_after_startup``;
+    ``emulated``: (h1 model, h2 model, origin) of the emulator: then ``h1_excess_ms`` and
+    ``h2_excess_ms`` are each message's delay beyond what the emulator applied at its send
+    time (what the transport and the machine added: retransmissions, queues, scheduling).
     """
     sent = [r for r in l_rec if r.topic == "cmd/sent"]
     t_begin = sent[0].t_recv if sent else 0.0
@@ -297,6 +301,11 @@ def analyse(
     res["h2_ms"] = _ms([d for _, d in h2])
     res["h1_ms_after_startup"] = _ms([d for t, d in h1 if t >= t_begin + startup_s])
     res["h2_ms_after_startup"] = _ms([d for t, d in h2 if t >= t_begin + startup_s])
+    if emulated is not None:
+        m1, m2 = parse_delay_model(emulated[0]), parse_delay_model(emulated[1])
+        t0 = emulated[2]
+        res["h1_excess_ms"] = _ms([d - m1.delay_s(t - t0) for t, d in h1 if t >= t_begin + startup_s])
+        res["h2_excess_ms"] = _ms([d - m2.delay_s(t - t0) for t, d in h2 if t >= t_begin + startup_s])
     res["h_source"] = "true one-way: follower cmd/recv and leader feedback/recv, receive time - send stamp t"
     video = [r for r in l_rec if r.topic == "video/recv" and t_begin <= r.t_recv <= t_end]
     res["video_fps"] = round(len(video) / dur, 2)
@@ -363,9 +372,10 @@ def run_condition(
     procs: list[Proc] = []
     sockets: dict[str, int] | None = None
     with topology(cond.topology, run_dir / "linkemu.log") as top:
-        base = ["--forward", "const:0ms", "--backward", "const:0ms"]
+        models = ("const:0ms", "const:0ms")
         if cond.topology == "intercontinental":
-            base = ["--forward", "trace:intercontinental:h1", "--backward", "trace:intercontinental:h2"]
+            models = ("trace:intercontinental:h1", "trace:intercontinental:h2")
+        base = ["--forward", models[0], "--backward", models[1]]
         try:
 
             def go(host: str, name: str, extra: list[str]) -> Proc:
@@ -413,13 +423,17 @@ def run_condition(
     if l_path is None or f_path is None:
         res["error"] = f"no recording (leader {l_path}, follower {f_path}); leader log:\n{leader.tail()}"
         return res
+    # forward is operator -> router (h1) across the ocean, robot -> router (h2) on the LAN
+    h_models = models if cond.topology == "intercontinental" else models[::-1]
     outage = (t0 + cond.outage[0], t0 + cond.outage[0] + cond.outage[1]) if cond.outage else None
     res.update(analyse(list(read_records(l_path)), list(read_records(f_path)), leader.log(),
-                       outage_wall=outage, startup_s=startup_s))  # fmt: skip
+                       outage_wall=outage, startup_s=startup_s, emulated=(*h_models, t0)))  # fmt: skip
     try:
         res["linkemu"] = json.loads(stats.read_text())
     except (OSError, ValueError):
         res["linkemu"] = None
+    res["emulator_t0"] = t0
+    (run_dir / "result.json").write_text(json.dumps(res, indent=2, default=str) + "\n")
     return res
 
 
@@ -430,6 +444,10 @@ def _d(m: dict[str, Any]) -> str:
     if not m or m.get("p50") is None:
         return "-"
     return f"{m['p50']:.0f}/{m['p99']:.0f}/{m['max']:.0f}"
+
+
+def _p99(m: dict[str, Any] | None) -> str:
+    return "-" if not m or m.get("p99") is None else f"{m['p99']:.0f}"
 
 
 def _pct(x: float | None) -> str:
@@ -458,6 +476,7 @@ def row_line(r: dict[str, Any]) -> str:
         f"{r['label']} [{r['links']}]: {r['passes']} passes in {r['run_s']} s, dist {r['distance_m']} m, "
         f"watchdog {r['watchdog_stops']}, operator stops {r['operator_stops']}, falls {r['falls']}, "
         f"too old {r['cmd_too_old']}, backlog {r['cmd_backlog']}, h1 {_d(r['h1_ms'])} ms, h2 {_d(r['h2_ms'])} ms, "
+        f"excess over the emulator p99 h1/h2 {_p99(r.get('h1_excess_ms'))}/{_p99(r.get('h2_excess_ms'))} ms, "
         f"video {r['video_fps']:.1f} fps, link cap/lossy/lost {_pct(lf['capacity-limited'])}/{_pct(lf['lossy'])}/"
         f"{_pct(lf['lost'])} %"
     )

@@ -1,0 +1,147 @@
+"""The real internet, short: the README's two hosts on the per-packet link emulator (issue 19).
+
+``bipedtele setup two-hosts`` once; each run copies the three folders into three "hosts"
+(network namespaces) and runs the README's three commands there (TLS, logins, ACL, message
+key, the ``links = "split"`` layout the setup writes), with ``bipedtele link-emu`` between
+one host and the other two (``bench/internet.py``'s machinery, which prints the full
+90 s table; this file asserts behaviour on short runs):
+
+(a) the shipped intercontinental trace + 1 % loss both ways (operator | emulator | router +
+    robot), 30 s: no watchdog stop, the robot walks, and each message's delay beyond what
+    the emulator applied stays small (see ``EXCESS_P99_MS``);
+(b) a LAN robot with a 300 kbit/s uplink (64 kB queue) and video on (robot | emulator |
+    router + operator), 30 s: no fresh command dropped as too old, feedback h2 p99 under
+    300 ms after a start-up allowance, video at >= 1 frame/s, and the leader's samples say
+    ``capacity-limited``;
+(c) a 3 s outage both ways on the intercontinental path: the robot stops within 0.6 s of the
+    cut, walks again within 1 s of the path's return, and no command sent before the return
+    is applied after it.
+
+Delays are true one-way delays: every namespace shares this machine's clock, so a message's
+receive time minus its send stamp is its delay (the follower's ``cmd/recv``, the leader's
+``feedback/recv``).
+
+``BIPEDTELE_TEST_LINKS=single`` runs the same checks on the old one-connection transport
+(profiles rewritten to ``links = "single"``), to see which claims it fails.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import secrets
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+from e2e_support import HERE
+
+REPO = HERE.parent.parent
+LINKS = os.environ.get("BIPEDTELE_TEST_LINKS", "split")
+SECONDS = 30.0
+STARTUP_S = 8.0  # (b): the uplink budget's first estimate; (a): excess counted after it too
+
+# (a) Bound on the p99 of each message's delay beyond the emulator's own (trace) delay at
+# its send time. Without loss, on this 2-core machine, that excess is scheduling: the
+# emulator (Python) and the three programs share two cores with the simulator's cameras;
+# the 90 s no-loss runs of bench/internet.py measured its p99 at 20-50 ms (h1 and h2). The
+# issue allows the lossy run's p99 60 ms above the no-loss run's, so: 50 + 60 ms. A lost
+# segment on one reliable connection costs a retransmission at the real round trip
+# (>= 360 ms, an RTO >= 200 ms beyond it): the single-link transport's p99 at 1 % loss was
+# 500-600 ms above the trace (issue 19's table).
+EXCESS_P99_MS = 110.0
+
+
+def _load_bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("bench_internet", REPO / "bench" / "internet.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["bench_internet"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[ModuleType, Path, dict[str, list[str]]]:
+    """The bench module and one ``setup two-hosts`` (skips where namespaces cannot be made)."""
+    if os.geteuid() != 0:
+        pytest.skip("needs root: network namespaces and the link emulator's raw sockets")
+    for tool in ("ip", "openssl", "ss"):
+        if shutil.which(tool) is None:
+            pytest.skip(f"needs `{tool}` (scripts/bootstrap.sh --test installs iproute2 and openssl)")
+    probe = f"bt-probe-{secrets.token_hex(2)}"
+    r = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True, timeout=20)
+    if r.returncode != 0:
+        pytest.skip(f"cannot create network namespaces: {r.stderr.strip()}")
+    subprocess.run(["ip", "netns", "del", probe], capture_output=True, timeout=20)
+    mod = _load_bench()
+    out = tmp_path_factory.mktemp("internet") / "setup"
+    return mod, out, mod.setup_two_hosts(out)
+
+
+def _run(
+    bench: tuple[ModuleType, Path, dict[str, list[str]]], cond: Any, run_dir: Path, seconds: float = SECONDS
+) -> dict[str, Any]:
+    mod, setup_out, commands = bench
+    res: dict[str, Any] = mod.run_condition(
+        cond, LINKS, seconds, setup_out, commands, run_dir, seed=3, startup_s=STARTUP_S
+    )
+    print(mod.row_line(res))
+    print("  " + mod.emu_line(res.get("linkemu")))
+    print("  " + str(res.get("leader_summary")))
+    assert "error" not in res, res["error"]
+    return res
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_lossy_intercontinental_path(bench: Any, tmp_path: Path) -> None:
+    mod = bench[0]
+    cond = mod.conditions()["loss1"]
+    r = _run(bench, cond, tmp_path / "run")
+    lost = r["linkemu"]["forward"]["dropped"]["loss"] + r["linkemu"]["backward"]["dropped"]["loss"]
+    assert lost > 20, f"the emulator lost only {lost} frames: the loss was not exercised"
+    assert r["watchdog_stops"] == 0, r
+    assert r["passes"] >= 1 or r["distance_m"] >= 1.0, r
+    for h in ("h1", "h2"):
+        ex = r[f"{h}_excess_ms"]
+        assert ex["n"] > 200, ex
+        assert ex["p99"] <= EXCESS_P99_MS, (
+            f"{h}: p99 {ex['p99']:.0f} ms beyond the emulator's delay (bound {EXCESS_P99_MS:g}); "
+            f"{h} p50/p99/max {r[f'{h}_ms']}"
+        )
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_capped_robot_uplink_with_video(bench: Any, tmp_path: Path) -> None:
+    mod = bench[0]
+    cond = mod.conditions()["lan300-video"]
+    r = _run(bench, cond, tmp_path / "run")
+    assert r["linkemu"]["forward"]["queue_bytes_max"] > 0, "the 300 kbit/s cap never queued: not exercised"
+    assert r["cmd_too_old"] == 0, r["follower_counters"]
+    h2 = r["h2_ms_after_startup"]
+    assert h2["n"] > 200, h2
+    assert h2["p99"] < 300.0, f"feedback h2 p50/p99/max after {STARTUP_S:g} s: {h2}"
+    assert r["video_fps"] >= 1.0, r["video_fps"]
+    assert r["link_fraction"]["capacity-limited"], f"the leader never said capacity-limited: {r['link_states_seen']}"
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_outage_stops_and_resumes_on_fresh_commands(bench: Any, tmp_path: Path) -> None:
+    mod = bench[0]
+    cond = mod.conditions(outage_at=14.0)["outage"]  # ~8-10 s into the pilot's run: walking
+    r = _run(bench, cond, tmp_path / "run", seconds=24.0)
+    o = r["outage"]
+    assert o["walking_at_cut"], f"the robot was not walking when the path was cut: {o}"
+    assert o["stop_latency_s"] is not None and o["stop_latency_s"] <= 0.6, o
+    assert o["restart_latency_s"] is not None and o["restart_latency_s"] <= 1.0, o
+    assert o["stale_applied"] == 0, o
