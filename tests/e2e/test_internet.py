@@ -46,14 +46,14 @@ SECONDS = 30.0
 STARTUP_S = 8.0  # (b): the uplink budget's first estimate; (a): excess counted after it too
 
 # (a) Bound on the p99 of each message's delay beyond the emulator's own (trace) delay at
-# its send time. Without loss, on this 2-core machine, that excess is scheduling: the
-# emulator (Python) and the three programs share two cores with the simulator's cameras;
-# the 90 s no-loss runs of bench/internet.py measured its p99 at 20-50 ms (h1 and h2). The
-# issue allows the lossy run's p99 60 ms above the no-loss run's, so: 50 + 60 ms. A lost
-# segment on one reliable connection costs a retransmission at the real round trip
-# (>= 360 ms, an RTO >= 200 ms beyond it): the single-link transport's p99 at 1 % loss was
-# 500-600 ms above the trace (issue 19's table).
-EXCESS_P99_MS = 110.0
+# its send time. Without loss that excess is this machine's scheduling: the emulator
+# (Python) and the three programs share two cores with the simulator's cameras. The 90 s
+# no-loss run of bench/internet.py (split layout, video on) measured its p99 at 67 ms (h1)
+# and 53 ms (h2). The issue allows the lossy run's p99 60 ms above the no-loss run's, so
+# 70 + 60 ms. A lost segment on one reliable connection costs a retransmission at the real
+# round trip (>= 360 ms): at 1 % loss the single-link transport's excess p99 was 592 ms
+# (h1) and 471 ms (h2) in the same bench.
+EXCESS_P99_MS = 130.0
 
 
 def _load_bench() -> ModuleType:
