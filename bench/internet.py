@@ -539,7 +539,8 @@ def main(argv: list[str] | None = None) -> int:
     def on_term(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, on_term)
+    for sig in (signal.SIGTERM, signal.SIGINT):  # SIGINT too: a background job may have it ignored
+        signal.signal(sig, on_term)
     work = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="bt-internet-"))
     work.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
