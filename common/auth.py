@@ -46,15 +46,19 @@ __all__ = [
     "MAC_MAGIC",
     "MAC_OVERHEAD",
     "NO_MAC_LINE",
+    "SESSION_MAGIC",
     "UNEXPECTED_MAC_LINE",
     "MacError",
     "MessageAuth",
+    "hkdf_sha256",
     "is_signed",
     "load_message_auth",
     "write_message_key",
 ]
 
 MAC_MAGIC: Final = b"\xc1BT\x01"
+#: Magic of a payload signed with a session key (:mod:`bipedtele.session`), not the master key.
+SESSION_MAGIC: Final = b"\xc1BT\x02"
 TAG_BYTES: Final = 32
 MAC_OVERHEAD: Final = len(MAC_MAGIC) + TAG_BYTES
 KEY_BYTES: Final = 32
@@ -78,7 +82,29 @@ KEY_REASONS: Final = ("no_mac", "bad_mac", "mac_unexpected")
 
 def is_signed(payload: bytes) -> bool:
     """Return whether ``payload`` is framed as a signed message (a keyless receiver refuses it by name)."""
-    return payload[:4] == MAC_MAGIC and len(payload) >= MAC_OVERHEAD
+    return payload[:4] in (MAC_MAGIC, SESSION_MAGIC) and len(payload) >= MAC_OVERHEAD
+
+
+def hkdf_sha256(ikm: bytes, salt: bytes, info: bytes, length: int = 32) -> bytes:
+    """Return ``length`` bytes of HKDF-SHA256 (RFC 5869): extract with ``salt``, expand with ``info``.
+
+    Examples
+    --------
+    RFC 5869, test case 1:
+
+    >>> hkdf_sha256(bytes.fromhex("0b" * 22), bytes.fromhex("000102030405060708090a0b0c"),
+    ...             bytes.fromhex("f0f1f2f3f4f5f6f7f8f9"), 42).hex()[:16]
+    '3cb25f25faacd57a'
+    """
+    if not 0 < length <= 255 * 32:
+        raise ValueError(f"length = {length!r}: allowed: 1 .. {255 * 32} bytes")
+    prk = hmac.new(salt or bytes(32), ikm, hashlib.sha256).digest()
+    out, block, i = b"", b"", 1
+    while len(out) < length:
+        block = hmac.new(prk, block + info + bytes([i]), hashlib.sha256).digest()
+        out += block
+        i += 1
+    return out[:length]
 
 
 class MacError(ValueError):
@@ -111,16 +137,20 @@ class MessageAuth:
     ``repr`` never shows the key.
     """
 
-    __slots__ = ("_inner", "_outer", "_topics")
+    __slots__ = ("_inner", "_key", "_outer", "_topics", "magic")
 
-    def __init__(self, key: bytes) -> None:
+    def __init__(self, key: bytes, magic: bytes = MAC_MAGIC) -> None:
         if not isinstance(key, bytes | bytearray) or len(key) != KEY_BYTES:
             raise ValueError(f"key: allowed: {KEY_BYTES} bytes")
+        if magic not in (MAC_MAGIC, SESSION_MAGIC):
+            raise ValueError("magic: allowed: MAC_MAGIC or SESSION_MAGIC")
+        self.magic = magic
+        self._key = bytes(key)
         # HMAC (RFC 2104) from its two precomputed SHA-256 states: the same tags as
         # hmac.new(key, msg, "sha256"), at a third of hmac.HMAC.copy()'s cost per message
         block = bytes(key).ljust(_BLOCK, b"\0")
         self._inner = hashlib.sha256(bytes(b ^ 0x36 for b in block))
-        self._inner.update(MAC_MAGIC)
+        self._inner.update(magic)
         self._outer = hashlib.sha256(bytes(b ^ 0x5C for b in block))
         self._topics: dict[str, Any] = {}
 
@@ -136,7 +166,8 @@ class MessageAuth:
     def tag(self, body: bytes | memoryview, topic: str) -> bytes:
         """Return the 32-byte tag of ``body`` published on key expression ``topic``.
 
-        The tag is ``HMAC-SHA256(key, MAC_MAGIC | topic | 0x00 | body)``.
+        The tag is ``HMAC-SHA256(key, magic | topic | 0x00 | body)`` (``magic``: :data:`MAC_MAGIC`,
+        or :data:`SESSION_MAGIC` for a session key).
         """
         inner = self._state(topic).copy()
         inner.update(body)
@@ -146,7 +177,11 @@ class MessageAuth:
 
     def sign(self, body: bytes, topic: str) -> bytes:
         """Return the framed payload ``MAGIC | tag | body`` to publish on ``topic``."""
-        return MAC_MAGIC + self.tag(body, topic) + body
+        return self.magic + self.tag(body, topic) + body
+
+    def derive(self, salt: bytes, info: bytes) -> MessageAuth:
+        """Return the session key ``HKDF-SHA256(this key, salt, info)`` (framed with :data:`SESSION_MAGIC`)."""
+        return MessageAuth(hkdf_sha256(self._key, salt, info), SESSION_MAGIC)
 
     def verify(self, payload: bytes, topic: str) -> bytes:
         """Return the body of a framed payload received on ``topic``, if its tag is right.
@@ -156,7 +191,7 @@ class MessageAuth:
         MacError
             ``no_mac`` if the payload is not framed, ``bad_mac`` if the tag is wrong.
         """
-        if payload[:4] != MAC_MAGIC or len(payload) < MAC_OVERHEAD:
+        if payload[:4] != self.magic or len(payload) < MAC_OVERHEAD:
             raise MacError("no_mac", f"{NO_MAC_LINE} (unsigned payload of {len(payload)} bytes on {topic})")
         body = payload[MAC_OVERHEAD:]
         if not hmac.compare_digest(self.tag(body, topic), payload[4:MAC_OVERHEAD]):
@@ -164,7 +199,7 @@ class MessageAuth:
         return body
 
     def __repr__(self) -> str:
-        return "MessageAuth(<key hidden>)"
+        return "MessageAuth(<key hidden>)" if self.magic == MAC_MAGIC else "MessageAuth(<session key hidden>)"
 
 
 def _key_error(path: str, why: str) -> ConfigError:

@@ -40,6 +40,7 @@ __all__ = [
     "ClockPong",
     "Command",
     "Feedback",
+    "Hello",
     "Message",
     "MessageError",
     "Status",
@@ -119,6 +120,9 @@ Forces: TypeAlias = Annotated[list[Force], PAIR]
 Ranges: TypeAlias = Annotated[list[Range], PAIR]
 Pose: TypeAlias = Annotated[list[Position], Meta(min_length=3, max_length=3)]
 Text: TypeAlias = Annotated[str, Meta(max_length=MAX_TEXT)]
+NONCE_BYTES: Final = 32
+Nonce: TypeAlias = Annotated[bytes, Meta(min_length=NONCE_BYTES, max_length=NONCE_BYTES)]
+ZERO_NONCE: Final = bytes(NONCE_BYTES)
 Counters: TypeAlias = Annotated[
     dict[Annotated[str, Meta(max_length=64)], Annotated[int, Meta(ge=0, le=MAX_SEQ)]],
     Meta(max_length=MAX_COUNTERS),
@@ -302,8 +306,34 @@ class Status(Message, frozen=True, gc=False, tag="status"):
     text: Text = ""
 
 
+class Hello(Message, frozen=True, gc=False, tag="hello"):
+    """Either side, with the message key only: the session handshake (:mod:`bipedtele.session`).
+
+    Signed with the master key, sent on the clock key. The session key of a leader and a
+    follower session is derived from both nonces; a Hello completes a handshake only when
+    it echoes the receiver's current nonce.
+
+    Attributes
+    ----------
+    role : str
+        ``leader`` or ``follower``.
+    nonce : bytes
+        The sender's fresh random nonce for this pairing (32 bytes).
+    peer_sid : int
+        The peer session this Hello answers or is bound to (0: none).
+    peer_nonce : bytes
+        The peer's nonce echoed (32 zero bytes: none).
+    """
+
+    KIND: ClassVar[str] = "hello"
+    role: Annotated[str, _choice("leader", "follower")] = "leader"
+    nonce: Nonce = ZERO_NONCE
+    peer_sid: SessionId = 0
+    peer_nonce: Nonce = ZERO_NONCE
+
+
 MESSAGE_TYPES: Final[dict[str, type[Message]]] = {
-    cls.KIND: cls for cls in (Command, Feedback, VideoFrame, ClockPing, ClockPong, Status)
+    cls.KIND: cls for cls in (Command, Feedback, VideoFrame, ClockPing, ClockPong, Status, Hello)
 }
 
 

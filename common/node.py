@@ -43,8 +43,9 @@ from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
-from bipedtele.messages import ClockPing, ClockPong, Message, new_session_id
+from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
 from bipedtele.recording import Recorder, recording_for_run
+from bipedtele.session import Handshake
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import (
     Keys,
@@ -126,6 +127,13 @@ class Node:
         self.sync: ClockSync | None = ClockSync(ck.ping_window) if self.ntp else None
         self.max_future_s = float(ck.max_future_s)
         self.auth: MessageAuth | None = load_message_auth(cfg.section("network"))
+        # With the key: the session handshake (commands and feedback under a per-session key).
+        # The leader leaves a silent follower session after its feedback timeout; the
+        # follower's takeover rule is its command gate's (watchdog).
+        self.handshake: Handshake | None = None
+        if self.auth is not None:
+            takeover = cfg.section("leader").feedback_timeout_s if role == "leader" else cfg.section("follower").watchdog_s
+            self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover)
         self.drops = DropCounter(role)
         self.recorder: Recorder | None = None
         self._record_path = record
@@ -141,7 +149,9 @@ class Node:
         with contextlib.ExitStack() as stack:
             self._stop = stack.enter_context(shutdown_on_signals())
             self._session = stack.enter_context(open_session(self.cfg.section("network")))
-            self._pubs = stack.enter_context(Publishers(self._session, self.keys, auth=self.auth))
+            self._pubs = stack.enter_context(
+                Publishers(self._session, self.keys, auth=self.auth, handshake=self.handshake)
+            )
             self._stack = stack.pop_all()
         return self
 
@@ -272,10 +282,12 @@ class Node:
                 on_message(got)
 
         wants = (topic is not None and recorder is not None) or on_message is not None
+        # commands and feedback: under the session key only (with the message key)
+        hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
         rx: LatestReceiver[M] = LatestReceiver(
             self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
             auth=self.auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
-            on_message=accepted if wants else None, max_age_s=max_age_s, on_too_old=on_too_old,
+            on_message=accepted if wants else None, max_age_s=max_age_s, on_too_old=on_too_old, handshake=hs,
         )  # fmt: skip
         return self.enter(rx)
 
@@ -287,12 +299,49 @@ class Node:
             answer_rate_hz=ck.answer_rate_hz, peer_sid=peer_sid,
         ))  # fmt: skip
         # The clock receiver gets no clock conversion, future check nor gate: pings are
-        # stamped on the peer's clock, and the link does its own matching.
+        # stamped on the peer's clock, and the link does its own matching. With the key,
+        # the handshake's Hellos travel on the clock key too (both roles may publish it).
+        hs = self.handshake
+        kinds: tuple[type[Message], ...] = (ClockPing, ClockPong) if hs is None else (ClockPing, ClockPong, Hello)
+        on_clock = link.on_message
+        if hs is not None:
+            def on_clock(got: Received[Any], _link: Callable[[Received[Any]], None] = link.on_message) -> None:
+                if isinstance(got.msg, Hello):
+                    hs.on_hello(got.msg)
+                else:
+                    _link(got)
+
+            self._start_hellos(hs)
         self.enter(LatestReceiver(
-            self.session, self.keys.clock, (ClockPing, ClockPong), self.drops, ignore_sid=self.sid,
-            auth=self.auth, on_message=link.on_message,
+            self.session, self.keys.clock, kinds, self.drops, ignore_sid=self.sid,
+            auth=self.auth, on_message=on_clock,
         ))  # fmt: skip
         return link
+
+    def _start_hellos(self, hs: Handshake) -> None:
+        """Send the handshake's Hellos from a side thread until the node closes."""
+        put = self.pubs.clock.put
+        done = threading.Event()
+
+        def run() -> None:
+            while not done.is_set():
+                try:
+                    for hello in hs.due():
+                        put(hello)
+                except Exception as exc:  # a bad moment on the network must not end the thread
+                    LOG.warning("handshake: %s", exc)
+                hs.changed.wait(0.05)
+                done.wait(0.005)
+
+        thread = threading.Thread(target=run, name=f"{self.role}-hello", daemon=True)
+        thread.start()
+
+        def stop() -> None:
+            done.set()
+            hs.changed.set()
+            thread.join(2.0)
+
+        self.on_close(stop)
 
     # ------------------------------------------------------------------ clocks
 

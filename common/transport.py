@@ -54,7 +54,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 import zenoh
@@ -76,6 +76,9 @@ from bipedtele.messages import (
     new_session_id,
 )
 from bipedtele.sections import NetworkConfig
+
+if TYPE_CHECKING:
+    from bipedtele.session import Handshake
 
 __all__ = [
     "ROLES",
@@ -504,17 +507,31 @@ class MessagePublisher:
     encoded message and the key expression).
     """
 
-    def __init__(self, publisher: zenoh.Publisher, key: str, auth: MessageAuth | None = None) -> None:
+    def __init__(
+        self, publisher: zenoh.Publisher, key: str, auth: MessageAuth | None = None, session: Handshake | None = None
+    ) -> None:
         self._pub = publisher
         self._put = publisher.put
         self.key = key
         self.auth = auth
+        self.session = session
         self.sent = 0
+        self.unsent = 0
 
     def put(self, msg: Message) -> None:
-        """Encode (and sign) and send one message (never blocks: dropped on congestion)."""
+        """Encode (and sign) and send one message (never blocks: dropped on congestion).
+
+        With a ``session`` (:class:`~bipedtele.session.Handshake`) the message is MAC'd with
+        the session key, and not sent at all while no handshake completed (``unsent``).
+        """
         payload = encode(msg)
-        if self.auth is not None:
+        if self.session is not None:
+            framed = self.session.sign(payload, self.key)
+            if framed is None:
+                self.unsent += 1
+                return
+            payload = framed
+        elif self.auth is not None:
             payload = self.auth.sign(payload, self.key)
         self._put(payload)
         self.sent += 1
@@ -534,7 +551,9 @@ class MessagePublisher:
         self.close()
 
 
-def declare_control_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
+def declare_control_publisher(
+    session: zenoh.Session, key: str, auth: MessageAuth | None = None, handshake: Handshake | None = None
+) -> MessagePublisher:
     """Declare a publisher for control traffic: express, real-time priority, best effort, drop on congestion.
 
     Best effort: with ``[network] links = "split"`` these messages travel on the control
@@ -548,7 +567,7 @@ def declare_control_publisher(session: zenoh.Session, key: str, auth: MessageAut
         congestion_control=zenoh.CongestionControl.DROP,
         reliability=zenoh.Reliability.BEST_EFFORT,
     )
-    return MessagePublisher(pub, key, auth)
+    return MessagePublisher(pub, key, auth, handshake)
 
 
 def declare_status_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
@@ -588,14 +607,21 @@ class Publishers:
     auth : MessageAuth, optional
         Signs every message (``[network] message_key_file``, see
         :func:`bipedtele.auth.load_message_auth`).
+    handshake : Handshake, optional
+        Commands and feedback are MAC'd with its session key instead, and not sent while
+        it has none (:mod:`bipedtele.session`).
     """
 
     _CONTROL = ("cmd", "feedback", "clock")
+    _SESSION = ("cmd", "feedback")
 
-    def __init__(self, session: zenoh.Session, keys: Keys, auth: MessageAuth | None = None) -> None:
+    def __init__(
+        self, session: zenoh.Session, keys: Keys, auth: MessageAuth | None = None, handshake: Handshake | None = None
+    ) -> None:
         self._session = session
         self.keys = keys
         self.auth = auth
+        self.handshake = handshake
         self._pubs: dict[str, MessagePublisher] = {}
         self._lock = threading.Lock()
 
@@ -612,7 +638,8 @@ class Publishers:
                 elif name == "status":
                     pub = declare_status_publisher(self._session, key, self.auth)
                 else:
-                    pub = declare_control_publisher(self._session, key, self.auth)
+                    hs = self.handshake if name in self._SESSION else None
+                    pub = declare_control_publisher(self._session, key, self.auth, hs)
                 self._pubs[name] = pub
             return pub
 
@@ -710,6 +737,7 @@ class _Receiver(Generic[M]):
         max_future_s: float | None = None,
         max_age_s: float | Callable[[float], float] | None = None,
         on_too_old: Callable[[Received[M]], None] | None = None,
+        handshake: Handshake | None = None,
     ) -> None:
         if max_future_s is not None and not max_future_s > 0:
             raise ValueError(f"max_future_s = {max_future_s!r}: allowed: None or a number > 0 s")
@@ -726,6 +754,7 @@ class _Receiver(Generic[M]):
         self.estimator = estimator
         self.clock_sync = clock_sync
         self.auth = auth
+        self.handshake = handshake
         self.max_future_s = max_future_s
         self._max_age: Callable[[float], float] | None = (
             None if max_age_s is None else max_age_s if callable(max_age_s) else functools.partial(_const, float(max_age_s))
@@ -752,7 +781,14 @@ class _Receiver(Generic[M]):
                 drops.drop("too_large", f"{self.key}: {nbytes} bytes (at most {self.max_bytes})")
                 return
             payload = zbytes.to_bytes()
-            if self.auth is not None:
+            skey = None
+            if self.handshake is not None:
+                try:
+                    payload, skey = self.handshake.open(payload, self._mac_topic or str(sample.key_expr))
+                except MacError as exc:
+                    drops.drop(exc.reason, f"{self.key}: {exc.detail}")
+                    return
+            elif self.auth is not None:
                 try:
                     payload = self.auth.verify(payload, self._mac_topic or str(sample.key_expr))
                 except MacError as exc:
@@ -795,6 +831,8 @@ class _Receiver(Generic[M]):
                 if reason is not None:
                     drops.drop(reason, f"sid={msg.sid} seq={msg.seq}")
                     return
+            if skey is not None and self.handshake is not None:
+                self.handshake.accepted(skey, msg.sid)  # authenticated, fresh, gated: the session is live
             if self.estimator is not None:
                 # a delay is never negative: a message seemingly received before it was
                 # sent (clock offset error, rounding) counts as delay 0
@@ -857,6 +895,11 @@ class LatestReceiver(_Receiver[M]):
     auth : MessageAuth, optional
         Every payload must carry a valid tag: unsigned ones are dropped as ``no_mac``,
         wrong tags as ``bad_mac``, before anything is decoded.
+    handshake : Handshake, optional
+        Instead of ``auth``: every payload must carry a tag under a session key this side
+        holds (:meth:`~bipedtele.session.Handshake.open`; else ``old_session``, or
+        ``no_session`` for one under the master key); a message that passes every check
+        (the gate included) marks its session live (and binds a follower to it).
     max_future_s : float, optional
         A message whose send time (on the local clock, after ``clock_sync``) is more
         than this ahead of its receive time [s] is dropped as ``future``

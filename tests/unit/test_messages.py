@@ -45,7 +45,7 @@ def _field_strategy(t: mi.Type) -> st.SearchStrategy:
             return st.from_regex(t.pattern, fullmatch=True)
         return st.text(max_size=min(50, t.max_length or 50))
     if isinstance(t, mi.BytesType):
-        return st.binary(max_size=256)
+        return st.binary(min_size=t.min_length or 0, max_size=min(256, t.max_length or 256))
     if isinstance(t, mi.DictType):
         return st.dictionaries(st.text(max_size=10), st.integers(0, 2**40), max_size=5)
     if isinstance(t, mi.BoolType):
@@ -74,7 +74,7 @@ def test_round_trip_every_type(msg: Message) -> None:
 
 
 def test_every_type_covered_and_expect() -> None:
-    assert set(MESSAGE_TYPES) == {"cmd", "fb", "video", "ping", "pong", "status"}
+    assert set(MESSAGE_TYPES) == {"cmd", "fb", "video", "ping", "pong", "status", "hello"}
     payload = encode(Command(sid=1, seq=2, t=3.0))
     with pytest.raises(MessageError) as exc:
         decode(payload, Feedback)
@@ -207,7 +207,7 @@ _EVERY_FLOAT = [(cls, name, i) for cls in MESSAGE_TYPES.values() for name, i in 
 def test_every_float_field_is_found() -> None:
     """The parametrisation below covers the float fields (Command's 10, Feedback's 23, ...)."""
     counts = {cls.KIND: sum(1 for c, _, _ in _EVERY_FLOAT if c is cls) for cls in MESSAGE_TYPES.values()}
-    assert counts == {"cmd": 10, "fb": 23, "video": 2, "ping": 1, "pong": 3, "status": 1}
+    assert counts == {"cmd": 10, "fb": 23, "video": 2, "ping": 1, "pong": 3, "status": 1, "hello": 1}
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])

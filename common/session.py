@@ -1,0 +1,356 @@
+r"""The session handshake (message key only): per-session keys that earlier sessions cannot replay.
+
+With ``[network] message_key_file`` set, leader and follower bind with a handshake of
+:class:`~bipedtele.messages.Hello` messages (signed with the shared *master* key, sent on
+the clock key), and Commands and Feedback are then MAC'd with a *session key*::
+
+    K = HKDF-SHA256(master, salt = nonce_leader | nonce_follower,
+                    info = b"bipedtele session v1" | sid_leader | sid_follower)   (4 bytes each, big-endian)
+
+Nonces are 32 random bytes, fresh for each pairing: the leader draws one at start and a
+new one whenever it gives up its bound follower session; the follower draws one for each
+leader session (``sid``, ``nonce``) it answers. So a session key is never derived twice,
+and traffic MAC'd with an earlier session's key fails authentication whatever the clocks
+say (dropped as ``old_session``).
+
+The exchange (one round trip before the first command)::
+
+    leader   Hello(nonce=nL, peer=0)                       4 Hz until bound, then 1 Hz
+    follower Hello(nonce=nF, peer_sid=sidL, peer_nonce=nL)  the answer (nF fresh for (sidL, nL))
+    leader   binds: the answer echoes its *current* nonce; K known, commands go out under K
+    follower binds to that leader session when its sequence gate accepts a command under K
+             (a new session takes over only after the bound one's silence: the watchdog rule)
+
+A replayed Hello echoes an old nonce and completes nothing; a replayed leader Hello gets
+an answer with a fresh follower nonce, whose key the replayer cannot compute. The leader
+binds to one follower session (the first that echoes its nonce) and leaves it only after
+``takeover_after_s`` of silence when another echoes (then with a new nonce and a new
+handshake). A side with no session sends nothing on cmd/feedback (the robot stands).
+
+Not covered: Status, Video and the clock pings stay under the master key (docs/network.md).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Final
+
+from bipedtele.auth import (
+    BAD_MAC_LINE,
+    MAC_MAGIC,
+    MAC_OVERHEAD,
+    SESSION_MAGIC,
+    MacError,
+    MessageAuth,
+)
+from bipedtele.messages import NONCE_BYTES, ZERO_NONCE, Hello, MessageError, decode
+
+__all__ = [
+    "INFO",
+    "OLD_SESSION_LINE",
+    "Handshake",
+    "SessionKey",
+    "session_info",
+]
+
+INFO: Final = b"bipedtele session v1"
+#: What a payload under a session key this side does not hold is.
+OLD_SESSION_LINE: Final = (
+    "signed with a session key this side does not hold (an earlier session's traffic replayed, or another peer's session)"
+)
+#: Hello rates [Hz]: until the handshake completes, then to let a restarted peer rebind.
+FAST_HZ: Final = 4.0
+SLOW_HZ: Final = 1.0
+#: Fewest seconds between two answers to the peer's Hellos (replayed Hellos cost at most this rate).
+ANSWER_GAP_S: Final = 0.02
+#: Leader sessions the follower keeps answered keys for (beyond the bound one).
+MAX_CANDIDATES: Final = 4
+
+
+def session_info(sid_leader: int, sid_follower: int) -> bytes:
+    """Return HKDF's ``info`` of a leader and a follower session."""
+    return INFO + sid_leader.to_bytes(4, "big") + sid_follower.to_bytes(4, "big")
+
+
+class SessionKey:
+    """One pairing: the peer's session and nonce, our nonce, the derived key.
+
+    Attributes
+    ----------
+    peer_sid : int
+    peer_nonce, nonce : bytes
+    auth : MessageAuth
+        The session key (frames with ``SESSION_MAGIC``).
+    t_heard : float
+        Monotonic time of the last message accepted under this key [s].
+    confirmed : bool
+        The peer showed it holds the key (an echo of our nonce, or a message under the key).
+    """
+
+    __slots__ = ("auth", "confirmed", "nonce", "peer_nonce", "peer_sid", "t_heard")
+
+    def __init__(self, auth: MessageAuth, peer_sid: int, peer_nonce: bytes, nonce: bytes, now: float) -> None:
+        self.auth = auth
+        self.peer_sid = peer_sid
+        self.peer_nonce = peer_nonce
+        self.nonce = nonce
+        self.t_heard = now
+        self.confirmed = False
+
+    @property
+    def peer(self) -> tuple[int, bytes]:
+        """``(peer_sid, peer_nonce)``: the peer session this key pairs with."""
+        return self.peer_sid, self.peer_nonce
+
+
+class Handshake:
+    """The handshake state machine of one process (see the module docstring).
+
+    Parameters
+    ----------
+    role : str
+        ``leader`` or ``follower``.
+    sid : int
+        This process's session id.
+    master : MessageAuth
+        The shared key (``[network] message_key_file``).
+    takeover_after_s : float
+        Leader: silence of the bound follower session after which another that echoes our
+        nonce may take over [s]. (The follower's rule is its command gate's.)
+    clock : callable
+        Monotonic time [s] (injectable).
+    wall : callable
+        Send-time source for the Hellos [s].
+    rand : callable
+        ``rand(n)``: n random bytes (``os.urandom``).
+
+    Notes
+    -----
+    Thread-safe: Zenoh's callbacks (Hellos in, verification), the Hello sender and the
+    loops' publishers share it under one lock.
+    """
+
+    def __init__(
+        self,
+        role: str,
+        sid: int,
+        master: MessageAuth,
+        *,
+        takeover_after_s: float = 0.5,
+        clock: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
+        rand: Callable[[int], bytes] = os.urandom,
+    ) -> None:
+        if role not in ("leader", "follower"):
+            raise ValueError(f"role = {role!r}: allowed: leader, follower")
+        self.role = role
+        self.peer_role = "follower" if role == "leader" else "leader"
+        self.sid = int(sid)
+        self._master = master
+        self.takeover_after_s = float(takeover_after_s)
+        self._clock, self._wall, self._rand = clock, wall, rand
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._nonce = self._fresh()  # the leader's current nonce; the follower's unsolicited Hellos'
+        self._current: SessionKey | None = None
+        self._candidates: OrderedDict[tuple[int, bytes], SessionKey] = OrderedDict()  # follower only
+        self._answers: OrderedDict[tuple[int, bytes], None] = OrderedDict()  # peers owed an answer
+        self._next_hello = -float("inf")
+        self._last_answer = -float("inf")
+        self.completed = 0  # handshakes completed (bindings)
+        self.changed = threading.Event()  # set when a Hello should go out now
+
+    def _fresh(self) -> bytes:
+        nonce = self._rand(NONCE_BYTES)
+        if len(nonce) != NONCE_BYTES or nonce == ZERO_NONCE:
+            raise ValueError("rand: allowed: a source of random bytes")
+        return nonce
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def complete(self) -> bool:
+        """True while a session key is in use (this side sends under it)."""
+        with self._lock:
+            return self._current is not None
+
+    @property
+    def peer_sid(self) -> int | None:
+        """The peer session bound now (None: none)."""
+        with self._lock:
+            return None if self._current is None else self._current.peer_sid
+
+    @property
+    def nonce(self) -> bytes:
+        """The leader's current nonce (the follower's: that of its bound session, else of its unsolicited Hellos)."""
+        with self._lock:
+            cur = self._current
+            return cur.nonce if cur is not None and self.role == "follower" else self._nonce
+
+    def _derive(self, peer_sid: int, peer_nonce: bytes, nonce: bytes, now: float) -> SessionKey:
+        if self.role == "leader":
+            salt, info = nonce + peer_nonce, session_info(self.sid, peer_sid)
+        else:
+            salt, info = peer_nonce + nonce, session_info(peer_sid, self.sid)
+        return SessionKey(self._master.derive(salt, info), peer_sid, peer_nonce, nonce, now)
+
+    # ------------------------------------------------------------------ Hellos
+
+    def _hello(self, nonce: bytes, peer_sid: int, peer_nonce: bytes) -> Hello:
+        self._seq += 1
+        return Hello(sid=self.sid, seq=self._seq, t=self._wall(), role=self.role, nonce=nonce,
+                     peer_sid=peer_sid, peer_nonce=peer_nonce)  # fmt: skip
+
+    def _own_hello(self) -> Hello:
+        cur = self._current
+        if cur is None:
+            return self._hello(self._nonce, 0, ZERO_NONCE)
+        return self._hello(cur.nonce, cur.peer_sid, cur.peer_nonce)
+
+    def due(self) -> list[Hello]:
+        """Return the Hellos to send now: answers owed, and ours when its period is up."""
+        now = self._clock()
+        out: list[Hello] = []
+        with self._lock:
+            self.changed.clear()
+            if self._answers and now - self._last_answer >= ANSWER_GAP_S:
+                self._last_answer = now
+                for peer in self._answers:
+                    s = self._current if self._current is not None and self._current.peer == peer else None
+                    s = s or self._candidates.get(peer)
+                    if s is not None:
+                        out.append(self._hello(s.nonce, s.peer_sid, s.peer_nonce))
+                    elif self.role == "leader":
+                        out.append(self._own_hello())
+                self._answers.clear()
+            period = 1.0 / (SLOW_HZ if self._current is not None else FAST_HZ)
+            if out:
+                self._next_hello = now + period  # an answer just went out: it is our Hello too
+            elif now >= self._next_hello:
+                self._next_hello = now + period
+                out.append(self._own_hello())
+        # leader: one own Hello is enough (several answers owed are the same Hello)
+        return out[:1] if self.role == "leader" else out
+
+    def _owe(self, peer: tuple[int, bytes]) -> None:
+        self._answers[peer] = None
+        while len(self._answers) > MAX_CANDIDATES + 1:
+            self._answers.popitem(last=False)
+        self.changed.set()
+
+    def on_hello(self, h: Hello) -> None:
+        """Take one Hello that verified with the master key (Zenoh's thread)."""
+        if h.role != self.peer_role or h.sid == self.sid:
+            return
+        now = self._clock()
+        with self._lock:
+            if self.role == "leader":
+                self._leader_hello(h, now)
+            else:
+                self._follower_hello(h, now)
+
+    def _leader_hello(self, h: Hello, now: float) -> None:
+        if h.peer_sid != self.sid or h.peer_nonce != self._nonce:
+            self._owe((h.sid, h.nonce))  # not an answer to our current nonce: send it ours
+            return
+        cur = self._current
+        if cur is None:
+            s = self._derive(h.sid, h.nonce, self._nonce, now)
+            s.confirmed = True
+            self._current = s
+            self.completed += 1
+            self._next_hello = now  # tell the follower at once that we hold its nonce
+            self.changed.set()
+        elif cur.peer == (h.sid, h.nonce):
+            return
+        elif now - cur.t_heard > self.takeover_after_s:
+            # another follower session answers while ours is silent: a new nonce, a new handshake
+            self._current = None
+            self._nonce = self._fresh()
+            self._next_hello = now
+            self.changed.set()
+        # else: ours is live, the other gets nothing
+
+    def _follower_hello(self, h: Hello, now: float) -> None:
+        peer = (h.sid, h.nonce)
+        cur = self._current
+        if cur is not None and cur.peer == peer:
+            s = cur
+        else:
+            got = self._candidates.get(peer)
+            if got is None:
+                got = self._derive(h.sid, h.nonce, self._fresh(), now)
+                self._candidates[peer] = got
+                # evict the oldest unconfirmed first (replayed Hellos never confirm)
+                while len(self._candidates) > MAX_CANDIDATES:
+                    old = next((k for k, v in self._candidates.items() if not v.confirmed), None)
+                    self._candidates.pop(old if old is not None else next(iter(self._candidates)))
+            else:
+                self._candidates.move_to_end(peer)
+            s = got
+        if h.peer_sid == self.sid and h.peer_nonce == s.nonce:
+            s.confirmed = True  # the leader holds our nonce for it
+        else:
+            self._owe(peer)
+
+    # ------------------------------------------------------------------ session crypto
+
+    def sign(self, body: bytes, topic: str) -> bytes | None:
+        """Return ``body`` framed under the session key, or None with no session (not sent)."""
+        cur = self._current
+        return None if cur is None else cur.auth.sign(body, topic)
+
+    def open(self, payload: bytes, topic: str) -> tuple[bytes, SessionKey]:
+        """Return the body of a session-framed payload and the session it verified under.
+
+        The bound session's key first, then (follower) the keys of the leader sessions
+        answered.
+
+        Raises
+        ------
+        MacError
+            ``no_session`` (framed with the master key, not a session key), ``no_mac``
+            (not signed), ``bad_mac`` (no key verifies it but it names the bound
+            session: altered) or ``old_session`` (an earlier session's or another pair's).
+        """
+        if payload[:4] != SESSION_MAGIC or len(payload) < MAC_OVERHEAD:
+            if payload[:4] == MAC_MAGIC:
+                raise MacError("no_session", f"signed with the message key, not a session key ({topic}): a peer without the handshake?")
+            self._master.verify(payload, topic)  # raises no_mac with its line
+            raise MacError("no_session", topic)  # pragma: no cover - verify raised
+        with self._lock:
+            keys = ([self._current] if self._current is not None else []) + list(reversed(self._candidates.values()))
+        for s in keys:
+            try:
+                return s.auth.verify(payload, topic), s
+            except MacError:
+                continue
+        # Error path only, to name the drop: a payload that claims the bound session was altered (bad_mac, as before the handshake); any other is an earlier
+        # session's or another pair's (old_session). The body is not trusted beyond this.
+        try:
+            sid = decode(payload[MAC_OVERHEAD:]).sid
+        except MessageError:
+            sid = -1
+        if keys and keys[0] is self._current and keys[0].peer_sid == sid:
+            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, sid={sid})")
+        raise MacError("old_session", f"{OLD_SESSION_LINE} ({topic})")
+
+    def accepted(self, s: SessionKey, sid: int) -> None:
+        """Mark ``s`` live (and bound): a message under it passed every check, the gate included."""
+        now = self._clock()
+        with self._lock:
+            s.t_heard = now
+            s.confirmed = True
+            if s is self._current or s.peer_sid != sid:
+                return
+            if self._candidates.get(s.peer) is s:
+                # follower: the gate followed this leader session, so the session does too
+                del self._candidates[s.peer]
+                self._current = s
+                self.completed += 1
+                self._next_hello = now
+                self.changed.set()
