@@ -4,24 +4,28 @@ capturing attacker, each its own process on loopback.
 
 Each test's docstring says what happened on the code before the fix (measured) and what
 must happen now. (Finding 2, a forged high sequence number without a key, is held by
-``tests/unit/test_gate_rollback.py``; the session handshake of issue 20 is not built yet.)
+``tests/unit/test_gate_rollback.py``; the session handshake by ``tests/unit/test_session.py``
+and the last test here.)
 """
 
 from __future__ import annotations
 
 import json
+import signal
 import textwrap
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
-from adversary_support import make_key_file, wait_recorded_state
+from adversary_support import make_key_file, recorded_feedback, wait_recorded_state
 from bipedtele.auth import BAD_MAC_LINE, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.leader.reach import KEY_MISMATCH
 from e2e_support import (
     NO_VIDEO,
     Procs,
     free_port,
+    records,
     start_follower,
     start_leader,
     start_router,
@@ -60,8 +64,8 @@ CAPTURE_REPLAY = textwrap.dedent(
 )
 
 
-def _json_lines(text: str) -> dict[str, float]:
-    out: dict[str, float] = {}
+def _json_lines(text: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
     for line in text.splitlines():
         if line.startswith("{"):
             out.update(json.loads(line))
@@ -111,6 +115,109 @@ def test_a_new_leader_walks_within_2_s_while_an_earlier_sessions_signed_commands
     rep = _json_lines(attacker.log())
     assert rep["captured"] >= 50, rep
     assert t_walk - t_ready <= 2.0, f"walked {t_walk - t_ready:.2f} s after leader 2 was ready"
+
+
+# Captures the signed commands on `cmd` for CAPTURE_S and prints their sids, waits for the
+# TRIGGER file, then republishes them verbatim at 5 Hz for REPLAY_S.
+CAPTURE_TRIGGER_REPLAY = textwrap.dedent(
+    """
+    import json, os, sys, time, msgspec, zenoh
+    ep, key, trigger, capture_s, replay_s = sys.argv[1], sys.argv[2], sys.argv[3], *map(float, sys.argv[4:6])
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([ep]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    got = []
+    with zenoh.open(c) as s:
+        sub = s.declare_subscriber(key, lambda sample: got.append(sample.payload.to_bytes()))
+        time.sleep(capture_s)
+        sub.undeclare()
+        sids = sorted({msgspec.msgpack.decode(p[36:])["sid"] for p in got})
+        print(json.dumps({"captured": len(got), "sids": sids, "t_captured": time.time()}), flush=True)
+        while not os.path.exists(trigger):
+            time.sleep(0.02)
+        pub = s.declare_publisher(key)
+        t0, n = time.time(), 0
+        print(json.dumps({"replay_from": t0}), flush=True)
+        while time.time() - t0 < replay_s and got:
+            pub.put(got[n % len(got)])
+            n += 1
+            time.sleep(0.2)
+        print(json.dumps({"replayed": n}), flush=True)
+    """
+)
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_an_earlier_sessions_commands_never_bind_the_follower_while_the_new_leader_is_silent(
+    procs: Procs, tmp_path: Path
+) -> None:
+    """Issue 20 step 2: traffic of an earlier session fails authentication whatever the clocks say.
+
+    Setup: message key on both ends, ``clock.mode = "synced"``, the follower's command age
+    bound raised to 20 s (the same hole as at the default 1.5 s, with a window wide enough
+    for real processes on a loaded machine). Leader 1 walks the robot; an attacker captures
+    2 s of its signed commands. Leader 1 stops, leader 2 starts and walks. Leader 2 is then
+    held silent (SIGSTOP) for 3 s, beyond the 0.5 s watchdog, while the captured commands
+    are republished verbatim at 5 Hz (younger than the age bound); then it resumes.
+
+    Before (measured on the code without the handshake): the replay passed the MAC (master
+    key) and the age check; leader 2 being silent, the gate took it over (leader 1's sid)
+    and the 5 Hz replay kept it bound: leader 2's commands were dropped as
+    ``foreign_session`` and the robot did not walk again within 2 s of its resume. Now
+    commands are MAC'd with a per-session key (handshake with fresh nonces): the replay is
+    dropped as ``old_session``, no command of leader 1 is accepted after it stopped, the
+    robot stands while leader 2 is silent and walks within 2 s of its resume.
+    """
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    key = make_key_file(tmp_path / "message.key")
+    keyed = ["--set", f'network.message_key_file="{key}"', *SYNCED, *NO_VIDEO]
+    start_router(procs, ep)
+    f_rec = tmp_path / "follower.mcap"
+    start_follower(procs, ep, [*keyed, "--set", "follower.max_cmd_age_s=20.0"], record=f_rec)
+    leader1 = start_leader(procs, ep, [*keyed, *walking_script(5.0)], name="leader1")
+    wait_recorded_state(f_rec, "walking", time.time() - 60, timeout_s=30.0, hold_s=1.0)
+    script, trigger = tmp_path / "capture_replay.py", tmp_path / "replay.now"
+    script.write_text(CAPTURE_TRIGGER_REPLAY)
+    attacker = procs.start("attacker", [str(script), ep, "bipedtele/nao1/cmd", str(trigger), "2.0", "8.0"], raw=True)
+    attacker.wait_log(r'"captured"', 15.0)
+    assert leader1.stop() in (0, 3), leader1.tail()
+    rep = _json_lines(attacker.log())
+    assert rep["captured"] >= 50 and len(rep["sids"]) == 1, rep
+    sid1 = rep["sids"][0]
+    leader2 = start_leader(procs, ep, [*keyed, *walking_script(5.0)], name="leader2")
+    t_ready = time.time()
+    t_walk = wait_recorded_state(f_rec, "walking", t_ready, timeout_s=15.0, hold_s=0.5)
+    assert t_walk - t_ready <= 2.0, f"walked {t_walk - t_ready:.2f} s after leader 2 was ready"
+    leader2.signal(signal.SIGSTOP)
+    t_freeze = time.time()
+    trigger.write_text("now")
+    time.sleep(3.0)
+    leader2.signal(signal.SIGCONT)
+    t_resume = time.time()
+    age = t_freeze - rep["t_captured"]
+    assert age < 20.0 - 3.0, f"the captured commands were {age:.1f} s old: beyond the age bound, nothing tested"
+    try:
+        t_walk2 = wait_recorded_state(f_rec, "walking", t_resume, timeout_s=15.0, hold_s=0.5)
+    except AssertionError as exc:
+        raise AssertionError(f"the robot did not walk under leader 2 after its resume: {exc}") from None
+    assert attacker.popen.wait(timeout=15.0) == 0, attacker.tail()
+    n_replayed = _json_lines(attacker.log())["replayed"]
+    assert leader2.stop() in (0, 3), leader2.tail()
+    time.sleep(1.5)  # the follower's recording is flushed about every second
+    replayed = [r for r in records(f_rec, "cmd/recv") if r.t_recv > t_freeze and r.data["sid"] == sid1]
+    frozen = [s for t, s in recorded_feedback(f_rec) if t_freeze + 1.0 < t < t_resume]
+    status = [dict(r.data["counters"]) for r in records(f_rec, "status/sent")]
+    figures = {
+        "replay_age_s": round(age, 2), "replayed": n_replayed, "leader1_accepted_after_stop": len(replayed),
+        "walk_after_resume_s": round(t_walk2 - t_resume, 2), "walked_while_silent": "walking" in frozen,
+        "follower_drops": {k: v for k, v in status[-1].items() if k.startswith("drop_")} if status else {},
+    }  # fmt: skip
+    print(json.dumps(figures))
+    assert n_replayed >= 30, figures
+    assert not replayed and t_walk2 - t_resume <= 2.0 and "walking" not in frozen, figures
 
 
 def _key_args(path: Path | None) -> list[str]:
