@@ -9,8 +9,9 @@ Everything here runs in the cockpit's asyncio loop (one thread), so nothing is l
   requests per address (after ``fail_max`` in ``fail_window_s`` an address gets 429 for
   ``lockout_s``) and a global budget of refusal answers per second (beyond it a refused
   request is closed without an answer).
-- :class:`GuardedHandler`: aiohttp's connection protocol with the caps applied when a
-  connection is accepted and a deadline for its first complete request head.
+- :func:`accept_loop`: accepts connections and applies the caps before aiohttp sees them.
+- :class:`GuardedHandler`: aiohttp's connection protocol with a deadline for its first
+  complete request head, and :meth:`~GuardedHandler.hold` for guessers.
 - :class:`Throttle`: a logging filter, one line per kind per interval with a count and
   no traceback (a flood must not fill the disk with tracebacks).
 """
@@ -22,16 +23,21 @@ import contextlib
 import logging
 import os
 import resource
+import socket
+import struct
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from aiohttp.web_protocol import RequestHandler
 
-__all__ = ["Guard", "GuardedHandler", "Limits", "Throttle", "descriptor_budget"]
+__all__ = ["ERR_LOG", "Guard", "GuardedHandler", "Limits", "Throttle", "accept_loop", "descriptor_budget"]
 
 LOG = logging.getLogger("bipedtele.leader.cockpit")
+#: Errors of the server's loop and of aiohttp: one line per kind per interval (:class:`Throttle`).
+ERR_LOG = logging.getLogger("bipedtele.leader.cockpit.errors")
 
 
 @dataclass(frozen=True)
@@ -45,7 +51,10 @@ class Limits:
     fail_max: int = 10  #: refused requests of one address in ``fail_window_s`` that lock it
     fail_window_s: float = 10.0
     lockout_s: float = 30.0  #: how long a locked address gets 429 (unless it has the token)
-    refusals_per_s: float = 50.0  #: refusal answers (403, 429) per second in all; beyond: closed
+    refusals_per_s: float = 50.0  #: refusal answers (403, 429) per second in all; beyond: held
+    refused_connections_per_s: float = 2000.0  #: beyond, accepting pauses (the backlog waits)
+    refused_locked_per_s: float = 200.0  #: the same for a locked address (a guesser reconnecting)
+    hold_s: float = 5.0  #: a guesser's connection is held this long (unanswered) after a 429
     descriptor_reserve: int = 256  #: descriptors kept for the rest of the process
     log_interval_s: float = 10.0  #: one log line per kind of error per interval
 
@@ -152,40 +161,90 @@ class Guard:
         return False
 
 
-class GuardedHandler(RequestHandler):
-    """aiohttp's connection protocol, with the :class:`Guard`'s caps and a header deadline.
+async def accept_loop(
+    listener: socket.socket, guard: Guard, factory: Callable[[str], asyncio.Protocol],
+    on_refuse: Callable[[str, str], None],
+) -> None:  # fmt: skip
+    """Accept connections, applying the caps before any protocol or transport is made.
 
-    A connection over a cap is aborted in ``connection_made`` before aiohttp sees it;
-    one that has not sent a complete request head within ``header_timeout_s`` is closed.
+    A connection over a cap is reset at once (``SO_LINGER`` 0: its descriptor is free
+    now). While more than ``refused_connections_per_s`` are refused in a second (or
+    ``refused_locked_per_s`` for a locked address), accepting pauses after each refusal:
+    a connect flood then waits in the kernel's backlog, and its sender with it, instead of
+    taking the machine's CPU.
+    """
+    loop = asyncio.get_running_loop()
+    linger0 = struct.pack("ii", 1, 0)
+    window_t, refused = loop.time(), 0
+    while True:
+        try:
+            conn, peer = await loop.sock_accept(listener)
+        except OSError as exc:  # EMFILE and the like: logged (throttled), retried shortly
+            ERR_LOG.error(f"cockpit: accept failed: {type(exc).__name__}: {exc}")
+            await asyncio.sleep(0.1)
+            continue
+        addr = str(peer[0]) if isinstance(peer, tuple) and peer else "?"
+        why = guard.admit(addr)
+        if why is None:
+            conn.setblocking(False)
+            try:
+                await loop.connect_accepted_socket(lambda addr=addr: factory(addr), conn)  # type: ignore[misc]
+            except OSError:
+                guard.release(addr)
+                conn.close()
+            continue
+        with contextlib.suppress(OSError):
+            conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger0)
+        conn.close()
+        on_refuse(why, addr)
+        now = loop.time()
+        if now - window_t >= 1.0:
+            window_t, refused = now, 0
+        refused += 1
+        # A guesser's (locked address) reconnect storm waits in the backlog sooner.
+        rate = guard.limits.refused_locked_per_s if guard.locked(addr) else guard.limits.refused_connections_per_s
+        if refused > rate:
+            await asyncio.sleep(1.0 / rate)
+
+
+class GuardedHandler(RequestHandler):
+    """aiohttp's connection protocol, with a header deadline and holding.
+
+    Made by :func:`accept_loop` for an admitted connection (released when it closes). One
+    that has not sent a complete request head within ``header_timeout_s`` is closed.
     (Idle keep-alive connections are closed by aiohttp's ``keepalive_timeout``, set to
-    ``idle_timeout_s``.)
+    ``idle_timeout_s``.) :meth:`hold` stops reading a connection and closes it later:
+    a guesser waits for an answer that does not come instead of guessing again.
     """
 
-    def __init__(self, manager: Any, *, guard: Guard, on_refuse: Any, **kwargs: Any) -> None:
+    def __init__(self, manager: Any, *, guard: Guard, addr: str, **kwargs: Any) -> None:
         super().__init__(manager, **kwargs)
         self._guard = guard
-        self._on_refuse = on_refuse
-        self._addr = ""
-        self._admitted = False
+        self._addr = addr
+        self._admitted = True
+        self._held = False
         self._head_timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:  # noqa: D102
-        peer = transport.get_extra_info("peername")
-        addr = str(peer[0]) if isinstance(peer, tuple) and peer else "?"
-        why = self._guard.admit(addr)
-        if why is not None:
-            transport.abort()  # type: ignore[attr-defined]
-            self._on_refuse(why, addr)
-            return
-        self._addr, self._admitted = addr, True
         super().connection_made(transport)
         self._head_timer = self._loop.call_later(self._guard.limits.header_timeout_s, self._no_head)
 
     def data_received(self, data: bytes) -> None:  # noqa: D102
+        if self._held:
+            return
         super().data_received(data)
         if self._head_timer is not None and self._request_count:
             self._head_timer.cancel()
             self._head_timer = None
+
+    def hold(self, seconds: float) -> None:
+        """Ignore what this connection sends from now on; close it in ``seconds``."""
+        self._held = True
+        self._loop.call_later(seconds, self._abort)
+
+    def _abort(self) -> None:
+        if self.transport is not None:
+            self.transport.abort()
 
     def _no_head(self) -> None:
         self._head_timer = None

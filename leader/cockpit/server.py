@@ -69,6 +69,7 @@ import json
 import logging
 import math
 import secrets
+import socket
 import struct
 import threading
 import time
@@ -81,10 +82,12 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 from bipedtele.drops import DropCounter
 from bipedtele.leader.cockpit.guard import (
+    ERR_LOG,
     Guard,
     GuardedHandler,
     Limits,
     Throttle,
+    accept_loop,
     descriptor_budget,
 )
 from bipedtele.telemetry import LeaderSample, sample_to_json
@@ -92,8 +95,6 @@ from bipedtele.telemetry import LeaderSample, sample_to_json
 __all__ = ["LOCAL_HOSTS", "SAMPLE_KEYS", "CockpitServer", "EncodedSample"]
 
 LOG = logging.getLogger("bipedtele.leader.cockpit")
-#: Errors of the server's loop and of aiohttp: one line per kind per interval (:class:`Throttle`).
-ERR_LOG = logging.getLogger("bipedtele.leader.cockpit.errors")
 
 #: Telemetry keys the page plots or shows (others are shown as text). Units in docs/cockpit.md.
 SAMPLE_KEYS: tuple[str, ...] = (
@@ -505,18 +506,26 @@ class CockpitServer:
                                keepalive_timeout=self.limits.idle_timeout_s)  # fmt: skip
         await runner.setup()
         self._runner = runner
-        listener: asyncio.Server | None = None
+        listener: socket.socket | None = None
+        acceptor: asyncio.Task[None] | None = None
         try:
             manager = runner.server
             assert manager is not None
             kwargs = manager._kwargs  # what aiohttp's own factory passes (access log, keep-alive)
 
-            def connection() -> GuardedHandler:
-                return GuardedHandler(manager, guard=guard, on_refuse=self._conn_refused, loop=loop, **kwargs)
+            def connection(addr: str) -> GuardedHandler:
+                return GuardedHandler(manager, guard=guard, addr=addr, loop=loop, **kwargs)
 
-            listener = await loop.create_server(connection, self.host or None, self._req_port,
-                                                reuse_address=True, backlog=128)  # fmt: skip
-            self._port = int(listener.sockets[0].getsockname()[1])
+            infos = await loop.getaddrinfo(self.host or None, self._req_port, type=socket.SOCK_STREAM,
+                                           flags=socket.AI_PASSIVE)  # fmt: skip
+            family, _, _, _, address = infos[0]
+            listener = socket.socket(family, socket.SOCK_STREAM)
+            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            listener.bind(address)
+            listener.listen(128)
+            listener.setblocking(False)
+            self._port = int(listener.getsockname()[1])
+            acceptor = asyncio.create_task(accept_loop(listener, guard, connection, self._conn_refused))
             ready.set()
             sampler = asyncio.create_task(self._sampler())
             await self._stopping.wait()
@@ -524,6 +533,10 @@ class CockpitServer:
             for client in list(self._clients):
                 await client.ws.close(code=1001, message=b"server stopping")
         finally:
+            if acceptor is not None:
+                acceptor.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await acceptor
             if listener is not None:
                 listener.close()
             await runner.cleanup()
@@ -559,7 +572,7 @@ class CockpitServer:
             return False
         return hmac.compare_digest(data, self._token_bytes)
 
-    def _limited(self, request: web.Request, *, bad_token: bool) -> web.StreamResponse | None:
+    async def _limited(self, request: web.Request, *, bad_token: bool) -> web.StreamResponse | None:
         """Count a refused request (against its address if ``bad_token``); its answer when limited.
 
         An address locked out by failed tokens (``fail_max`` in ``fail_window_s``) gets 429
@@ -571,13 +584,17 @@ class CockpitServer:
         if guard is None:
             return None
         now = time.monotonic()
+        protocol = request.protocol
         if not guard.may_answer(now):
-            if request.transport is not None:
-                request.transport.abort()
+            if isinstance(protocol, GuardedHandler):
+                protocol.hold(self.limits.hold_s)  # no answer: it waits, and guesses no more
+            await asyncio.sleep(self.limits.hold_s + 1.0)  # closed before: never answered
             return web.Response(status=429)
         if bad_token and guard.locked(addr, now):
             guard.counters["refused_rate"] += 1
             self._refusals.drop("rate_limited", addr)
+            if isinstance(protocol, GuardedHandler):
+                protocol.hold(self.limits.hold_s)  # this answer, then nothing more for a while
             return web.Response(
                 status=429, text="bipedtele cockpit: too many refused requests; try again later\n",
                 headers={"Retry-After": str(round(self.limits.lockout_s))},
@@ -598,7 +615,7 @@ class CockpitServer:
         given = in_query if in_query is not None else request.cookies.get(self.cookie_name)
         host_ok, token_ok = self._host_ok(host), bool(given) and self._token_ok(given or "")
         if not (host_ok and token_ok):
-            limited = self._limited(request, bad_token=not token_ok)
+            limited = await self._limited(request, bad_token=not token_ok)
             if limited is not None:
                 return limited
         if not host_ok:
@@ -680,7 +697,7 @@ class CockpitServer:
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._origin_ok(request):
-            limited = self._limited(request, bad_token=False)
+            limited = await self._limited(request, bad_token=False)
             if limited is not None:
                 return limited
             origin = request.headers.get("Origin")

