@@ -241,7 +241,10 @@ def _processes(plan: DemoPlan) -> Iterator[dict[str, _Proc]]:
     procs: dict[str, _Proc] = {}
     try:
         for name, cmd in plan.commands().items():
-            log = open(plan.run_dir / f"{name}.log", "wb")  # noqa: SIM115 - closed below
+            # 0600: the leader's log holds the cockpit token (its address), the others stay private too.
+            fd = os.open(plan.run_dir / f"{name}.log", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            os.fchmod(fd, 0o600)  # an existing file keeps its mode through O_CREAT
+            log = open(fd, "wb")  # noqa: SIM115 - closed below
             LOG.debug("starting %s: %s", name, " ".join(cmd))
             env = {**os.environ, COCKPIT_TOKEN_ENV: plan.cockpit_token} if name == "leader" else None
             popen = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env)
@@ -280,6 +283,7 @@ def run_demo(
     from bipedtele.tools.report import compute_report, format_report
 
     plan.run_dir.mkdir(parents=True, exist_ok=True)
+    plan.run_dir.chmod(0o700)  # its leader.log holds the cockpit token
     plan.t0 = time.time()  # origin of trace delay models (recorded for later checks)
     (plan.run_dir / "plan.json").write_text(
         json.dumps({"t0": plan.t0, "forward": plan.forward, "backward": plan.backward,
