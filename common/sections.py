@@ -81,7 +81,7 @@ class NetworkConfig:
     timeout_s: float = param(10.0, lo=0.1, hi=600.0, unit="s", doc="session open timeout")
     links: Literal["single", "split", "split-tcp"] = param(
         "single",
-        doc="single: one link per endpoint; split: control as QUIC/UDP datagrams, status and video "
+        doc="single: one link per endpoint; split: control as UDP datagrams, status and video "
         "on links of their own (router: also listens on UDP); split-tcp: the same on TCP only "
         "(docs/network.md)",
     )

@@ -418,7 +418,7 @@ def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> 
             continue
         if tcp_fallback:
             LOG.warning(
-                "the router did not open the control link over UDP (QUIC) in time: control travels on a TCP "
+                "the router did not open the control link over UDP in time: control travels on a TCP "
                 "link of its own (a firewall that drops UDP to the router's port? network.links = \"split-tcp\" "
                 "says so up front; docs/network.md)"
             )

@@ -331,7 +331,7 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
             "links": "split",
             "timeout_s": 20.0,
         }, {
-            "links": "also listens on UDP (QUIC) at the same port: the clients' control link",
+            "links": "also listens on UDP at the same port: the clients' control link",
             "tls_mutual": "clients must show a certificate of this CA",
             "credentials_file": "user:password lines (leader, follower)",
             "publishers_allowed": "users with the leader's role (commands)",
@@ -355,7 +355,7 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
         "links": "split",
         "timeout_s": 20.0,
     }, {
-        "links": "control as QUIC datagrams; status and video on TLS links of their own",
+        "links": "control as UDP datagrams (HMAC, not encrypted); status and video on TLS links",
         "connect": "the router's name, as in its certificate",
         "message_key_file": "the same key on robot and operator; never on the router",
     })  # fmt: skip
