@@ -151,6 +151,7 @@ class FollowerApp:
         self.budget.update()
         plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz)
         loop.ack_each_command, loop.feedback_rate_hz = plan.ack_each_command, plan.rate_hz
+        loop.min_fb_interval_s = plan.min_interval_s
         if self._video is not None:
             self._video.set_budget(self.budget.video_budget_bps())
 

@@ -58,10 +58,15 @@ class FeedbackPlan:
         let the next tick's feedback acknowledge it (at most one feedback per tick).
     rate_hz : float
         Periodic feedback rate [Hz].
+    min_interval_s : float
+        When acknowledgements are not sent for every command: one is still sent at once
+        if the previous feedback left at least this long ago [s] (so the feedback rate,
+        periodic plus acknowledgements, stays within what the path carries).
     """
 
     ack_each_command: bool
     rate_hz: float
+    min_interval_s: float = 0.0
 
 
 class UplinkBudget:
@@ -101,6 +106,9 @@ class UplinkBudget:
     drain_s : float
         Video's margin grows so that a queue of ``excess_s`` (h2 above its minimum) drains
         in about this long [s].
+    drain_ratio : float
+        On the rate rule's first signal the capacity is set to this share of what the
+        leader received (below it, so that the queue the path built drains).
     """
 
     def __init__(
@@ -123,6 +131,7 @@ class UplinkBudget:
         control_share: float = 0.6,
         status_timeout_s: float = 5.0,
         drain_s: float = 4.0,
+        drain_ratio: float = 0.9,
     ) -> None:
         self._clock = clock
         self.window_s = float(window_s)
@@ -140,6 +149,7 @@ class UplinkBudget:
         self.control_share = float(control_share)
         self.status_timeout_s = float(status_timeout_s)
         self.drain_s = float(drain_s)
+        self.drain_ratio = float(drain_ratio)
         self._lock = threading.Lock()
         # sent bytes per bin: bin index -> [control, video]
         self._bins: deque[tuple[int, list[int]]] = deque()
@@ -253,8 +263,8 @@ class UplinkBudget:
             self.signals["rate"] += 1
             episode = now - self._last_signal < self.hold_s
             self._last_signal = now
-            if not episode:  # the path delivers rx
-                self.capacity_bps = max(self.floor_bps, float(rx))
+            if not episode:  # the path delivers rx: aim a little below it, so its queue drains
+                self.capacity_bps = max(self.floor_bps, self.drain_ratio * float(rx))
                 self._last_cut = now
             elif ts - h2 - self.window_s >= self._last_cut:  # still over, judged on a window sent after the cut
                 self.capacity_bps = max(self.floor_bps, self.decrease * float(rx))
@@ -324,7 +334,11 @@ class UplinkBudget:
         cmd_hz = len(self._cmd_times) / self.window_s
         if not math.isfinite(fits) or (rate_hz + cmd_hz) * self._fb_bits <= fits:
             return FeedbackPlan(True, rate_hz)
+        # the feedback rate the path carries: acknowledgements fill what the periodic
+        # feedback leaves (no step from "every command" to "none" as the capacity moves)
+        total_hz = fits / self._fb_bits if self._fb_bits > 0 else rate_hz
+        min_interval = 1.0 / total_hz if total_hz > 0 else math.inf
         for hz in (rate_hz, 25.0, 10.0):
             if hz <= rate_hz and hz * self._fb_bits <= fits:
-                return FeedbackPlan(False, hz)
-        return FeedbackPlan(False, min(rate_hz, 10.0))
+                return FeedbackPlan(False, hz, min_interval)
+        return FeedbackPlan(False, min(rate_hz, 10.0), min_interval)

@@ -219,6 +219,10 @@ class FollowerLoop:
         #: Publish a Feedback for every command picked up between ticks (False: the next
         #: periodic feedback acknowledges it; the program clears it on a full uplink).
         self.ack_each_command = True
+        #: Without ``ack_each_command``, a command is still acknowledged at once when the
+        #: previous feedback left at least this long ago [s] (the uplink's feedback budget).
+        self.min_fb_interval_s = math.inf
+        self._last_fb_t = -math.inf
         #: Periodic feedback rate [Hz] (``feedback_rate_hz``; lowered on a full uplink).
         self.feedback_rate_hz = float(cfg.feedback_rate_hz)
         #: Extra Status counters (the program's uplink figures), merged into every Status.
@@ -386,6 +390,7 @@ class FollowerLoop:
         if now >= self._next_fb:
             self._next_fb = max(now, self._next_fb + 1.0 / self.feedback_rate_hz)
             self._publish(self._feedback(now, obs))
+            self._last_fb_t = now
         if now >= self._next_status:
             self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
             self._publish(self.status(now))
@@ -416,8 +421,10 @@ class FollowerLoop:
             old_ref = self.telemetry.ref
             tel = self._control(now, start.obs)
             self._ref_sum = self._ref_sum + (np.asarray(tel.ref, dtype=float) - np.asarray(old_ref, dtype=float))
-            if self.ack_each_command:  # else the next periodic feedback acknowledges it
+            if self.ack_each_command or now - self._last_fb_t >= self.min_fb_interval_s:
+                # else the next periodic feedback acknowledges it
                 self._publish(self._feedback(now, start.obs))
+                self._last_fb_t = now
             return True
         except Exception as exc:
             LOG.warning("applying a new command between ticks failed: %s", exc)
