@@ -304,7 +304,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--b", required=True, metavar="DEV", help="interface of side B")
     for name, arrow in (("forward", "a -> b"), ("backward", "b -> a")):
         p.add_argument(f"--{name}", default="const:0ms", metavar="MODEL", help=f"{arrow} delay model (default const:0ms)")
-        p.add_argument(f"--loss-{name}", default="none", metavar="SPEC", help=f"{arrow} loss: {ALLOWED_LOSS}")
+        p.add_argument(f"--loss-{name}", default="none", metavar="SPEC", help=f"{arrow} loss: {ALLOWED_LOSS}".replace("%", "%%"))
         p.add_argument(f"--rate-{name}", default="none", metavar="RATE", help=f"{arrow} rate cap: {ALLOWED_RATE}")
         p.add_argument(f"--queue-{name}", default="64kB", metavar="SIZE", help=f"{arrow} queue of the rate cap: {ALLOWED_QUEUE} (default 64kB)")
         p.add_argument(f"--outage-{name}", action="append", default=[], metavar="SPEC", help=f"{arrow} outage (repeatable): {ALLOWED_OUTAGE}")
