@@ -53,7 +53,7 @@ class Limits:
     lockout_s: float = 30.0  #: how long a locked address gets 429 (unless it has the token)
     refusals_per_s: float = 50.0  #: refusal answers (403, 429) per second in all; beyond: held
     refused_connections_per_s: float = 2000.0  #: beyond, accepting pauses (the backlog waits)
-    refused_locked_per_s: float = 200.0  #: the same for a locked address (a guesser reconnecting)
+    refused_locked_per_s: float = 50.0  #: the same for a locked address (a guesser reconnecting)
     hold_s: float = 5.0  #: a guesser's connection is held this long (unanswered) after a 429
     descriptor_reserve: int = 256  #: descriptors kept for the rest of the process
     log_interval_s: float = 10.0  #: one log line per kind of error per interval

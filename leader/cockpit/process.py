@@ -28,6 +28,7 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import signal
 import struct
 import threading
 import time
@@ -281,6 +282,10 @@ class _PipeLog(logging.Handler):
 
 def _child_main(conn: Connection, kwargs: dict[str, Any]) -> None:  # pragma: no cover - runs in the child
     """Serve the cockpit until the leader says stop or goes away."""
+    # Ctrl-C and the process group's SIGTERM are the leader's to handle: it stops us (or
+    # its end closes the pipe), after it released the robot.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     with contextlib.suppress(OSError):
         os.nice(_NICE)  # the haptic loop's CPU comes first
     lock = threading.Lock()
