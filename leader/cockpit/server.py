@@ -1,9 +1,10 @@
 """The cockpit web server: live video, plots, status and a virtual joystick in a browser.
 
-An aiohttp application runs in its own thread with its own asyncio loop, so the leader's
-1 kHz loop is never disturbed: :meth:`CockpitServer.publish_sample` and
-:meth:`CockpitServer.publish_video` only store the latest value (one assignment, no lock,
-no cross-thread wake-up); the server thread samples them at ``telemetry_hz`` and pushes to
+An aiohttp application runs in its own thread with its own asyncio loop (the leader runs
+this server in a child process: :class:`~bipedtele.leader.cockpit.process.CockpitProcess`;
+the timeouts, caps and rate limits are :mod:`bipedtele.leader.cockpit.guard`'s):
+:meth:`CockpitServer.publish_sample` and :meth:`CockpitServer.publish_video` only store the
+latest value (one assignment, no lock, no cross-thread wake-up); the server thread samples them at ``telemetry_hz`` and pushes to
 every connected browser over a websocket.
 
 Endpoints
