@@ -52,7 +52,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
@@ -373,6 +372,9 @@ def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason
     else:
         seen = "TCP was accepted, by the router or by a relay in front of it"
     slow = "or the router did not answer the handshake in time (a lossy or slow path; the router logs every refusal)"
+    if net.links == "split":
+        slow += (", or UDP to the router's port is blocked (the control link of links = \"split\"; "
+                 "where only TCP passes, set network.links = \"split-tcp\")")
     if net.user:
         return LinkError(
             "credentials",
@@ -389,11 +391,9 @@ def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason
 def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> zenoh.Session:
     """Open a client session: endpoint checks, then up to OPEN_TRIES handshakes, each given twice as long.
 
-    A handshake over a lossy or slow path can outlast the first try's few round trips;
-    the next try doubles the time (within the profile's ``timeout_s`` in all). With
-    ``links = "split"``, a second try opens the ``split-tcp`` layout: a router whose
-    control link (UDP) never answers, behind a firewall that passes only TCP, is then
-    still reached, and the client says so.
+    A handshake over a lossy or slow path can outlast the first try's few round trips (with
+    ``links = "split"`` three links must all open, and a lost TCP SYN alone costs a second):
+    the next try doubles the time (within the profile's ``timeout_s`` in all).
     """
     rtt, checked = _preflight(net, connect)
     timeout = _open_timeout_s(net, rtt, checked)
@@ -402,27 +402,16 @@ def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> 
         budget = min(timeout * 2**attempt, net.timeout_s - spent)
         if budget <= 0.05:
             break
-        tcp_fallback = attempt > 0 and net.links == "split" and bool(checked)
-        if tcp_fallback:
-            conf = zenoh_config(replace(net, links="split-tcp"), connect=connect)
         conf.insert_json5("connect/timeout_ms", json.dumps(int(budget * 1000)))
         t0 = time.monotonic()
         try:
-            session = zenoh.open(conf)
+            return zenoh.open(conf)
         except zenoh.ZError as exc:
             spent += time.monotonic() - t0
             first = _zenoh_reason(exc)
             if "Unable to connect" not in first:
                 raise ConfigError(f"network: cannot open the Zenoh session: {first}") from None
             LOG.debug("no session with the router within %.1f s (try %d of %d)", budget, attempt + 1, OPEN_TRIES)
-            continue
-        if tcp_fallback:
-            LOG.warning(
-                "the router did not open the control link over UDP in time: control travels on a TCP "
-                "link of its own (a firewall that drops UDP to the router's port? network.links = \"split-tcp\" "
-                "says so up front; docs/network.md)"
-            )
-        return session
     raise _refusal(net, checked, spent, first)
 
 
