@@ -60,7 +60,7 @@ from bipedtele.impairments import parse_loss, parse_outage, parse_rate
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.tools.demostatus import StatusPrinter
 from bipedtele.tools.netem import netem_available
-from bipedtele.tools.netem_trace import NetemReplayer, schedule
+from bipedtele.tools.netem_trace import NetemReplayer, impairment_args, schedule
 from bipedtele.tools.netns import (
     FOLLOWER,
     LEADER,
@@ -121,6 +121,8 @@ class DemoPlan:
     link: VethLink | EmulatedLink | None = None
     #: Impairment arguments of ``link-emu`` besides the delays (packet backend).
     impairments: list[str] = field(default_factory=list)
+    #: netem options per end besides the delays (netem backend: loss, rate, limit).
+    netem_extra: dict[str, list[str]] = field(default_factory=dict)
 
     def emulator_args(self) -> list[str]:
         """Return the ``link-emu`` arguments of the packet backend (forward = leader -> follower)."""
@@ -136,6 +138,9 @@ class DemoPlan:
         """
         exe = [sys.executable, "-m", "bipedtele.cli"]
         common = ["--config", self.profile]
+        if self.backend in ("netem", "packet"):
+            # a per-packet path carries UDP: control on its own best-effort link (docs/links.md)
+            common += ["--set", 'network.links="split"']
         for item in self.overrides:
             common += ["--set", item]
         if self.backend == "netem":
@@ -202,7 +207,7 @@ class DemoPlan:
             f"{link.dev[FOLLOWER]}; seconds after the start, then the command",
         ]
         forward, backward = parse_delay_model(self.forward), parse_delay_model(self.backward)
-        lines += [f"{s.t:.3f} {' '.join(s.command)}" for s in schedule(link, forward, backward, t_end)]
+        lines += [f"{s.t:.3f} {' '.join(s.command)}" for s in schedule(link, forward, backward, t_end, self.netem_extra)]
         lines += [
             "# teardown (after stopping the processes inside the namespaces)",
             *(" ".join(c) for c in link.teardown_commands()),
@@ -296,6 +301,7 @@ def run_demo(
                 network.enter_context(plan.link)
                 network.enter_context(NetemReplayer(
                     plan.link, parse_delay_model(plan.forward), parse_delay_model(plan.backward), plan.t0,
+                    extra=plan.netem_extra,
                 ))  # fmt: skip
             except (NetnsError, RuntimeError) as exc:
                 sys.stderr.write(f"bipedtele demo: netem backend: {exc}\n")
@@ -425,8 +431,10 @@ def _impairments(args: argparse.Namespace, backend: str) -> list[str]:
     """Return the ``link-emu`` arguments of ``--loss``, ``--rate-up/down``, ``--outage`` (checked)."""
     given = [f for f, v in (("--loss", args.loss), ("--rate-up", args.rate_up), ("--rate-down", args.rate_down),
                             ("--outage", args.outage)) if v]  # fmt: skip
-    if given and backend != "packet":
-        raise ConfigError(f"{given[0]}: allowed only with --delay-backend packet (the delay {backend} carries no loss, rate or outage)")
+    if backend == "netem" and args.outage:
+        raise ConfigError("--outage: allowed only with --delay-backend packet (netem has no outage schedule)")
+    if given and backend not in ("packet", "netem"):
+        raise ConfigError(f"{given[0]}: allowed only with --delay-backend packet or netem (the delay {backend} carries no loss, rate or outage)")
     out: list[str] = []
     if args.loss:
         parse_loss(args.loss)
@@ -439,6 +447,14 @@ def _impairments(args: argparse.Namespace, backend: str) -> list[str]:
         parse_outage(spec)
         out += ["--outage-forward", spec, "--outage-backward", spec]
     return out
+
+
+def _netem_extra(args: argparse.Namespace) -> dict[str, list[str]]:
+    """Return the netem options per end of ``--loss`` and ``--rate-up/down`` (netem backend)."""
+    return {
+        LEADER: impairment_args(loss=args.loss, rate=args.rate_up, queue="64kB" if args.rate_up else None),
+        FOLLOWER: impairment_args(loss=args.loss, rate=args.rate_down, queue="64kB" if args.rate_down else None),
+    }
 
 
 def _dry_run(plan: DemoPlan) -> int:
@@ -480,6 +496,7 @@ def _run(args: argparse.Namespace) -> int:
     record = Path(args.record) if args.record else run_dir / "leader.mcap"
     backend = _backend(args.delay_backend, args.dry_run)
     impairments = _impairments(args, backend)
+    netem_extra = _netem_extra(args) if backend == "netem" else {}
     link: VethLink | EmulatedLink | None = None
     if backend == "netem":
         link = VethLink()
@@ -497,7 +514,8 @@ def _run(args: argparse.Namespace) -> int:
         record=record,
         backend=backend,
         link=link,
-        impairments=impairments,
+        impairments=impairments if backend == "packet" else [],
+        netem_extra=netem_extra,
     )
     if args.dry_run:
         return _dry_run(plan)
@@ -526,9 +544,9 @@ def add_demo_parser(sub: Any) -> None:
         "veth pair), packet (root: the per-packet link emulator between two namespaces, see "
         "docs/linkemu.md) or auto (netem where available, else the proxy)",
     )  # fmt: skip
-    p.add_argument("--loss", default=None, metavar="SPEC", help="packet backend: loss each way (1%%, ge:p=1%%,r=30%%)")
-    p.add_argument("--rate-up", default=None, metavar="RATE", help="packet backend: leader -> follower rate cap (e.g. 2mbit)")
-    p.add_argument("--rate-down", default=None, metavar="RATE", help="packet backend: follower -> leader rate cap (e.g. 8mbit)")
+    p.add_argument("--loss", default=None, metavar="SPEC", help="packet or netem backend: loss each way (1%%, ge:p=1%%,r=30%%)")
+    p.add_argument("--rate-up", default=None, metavar="RATE", help="packet or netem backend: leader -> follower rate cap (e.g. 2mbit)")
+    p.add_argument("--rate-down", default=None, metavar="RATE", help="packet or netem backend: follower -> leader rate cap (e.g. 8mbit)")
     p.add_argument("--outage", action="append", default=[], metavar="SPEC", help="packet backend: outage both ways, at=30s,for=3s[,every=60s] (repeatable)")
     p.add_argument(
         "--delay-scale", default="1", metavar="K",

@@ -234,3 +234,22 @@ def test_replay_schedule_keeps_the_impairments_on_every_change() -> None:
             assert tail.endswith("rate 300000bit limit 42"), tail
         else:
             assert tail.endswith("loss random 1% limit 10000"), tail
+
+
+def test_demo_netem_backend_carries_loss_and_rate_caps(tmp_path: Path) -> None:
+    """`demo --delay-backend netem --loss --rate-up --rate-down` (dry run): every qdisc carries them."""
+    trace = tmp_path / "trace.csv"
+    trace.write_text("t_s,h1_ms,h2_ms\n0.0,100,200\n0.1,110,190\n")
+    res = _demo("--delay-backend", "netem", "--dry-run", "--delay-trace", str(trace), "--duration", "0.25",
+                "--headless", "--loss", "1%", "--rate-up", "2mbit", "--rate-down", "300kbit",
+                "--run-dir", str(tmp_path / "run"))  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    tc = [line for line in res.stdout.splitlines() if re.match(r"^\d+\.\d{3} tc ", line)]
+    assert tc and all("loss random 1%" in line for line in tc), tc
+    assert all(line.endswith("rate 2000000bit limit 42") for line in tc if "btdl-" in line), tc
+    assert all(line.endswith("rate 300000bit limit 42") for line in tc if "btdf-" in line), tc
+    procs = [line for line in res.stdout.splitlines() if line.startswith("# process ")]
+    assert procs and all('network.links="split"' in line for line in procs), procs
+    res = _demo("--delay-backend", "netem", "--dry-run", "--headless", "--outage", "at=5s,for=3s",
+                "--run-dir", str(tmp_path / "r2"))  # fmt: skip
+    assert res.returncode == 2 and "--outage" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
