@@ -540,6 +540,24 @@ class MessagePublisher:
         self.close()
 
 
+def _declare(
+    session: zenoh.Session,
+    key: str,
+    priority: zenoh.Priority,
+    reliability: zenoh.Reliability,
+    *,
+    express: bool,
+) -> zenoh.Publisher:
+    """Declare a drop-on-congestion publisher with the given QoS (which picks its link)."""
+    return session.declare_publisher(
+        key,
+        express=express,
+        priority=priority,
+        congestion_control=zenoh.CongestionControl.DROP,
+        reliability=reliability,
+    )
+
+
 def declare_control_publisher(
     session: zenoh.Session, key: str, auth: MessageAuth | None = None, handshake: Handshake | None = None
 ) -> MessagePublisher:
@@ -549,36 +567,19 @@ def declare_control_publisher(
     link as datagrams, never retransmitted (each one supersedes the previous one;
     :mod:`bipedtele.linklayout`). On a single link they travel as before.
     """
-    pub = session.declare_publisher(
-        key,
-        express=True,
-        priority=zenoh.Priority.REAL_TIME,
-        congestion_control=zenoh.CongestionControl.DROP,
-        reliability=zenoh.Reliability.BEST_EFFORT,
-    )
+    pub = _declare(session, key, zenoh.Priority.REAL_TIME, zenoh.Reliability.BEST_EFFORT, express=True)
     return MessagePublisher(pub, key, auth, handshake)
 
 
 def declare_status_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
     """Declare a publisher for status messages: express, interactive priority, reliable (the status link)."""
-    pub = session.declare_publisher(
-        key,
-        express=True,
-        priority=zenoh.Priority.INTERACTIVE_LOW,
-        congestion_control=zenoh.CongestionControl.DROP,
-        reliability=zenoh.Reliability.RELIABLE,
-    )
+    pub = _declare(session, key, zenoh.Priority.INTERACTIVE_LOW, zenoh.Reliability.RELIABLE, express=True)
     return MessagePublisher(pub, key, auth)
 
 
 def declare_video_publisher(session: zenoh.Session, key: str, auth: MessageAuth | None = None) -> MessagePublisher:
     """Declare a publisher for video: low priority, reliable, drop on congestion (latest-only by nature)."""
-    pub = session.declare_publisher(
-        key,
-        priority=zenoh.Priority.DATA_LOW,
-        congestion_control=zenoh.CongestionControl.DROP,
-        reliability=zenoh.Reliability.RELIABLE,
-    )
+    pub = _declare(session, key, zenoh.Priority.DATA_LOW, zenoh.Reliability.RELIABLE, express=False)
     return MessagePublisher(pub, key, auth)
 
 

@@ -49,6 +49,14 @@ def _run(cmd: list[str], timeout: float = 20.0) -> subprocess.CompletedProcess[s
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
 
 
+def _require_ip_and_root() -> None:
+    """Raise NetnsError unless ``ip`` is installed and this process is root."""
+    if shutil.which("ip") is None:
+        raise NetnsError("the `ip` command (iproute2) is not installed")
+    if os.geteuid() != 0:
+        raise NetnsError("network namespaces need root")
+
+
 @dataclass
 class VethLink:
     """Two network namespaces joined by a veth pair.
@@ -119,10 +127,7 @@ class VethLink:
         NetnsError
             Not root, no ``ip``, or a step failed (its command and error in one line).
         """
-        if shutil.which("ip") is None:
-            raise NetnsError("the `ip` command (iproute2) is not installed")
-        if os.geteuid() != 0:
-            raise NetnsError("network namespaces need root")
+        _require_ip_and_root()
         try:
             for cmd in self.setup_commands():
                 res = _run(cmd)
@@ -308,10 +313,7 @@ class EmulatedLink:
         NetnsError
             Not root, no ``ip``, or a step failed (its command and error in one line).
         """
-        if shutil.which("ip") is None:
-            raise NetnsError("the `ip` command (iproute2) is not installed")
-        if os.geteuid() != 0:
-            raise NetnsError("network namespaces need root")
+        _require_ip_and_root()
         try:
             for cmd in self.setup_commands():
                 self._step(cmd)
