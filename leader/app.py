@@ -324,10 +324,10 @@ class LeaderApp:
     def _on_feedback(self, got: Received[Feedback]) -> None:
         """Every feedback the receiver accepted (Zenoh's thread): reach, link, age bound."""
         msg = got.msg
-        self.reach.on_feedback(msg)
         t_sent = self.node.to_local(msg.t)
         if self.link.on_feedback(msg.sid, msg.seq, t_sent, got.t_recv, self._size(msg)):
             self._fb_ok = got
+            self.reach.on_feedback(msg)  # only young feedback acknowledges commands
         else:
             self.node.drops.drop(
                 "fb_too_old",
