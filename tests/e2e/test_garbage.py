@@ -2,8 +2,8 @@
 
 While the scripted leader makes the robot walk through a router, a third process
 (``garbage.py``) publishes 200 invalid payloads on each of the robot's five keys. Every one
-that reaches a receiver must be dropped and counted (the follower subscribes to ``cmd`` and
-``clock``; the leader to ``feedback``, ``video``, ``status`` and ``clock``; both publish their drop
+that reaches a receiver must be dropped and counted (the follower subscribes to ``cmd``,
+``clock`` and ``status``; the leader to ``feedback``, ``video``, ``status`` and ``clock``; both publish their drop
 counters as ``drop_<reason>`` in their Status), the drops must be logged, and the robot
 must keep walking as if nothing happened.
 """
@@ -67,7 +67,7 @@ def test_garbage_on_every_key_is_dropped_and_counted(procs: Procs, tmp_path: Pat
         report = json.loads(g.log().strip().splitlines()[-1])
         sent = report["sent"]
         assert sent == {k: COUNT for k in ("cmd", "feedback", "video", "clock", "status")}
-        want_f = sent["cmd"] + sent["clock"]
+        want_f = sent["cmd"] + sent["clock"] + sent["status"]  # the follower reads the leader's status (uplink budget)
         want_l = sent["feedback"] + sent["video"] + sent["status"] + sent["clock"]
 
         def counted() -> bool:
