@@ -106,6 +106,9 @@ class UplinkBudget:
     drain_s : float
         Video's margin grows so that a queue of ``excess_s`` (h2 above its minimum) drains
         in about this long [s].
+    gap_s : float
+        A silence of the commands longer than this [s] (an outage): the leader's figures
+        are not judged until its window is past it (they count the silence, not the path).
     drain_ratio : float
         On the rate rule's first signal the capacity is set to this share of what the
         leader received (below it, so that the queue the path built drains).
@@ -132,6 +135,7 @@ class UplinkBudget:
         status_timeout_s: float = 5.0,
         drain_s: float = 4.0,
         drain_ratio: float = 0.9,
+        gap_s: float = 0.5,
     ) -> None:
         self._clock = clock
         self.window_s = float(window_s)
@@ -150,6 +154,8 @@ class UplinkBudget:
         self.status_timeout_s = float(status_timeout_s)
         self.drain_s = float(drain_s)
         self.drain_ratio = float(drain_ratio)
+        self.gap_s = float(gap_s)
+        self._quiet_until = -math.inf
         self._lock = threading.Lock()
         # sent bytes per bin: bin index -> [control, video]
         self._bins: deque[tuple[int, list[int]]] = deque()
@@ -215,6 +221,10 @@ class UplinkBudget:
         hist.append((now, self._h2))
         while hist and hist[0][0] < now - 2.0:
             hist.popleft()
+        if self._cmd_times and now - self._cmd_times[-1] > self.gap_s:
+            # the path was down (an outage, a router restart): the leader's next windows
+            # count that silence, not the path's capacity; judge again once they are past it
+            self._quiet_until = now + self.window_s + 1.0
         self._cmd_times.append(now)
         while self._cmd_times and self._cmd_times[0] < now - self.window_s:
             self._cmd_times.popleft()
@@ -254,6 +264,8 @@ class UplinkBudget:
         if rx is None:
             return
         self._last_status = now
+        if now < self._quiet_until:
+            return
         ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
         h2 = self._h2 or 0.0
         tx = self._rate(ts - h2 - self.window_s, ts - h2)

@@ -178,3 +178,27 @@ def test_bad_leader_figures_are_ignored() -> None:
     b.on_h2(-1.0)
     b.on_leader_status({"rx_bps": True, "fb_age_ms": 3})  # a bool is no rate
     assert b.video_budget_bps() is None and b.leader == {"fb_age_ms": 3}
+
+
+def test_an_outage_is_not_taken_for_a_full_path() -> None:
+    """After 3 s without commands (a router restart), the leader's next windows count the
+    silence (rx far below what was sent before it): the budget does not cut the capacity."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+
+    def run(seconds: float, rx_bps: int | None) -> None:
+        end = t[0] + seconds
+        while t[0] < end:
+            t[0] += 0.01
+            b.on_h2(0.05)
+            b.sent(500, feedback=True)  # 400 kbit/s of feedback
+            if abs(t[0] % 0.5) < 0.01 and rx_bps is not None:
+                b.on_leader_status({"rx_bps": rx_bps, "fb_loss_ppm": 0, "fb_age_ms": 50})
+            b.update()
+
+    run(10.0, 400_000)
+    assert not b.limited and math.isinf(b.capacity_bps)
+    t[0] += 3.0  # the outage: nothing in, nothing out
+    run(0.6, 40_000)  # the leader's first statuses after it: its 2 s window holds the silence
+    run(5.0, 400_000)
+    assert math.isinf(b.capacity_bps) and not b.limited, (b.capacity_bps, b.signals)
