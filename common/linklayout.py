@@ -44,6 +44,7 @@ from typing import Any, Final, Literal
 
 __all__ = [
     "CONTROL_PRIORITIES",
+    "CONTROL_SNDBUF_BYTES",
     "LAYOUTS",
     "MAX_LINKS",
     "STATUS_PRIORITIES",
@@ -67,6 +68,9 @@ VIDEO_PRIORITIES: Final = "5-7"
 VIDEO_SNDBUF_BYTES: Final = 65536
 #: The control link's send buffer in ``split-tcp`` [bytes]: a few feedback messages.
 CONTROL_SNDBUF_BYTES: Final = 4096
+
+#: Most links one client opens to its router (``transport/unicast/max_links``).
+MAX_LINKS: Final = 4
 
 _DATAGRAM = {"tls": "udp", "tcp": "udp"}
 
@@ -145,6 +149,3 @@ def router_listen_endpoints(listen: list[str], layout: Layout) -> list[str]:
                 out.append(extra)
     return out
 
-
-#: Most links one client opens to its router (``transport/unicast/max_links``).
-MAX_LINKS: Final = 4
