@@ -249,6 +249,10 @@ def zenoh_config(
     # Zenoh reassembles a fragmented message before anyone sees it: bound what one message
     # may cost (the largest valid one is a video frame, MAX_VIDEO_PAYLOAD), 1 GiB by default.
     put("transport/link/rx/max_message_size", MAX_ZENOH_MESSAGE)
+    # No shared memory: Zenoh would hand every message over 3 kB (the video frames) to a
+    # process on the same machine through /dev/shm, around the network path: around TLS,
+    # the link layout, a router's queues and any emulated link (docs/links.md).
+    put("transport/shared_memory/enabled", False)
     if listen or mode != "client":
         # Explicit endpoints only; a peer with no listen endpoint listens nowhere rather
         # than on an ephemeral port of every interface.
