@@ -44,7 +44,10 @@ one-way delay):
   in a state other than ``walking``), its restart latency (path back to the first feedback
   in ``walking``), and the commands sent before the path returned that the follower applied
   after it (count, oldest age);
-- the emulator's counters (``--stats-json``).
+- the emulator's counters (``--stats-json``);
+- the paper's Table 2 of the run (``bipedtele report``: completion time of the pilot's
+  passes, speed errors, delays): with ``--only trace --seconds 220`` the pilot finishes
+  its 10 passes, the two-host figures to set beside the demo's.
 
 A markdown table at the end; ``--json F`` writes every figure. Everything is torn down
 (processes, namespaces, ``/etc/netns`` entries) also on Ctrl-C. This script prints
@@ -74,6 +77,7 @@ import numpy as np
 from bipedtele.delaymodels import parse_delay_model
 from bipedtele.recording import Record, read_records
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
+from bipedtele.tools.report import compute_report
 
 REPO = Path(__file__).resolve().parent.parent
 CLI = [sys.executable, "-m", "bipedtele.cli"]
@@ -426,8 +430,10 @@ def run_condition(
     # forward is operator -> router (h1) across the ocean, robot -> router (h2) on the LAN
     h_models = models if cond.topology == "intercontinental" else models[::-1]
     outage = (t0 + cond.outage[0], t0 + cond.outage[0] + cond.outage[1]) if cond.outage else None
-    res.update(analyse(list(read_records(l_path)), list(read_records(f_path)), leader.log(),
-                       outage_wall=outage, startup_s=startup_s, emulated=(*h_models, t0)))  # fmt: skip
+    l_rec, f_rec = list(read_records(l_path)), list(read_records(f_path))
+    res.update(analyse(l_rec, f_rec, leader.log(), outage_wall=outage, startup_s=startup_s, emulated=(*h_models, t0)))
+    # Table 2 of the run (`bipedtele report`): completion time and speed errors, as the demo prints
+    res["table2"] = compute_report(l_rec, f_rec)
     try:
         res["linkemu"] = json.loads(stats.read_text())
     except (OSError, ValueError):
@@ -468,6 +474,10 @@ def emu_line(e: dict[str, Any] | None) -> str:
     return "emulator: " + "; ".join(parts)
 
 
+def _f(x: float | None, digits: int = 2) -> str:
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
 def row_line(r: dict[str, Any]) -> str:
     if "error" in r:
         return f"{r['label']} [{r['links']}]: ERROR {r['error']}"
@@ -480,6 +490,13 @@ def row_line(r: dict[str, Any]) -> str:
         f"video {r['video_fps']:.1f} fps, link cap/lossy/lost {_pct(lf['capacity-limited'])}/{_pct(lf['lossy'])}/"
         f"{_pct(lf['lost'])} %"
     )
+    t2 = r.get("table2") or {}
+    if t2.get("completion_s") is not None:
+        s += (
+            f"; Table 2: {t2['passes']} passes, completion {t2['completion_s']:.1f} s, speed errors "
+            f"{_f(t2['forward_error_cm_s'])} cm/s, {_f(t2['turn_error_deg_s'])} deg/s, "
+            f"delay min/mean/max {_f(t2['min_delay_ms'], 0)}/{_f(t2['mean_delay_ms'], 0)}/{_f(t2['max_delay_ms'], 0)} ms"
+        )
     if "outage" in r:
         o = r["outage"]
         s += (

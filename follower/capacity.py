@@ -11,16 +11,34 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   h2): the path is capacity-limited and delivers ``rx_bps``. The first such signal sets
   the capacity to ``rx_bps``; if it persists ``hold_s`` after a cut, the capacity is cut
   again by ``decrease`` (0.7): the queue the path built must drain.
-- **delay rule.** h2 stays more than ``delay_rise_s`` (0.15 s) above its minimum over the
-  last ``h2_window_s`` (10 s) for more than ``delay_hold_s`` (1 s): a queue is building even
-  though the rates agree (the excess is small). Once per such episode the capacity is set
-  to at most ``rx_bps``. A rise that lasts ``relearn_s`` is the path's own (a slow delay
-  swing, a new route): the h2 minimum is taken again from the current h2.
-- **probing.** With no signal for ``hold_s`` (and the leader's status arriving), the
-  capacity grows by ``increase_bps_per_s`` per second (additive increase).
+- **delay rule.** h2 stays more than ``delay_rise_s`` (0.08 s) above its minimum over the
+  last ``h2_window_s`` (10 s) for ``delay_hold_s`` (0.25 s): a queue is building. Judged
+  every tick (the signal comes with every command, not with the leader's 2 Hz status), once
+  the leader has reported what it measures: the capacity is cut to ``drain_ratio`` of the
+  least of what the leader received and what was sent, and cut again by ``decrease`` every
+  ``max(cut_gap_s, 2 excess)`` while h2 still grows faster than 0.2 s/s. A first cut after
+  which h2 has not fallen (by a fifth) within ``max(1 s, 2 excess)``, with no rate signal
+  since, is undone: a queue of ours drains once less is sent, a rise of the path's own
+  delay does not. A rise that lasts
+  ``relearn_s`` without falling is the path's own (a slow delay swing, a new route): the h2
+  minimum is taken again from the current h2. The shipped intercontinental trace's h2
+  varies 129-260 ms, with one 3 s step of +80 ms: it never holds 80 ms above its minimum
+  for long, a queue of ours at a 300 kbit/s cap does within half a second.
+- **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
+  the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
+  (at least ``increase_bps_per_s``).
 
-Until the first signal the capacity is unknown (infinite): nothing is throttled. Loss
-alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
+Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
+``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while commands
+bring an h2 near its minimum and the budget is less than twice what is sent, up to
+``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
+taken as twice what is sent, and probed); acknowledgements ride on the periodic feedback
+until then. h2 is the leader's 1 s moving average, so a queue shows about 0.75 s late: the
+growth overshoots a capacity by at most about a fifth before the first cut (x1.6 a second
+overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s; a full-rate start, QVGA video and an
+acknowledgement per command, 0.6-0.8 Mbit/s, queued 0.5-1 s).
+
+Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
 a full one.
 
 :meth:`UplinkBudget.video_budget_bps` gives video what control leaves: capacity minus the
@@ -44,7 +62,8 @@ from bipedtele.follower.backlog import WindowMin
 __all__ = ["FeedbackPlan", "UplinkBudget"]
 
 _BIN_S = 0.1  # resolution of the sent-bytes history [s]
-_KEEP_S = 20.0  # sent-bytes history kept [s] (the window, shifted by h2 up to ~10 s)
+_KEEP_S = 20.0
+_GROWING = 0.2  # h2 growing faster than this [s/s] is a queue of ours (a path's swing is slower)  # sent-bytes history kept [s] (the window, shifted by h2 up to ~10 s)
 
 
 @dataclass(frozen=True)
@@ -89,8 +108,12 @@ class UplinkBudget:
         A delay rise lasting this long [s] is the path's: the h2 minimum is taken again.
     decrease : float
         Multiplicative decrease of the capacity when a rate limit persists after a cut.
-    increase_bps_per_s : float
-        Additive increase while not limited [bit/s per s].
+    increase_bps_per_s, increase_ratio : float
+        Increase while not limited: ``max(increase_bps_per_s, increase_ratio * capacity)``
+        per second [bit/s per s, 1/s].
+    cut_gap_s : float
+        Shortest time between two cuts of the delay rule [s] (also at least twice the
+        excess: a cut shows in h2 one queue delay later).
     hold_s : float
         Time between two cuts, and how long ``limited`` stays on after the last signal [s].
     min_tx_bps : float
@@ -109,6 +132,15 @@ class UplinkBudget:
     gap_s : float
         A silence of the commands longer than this [s] (an outage): the leader's figures
         are not judged until its window is past it (they count the silence, not the path).
+    start_bps, start_max_bps, start_growth : float
+        Video's budget at the start, multiplied by ``start_growth`` every second until a
+        signal or until it passes ``start_max_bps`` [bit/s, bit/s, 1/s].
+    start_s : float
+        After this long [s] of clear path in the start, the capacity is taken as twice
+        what is sent (then probed as after a cut).
+    burst_s : float
+        A video frame may hold the uplink this long at the estimated capacity [s]
+        (:meth:`frame_bits_max`).
     drain_ratio : float
         On the rate rule's first signal the capacity is set to this share of what the
         leader received (below it, so that the queue the path built drains).
@@ -120,12 +152,14 @@ class UplinkBudget:
         *,
         window_s: float = 2.0,
         ratio: float = 0.85,
-        delay_rise_s: float = 0.15,
-        delay_hold_s: float = 1.0,
+        delay_rise_s: float = 0.08,
+        delay_hold_s: float = 0.25,
         h2_window_s: float = 10.0,
         relearn_s: float = 5.0,
         decrease: float = 0.7,
-        increase_bps_per_s: float = 20_000.0,
+        increase_bps_per_s: float = 4_000.0,
+        increase_ratio: float = 0.03,
+        cut_gap_s: float = 0.5,
         hold_s: float = 2.0,
         min_tx_bps: float = 16_000.0,
         floor_bps: float = 16_000.0,
@@ -133,9 +167,14 @@ class UplinkBudget:
         margin_min_bps: float = 8_000.0,
         control_share: float = 0.6,
         status_timeout_s: float = 5.0,
-        drain_s: float = 4.0,
+        drain_s: float = 1.0,
         drain_ratio: float = 0.9,
         gap_s: float = 0.5,
+        burst_s: float = 0.06,
+        start_bps: float = 64_000.0,
+        start_max_bps: float = 4_000_000.0,
+        start_growth: float = 1.3,
+        start_s: float = 10.0,
     ) -> None:
         self._clock = clock
         self.window_s = float(window_s)
@@ -145,6 +184,8 @@ class UplinkBudget:
         self.relearn_s = float(relearn_s)
         self.decrease = float(decrease)
         self.increase_bps_per_s = float(increase_bps_per_s)
+        self.increase_ratio = float(increase_ratio)
+        self.cut_gap_s = float(cut_gap_s)
         self.hold_s = float(hold_s)
         self.min_tx_bps = float(min_tx_bps)
         self.floor_bps = float(floor_bps)
@@ -155,15 +196,24 @@ class UplinkBudget:
         self.drain_s = float(drain_s)
         self.drain_ratio = float(drain_ratio)
         self.gap_s = float(gap_s)
+        self.burst_s = float(burst_s)
+        self.start_max_bps = float(start_max_bps)
+        self.start_growth = float(start_growth)
+        self.start_s = float(start_s)
+        self._start_clear_s = 0.0
+        #: Video's budget until the first signal [bit/s]; None once past ``start_max_bps``.
+        self.start_budget_bps: float | None = float(start_bps)
         self._quiet_until = -math.inf
         self._lock = threading.Lock()
         # sent bytes per bin: bin index -> [control, video]
         self._bins: deque[tuple[int, list[int]]] = deque()
         self._h2_min = WindowMin(h2_window_s)
         self._h2: float | None = None
+        self._h2_at = -math.inf  # when the last h2 came [s]
         self._h2_base: float | None = None
         self._rise_since: float | None = None
         self._delay_episode = False
+        self._falling = False
         self._h2_hist: deque[tuple[float, float]] = deque()
         self._cmd_times: deque[float] = deque()
         #: h2 above its recent minimum [s] (a queue in the path, drained by video's margin).
@@ -172,11 +222,15 @@ class UplinkBudget:
         self._last_signal = -math.inf
         self._last_cut = -math.inf
         self._last_status = -math.inf
+        self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
+        self._first_sent: float | None = None
         self._last_update: float | None = None
         self._fb_bits = 0.0  # EWMA of one feedback's size [bit]
         #: The leader's latest figures (``rx_bps``, ``fb_loss_ppm``, ``fb_age_ms``).
         self.leader: dict[str, int] = {}
-        self.signals = {"rate": 0, "delay": 0, "relearn": 0}
+        self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0}
+        self._undo: tuple[float, float | None, float, float] | None = None
+        self._last_rate_cut = -math.inf
 
     # ------------------------------------------------------------------ inputs
 
@@ -192,7 +246,10 @@ class UplinkBudget:
         feedback : bool
             A Feedback message (its size feeds the feedback rate plan).
         """
-        b = int(self._clock() / _BIN_S)
+        now = self._clock()
+        b = int(now / _BIN_S)
+        if self._first_sent is None:
+            self._first_sent = now
         with self._lock:
             if not self._bins or self._bins[-1][0] != b:
                 self._bins.append((b, [0, 0]))
@@ -204,10 +261,15 @@ class UplinkBudget:
                 self._fb_bits = bits if self._fb_bits == 0.0 else 0.9 * self._fb_bits + 0.1 * bits
 
     def on_h2(self, h2_s: float) -> None:
-        """Feed the leader's feedback-path delay estimate [s] (from each command's ``h2_s``)."""
-        if not math.isfinite(h2_s) or h2_s < 0:
+        """Feed the leader's feedback-path delay estimate [s] (from each command's ``h2_s``).
+
+        0 (the leader has no estimate yet: its commands carry 0 until feedback came back),
+        negative and non-finite values are ignored.
+        """
+        if not math.isfinite(h2_s) or h2_s <= 0:
             return
         now = self._clock()
+        self._h2_at = now
         self._h2 = float(h2_s)
         self._h2_min.add(now, self._h2)
         wmin = self._h2_min.value(now)
@@ -231,6 +293,7 @@ class UplinkBudget:
         self.excess_s = max(0.0, self._h2 - base)
         if self.excess_s > self.delay_rise_s:
             falling = self._h2 < max(h for _, h in hist) - 0.05  # a queue of ours draining
+            self._falling = falling
             if self._rise_since is None:
                 self._rise_since = now
             elif now - self._rise_since >= self.relearn_s and not falling:
@@ -260,6 +323,7 @@ class UplinkBudget:
         now = self._clock()
         self.leader = {k: v for k, v in counters.items() if k in ("rx_bps", "fb_loss_ppm", "fb_age_ms")
                        and isinstance(v, int) and not isinstance(v, bool)}  # fmt: skip
+        self._last_heard = now
         rx = self.leader.get("rx_bps")
         if rx is None:
             return
@@ -270,34 +334,110 @@ class UplinkBudget:
         h2 = self._h2 or 0.0
         tx = self._rate(ts - h2 - self.window_s, ts - h2)
         rate_limited = tx >= self.min_tx_bps and rx < self.ratio * tx
-        delay_limited = self._rise_since is not None and now - self._rise_since >= self.delay_hold_s
         if rate_limited:
             self.signals["rate"] += 1
             episode = now - self._last_signal < self.hold_s
             self._last_signal = now
+            self._last_rate_cut = now
             if not episode:  # the path delivers rx: aim a little below it, so its queue drains
                 self.capacity_bps = max(self.floor_bps, self.drain_ratio * float(rx))
                 self._last_cut = now
             elif ts - h2 - self.window_s >= self._last_cut:  # still over, judged on a window sent after the cut
                 self.capacity_bps = max(self.floor_bps, self.decrease * float(rx))
                 self._last_cut = now
-        elif delay_limited:
-            self._last_signal = now
-            if not self._delay_episode:
-                self.signals["delay"] += 1
-                self._delay_episode = True
-                self.capacity_bps = max(self.floor_bps, min(self.capacity_bps, float(rx)))
-                self._last_cut = now
 
     def update(self) -> None:
-        """Probe upward (additive increase) while not limited; call it every tick."""
+        """Judge the delay rule and probe upward while not limited; call it every tick."""
         now = self._clock()
         last, self._last_update = self._last_update, now
+        self._delay_rule(now)
+        self._check_cut(now)
+        if math.isfinite(self.capacity_bps) and self._undo is None:
+            self.start_budget_bps = None  # the path said what it carries: the start is over
+        elif (last is not None and self.start_budget_bps is not None and now - self._h2_at < self.gap_s
+              and self.excess_s <= 0.5 * self.delay_rise_s):
+            dt = max(0.0, now - last)
+            self._start_clear_s += dt
+            tx = self.tx_bps()
+            if self.start_budget_bps < 2.0 * tx + self.floor_bps:
+                # grown only while h2 says the path is clear and the budget is near what is
+                # sent (a budget far above the sending rate was never tested)
+                self.start_budget_bps *= self.start_growth ** dt
+            if self.start_budget_bps > self.start_max_bps:
+                self.start_budget_bps = None
+            elif self._start_clear_s >= self.start_s:
+                # clear for start_s: the path carries what was sent; probe on from twice that
+                self.capacity_bps = max(self.start_budget_bps, 2.0 * tx + self.floor_bps)
+                self.start_budget_bps = None
         if last is None or not math.isfinite(self.capacity_bps):
             return
         if self.limited or now - self._last_status > self.status_timeout_s:
             return
-        self.capacity_bps += self.increase_bps_per_s * max(0.0, now - last)
+        if self.excess_s > 0.5 * self.delay_rise_s:
+            return  # a queue is still there: not the moment to ask for more
+        step = max(self.increase_bps_per_s, self.increase_ratio * self.capacity_bps)
+        probed = self.capacity_bps + step * max(0.0, now - last)
+        # probe near what is used: an estimate far above the sending rate was never tested
+        self.capacity_bps = max(self.capacity_bps, min(probed, 2.0 * self.tx_bps() + self.floor_bps))
+
+    def _h2_slope(self, now: float) -> float:
+        """Growth of h2 over the last 0.5 s [s/s] (0 with less than 0.2 s of history)."""
+        pts = [(t, h) for t, h in self._h2_hist if t >= now - 0.5]
+        if len(pts) < 2 or pts[-1][0] - pts[0][0] < 0.2:
+            return 0.0
+        return (pts[-1][1] - pts[0][1]) / (pts[-1][0] - pts[0][0])
+
+    def _check_cut(self, now: float) -> None:
+        """Undo a delay cut after which h2 did not fall: the path's delay rose, not our queue.
+
+        A queue of ours drains within about its own delay once less is sent; a rise of the
+        path's delay (a route change, a slow swing) does not react to what we send.
+        """
+        if self._undo is None:
+            return
+        cap, start, t_cut, excess = self._undo
+        if now - t_cut < max(1.0, 2.0 * excess):
+            return
+        self._undo = None
+        if self.excess_s >= 0.8 * excess and self._last_rate_cut < t_cut:
+            self.capacity_bps, self.start_budget_bps = cap, start
+            self._last_signal = -math.inf
+            self.signals["undone"] += 1
+
+    def _delay_rule(self, now: float) -> None:
+        """Cut the capacity when a queue of ours is building (see the module docstring)."""
+        if self._rise_since is None or now - self._rise_since < self.delay_hold_s:
+            return
+        if now - self._last_heard > self.status_timeout_s or now < self._quiet_until:
+            return  # no leader status (nothing could undo a cut), or just after a silence
+        if now - self._last_cut < max(self.cut_gap_s, 2.0 * self.excess_s):
+            self._last_signal = now
+            return
+        if self._delay_episode and self._falling:
+            self._last_signal = now
+            return  # the last cut is draining the queue
+        slope = self._h2_slope(now)
+        if self._delay_episode and slope < _GROWING:
+            # h2 stays up after a cut but does not grow fast: the last cut holds the queue
+            # (the rate rule judges what remains), or the path's delay rose (a step of the route)
+            return
+        start = now - self.window_s if self._first_sent is None else max(now - self.window_s, self._first_sent)
+        tx = self._rate(start, now)  # over what has passed of the window since sending began
+        # a queue fed at tx grows by (tx - C) / C seconds per second: the path carries about
+        # tx / (1 + slope); the leader's rx (a 2 s window, late) bounds it too
+        ref = tx / (1.0 + max(0.0, slope))
+        rx = self.leader.get("rx_bps")
+        if rx is not None and rx > 0:
+            ref = min(ref, float(rx)) if ref > 0 else float(rx)
+        cut = self.drain_ratio * ref
+        if self._delay_episode:
+            cut = min(cut, self.decrease * self.capacity_bps)
+        else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
+            self._undo = (self.capacity_bps, self.start_budget_bps, now, self.excess_s)
+        self.capacity_bps = max(self.floor_bps, min(self.capacity_bps, cut))
+        self.signals["delay"] += 1
+        self._delay_episode = True
+        self._last_cut = self._last_signal = now
 
     # ------------------------------------------------------------------ outputs
 
@@ -325,25 +465,43 @@ class UplinkBudget:
         return self._clock() - self._last_signal < self.hold_s
 
     def video_budget_bps(self) -> float | None:
-        """Video's budget [bit/s]: capacity - control's measured rate - margin; None: unlimited."""
+        """Video's budget [bit/s]: capacity - control's measured rate - margin; None: unlimited.
+
+        Before the first signal: the start budget (``start_budget_bps``).
+        """
         cap = self.capacity_bps
         if not math.isfinite(cap):
-            return None
+            return self.start_budget_bps
         # a queue in the path (h2 above its minimum) is drained within ``drain_s``
-        margin = max(self.margin * cap, self.margin_min_bps, cap * self.excess_s / self.drain_s)
+        drain = cap * self.excess_s / self.drain_s if self.limited else 0.0
+        margin = max(self.margin * cap, self.margin_min_bps, drain)
         return max(0.0, cap - self.tx_bps("control") - margin)
+
+    def frame_bits_max(self) -> float | None:
+        """Largest video frame [bit]: one that holds the uplink ``burst_s`` at most; None: unlimited.
+
+        A frame leaves as one burst: at 300 kbit/s a 4 kB frame delays the feedback behind
+        it by 107 ms, whatever the frame rate.
+        """
+        cap = self.capacity_bps if math.isfinite(self.capacity_bps) else self.start_budget_bps
+        return None if cap is None else cap * self.burst_s
 
     def feedback_plan(self, rate_hz: float) -> FeedbackPlan:
         """How to send feedback now, given the configured rate ``rate_hz`` [Hz].
 
         Every command is acknowledged at once, at ``rate_hz``, while that (the periodic
         feedback plus one per command received) fits ``control_share`` of the capacity
-        (always while it is unknown). Otherwise the acknowledgements ride on the next
+        (always once the start is over with the capacity unknown; during the start the
+        acknowledgements ride on the periodic feedback). Otherwise the acknowledgements ride on the next
         tick's feedback, and the rate is the highest of ``rate_hz``, 25 and 10 Hz that fits.
         As the capacity is probed back up, the plan returns to full rate.
         """
         fits = self.control_share * self.capacity_bps
         cmd_hz = len(self._cmd_times) / self.window_s
+        if not math.isfinite(fits) and self.start_budget_bps is not None:
+            # the start: the path is not known yet; acknowledgements ride on the periodic
+            # feedback (an acknowledgement per command doubles control's rate)
+            return FeedbackPlan(False, rate_hz, 1.0 / rate_hz if rate_hz > 0 else 0.0)
         if not math.isfinite(fits) or (rate_hz + cmd_hz) * self._fb_bits <= fits:
             return FeedbackPlan(True, rate_hz)
         # the feedback rate the path carries: acknowledgements fill what the periodic

@@ -13,7 +13,8 @@ every ``_LOG_EVERY_S`` seconds; an encoding failure is counted the same way.
 
 A budget (:meth:`VideoStreamer.set_budget`, bits/s; None: unlimited) makes the streamer
 fit the uplink: it picks a level (JPEG quality and size, QVGA down to QQVGA, see
-``LEVELS``) and a frame rate from the measured frame sizes, preferring at least
+``LEVELS``; no level whose frames exceed the largest frame the uplink takes in one burst)
+and a frame rate from the measured frame sizes, preferring at least
 ``_GOOD_FPS`` frames/s per camera before quality, down to 1 frame/s at the lowest level,
 and off only when even that does not fit; a token bucket (rate: the budget) makes sure
 it never sends faster than the budget (a frame without tokens is dropped, ``throttled``).
@@ -102,6 +103,7 @@ class VideoStreamer:
         self.max_fps = float(fps)
         self.stats["throttled"] = 0
         self._budget: float | None = None
+        self._frame_bits_max: float | None = None
         self._level = 0
         self._fps = float(fps)
         self._frame_bits: dict[int, float] = {}  # measured bits per frame by level (EWMA)
@@ -240,9 +242,14 @@ class VideoStreamer:
         _, rel, _ = LEVELS[level]
         return int(min(100, max(10, round(self._quality * rel))))
 
-    def set_budget(self, bps: float | None) -> None:
-        """Set video's budget [bit/s] (None: unlimited, the configured rate and quality)."""
+    def set_budget(self, bps: float | None, frame_bits_max: float | None = None) -> None:
+        """Set video's budget [bit/s] (None: unlimited, the configured rate and quality).
+
+        ``frame_bits_max`` [bit]: levels whose frames are larger are not chosen (the
+        lowest level always may be), so that one frame does not hold a slow uplink long.
+        """
         with self._cv:
+            self._frame_bits_max = None if frame_bits_max is None else max(0.0, float(frame_bits_max))
             was, self._budget = self._budget, (None if bps is None else max(0.0, float(bps)))
             if self._budget is None:
                 self._level, self._fps = 0, self.max_fps
@@ -266,8 +273,11 @@ class VideoStreamer:
         if budget is None:
             return
         per_cam = budget / max(1, len(self.cameras))
+        largest = self._frame_bits_max
         best: tuple[int, float] | None = None
         for level in range(len(LEVELS)):
+            if largest is not None and self.frame_bits(level) > largest:
+                continue
             fps = min(self.max_fps, per_cam / self.frame_bits(level))
             if fps >= min(self.max_fps, _GOOD_FPS):
                 best = (level, fps)

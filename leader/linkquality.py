@@ -66,6 +66,10 @@ __all__ = ["LINK_STATES", "LinkQuality", "LinkReport", "link_words"]
 #: Largest sequence gap counted as lost messages (a larger jump is a restart, not loss).
 _MAX_GAP = 10_000
 
+#: ``rx_bps`` is reported this long after the first byte [s] (over the part of the window
+#: that has passed): the follower's uplink budget needs it early, while its first queue builds.
+_RX_WARM_S = 0.5
+
 
 @dataclass(frozen=True)
 class LinkReport:
@@ -82,7 +86,8 @@ class LinkReport:
     loss_ppm : int or None
         Feedback lost over the window [parts per million]; None with nothing in the window.
     rx_bps : float or None
-        Payload received over the window [bit/s]; None until one window has passed.
+        Payload received over the window [bit/s] (over the time since the first byte while
+        that is shorter); None until 0.5 s after the first byte.
     video_fps : float or None
         Video frames received per second over the window (all cameras); None before the first.
     video_bytes, video_width, video_height : int or None
@@ -301,8 +306,9 @@ class LinkQuality:
             sent = n_ev + self._lost_sum
             loss_ppm = None if sent == 0 else round(1e6 * self._lost_sum / sent)
             rx_bps = None
-            if self._first_byte is not None and now - self._first_byte >= self.window_s:
-                rx_bps = 8.0 * self._bytes_sum / self.window_s
+            if self._first_byte is not None and now - self._first_byte >= _RX_WARM_S:
+                # over the window, or over what has passed of it since the first byte
+                rx_bps = 8.0 * self._bytes_sum / min(self.window_s, now - self._first_byte)
             video_fps = None if self._frame is None else len(self._frames) / self.window_s
             frame = self._frame
             last_arrival, last_accepted = self._last_arrival, self._last_accepted

@@ -73,9 +73,11 @@ class Sim:
         vb = b.video_budget_bps()
         rate = self.want if vb is None else min(self.want, vb)
         self.video_credit += rate * DT / 8
-        while self.video_credit >= 10_000:  # 10 kB frames
-            self.video_credit -= 10_000
-            self.send(10_000, video=True)
+        largest = b.frame_bits_max()  # 10 kB frames, smaller where the uplink is slow
+        frame = 10_000 if largest is None else max(1_000, min(10_000, round(largest / 8)))
+        while self.video_credit >= frame:
+            self.video_credit -= frame
+            self.send(frame, video=True)
         # the path
         out = self.queue_bits if not math.isfinite(self.cap) else min(self.queue_bits, self.cap * DT)
         self.queue_bits -= out
@@ -90,8 +92,8 @@ class Sim:
         if t >= self.next_status:  # the leader's status, 150 ms to the follower; rx once its window is warm
             self.next_status += 0.5
             counters = {"fb_loss_ppm": 0, "fb_age_ms": 200}
-            if self.first_arrival is not None and t - self.first_arrival >= 2.0:
-                counters["rx_bps"] = round(sum(bits for _, bits in self.arrivals) / 2.0)
+            if self.first_arrival is not None and t - self.first_arrival >= 0.5:
+                counters["rx_bps"] = round(sum(bits for _, bits in self.arrivals) / min(2.0, t - self.first_arrival))
             self.statuses.append((t + 0.15, counters, t))
         while self.statuses and self.statuses[0][0] <= t:
             _, counters, ts = self.statuses.popleft()
@@ -111,27 +113,35 @@ class Sim:
 
 
 def test_capped_at_300_kbit_s_with_video_wanting_800_the_budget_fits_under_the_cap_within_5_s() -> None:
+    """Control alone (feedback with an acknowledgement per command) wants 466 kbit/s here:
+    the queue must be caught by h2's growth, not by the leader's 2 s rate window (which let
+    it reach 3.2 s at the start and 0.75 s in the sawtooth before)."""
     sim = Sim(cap_bps=300_000.0)
-    sim.run(3.0)  # the leader's window warms up: rx_bps from 2 s on
-    first = sim.run(5.0)
+    first = sim.run(8.0)
     assert any(r["limited"] for r in first)
+    assert max(r["queue_s"] for r in first) < 0.6, max(r["queue_s"] for r in first)
     settled = [r for r in first if r["t"] >= first[-1]["t"] - 1.0]
     assert all(r["tx"] < 300_000 for r in settled), max(r["tx"] for r in settled)
     rest = sim.run(30.0)
-    # under the cap on average, the queue drained and kept short, video still on
+    # under the cap on average, the queue short, video on
     assert sum(r["tx"] for r in rest) / len(rest) < 300_000
-    # (the first 2 s, before the leader's window is warm, queue seconds; then AIMD's sawtooth)
-    late = rest[-1000:]
-    assert max(r["queue_s"] for r in late) < 0.75 and sum(r["queue_s"] for r in late) / len(late) < 0.3
-    assert min(r["video_budget"] for r in late) > 50_000  # video back on once the queue drained
+    assert max(r["queue_s"] for r in rest) < 0.2, max(r["queue_s"] for r in rest)
+    assert sum(r["queue_s"] for r in rest) / len(rest) < 0.06
+    assert min(r["video_budget"] for r in rest[-1000:]) > 50_000
+    # no frame holds the uplink longer than 60 ms
+    largest = sim.budget.frame_bits_max()
+    assert largest is not None and largest / 300_000 <= 0.07
     # control shrank while limited: no acknowledgement per command
     assert not sim.budget.feedback_plan(50.0).ack_each_command or not sim.budget.limited
 
 
 def test_uncapped_never_throttles() -> None:
+    """Video's budget grows x1.3 a second from 64 kbit/s while it is used, then never binds."""
     sim = Sim()
-    log = sim.run(40.0)
-    assert all(r["video_budget"] == -1.0 and not r["limited"] for r in log)
+    start = sim.run(20.0)
+    assert start[0]["video_budget"] == 64_000 and all(not r["limited"] for r in start)
+    log = sim.run(30.0)
+    assert all(not r["limited"] and (r["video_budget"] == -1.0 or r["video_budget"] > 1.5 * 800_000) for r in log)
     assert sim.budget.feedback_plan(50.0) == sim.budget.feedback_plan(50.0).__class__(True, 50.0)
     assert sim.budget.tx_bps() > 800_000
 
@@ -139,7 +149,8 @@ def test_uncapped_never_throttles() -> None:
 def test_one_percent_random_loss_alone_does_not_throttle() -> None:
     sim = Sim(loss=0.01)
     log = sim.run(40.0)
-    assert not any(r["limited"] for r in log) and log[-1]["video_budget"] == -1.0
+    assert not any(r["limited"] for r in log) and sim.budget.signals["rate"] == sim.budget.signals["delay"] == 0
+    assert log[-1]["video_budget"] == -1.0 or log[-1]["video_budget"] > 800_000
 
 
 @pytest.mark.parametrize("which", ["sine", "shipped"])
@@ -151,24 +162,30 @@ def test_slow_delay_swings_alone_do_not_turn_video_off(which: str) -> None:
         model = parse_delay_model("trace:intercontinental:h2")
         base = lambda t: model.delay_s(t - 1000.0)  # noqa: E731
     sim = Sim(base_h2=base)
-    log = sim.run(120.0)
+    sim.run(20.0)  # the start
+    log = sim.run(100.0)
     budgets = [r["video_budget"] for r in log]
     known = [v for v in budgets if v >= 0]
-    assert not known or min(known) > 400_000, min(known)
+    # the sine's rises (0.4 s in 10 s) each cost one cut to 0.9 of the rate sent; the
+    # shipped trace's one step (+80 ms for 3 s) one cut, then probing back
+    floor = 100_000 if which == "sine" else 400_000
+    assert not known or min(known) > floor, min(known)
+    video = [max(0.0, min(800_000.0, v if v >= 0 else 800_000.0)) for v in budgets]
+    assert sum(video) / len(video) > 400_000
     sent_video = sim.budget.tx_bps("video")
     assert sent_video > 400_000
 
 
-def test_a_leader_without_rx_bps_changes_nothing() -> None:
+def test_without_the_leaders_status_nothing_is_cut() -> None:
+    """No leader status: nothing could undo a cut (probing needs it), so h2 alone cuts nothing."""
     t = [0.0]
     b = UplinkBudget(lambda: t[0])
-    for _ in range(500):
+    for _ in range(800):
         b.sent(10_000, video=True)
         b.on_h2(0.2 if t[0] < 2 else 2.0)
-        b.on_leader_status({"fb_loss_ppm": 900_000})
         b.update()
         t[0] += 0.01
-    assert b.video_budget_bps() is None and not b.limited
+    assert math.isinf(b.capacity_bps) and not b.limited and b.signals["delay"] == 0
 
 
 def test_bad_leader_figures_are_ignored() -> None:
@@ -177,7 +194,7 @@ def test_bad_leader_figures_are_ignored() -> None:
     b.on_h2(float("nan"))
     b.on_h2(-1.0)
     b.on_leader_status({"rx_bps": True, "fb_age_ms": 3})  # a bool is no rate
-    assert b.video_budget_bps() is None and b.leader == {"fb_age_ms": 3}
+    assert math.isinf(b.capacity_bps) and b.leader == {"fb_age_ms": 3}
 
 
 def test_an_outage_is_not_taken_for_a_full_path() -> None:
@@ -196,9 +213,10 @@ def test_an_outage_is_not_taken_for_a_full_path() -> None:
                 b.on_leader_status({"rx_bps": rx_bps, "fb_loss_ppm": 0, "fb_age_ms": 50})
             b.update()
 
-    run(10.0, 400_000)
-    assert not b.limited and math.isinf(b.capacity_bps)
+    run(12.0, 400_000)
+    assert not b.limited and b.capacity_bps >= 800_000  # after the start: twice what is sent
     t[0] += 3.0  # the outage: nothing in, nothing out
     run(0.6, 40_000)  # the leader's first statuses after it: its 2 s window holds the silence
     run(5.0, 400_000)
-    assert math.isinf(b.capacity_bps) and not b.limited, (b.capacity_bps, b.signals)
+    assert b.capacity_bps >= 800_000 and not b.limited, (b.capacity_bps, b.signals)
+    assert b.signals["rate"] == b.signals["delay"] == 0

@@ -59,10 +59,13 @@ def test_a_healthy_link_is_ok_with_its_age_goodput_and_no_loss() -> None:
     assert lq.feedback_age() == pytest.approx(0.55)
 
 
-def test_goodput_is_unknown_until_one_window_passed() -> None:
+def test_goodput_is_unknown_until_half_a_second_then_over_the_time_passed() -> None:
     lq, clock = make()
-    feed(lq, clock, 1.0)
+    feed(lq, clock, 0.4)
     assert lq.report().rx_bps is None and lq.report().state == "ok"
+    feed(lq, clock, 0.6)  # 1 s of 50 Hz feedback: the rate over 1 s, not over the 2 s window
+    rep = lq.report()
+    assert rep.rx_bps == pytest.approx(8 * FB_BYTES * 50, rel=0.1) and rep.state == "ok"
 
 
 def test_feedback_captured_long_ago_is_refused_and_never_shown_as_live() -> None:
