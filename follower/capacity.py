@@ -6,8 +6,9 @@ it received (``rx_bps``: bits/s of follower -> leader payload over its last 2 s)
 Command carries ``h2_s``, the leader's estimate of the feedback path's delay (usable in
 both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
 
-- **rate rule.** The leader's ``rx_bps`` is below ``ratio`` (0.85) of what the follower sent
-  over the matching window (the leader's 2 s before the status was sent, shifted back by
+- **rate rule.** h2 is at least half the delay rule's rise above its minimum (a queue) and
+  the leader's ``rx_bps`` is below ``ratio`` (0.85) of what the follower sent over the
+  matching window (the leader's 2 s before the status was sent, shifted back by
   h2): the path is capacity-limited and delivers ``rx_bps``. The first such signal sets
   the capacity to ``rx_bps``; if it persists ``hold_s`` after a cut, the capacity is cut
   again by ``decrease`` (0.7): the queue the path built must drain.
@@ -231,6 +232,9 @@ class UplinkBudget:
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0}
         self._undo: tuple[float, float | None, float, float] | None = None
         self._last_rate_cut = -math.inf
+        #: What the path carried at the last cut [bit/s] (None before the first).
+        self.ceiling_bps: float | None = None
+        self._ceiling_undo: float | None = None
 
     # ------------------------------------------------------------------ inputs
 
@@ -333,12 +337,17 @@ class UplinkBudget:
         ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
         h2 = self._h2 or 0.0
         tx = self._rate(ts - h2 - self.window_s, ts - h2)
-        rate_limited = tx >= self.min_tx_bps and rx < self.ratio * tx
+        # a full path queues: without h2 above its minimum, rx below tx is the windows'
+        # misalignment (traffic sent before the leader listened, a step of the video rate)
+        # or loss, not the path's capacity
+        queued = self.excess_s >= 0.5 * self.delay_rise_s
+        rate_limited = queued and tx >= self.min_tx_bps and rx < self.ratio * tx
         if rate_limited:
             self.signals["rate"] += 1
             episode = now - self._last_signal < self.hold_s
             self._last_signal = now
             self._last_rate_cut = now
+            self.ceiling_bps = float(rx)  # a path that queues delivers what it carries
             if not episode:  # the path delivers rx: aim a little below it, so its queue drains
                 self.capacity_bps = max(self.floor_bps, self.drain_ratio * float(rx))
                 self._last_cut = now
@@ -401,6 +410,7 @@ class UplinkBudget:
         self._undo = None
         if self.excess_s >= 0.8 * excess and self._last_rate_cut < t_cut:
             self.capacity_bps, self.start_budget_bps = cap, start
+            self.ceiling_bps = self._ceiling_undo
             self._last_signal = -math.inf
             self.signals["undone"] += 1
 
@@ -429,6 +439,9 @@ class UplinkBudget:
         rx = self.leader.get("rx_bps")
         if rx is not None and rx > 0:
             ref = min(ref, float(rx)) if ref > 0 else float(rx)
+        if ref > 0:
+            self._ceiling_undo = self.ceiling_bps
+            self.ceiling_bps = ref
         cut = self.drain_ratio * ref
         if self._delay_episode:
             cut = min(cut, self.decrease * self.capacity_bps)
@@ -480,11 +493,17 @@ class UplinkBudget:
     def frame_bits_max(self) -> float | None:
         """Largest video frame [bit]: one that holds the uplink ``burst_s`` at most; None: unlimited.
 
+        Measured against the start's budget during the start, then against what the path
+        carried at the last cut; unlimited on a path that never queued.
+
         A frame leaves as one burst: at 300 kbit/s a 4 kB frame delays the feedback behind
         it by 107 ms, whatever the frame rate.
         """
-        cap = self.capacity_bps if math.isfinite(self.capacity_bps) else self.start_budget_bps
-        return None if cap is None else cap * self.burst_s
+        if self.start_budget_bps is not None and not math.isfinite(self.capacity_bps):
+            return self.start_budget_bps * self.burst_s  # the start: small frames
+        if self.ceiling_bps is None:
+            return None  # the path never queued: no rate to hold a frame against
+        return min(self.capacity_bps, self.ceiling_bps) * self.burst_s
 
     def feedback_plan(self, rate_hz: float) -> FeedbackPlan:
         """How to send feedback now, given the configured rate ``rate_hz`` [Hz].

@@ -339,7 +339,10 @@ class LinkQuality:
 def _capacity_limited(rx_bps: float | None, counters: Mapping[str, int] | None, ratio: float) -> bool:
     if not counters:
         return False
-    if counters.get("capacity_limited") == 1:
-        return True
+    if "capacity_limited" in counters:
+        # the follower's verdict: it aligns the windows by h2 and asks for a queue; the
+        # leader's rx against the follower's tx (windows apart by h2 and a status period)
+        # said "capacity-limited" on uncapped paths after each step of the video rate
+        return counters.get("capacity_limited") == 1
     tx = counters.get("tx_bps")
     return rx_bps is not None and isinstance(tx, int) and tx > 0 and rx_bps < ratio * tx
