@@ -12,7 +12,7 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   h2): the path is capacity-limited and delivers ``rx_bps``. The first such signal sets
   the capacity to ``rx_bps``; if it persists ``hold_s`` after a cut, the capacity is cut
   again by ``decrease`` (0.7): the queue the path built must drain.
-- **delay rule.** h2 stays more than ``delay_rise_s`` (0.08 s) above its minimum over the
+- **delay rule.** h2 stays more than ``delay_rise_s`` (0.05 s) above its minimum over the
   last ``h2_window_s`` (10 s) for ``delay_hold_s`` (0.25 s): a queue is building. Judged
   every tick (the signal comes with every command, not with the leader's 2 Hz status), once
   the leader has reported what it measures: the capacity is cut to ``drain_ratio`` of the
@@ -23,17 +23,20 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   delay does not. A rise that lasts
   ``relearn_s`` without falling is the path's own (a slow delay swing, a new route): the h2
   minimum is taken again from the current h2. The shipped intercontinental trace's h2
-  varies 129-260 ms, with one 3 s step of +80 ms: it never holds 80 ms above its minimum
-  for long, a queue of ours at a 300 kbit/s cap does within half a second.
+  varies 129-260 ms, with one 3 s step of +80 ms (one cut, undone when h2 does not fall); a
+  queue of ours at a 300 kbit/s cap passes 50 ms within a quarter of a second. At 80 ms a
+  40 ms queue stood through the start on a 600 kbit/s uplink and the first cut came late.
 - **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
   the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
-  (at least ``increase_bps_per_s``).
+  (at least ``increase_bps_per_s``), and by ``ceiling_probe`` (0.5 %) only once it is past
+  ``drain_ratio`` of what the path carried at the last cut: a sawtooth at 3 %/s against a
+  known ceiling held 150-230 ms queues on a 600 kbit/s uplink.
 
 Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while commands
 bring an h2 near its minimum and the budget is less than twice what is sent, up to
 ``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
-taken as twice what is sent, and probed); acknowledgements ride on the periodic feedback
+taken as 1.2 x what is sent, and probed); acknowledgements ride on the periodic feedback
 until then. h2 is the leader's 1 s moving average, so a queue shows about 0.75 s late: the
 growth overshoots a capacity by at most about a fifth before the first cut (x1.6 a second
 overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s; a full-rate start, QVGA video and an
@@ -112,6 +115,9 @@ class UplinkBudget:
     increase_bps_per_s, increase_ratio : float
         Increase while not limited: ``max(increase_bps_per_s, increase_ratio * capacity)``
         per second [bit/s per s, 1/s].
+    ceiling_probe : float
+        Above ``drain_ratio`` of the rate the path carried at the last cut, the capacity
+        grows by this share of itself per second only [1/s].
     cut_gap_s : float
         Shortest time between two cuts of the delay rule [s] (also at least twice the
         excess: a cut shows in h2 one queue delay later).
@@ -137,7 +143,7 @@ class UplinkBudget:
         Video's budget at the start, multiplied by ``start_growth`` every second until a
         signal or until it passes ``start_max_bps`` [bit/s, bit/s, 1/s].
     start_s : float
-        After this long [s] of clear path in the start, the capacity is taken as twice
+        After this long [s] of clear path in the start, the capacity is taken as 1.2 x
         what is sent (then probed as after a cut).
     burst_s : float
         A video frame may hold the uplink this long at the estimated capacity [s]
@@ -153,7 +159,7 @@ class UplinkBudget:
         *,
         window_s: float = 2.0,
         ratio: float = 0.85,
-        delay_rise_s: float = 0.08,
+        delay_rise_s: float = 0.05,
         delay_hold_s: float = 0.25,
         h2_window_s: float = 10.0,
         relearn_s: float = 5.0,
@@ -161,6 +167,7 @@ class UplinkBudget:
         increase_bps_per_s: float = 4_000.0,
         increase_ratio: float = 0.03,
         cut_gap_s: float = 0.5,
+        ceiling_probe: float = 0.005,
         hold_s: float = 2.0,
         min_tx_bps: float = 16_000.0,
         floor_bps: float = 16_000.0,
@@ -187,6 +194,7 @@ class UplinkBudget:
         self.increase_bps_per_s = float(increase_bps_per_s)
         self.increase_ratio = float(increase_ratio)
         self.cut_gap_s = float(cut_gap_s)
+        self.ceiling_probe = float(ceiling_probe)
         self.hold_s = float(hold_s)
         self.min_tx_bps = float(min_tx_bps)
         self.floor_bps = float(floor_bps)
@@ -375,8 +383,9 @@ class UplinkBudget:
             if self.start_budget_bps > self.start_max_bps:
                 self.start_budget_bps = None
             elif self._start_clear_s >= self.start_s:
-                # clear for start_s: the path carries what was sent; probe on from twice that
-                self.capacity_bps = max(self.start_budget_bps, 2.0 * tx + self.floor_bps)
+                # clear for start_s: the path carries what was sent; probe on from a little
+                # above it (twice it overshot a 600 kbit/s uplink by 200 ms at once)
+                self.capacity_bps = 1.2 * tx + self.floor_bps
                 self.start_budget_bps = None
         if last is None or not math.isfinite(self.capacity_bps):
             return
@@ -385,6 +394,10 @@ class UplinkBudget:
         if self.excess_s > 0.5 * self.delay_rise_s:
             return  # a queue is still there: not the moment to ask for more
         step = max(self.increase_bps_per_s, self.increase_ratio * self.capacity_bps)
+        if self.ceiling_bps is not None and self.capacity_bps >= self.drain_ratio * self.ceiling_bps:
+            # past what the path carried at the last cut: probe slowly (a path's capacity
+            # changes now and then; a sawtooth against a known ceiling only builds queues)
+            step = self.ceiling_probe * self.capacity_bps
         probed = self.capacity_bps + step * max(0.0, now - last)
         # probe near what is used: an estimate far above the sending rate was never tested
         self.capacity_bps = max(self.capacity_bps, min(probed, 2.0 * self.tx_bps() + self.floor_bps))

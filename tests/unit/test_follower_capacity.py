@@ -136,12 +136,13 @@ def test_capped_at_300_kbit_s_with_video_wanting_800_the_budget_fits_under_the_c
 
 
 def test_uncapped_never_throttles() -> None:
-    """Video's budget grows x1.3 a second from 64 kbit/s while it is used, then never binds."""
+    """Video's budget grows x1.3 a second from 64 kbit/s while it is used, then never binds
+    (always at least what video wants)."""
     sim = Sim()
-    start = sim.run(20.0)
+    start = sim.run(25.0)  # the start, and its end (1.2 x what is sent, probed up at 3 %/s)
     assert start[0]["video_budget"] == 64_000 and all(not r["limited"] for r in start)
     log = sim.run(30.0)
-    assert all(not r["limited"] and (r["video_budget"] == -1.0 or r["video_budget"] > 1.5 * 800_000) for r in log)
+    assert all(not r["limited"] and (r["video_budget"] == -1.0 or r["video_budget"] >= 800_000) for r in log)
     assert sim.budget.feedback_plan(50.0) == sim.budget.feedback_plan(50.0).__class__(True, 50.0)
     assert sim.budget.tx_bps() > 800_000
 
@@ -214,9 +215,9 @@ def test_an_outage_is_not_taken_for_a_full_path() -> None:
             b.update()
 
     run(12.0, 400_000)
-    assert not b.limited and b.capacity_bps >= 800_000  # after the start: twice what is sent
+    assert not b.limited and b.capacity_bps >= 1.2 * 400_000  # after the start: 1.2 x what is sent
     t[0] += 3.0  # the outage: nothing in, nothing out
     run(0.6, 40_000)  # the leader's first statuses after it: its 2 s window holds the silence
     run(5.0, 400_000)
-    assert b.capacity_bps >= 800_000 and not b.limited, (b.capacity_bps, b.signals)
+    assert b.capacity_bps >= 1.2 * 400_000 and not b.limited, (b.capacity_bps, b.signals)
     assert b.signals["rate"] == b.signals["delay"] == 0
