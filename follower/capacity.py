@@ -238,11 +238,11 @@ class UplinkBudget:
         #: The leader's latest figures (``rx_bps``, ``fb_loss_ppm``, ``fb_age_ms``).
         self.leader: dict[str, int] = {}
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0}
-        self._undo: tuple[float, float | None, float, float] | None = None
+        # the first delay cut of a rise, until judged: (capacity, start budget, ceiling, time, excess)
+        self._undo: tuple[float, float | None, float | None, float, float] | None = None
         self._last_rate_cut = -math.inf
         #: What the path carried at the last cut [bit/s] (None before the first).
         self.ceiling_bps: float | None = None
-        self._ceiling_undo: float | None = None
 
     # ------------------------------------------------------------------ inputs
 
@@ -417,13 +417,12 @@ class UplinkBudget:
         """
         if self._undo is None:
             return
-        cap, start, t_cut, excess = self._undo
+        cap, start, ceiling, t_cut, excess = self._undo
         if now - t_cut < max(1.0, 2.0 * excess):
             return
         self._undo = None
         if self.excess_s >= 0.8 * excess and self._last_rate_cut < t_cut:
-            self.capacity_bps, self.start_budget_bps = cap, start
-            self.ceiling_bps = self._ceiling_undo
+            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = cap, start, ceiling
             self._last_signal = -math.inf
             self.signals["undone"] += 1
 
@@ -452,14 +451,13 @@ class UplinkBudget:
         rx = self.leader.get("rx_bps")
         if rx is not None and rx > 0:
             ref = min(ref, float(rx)) if ref > 0 else float(rx)
-        if ref > 0:
-            self._ceiling_undo = self.ceiling_bps
-            self.ceiling_bps = ref
         cut = self.drain_ratio * ref
         if self._delay_episode:
             cut = min(cut, self.decrease * self.capacity_bps)
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
-            self._undo = (self.capacity_bps, self.start_budget_bps, now, self.excess_s)
+            self._undo = (self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, self.excess_s)
+        if ref > 0:
+            self.ceiling_bps = ref
         self.capacity_bps = max(self.floor_bps, min(self.capacity_bps, cut))
         self.signals["delay"] += 1
         self._delay_episode = True
