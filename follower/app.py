@@ -164,6 +164,10 @@ class FollowerApp:
             "tx_bps": round(b.tx_bps()),
             "feedback_hz": round(len(self._fb_times) / 2.0),
             "capacity_limited": int(b.limited),
+            # the estimate behind the verdict (0: unknown), h2 above its minimum, and why
+            "uplink_capacity_bps": round(min(b.capacity_bps, 1e9)) if math.isfinite(b.capacity_bps) else 0,
+            "uplink_excess_ms": round(1000.0 * b.excess_s),
+            **{f"uplink_{k}": v for k, v in b.signals.items()},
         }
         if self._video is not None:
             video = self._video

@@ -18,9 +18,13 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   the leader has reported what it measures: the capacity is cut to ``drain_ratio`` of the
   least of what the leader received and what was sent, and cut again by ``decrease`` every
   ``max(cut_gap_s, 2 excess)`` while h2 still grows faster than 0.2 s/s. A first cut after
-  which h2 has not fallen (by a fifth) within ``max(1 s, 2 excess)``, with no rate signal
-  since, is undone: a queue of ours drains once less is sent, a rise of the path's own
-  delay does not. A rise that lasts
+  which h2 has not fallen (by a fifth) below its peak since the cut within
+  ``max(1 s, 2 peak)``, with no rate signal and no second cut since, is undone (at most
+  once in ``undo_gap_s``, 5 s): a queue of ours drains once less is sent, a rise of the
+  path's own delay does not. The peak, not the excess at the cut: h2 is the leader's 1 s
+  mean, in which a queue goes on rising for up to a second after the cut (measured
+  against the excess at the cut, 2 runs in 4 at 300 kbit/s undid every cut, giving video
+  back its start budget, and queued 0.4-0.5 s again and again). A rise that lasts
   ``relearn_s`` without falling is the path's own (a slow delay swing, a new route): the h2
   minimum is taken again from the current h2. The shipped intercontinental trace's h2
   varies 129-260 ms, with one 3 s step of +80 ms (one cut, undone when h2 does not fall); a
@@ -148,6 +152,9 @@ class UplinkBudget:
     burst_s : float
         A video frame may hold the uplink this long at the estimated capacity [s]
         (:meth:`frame_bits_max`).
+    undo_gap_s : float
+        A cut is undone at most once in this long [s]: a rise that comes back soon after
+        an undo, at the rate the undo restored, is a queue of ours.
     drain_ratio : float
         On the rate rule's first signal the capacity is set to this share of what the
         leader received (below it, so that the queue the path built drains).
@@ -183,6 +190,7 @@ class UplinkBudget:
         start_max_bps: float = 4_000_000.0,
         start_growth: float = 1.3,
         start_s: float = 10.0,
+        undo_gap_s: float = 5.0,
     ) -> None:
         self._clock = clock
         self.window_s = float(window_s)
@@ -209,6 +217,7 @@ class UplinkBudget:
         self.start_max_bps = float(start_max_bps)
         self.start_growth = float(start_growth)
         self.start_s = float(start_s)
+        self.undo_gap_s = float(undo_gap_s)
         self._start_clear_s = 0.0
         #: Video's budget until the first signal [bit/s]; None once past ``start_max_bps``.
         self.start_budget_bps: float | None = float(start_bps)
@@ -238,9 +247,10 @@ class UplinkBudget:
         #: The leader's latest figures (``rx_bps``, ``fb_loss_ppm``, ``fb_age_ms``).
         self.leader: dict[str, int] = {}
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0}
-        # the first delay cut of a rise, until judged: (capacity, start budget, ceiling, time, excess)
+        # the first delay cut of a rise, until judged: (capacity, start budget, ceiling, time, peak excess since)
         self._undo: tuple[float, float | None, float | None, float, float] | None = None
         self._last_rate_cut = -math.inf
+        self._last_undo = -math.inf
         #: What the path carried at the last cut [bit/s] (None before the first).
         self.ceiling_bps: float | None = None
 
@@ -417,13 +427,16 @@ class UplinkBudget:
         """
         if self._undo is None:
             return
-        cap, start, ceiling, t_cut, excess = self._undo
-        if now - t_cut < max(1.0, 2.0 * excess):
+        cap, start, ceiling, t_cut, peak = self._undo
+        peak = max(peak, self.excess_s)  # h2 is the leader's 1 s mean: a queue peaks in it late
+        if now - t_cut < max(1.0, 2.0 * peak):
+            self._undo = (cap, start, ceiling, t_cut, peak)
             return
         self._undo = None
-        if self.excess_s >= 0.8 * excess and self._last_rate_cut < t_cut:
+        if self.excess_s >= 0.8 * peak and self._last_rate_cut < t_cut and now - self._last_undo >= self.undo_gap_s:
             self.capacity_bps, self.start_budget_bps, self.ceiling_bps = cap, start, ceiling
             self._last_signal = -math.inf
+            self._last_undo = now
             self.signals["undone"] += 1
 
     def _delay_rule(self, now: float) -> None:
@@ -453,7 +466,9 @@ class UplinkBudget:
             ref = min(ref, float(rx)) if ref > 0 else float(rx)
         cut = self.drain_ratio * ref
         if self._delay_episode:
+            # still growing after a cut: the queue is ours (a path's step does not grow on)
             cut = min(cut, self.decrease * self.capacity_bps)
+            self._undo = None
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
             self._undo = (self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, self.excess_s)
         if ref > 0:
