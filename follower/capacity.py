@@ -70,8 +70,19 @@ from bipedtele.follower.backlog import WindowMin
 __all__ = ["FeedbackPlan", "UplinkBudget"]
 
 _BIN_S = 0.1  # resolution of the sent-bytes history [s]
-_KEEP_S = 20.0
-_GROWING = 0.2  # h2 growing faster than this [s/s] is a queue of ours (a path's swing is slower)  # sent-bytes history kept [s] (the window, shifted by h2 up to ~10 s)
+_KEEP_S = 20.0  # sent-bytes history kept [s] (the window, shifted by h2 up to ~10 s)
+_GROWING = 0.2  # h2 growing faster than this [s/s] is a queue of ours (a path's swing is slower)
+
+
+@dataclass
+class _PendingCut:
+    """The first delay cut of a rise, until judged: what to restore, and h2's peak since."""
+
+    capacity_bps: float
+    start_budget_bps: float | None
+    ceiling_bps: float | None
+    t: float  # when it was cut [s]
+    peak_excess_s: float  # h2 above its minimum: at the cut, then the highest since [s]
 
 
 @dataclass(frozen=True)
@@ -247,8 +258,7 @@ class UplinkBudget:
         #: The leader's latest figures (``rx_bps``, ``fb_loss_ppm``, ``fb_age_ms``).
         self.leader: dict[str, int] = {}
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0}
-        # the first delay cut of a rise, until judged: (capacity, start budget, ceiling, time, peak excess since)
-        self._undo: tuple[float, float | None, float | None, float, float] | None = None
+        self._undo: _PendingCut | None = None
         self._last_rate_cut = -math.inf
         self._last_undo = -math.inf
         #: What the path carried at the last cut [bit/s] (None before the first).
@@ -427,14 +437,14 @@ class UplinkBudget:
         """
         if self._undo is None:
             return
-        cap, start, ceiling, t_cut, peak = self._undo
-        peak = max(peak, self.excess_s)  # h2 is the leader's 1 s mean: a queue peaks in it late
-        if now - t_cut < max(1.0, 2.0 * peak):
-            self._undo = (cap, start, ceiling, t_cut, peak)
+        u = self._undo
+        u.peak_excess_s = max(u.peak_excess_s, self.excess_s)  # h2 is the leader's 1 s mean: a queue peaks in it late
+        if now - u.t < max(1.0, 2.0 * u.peak_excess_s):
             return
         self._undo = None
-        if self.excess_s >= 0.8 * peak and self._last_rate_cut < t_cut and now - self._last_undo >= self.undo_gap_s:
-            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = cap, start, ceiling
+        if (self.excess_s >= 0.8 * u.peak_excess_s and self._last_rate_cut < u.t
+                and now - self._last_undo >= self.undo_gap_s):
+            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = u.capacity_bps, u.start_budget_bps, u.ceiling_bps
             self._last_signal = -math.inf
             self._last_undo = now
             self.signals["undone"] += 1
@@ -470,7 +480,7 @@ class UplinkBudget:
             cut = min(cut, self.decrease * self.capacity_bps)
             self._undo = None
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
-            self._undo = (self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, self.excess_s)
+            self._undo = _PendingCut(self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, self.excess_s)
         if ref > 0:
             self.ceiling_bps = ref
         self.capacity_bps = max(self.floor_bps, min(self.capacity_bps, cut))
