@@ -54,6 +54,7 @@ __all__ = [
 SCHEMA_VERSION: Final = 1
 MAX_MESSAGE_BYTES: Final = 4 * 1024 * 1024
 MAX_JPEG_BYTES: Final = 2 * 1024 * 1024
+MAX_VIDEO_PARTS: Final = 64  # a frame cut into at most this many messages
 MAX_SEQ: Final = 2**63 - 1
 MAX_TEXT: Final = 1024
 MAX_COUNTERS: Final = 64
@@ -247,7 +248,12 @@ class VideoFrame(Message, frozen=True, gc=False, tag="video"):
     t_capture : float
         When the image was rendered/captured (sender's clock) [s].
     jpeg : bytes
-        The JPEG file.
+        The JPEG file, or its part ``part`` of ``parts``.
+    part, parts : int
+        On a slow uplink a frame travels in ``parts`` messages paced apart (so that
+        control never waits behind a whole frame); their ``seq`` run on from the first
+        part's (``seq - part`` names the frame) and ``jpeg`` is the frame's bytes cut in
+        order. 0 and 1: a whole frame. A receiver drops a part not below ``parts``.
     """
 
     KIND: ClassVar[str] = "video"
@@ -256,6 +262,8 @@ class VideoFrame(Message, frozen=True, gc=False, tag="video"):
     height: Annotated[int, Meta(ge=1, le=4096)] = 240
     t_capture: Time = 0.0
     jpeg: Annotated[bytes, Meta(max_length=MAX_JPEG_BYTES)] = b""
+    part: Annotated[int, Meta(ge=0, le=MAX_VIDEO_PARTS - 1)] = 0
+    parts: Annotated[int, Meta(ge=1, le=MAX_VIDEO_PARTS)] = 1
 
 
 class ClockPing(Message, frozen=True, gc=False, tag="ping"):

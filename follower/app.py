@@ -153,7 +153,8 @@ class FollowerApp:
         loop.ack_each_command, loop.feedback_rate_hz = plan.ack_each_command, plan.rate_hz
         loop.min_fb_interval_s = plan.min_interval_s
         if self._video is not None:
-            self._video.set_budget(self.budget.video_budget_bps(), self.budget.frame_bits_max())
+            b = self.budget
+            self._video.set_budget(b.video_budget_bps(), b.frame_bits_max(), b.part_bits_max())
 
     def _uplink_counters(self) -> dict[str, int]:
         """Return the follower's uplink figures for its Status (docs/follower.md, Capacity)."""

@@ -18,6 +18,9 @@ and a frame rate from the measured frame sizes, preferring at least
 ``_GOOD_FPS`` frames/s per camera before quality, down to 1 frame/s at the lowest level,
 and off only when even that does not fit; a token bucket (rate: the budget) makes sure
 it never sends faster than the budget (a frame without tokens is dropped, ``throttled``).
+A frame larger than the uplink takes in ``part_bits_max`` goes in parts
+(``VideoFrame.part`` of ``parts``) paced at the budget, so that the feedback behind it
+waits for one part, not the whole frame (the leader joins them: leader/videoparts.py).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 from bipedtele.follower.robot import Camera, FollowerRobot
-from bipedtele.messages import VideoFrame, new_session_id
+from bipedtele.messages import MAX_VIDEO_PARTS, VideoFrame, new_session_id
 
 __all__ = ["VideoStreamer"]
 
@@ -41,6 +44,7 @@ _LOG_EVERY_S = 10.0  # at most one camera-error line per this many seconds
 _GOOD_FPS = 5.0  # frames/s per camera kept before quality is
 _CHOOSE_EVERY_S = 1.0  # the level is chosen again at most this often [s]
 _OVERHEAD_BYTES = 120  # a VideoFrame's fields and MAC around the JPEG [bytes]
+MIN_PART_BYTES = 600  # a frame is not cut into parts smaller than this [bytes of JPEG]
 
 #: Levels, best first: (size scale, JPEG quality relative to the configured one, lowest
 #: absolute quality) and the expected frame size relative to level 0 until measured.
@@ -96,7 +100,7 @@ class VideoStreamer:
         self._stop = False
         self._thread: threading.Thread | None = None
         self.stats: dict[str, Any] = {
-            "captured": 0, "published": 0, "dropped": 0, "errors": 0, "capture_s": 0.0, "encode_s": 0.0,
+            "captured": 0, "published": 0, "parts": 0, "dropped": 0, "errors": 0, "capture_s": 0.0, "encode_s": 0.0,
         }
         self._next_log = -float("inf")
         self._unlogged = 0
@@ -104,6 +108,7 @@ class VideoStreamer:
         self.stats["throttled"] = 0
         self._budget: float | None = None
         self._frame_bits_max: float | None = None
+        self._part_bits_max: float | None = None
         self._level = 0
         self._fps = float(fps)
         self._frame_bits: dict[int, float] = {}  # measured bits per frame by level (EWMA)
@@ -214,25 +219,42 @@ class VideoStreamer:
             if not self._spend(level, bits):
                 self.stats["throttled"] += 1
                 continue
-            self._seq += 1
-            frame = VideoFrame(
-                sid=self._sid,
-                seq=self._seq,
-                t=self._now(),
-                camera=cam,
-                width=bgr.shape[1],
-                height=bgr.shape[0],
-                t_capture=t_capture,
-                jpeg=jpeg,
-            )
-            try:
-                self._publish(frame)
+            with self._cv:
+                cuts = _cut(jpeg, self._part_bits_max)
+                pace_bps = self._budget if len(cuts) > 1 else None
+            first = self._seq + 1
+            self._seq += len(cuts)
+            for i, piece in enumerate(cuts):
+                if i and pace_bps:
+                    # paced at video's budget: the uplink's queue holds at most about one
+                    # part ahead of the feedback, never a whole frame
+                    gap = 8.0 * (len(cuts[i - 1]) + _OVERHEAD_BYTES) / pace_bps
+                    with self._cv:
+                        if self._cv.wait_for(lambda: self._stop, timeout=gap):
+                            return
+                frame = VideoFrame(
+                    sid=self._sid,
+                    seq=first + i,
+                    t=self._now(),
+                    camera=cam,
+                    width=bgr.shape[1],
+                    height=bgr.shape[0],
+                    t_capture=t_capture,
+                    jpeg=piece,
+                    part=i,
+                    parts=len(cuts),
+                )
+                try:
+                    self._publish(frame)
+                except Exception:  # a transport hiccup must not kill the video thread
+                    LOG.exception("publishing a video frame failed")
+                    break
+            else:
                 self.stats["published"] += 1
+                self.stats["parts"] += len(cuts)
                 with self._cv:
                     self._sent_times.append(self._now())
-                    self.width_sent = frame.width
-            except Exception:  # a transport hiccup must not kill the video thread
-                LOG.exception("publishing a video frame failed")
+                    self.width_sent = bgr.shape[1]
 
 
     # ------------------------------------------------------------------ budget
@@ -242,14 +264,18 @@ class VideoStreamer:
         _, rel, _ = LEVELS[level]
         return int(min(100, max(10, round(self._quality * rel))))
 
-    def set_budget(self, bps: float | None, frame_bits_max: float | None = None) -> None:
+    def set_budget(self, bps: float | None, frame_bits_max: float | None = None,
+                   part_bits_max: float | None = None) -> None:  # fmt: skip
         """Set video's budget [bit/s] (None: unlimited, the configured rate and quality).
 
         ``frame_bits_max`` [bit]: levels whose frames are larger are not chosen (the
         lowest level always may be), so that one frame does not hold a slow uplink long.
+        ``part_bits_max`` [bit]: a larger frame is sent in parts of at most this size
+        (never under ``MIN_PART_BYTES`` of JPEG), paced at the budget (None: whole).
         """
         with self._cv:
             self._frame_bits_max = None if frame_bits_max is None else max(0.0, float(frame_bits_max))
+            self._part_bits_max = None if part_bits_max is None else max(0.0, float(part_bits_max))
             was, self._budget = self._budget, (None if bps is None else max(0.0, float(bps)))
             if self._budget is None:
                 self._level, self._fps = 0, self.max_fps
@@ -325,6 +351,21 @@ class VideoStreamer:
             "video_quality": self.quality_at(level) if on else 0,
             "video_width": int(width) if on else 0,
         }
+
+
+def _cut(jpeg: bytes, part_bits_max: float | None) -> list[bytes]:
+    """Cut ``jpeg`` into the fewest near-equal parts of at most ``part_bits_max`` [bit] each.
+
+    A part carries at least ``MIN_PART_BYTES`` of JPEG (each message has its own
+    overhead) and a frame at most ``MAX_VIDEO_PARTS`` parts; None: one part.
+    """
+    if part_bits_max is None:
+        return [jpeg]
+    per = max(MIN_PART_BYTES, int(part_bits_max / 8.0) - _OVERHEAD_BYTES)
+    n = min(MAX_VIDEO_PARTS, -(-len(jpeg) // per), len(jpeg) // MIN_PART_BYTES)
+    n = max(1, n)
+    step = -(-len(jpeg) // n)
+    return [jpeg[i : i + step] for i in range(0, len(jpeg), step)] or [jpeg]
 
 
 def _check_image(image: Any) -> None:

@@ -52,6 +52,7 @@ from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor
 from bipedtele.leader.reach import KEY_MISMATCH, CommandReach
+from bipedtele.leader.videoparts import FrameAssembler
 from bipedtele.messages import MAX_SEQ, Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.telemetry import LeaderSample
@@ -294,6 +295,7 @@ class LeaderApp:
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
         self.reach = CommandReach(self._commands_sent, key_drops=self.node.drops.counts)
         self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
+        self._frames = FrameAssembler(self.node.drops)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
         self._fb_ok: Received[Feedback] | None = None  # the newest feedback young enough to use
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(1.0 / lc.haptic_rate_hz)
@@ -338,9 +340,17 @@ class LeaderApp:
     def _on_video(self, got: Received[VideoFrame]) -> None:
         msg = got.msg
         self.reach.on_heard()
-        self.link.on_video(got.t_recv, self._size(msg), msg.width, msg.height)
+        nbytes = self._size(msg)
+        if msg.parts > 1:
+            self.link.on_video_part(got.t_recv, nbytes)
+        frame = self._frames.add(msg)  # a frame sent in parts: whole once its last part came
+        if frame is None:
+            return
+        self.node.record("video/recv", frame, got.t_recv)
+        self.link.on_video(got.t_recv, nbytes if frame is msg else self._size(frame), frame.width, frame.height,
+                           counted=frame is not msg)  # fmt: skip
         if self.cockpit is not None:
-            self.cockpit.publish_video(msg.camera, msg.jpeg, msg.t_capture)
+            self.cockpit.publish_video(frame.camera, frame.jpeg, frame.t_capture)
 
     def _on_status(self, got: Received[Status]) -> None:
         if got.msg.role == "follower":
@@ -423,7 +433,7 @@ class LeaderApp:
                                        estimator=self.estimator, on_message=self._on_feedback,
                                        # too old: refused before the gate binds and h2 moves
                                        max_age_s=self.link.max_age_s, on_too_old=self._on_feedback)  # fmt: skip
-            node.receive(node.keys.video, VideoFrame, SequenceGate(), topic="video/recv", on_message=self._on_video)
+            node.receive(node.keys.video, VideoFrame, SequenceGate(), on_message=self._on_video)
             status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid,
                                      on_message=self._on_status)  # fmt: skip
             node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)

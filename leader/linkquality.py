@@ -246,12 +246,21 @@ class LinkQuality:
             self._newest_sent = t_sent  # the receiver's gate lets only newer ones through
             return True
 
-    def on_video(self, t_recv: float, nbytes: int, width: int, height: int) -> None:
-        """Take one video frame received [s, bytes, px]."""
+    def on_video(self, t_recv: float, nbytes: int, width: int, height: int, *, counted: bool = False) -> None:
+        """Take one video frame received [s, bytes, px].
+
+        ``counted``: its bytes were taken already, part by part (:meth:`on_video_part`).
+        """
         with self._lock:
-            self._add_bytes(t_recv, nbytes)
+            if not counted:
+                self._add_bytes(t_recv, nbytes)
             self._frames.append(t_recv)
             self._frame = (int(nbytes), int(width), int(height))
+
+    def on_video_part(self, t_recv: float, nbytes: int) -> None:
+        """Take the bytes of one message of a frame sent in parts [s, bytes] (goodput only)."""
+        with self._lock:
+            self._add_bytes(t_recv, nbytes)
 
     def on_status(self, t_recv: float, nbytes: int) -> None:
         """Take one status message of the follower received [s, bytes]."""
