@@ -303,14 +303,15 @@ class Node:
         # the handshake's Hellos travel on the clock key too (both roles may publish it).
         hs = self.handshake
         kinds: tuple[type[Message], ...] = (ClockPing, ClockPong) if hs is None else (ClockPing, ClockPong, Hello)
-        on_clock = link.on_message
+        on_clock: Callable[[Received[Any]], None] = link.on_message
         if hs is not None:
-            def on_clock(got: Received[Any], _link: Callable[[Received[Any]], None] = link.on_message) -> None:
+            def hello_or_clock(got: Received[Any], _link: Callable[[Received[Any]], None] = link.on_message) -> None:
                 if isinstance(got.msg, Hello):
                     hs.on_hello(got.msg)
                 else:
                     _link(got)
 
+            on_clock = hello_or_clock
             self._start_hellos(hs)
         self.enter(LatestReceiver(
             self.session, self.keys.clock, kinds, self.drops, ignore_sid=self.sid,

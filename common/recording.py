@@ -626,7 +626,8 @@ class Recorder:
         else:
             key = (topic, type(obj))
             known = self._channels.get(key)
-            cid = known if known is not None else self._register(key, topic, schemas.dataclass_schema(type(obj)))
+            cls: type = type(obj)
+            cid = known if known is not None else self._register(key, topic, schemas.dataclass_schema(cls))
             data = _dataclass_dict(obj)
         try:
             text = _JSON.encode(data)

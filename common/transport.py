@@ -53,7 +53,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 
 import msgspec
 import zenoh
@@ -792,13 +792,14 @@ class _Receiver(Generic[M]):
                 drops.drop("mac_unexpected", f"{self.key}: {UNEXPECTED_MAC_LINE}")
                 return
             try:
-                msg = decode(payload, self._decode_as)
+                got = decode(payload, self._decode_as)
             except MessageError as exc:
                 drops.drop(exc.reason, exc.detail)
                 return
-            if self._decode_as is None and not isinstance(msg, self._expect):
-                drops.drop("unknown_kind", f"k={msg.KIND!r}")
+            if self._decode_as is None and not isinstance(got, self._expect):
+                drops.drop("unknown_kind", f"k={got.KIND!r}")
                 return
+            msg = cast(M, got)  # one of the expected kinds: decode() checked it, or the line above
             if msg.sid == self._ignore_sid:
                 return  # our own message on a shared key (clock, status)
             t_sent = msg.t

@@ -12,4 +12,4 @@ if [[ $rc -eq 5 ]]; then
 fi
 [[ $rc -ne 0 ]] && exit $rc
 .venv/bin/ruff check common leader follower tests bench || exit 1
-.venv/bin/mypy common leader follower || exit 1
+scripts/typecheck.sh || exit 1  # mypy -p bipedtele, the package as installed

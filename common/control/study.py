@@ -535,7 +535,7 @@ def run_case(
         "h2_ms": 1e3 * ch2.mean_s,
         "description": case.description,
         "s_e": {"mean": s_e_k.mean(axis=0).tolist(), "max": s_e_k.max(axis=0).tolist(),
-                "floor_left": [bool(v) for v in (s_e_k > cfg.s_e_min + 1e-12).any(axis=0)]},
+                "floor_left": [bool(v) for v in np.asarray((s_e_k > cfg.s_e_min + 1e-12).any(axis=0)).tolist()]},
         "cp": _summary(mean_err[cp_sl], mean_offset[cp_sl], diverged[cp_sl]),
         "vp": _summary(mean_err[vp_sl], mean_offset[vp_sl], diverged[vp_sl]),
     }

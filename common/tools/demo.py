@@ -295,7 +295,7 @@ def run_demo(
                     "backend": plan.backend, "commands": plan.commands()}, indent=2) + "\n"
     )
     with shutdown_on_signals() as stop, contextlib.ExitStack() as network:
-        if plan.backend == "netem" and plan.link is not None:
+        if plan.backend == "netem" and isinstance(plan.link, VethLink):
             # Exits in reverse: processes stop, the replay stops, the namespaces go.
             try:
                 network.enter_context(plan.link)

@@ -154,7 +154,7 @@ class NaoqiRobot(FollowerRobot):
                 else:
                     self._warn_once("sonar", "NAOqi has no ALSonar service: sonar values may be stale")
                 pos = as_floats(self._call("ALMotion", "getRobotPosition", cfg.use_sensors), 3, "ALMotion.getRobotPosition")
-                self._origin = pos
+                self._origin = (pos[0], pos[1], pos[2])
                 self._start_guard()
             except BaseException:
                 self._release(quiet=True)

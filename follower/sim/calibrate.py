@@ -187,7 +187,7 @@ def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = N
     if points is None:
         op = operating_point(control, sim)
         points = [(op["sigma_r"], op["T"]), ([0.0, 0.0], 0.8), ([0.0, 0.0], 1.6)]
-    rows = []
+    rows: list[dict[str, Any]] = []
     eps = st_eps(control)
     for s_r, t in points:
         res = WalkerMap(s_r, t, eps, control=control, sim=sim, settings=st)

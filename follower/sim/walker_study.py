@@ -235,7 +235,7 @@ def run_walker_study(
         inp = case_inputs(case, runs, seed, control, params, T_bounds=(t_lo, t_hi))
         res: dict[str, list[WalkerRun]] = {"cp": [], "vp": []}
         for i in range(runs):
-            common = {"switch": inp.switch[i:i + 1], "intent": inp.intent[i:i + 1], "h1": inp.h1, "h2": inp.h2,
+            common: dict[str, Any] = {"switch": inp.switch[i:i + 1], "intent": inp.intent[i:i + 1], "h1": inp.h1, "h2": inp.h2,
                       "control": control, "follower": follower, "sim": sim, "params": params}
             res["cp"].append(walker_run(cp=(inp.cp_s_r[i], float(inp.cp_T[i]), control.eps), **common))
             res["vp"].append(walker_run(cp=None, **common))

@@ -192,7 +192,7 @@ class EncodedSample(str):
     """A telemetry sample already encoded as JSON text (the cockpit process is fed these)."""
 
 
-def _sample_json(sample: LeaderSample | dict[str, Any]) -> str:
+def _sample_json(sample: LeaderSample | EncodedSample | dict[str, Any]) -> str:
     """Return one telemetry sample as JSON text (non-finite numbers as null)."""
     if isinstance(sample, EncodedSample):
         return str(sample)
@@ -313,7 +313,7 @@ class CockpitServer:
         self.telemetry_hz = float(telemetry_hz)
         self._period = 1.0 / self.telemetry_hz
         # Latest values, written by publisher threads (single reference assignments).
-        self._sample: tuple[int, LeaderSample | dict[str, Any]] | None = None
+        self._sample: tuple[int, LeaderSample | EncodedSample | dict[str, Any]] | None = None
         self._sample_n = itertools.count(1)  # next() is atomic under the GIL
         self._frames: dict[str, tuple[int, float, bytes]] = {}
         self._frame_n = itertools.count(1)
@@ -411,20 +411,21 @@ class CockpitServer:
 
     # ------------------------------------------------------------------ publishing
 
-    def publish_sample(self, sample: LeaderSample | Mapping[str, Any]) -> None:
+    def publish_sample(self, sample: LeaderSample | EncodedSample | Mapping[str, Any]) -> None:
         """Offer the latest telemetry sample (keys in :data:`SAMPLE_KEYS`; others as text).
 
         Cheap and non-blocking; only the newest sample per telemetry period is sent.
 
         Parameters
         ----------
-        sample : LeaderSample or Mapping
+        sample : LeaderSample, EncodedSample or Mapping
             The leader's :class:`~bipedtele.telemetry.LeaderSample` (kept by reference:
-            the caller must not change it afterwards; its unset fields are not sent), or a
-            map (copied; values that are not JSON are sent as text).
+            the caller must not change it afterwards; its unset fields are not sent), one
+            already encoded as JSON text, or a map (copied; values that are not JSON are
+            sent as text).
         """
-        keep = isinstance(sample, LeaderSample | EncodedSample)
-        self._sample = (next(self._sample_n), sample if keep else dict(sample))
+        item = sample if isinstance(sample, LeaderSample | EncodedSample) else dict(sample)
+        self._sample = (next(self._sample_n), item)
 
     def publish_video(self, camera: str, jpeg: bytes, t: float) -> None:
         """Offer the latest JPEG of ``camera`` captured at ``t`` [s].
