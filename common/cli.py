@@ -14,10 +14,13 @@ config error: one line saying which failure it is, and exit code 1.
 from __future__ import annotations
 
 import argparse
+import ast
+import importlib.util
 import logging
 import sys
 from collections.abc import Sequence
 from importlib import metadata
+from pathlib import Path
 from typing import Any, NoReturn
 
 from bipedtele import __version__
@@ -81,7 +84,11 @@ def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     words = list(sys.argv[1:] if argv is None else argv)
     chosen = next((w for w in words if w in {ep.name for ep in eps}), None)
     for ep in eps:
-        if chosen is None or ep.name == chosen:
+        if chosen is None:
+            # --help, no or an unknown command: list every command with its help line, read
+            # from its module's source; nothing of it is imported (no pybullet, no role)
+            sub.add_parser(ep.name, help=_command_help(ep.value), add_help=False)
+        elif ep.name == chosen:
             try:
                 add_parser = ep.load()
             except ModuleNotFoundError as exc:
@@ -91,6 +98,39 @@ def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             else:
                 add_parser(sub)
     return parser
+
+
+def _command_help(target: str) -> str | None:
+    """Return a sub-command's help line without importing its module (None: not found).
+
+    ``target`` is the entry point's ``module:function``. The line is the constant ``help=``
+    of the function's ``add_parser`` call, else the first line of the module's docstring.
+    The module's file is found through its role's package (``bipedtele.leader``) without
+    running that package either.
+    """
+    module, _, func = target.partition(":")
+    parts = module.split(".")
+    try:
+        spec = importlib.util.find_spec(".".join(parts[:2]))  # runs bipedtele's __init__ at most
+        if spec is None:
+            return None
+        if len(parts) == 2:
+            path = Path(spec.origin or "")
+        else:
+            base = Path(next(iter(spec.submodule_search_locations or [])), *parts[2:])
+            path = base / "__init__.py" if base.is_dir() else base.with_suffix(".py")
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, ValueError, ImportError, StopIteration):
+        return None
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef) and node.name == func:
+            for call in ast.walk(node):
+                if isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute) and call.func.attr == "add_parser":
+                    for kw in call.keywords:
+                        if kw.arg == "help" and isinstance(kw.value, ast.Constant) and isinstance(kw.value.value, str):
+                            return kw.value.value
+    doc = ast.get_docstring(tree)
+    return doc.strip().splitlines()[0] if doc else None
 
 
 #: The optional extra (pyproject.toml) that provides each third-party package a sub-command may need.
