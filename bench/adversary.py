@@ -218,7 +218,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"leader alpha_m [N s/m]: min before {b[0]:.2f}/{b[1]:.2f}, min under forged answers "
               f"{m[0]:.2f}/{m[1]:.2f}; (40) requires {need[0]:.2f}/{need[1]:.2f} for h1={FWD_S:g} s, h2={BWD_S:g} s "
               f"-> {'held' if all(m >= need) else 'BROKEN'}")  # fmt: skip
-    st = [r.data["counters"] for r in f_recs if r.topic == "status/sent" and marks["forged"] <= r.t_recv <= marks["end"]]
+    st = [
+        r.data["counters"] for r in f_recs if r.topic == "status/sent" and marks["forged"] <= r.t_recv <= marks["end"]
+    ]
     if len(st) >= 2:
         print(f"follower during forged answers: cmd_accepted +{st[-1]['cmd_accepted'] - st[0]['cmd_accepted']}, "
               f"cmd_too_old +{st[-1]['cmd_too_old'] - st[0]['cmd_too_old']}")  # fmt: skip

@@ -377,7 +377,7 @@ def video(seconds: float, cockpit_hz: float, browser: bool, keep: bool) -> dict[
                 g = page.evaluate("window.__g2g")
                 b.close()
             n = len(g["load"])
-            res = {k: [float(x) for x in g[k][max(1, n // 10):]] for k in ("recv", "load", "paint")}
+            res = {k: [float(x) for x in g[k][max(1, n // 10) :]] for k in ("recv", "load", "paint")}
         else:
             time.sleep(seconds)
         st.stop("leader")
@@ -410,7 +410,9 @@ def main() -> None:
         p = overhead(rate, args.seconds, args.keep)
         print_overhead(rate, p)
         summary[f"overhead_p50_ms@{rate:g}Hz"] = round(1e3 * (pct(p["total"], 0.5) - pct(p["bare"], 0.5)), 2)
-        summary[f"transport_overhead_p50_ms@{rate:g}Hz"] = round(1e3 * (pct(p["transport"], 0.5) - pct(p["bare"], 0.5)), 2)
+        summary[f"transport_overhead_p50_ms@{rate:g}Hz"] = round(
+            1e3 * (pct(p["transport"], 0.5) - pct(p["bare"], 0.5)), 2
+        )
     if args.no_video:
         print("\nsummary " + json.dumps(summary))
         return

@@ -243,7 +243,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"flood: {report.get('sent', 0)} payloads of {a.size} bytes ({sent_mb:.0f} MiB) on cmd + feedback, "
           f"{a.flood_rate:g}/s per key; run folder {folder}")  # fmt: skip
     print(f"{'':40s} {'baseline':>24s} {'flood':>24s}")
-    for label, key_ in (("cmd age at follower p50/p99/max", "cmd_age_ms"), ("fb age at leader p50/p99/max", "fb_age_ms")):
+    for label, key_ in (
+        ("cmd age at follower p50/p99/max", "cmd_age_ms"),
+        ("fb age at leader p50/p99/max", "fb_age_ms"),
+    ):
         cells = [f"{out[p][key_]['p50']:.1f}/{out[p][key_]['p99']:.1f}/{out[p][key_]['max']:.1f}" for p in phases]
         print(f"{label + ' [ms]':40s} {cells[0]:>24s} {cells[1]:>24s}")
     print(f"{'commands accepted [1/s]':40s} " + " ".join(f"{out[p]['cmd_accepted_per_s']:>24.1f}" for p in phases))

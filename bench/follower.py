@@ -109,26 +109,37 @@ def walk_range(v: float, w: float, cycle_s: float) -> dict[str, float]:
         speeds.append(((b.pose[0] - a.pose[0]) * math.cos(head) + (b.pose[1] - a.pose[1]) * math.sin(head)) / dt)
         turns.append(dyaw / dt)
     return {
-        "T": sent.cycle_s, "v_sent": sent.forward_m_s, "w_sent": sent.turn_rad_s, "fell": float(fell),
-        "v": float(np.mean(speeds)) if speeds else math.nan, "v_sd": float(np.std(speeds)) if speeds else math.nan,
-        "w": float(np.mean(turns)) if turns else math.nan, "w_sd": float(np.std(turns)) if turns else math.nan,
+        "T": sent.cycle_s,
+        "v_sent": sent.forward_m_s,
+        "w_sent": sent.turn_rad_s,
+        "fell": float(fell),
+        "v": float(np.mean(speeds)) if speeds else math.nan,
+        "v_sd": float(np.std(speeds)) if speeds else math.nan,
+        "w": float(np.mean(turns)) if turns else math.nan,
+        "w_sd": float(np.std(turns)) if turns else math.nan,
     }
 
 
 def print_range() -> None:
-    print(f"\nwalker speed range: per-step odometry after {STEADY_S:.0f} s of a {RANGE_S:.0f} s walk "
-          f"(commands {100 * RANGE_V:.0f} cm/s, {math.degrees(RANGE_W):.0f} deg/s)")
-    print(f"{'T asked':>7s} {'T':>5s} | {'straight: sent':>14s} {'reached cm/s':>14s} | "
-          f"{'in place: sent':>14s} {'reached deg/s':>14s} | {'walk+turn: sent':>15s} {'reached':>17s}")
+    print(
+        f"\nwalker speed range: per-step odometry after {STEADY_S:.0f} s of a {RANGE_S:.0f} s walk "
+        f"(commands {100 * RANGE_V:.0f} cm/s, {math.degrees(RANGE_W):.0f} deg/s)"
+    )
+    print(
+        f"{'T asked':>7s} {'T':>5s} | {'straight: sent':>14s} {'reached cm/s':>14s} | "
+        f"{'in place: sent':>14s} {'reached deg/s':>14s} | {'walk+turn: sent':>15s} {'reached':>17s}"
+    )
     for cycle in RANGE_T:
         f = walk_range(RANGE_V, 0.0, cycle)
         t = walk_range(0.0, RANGE_W, cycle)
         b = walk_range(RANGE_V / 2, RANGE_W, cycle)
         fell = " FELL" if f["fell"] or t["fell"] or b["fell"] else ""
-        print(f"{cycle:7.1f} {f['T']:5.2f} | {100 * f['v_sent']:14.1f} {100 * f['v']:8.2f} +-{100 * f['v_sd']:4.2f} | "
-              f"{math.degrees(t['w_sent']):14.1f} {math.degrees(t['w']):8.2f} +-{math.degrees(t['w_sd']):4.2f} | "
-              f"{100 * b['v_sent']:5.1f} cm/s {math.degrees(b['w_sent']):4.1f} d/s "
-              f"{100 * b['v']:5.2f} cm/s {math.degrees(b['w']):5.2f} d/s{fell}")
+        print(
+            f"{cycle:7.1f} {f['T']:5.2f} | {100 * f['v_sent']:14.1f} {100 * f['v']:8.2f} +-{100 * f['v_sd']:4.2f} | "
+            f"{math.degrees(t['w_sent']):14.1f} {math.degrees(t['w']):8.2f} +-{math.degrees(t['w_sd']):4.2f} | "
+            f"{100 * b['v_sent']:5.1f} cm/s {math.degrees(b['w_sent']):4.1f} d/s "
+            f"{100 * b['v']:5.2f} cm/s {math.degrees(b['w']):5.2f} d/s{fell}"
+        )
 
 
 def main() -> None:
@@ -151,13 +162,17 @@ def print_rtf(seconds: float) -> None:
         ("+ head & scene 10 fps", ("head", "scene"), 10.0, 1.5),
     ]
     print(f"sim NAO, {seconds:.0f} s simulated per run, 50 Hz control, QVGA TinyRenderer")
-    print(f"{'run':24s} {'RTF':>6s} {'goal':>5s} {'frame p50/p99 ms':>17s} {'joint RMS deg':>13s} "
-          f"{'|v err| cm/s':>12s} {'|turn err| deg/s':>16s}")
+    print(
+        f"{'run':24s} {'RTF':>6s} {'goal':>5s} {'frame p50/p99 ms':>17s} {'joint RMS deg':>13s} "
+        f"{'|v err| cm/s':>12s} {'|turn err| deg/s':>16s}"
+    )
     for name, cams, fps, goal in rows:
         r = run(seconds, cams, fps)
         frame = f"{r['frame_p50_ms']:.1f}/{r['frame_p99_ms']:.1f}" if cams else "-"
-        print(f"{name:24s} {r['rtf']:5.1f}x {goal:4.1f}x {frame:>17s} {r['joint_rms_deg']:13.2f} "
-              f"{r['v_err_cm_s']:12.2f} {r['turn_err_deg_s']:16.2f}")
+        print(
+            f"{name:24s} {r['rtf']:5.1f}x {goal:4.1f}x {frame:>17s} {r['joint_rms_deg']:13.2f} "
+            f"{r['v_err_cm_s']:12.2f} {r['turn_err_deg_s']:16.2f}"
+        )
 
 
 if __name__ == "__main__":

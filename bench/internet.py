@@ -143,7 +143,9 @@ class Proc:
         deadline = time.monotonic() + timeout_s
         while not rx.search(self.log()):
             if not self.alive():
-                raise RuntimeError(f"{self.name} exited (rc {self.popen.returncode}) before {pattern!r}:\n{self.tail()}")
+                raise RuntimeError(
+                    f"{self.name} exited (rc {self.popen.returncode}) before {pattern!r}:\n{self.tail()}"
+                )
             if time.monotonic() > deadline:
                 raise RuntimeError(f"{self.name}: no {pattern!r} within {timeout_s:g} s:\n{self.tail()}")
             time.sleep(0.1)
@@ -315,7 +317,9 @@ def analyse(
     res["video_fps"] = round(len(video) / dur, 2)
     states = [r.data.get("link") for r in l_rec if r.topic == "leader/state" and t_begin <= r.t_recv <= t_end]
     res["link_samples"] = len(states)
-    res["link_fraction"] = {s: (sum(1 for x in states if x == s) / len(states) if states else None) for s in LINK_STATES}
+    res["link_fraction"] = {
+        s: (sum(1 for x in states if x == s) / len(states) if states else None) for s in LINK_STATES
+    }
     res["link_states_seen"] = sorted({str(x) for x in states})
     fb_sent = [r for r in f_rec if r.topic == "feedback/sent"]
     moved = [r.data["pose"] for r in fb_sent if r.data.get("pose")]
@@ -534,14 +538,22 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     all_conds = conditions()
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--seconds", type=float, default=90.0, help="the pilot's run per condition (leader --duration)")
     p.add_argument("--only", default=",".join(all_conds), help=f"conditions, comma-separated: {','.join(all_conds)}")
-    p.add_argument("--links", default="split", help="single, split, or both as 'single,split' (profiles' [network] links)")
-    p.add_argument("--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)")
+    p.add_argument(
+        "--links", default="split", help="single, split, or both as 'single,split' (profiles' [network] links)"
+    )
+    p.add_argument(
+        "--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)"
+    )
     p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
     p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
-    p.add_argument("--workdir", default=None, metavar="DIR", help="keep logs and recordings here (default: a temp dir, removed)")
+    p.add_argument(
+        "--workdir", default=None, metavar="DIR", help="keep logs and recordings here (default: a temp dir, removed)"
+    )
     args = p.parse_args(argv)
     conds = conditions(args.outage_at)
     names = [n.strip() for n in args.only.split(",") if n.strip()]
@@ -564,7 +576,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         setup_out = work / f"setup-{secrets.token_hex(2)}"
         commands = setup_two_hosts(setup_out)
-        print(f"setup two-hosts: {setup_out}; commands: " + "; ".join(f"{h}: bipedtele {' '.join(c)}" for h, c in commands.items()))
+        print(
+            f"setup two-hosts: {setup_out}; commands: "
+            + "; ".join(f"{h}: bipedtele {' '.join(c)}" for h, c in commands.items())
+        )
         for name in names:
             for lk in links:
                 cond = conds[name]
@@ -589,7 +604,9 @@ def main(argv: list[str] | None = None) -> int:
             print()
             print(table(rows))
         if args.json:
-            Path(args.json).write_text(json.dumps({"seconds": args.seconds, "rows": rows}, indent=2, default=str) + "\n")
+            Path(args.json).write_text(
+                json.dumps({"seconds": args.seconds, "rows": rows}, indent=2, default=str) + "\n"
+            )
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
     return 0

@@ -170,7 +170,11 @@ def main() -> None:
     alone = run_alone(args.seconds)
     print(fmt("alone", alone), flush=True)
     full = run_full(args.seconds, 0)
-    print(fmt("full", full), f"  feedback {full.get('feedback')}  cockpit frames {full.get('cockpit', {}).get('frames_pushed')}", flush=True)
+    print(
+        fmt("full", full),
+        f"  feedback {full.get('feedback')}  cockpit frames {full.get('cockpit', {}).get('frames_pushed')}",
+        flush=True,
+    )
     fifo = run_full(args.seconds, 50)
     print(fmt("full+fifo", fifo), flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")

@@ -120,15 +120,19 @@ def run(model: str, scale: float) -> dict[str, float]:
 
 
 def main() -> None:
-    print("reduced model in (30) | delays | sigma_r [fwd, turn] | T [s] | passes | completion [s] | "
-          "forward err per step [cm/s] | turn err per step [deg/s] | clearance [m] | wall [s]")
+    print(
+        "reduced model in (30) | delays | sigma_r [fwd, turn] | T [s] | passes | completion [s] | "
+        "forward err per step [cm/s] | turn err per step [deg/s] | clearance [m] | wall [s]"
+    )
     for model in ("paper", "calibrated"):
         for scale in (1.0, 2.0):
             t0 = time.perf_counter()
             r = run(model, scale)
-            print(f"{model} | x{scale:g} | [{r['s_r_v']:.2f}, {r['s_r_w']:.2f}] | {r['T']:.2f} | "
-                  f"{r['passes']:.0f} | {r['completion_s']:.1f} | {r['forward_err']:.2f} | "
-                  f"{r['turn_err']:.2f} | {r['clearance_m']:.2f} | {time.perf_counter() - t0:.1f}")
+            print(
+                f"{model} | x{scale:g} | [{r['s_r_v']:.2f}, {r['s_r_w']:.2f}] | {r['T']:.2f} | "
+                f"{r['passes']:.0f} | {r['completion_s']:.1f} | {r['forward_err']:.2f} | "
+                f"{r['turn_err']:.2f} | {r['clearance_m']:.2f} | {time.perf_counter() - t0:.1f}"
+            )
 
 
 if __name__ == "__main__":

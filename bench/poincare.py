@@ -44,19 +44,28 @@ def main() -> None:
         for _ in range(n):
             m.servo.restore(snap)
         restore_us = (time.perf_counter() - tr) / n * 1e6
-    for name, wall, simsec in (("warm-up to the fixed point", t1 - t0, sim0), ("Jacobian (100 evaluations)", t2 - t1, sim1 - sim0),
-                               ("contraction (30 cycles)", t3 - t2, sim2 - sim1)):
-        print(f"{name:<28}: {wall:6.2f} s wall, {simsec:6.1f} s simulated, {simsec / wall:5.1f} sim-s/s, "
-              f"{simsec * sim.physics_hz / wall:7.0f} physics steps/s, {simsec * st.control_rate_hz / wall:6.0f} ticks/s")
-    print(f"map evaluations per second: {100 / (t2 - t1):.2f}; save/restore of the whole simulation: {restore_us:.0f} us")
+    for name, wall, simsec in (
+        ("warm-up to the fixed point", t1 - t0, sim0),
+        ("Jacobian (100 evaluations)", t2 - t1, sim1 - sim0),
+        ("contraction (30 cycles)", t3 - t2, sim2 - sim1),
+    ):
+        print(
+            f"{name:<28}: {wall:6.2f} s wall, {simsec:6.1f} s simulated, {simsec / wall:5.1f} sim-s/s, "
+            f"{simsec * sim.physics_hz / wall:7.0f} physics steps/s, {simsec * st.control_rate_hz / wall:6.0f} ticks/s"
+        )
+    print(
+        f"map evaluations per second: {100 / (t2 - t1):.2f}; save/restore of the whole simulation: {restore_us:.0f} us"
+    )
     print(f"contraction at the operating point: {c:.3f}")
     if args.grid:
         t = time.perf_counter()
         data = poincare_grid([0.0, 2.5, 5.0], [0.8, 1.2, 1.6], control=control, sim=sim, settings=st)
         wall = time.perf_counter() - t
         simsec = sum(p["sim_seconds"] for p in [*data["points"], data["operating_point"]])
-        print(f"default grid (10 points): {wall:.1f} s wall, {simsec:.0f} s simulated, "
-              f"{simsec * sim.physics_hz / wall:.0f} physics steps/s")
+        print(
+            f"default grid (10 points): {wall:.1f} s wall, {simsec:.0f} s simulated, "
+            f"{simsec * sim.physics_hz / wall:.0f} physics steps/s"
+        )
 
 
 if __name__ == "__main__":

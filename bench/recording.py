@@ -144,9 +144,12 @@ def main() -> None:
 
         def client() -> None:
             async def run() -> None:
-                async with aiohttp.ClientSession() as cs, cs.ws_connect(
-                    server.base_url + f"ws?token={server.token}", origin=server.base_url.rstrip("/")
-                ) as ws:
+                async with (
+                    aiohttp.ClientSession() as cs,
+                    cs.ws_connect(
+                        server.base_url + f"ws?token={server.token}", origin=server.base_url.rstrip("/")
+                    ) as ws,
+                ):
                     while not stop.is_set():
                         with contextlib.suppress(TimeoutError):
                             await asyncio.wait_for(ws.receive(), 0.2)

@@ -56,7 +56,9 @@ def main() -> None:
         exact.append(time.perf_counter() - t)
     print(f"choose(), new s_e   : {_pcts(fresh)}  ({args.calls} calls)")
     print(f"choose(), memoised  : {_pcts(memo)}")
-    print(f"solve_exact baseline: {_pcts(exact)}  (10 calls; ratio p50 exact/online {np.median(exact) / np.median(fresh):.0f}x)")
+    print(
+        f"solve_exact baseline: {_pcts(exact)}  (10 calls; ratio p50 exact/online {np.median(exact) / np.median(fresh):.0f}x)"
+    )
 
     t0 = time.perf_counter()
     result = run_study(args.runs, args.seed, cfg, params)

@@ -41,7 +41,11 @@ from bipedtele.sections import NetworkConfig
 from bipedtele.transport import Keys, LatestReceiver, Publishers, Received, Stamper, open_session
 
 BARE_PING, BARE_PONG = "benchbare/ping", "benchbare/pong"
-QOS: dict[str, Any] = {"express": True, "priority": zenoh.Priority.REAL_TIME, "congestion_control": zenoh.CongestionControl.DROP}
+QOS: dict[str, Any] = {
+    "express": True,
+    "priority": zenoh.Priority.REAL_TIME,
+    "congestion_control": zenoh.CongestionControl.DROP,
+}
 
 
 def free_port() -> int:
@@ -73,7 +77,9 @@ def echo(listen: str, seconds: float) -> None:
             pubs.feedback.put(st.make(Feedback, cmd_seq=rec.msg.seq, h1_s=0.0))
 
         est = DelayEstimator(1.0)
-        with LatestReceiver(s, keys.cmd, Command, DropCounter("bench/cmd"), SequenceGate(), estimator=est, on_message=answer):
+        with LatestReceiver(
+            s, keys.cmd, Command, DropCounter("bench/cmd"), SequenceGate(), estimator=est, on_message=answer
+        ):
             print("ready", flush=True)
             time.sleep(seconds)
         bare.undeclare()
@@ -114,8 +120,11 @@ def run_pair(s: zenoh.Session, rate: float, n: int) -> tuple[list[float], list[f
     est = DelayEstimator(1.0)
     pub = s.declare_publisher(BARE_PING, **QOS)
     sub = s.declare_subscriber(BARE_PONG, got_bare)
-    with Publishers(s, keys) as pubs, LatestReceiver(
-        s, keys.feedback, Feedback, DropCounter("bench/fb"), SequenceGate(), estimator=est, on_message=got_ours
+    with (
+        Publishers(s, keys) as pubs,
+        LatestReceiver(
+            s, keys.feedback, Feedback, DropCounter("bench/fb"), SequenceGate(), estimator=est, on_message=got_ours
+        ),
     ):
         time.sleep(0.3)
         period, t_next = 1.0 / rate, time.perf_counter()
@@ -197,13 +206,30 @@ def bench_proxy(quick: bool) -> None:
     target = server.getsockname()[1]
     port = free_port()
     proxy = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "delay-proxy", "--listen", f"127.0.0.1:{port}",
-         "--target", f"127.0.0.1:{target}", "--forward", f"const:{fwd * 1e3:g}ms", "--backward", f"const:{bwd * 1e3:g}ms"],
-        stdout=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "--log-level",
+            "WARNING",
+            "delay-proxy",
+            "--listen",
+            f"127.0.0.1:{port}",
+            "--target",
+            f"127.0.0.1:{target}",
+            "--forward",
+            f"const:{fwd * 1e3:g}ms",
+            "--backward",
+            f"const:{bwd * 1e3:g}ms",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
     )
     try:
         assert proxy.stdout is not None and "listening" in proxy.stdout.readline()
-        print(f"\ndelay-proxy accuracy: measured minus configured one-way delay (forward {fwd * 1e3:g} ms, backward {bwd * 1e3:g} ms)")
+        print(
+            f"\ndelay-proxy accuracy: measured minus configured one-way delay (forward {fwd * 1e3:g} ms, backward {bwd * 1e3:g} ms)"
+        )
         for rate, n in ((100.0, 300 if quick else 1000), (1000.0, 1000 if quick else 5000)):
             client = socket.create_connection(("127.0.0.1", port))
             conn, _ = server.accept()

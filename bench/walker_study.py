@@ -35,11 +35,15 @@ def main() -> None:
     res = run_walker_study(control, follower, sim, runs=runs, duration_s=duration, cases=cases)
     wall = time.perf_counter() - t
     simsec = len(cases) * 2 * runs * duration
-    print(f"wall {wall:.1f} s; {res['ticks_per_s']:.0f} follower ticks/s ({follower.control_rate_hz:g} Hz), "
-          f"{simsec * sim.physics_hz / wall:.0f} physics steps/s, {simsec / wall:.1f} simulated s per wall s")
+    print(
+        f"wall {wall:.1f} s; {res['ticks_per_s']:.0f} follower ticks/s ({follower.control_rate_hz:g} Hz), "
+        f"{simsec * sim.physics_hz / wall:.0f} physics steps/s, {simsec / wall:.1f} simulated s per wall s"
+    )
     for c in res["cases"]:
-        print(f"  {c['name']:<20} CP fwd {c['cp']['forward_error']:.2f} turn {c['cp']['turn_error']:.2f} | "
-              f"VP fwd {c['vp']['forward_error']:.2f} turn {c['vp']['turn_error']:.2f} | falls {c['cp']['falls']}/{c['vp']['falls']}")
+        print(
+            f"  {c['name']:<20} CP fwd {c['cp']['forward_error']:.2f} turn {c['cp']['turn_error']:.2f} | "
+            f"VP fwd {c['vp']['forward_error']:.2f} turn {c['vp']['turn_error']:.2f} | falls {c['cp']['falls']}/{c['vp']['falls']}"
+        )
 
 
 if __name__ == "__main__":

@@ -73,8 +73,7 @@ NO_MAC_LINE: Final = (
 )
 BAD_MAC_LINE: Final = "MAC mismatch: the two sides hold different message keys (or the messages were altered)"
 UNEXPECTED_MAC_LINE: Final = (
-    "the peer's messages carry a MAC but this side has no message_key_file "
-    "(set network.message_key_file on both sides)"
+    "the peer's messages carry a MAC but this side has no message_key_file (set network.message_key_file on both sides)"
 )
 #: Drop reasons that say the two ends' keys differ (or someone forges).
 KEY_REASONS: Final = ("no_mac", "bad_mac", "mac_unexpected")

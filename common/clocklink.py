@@ -299,9 +299,7 @@ class ClockLink:
             self.late += 1
             self.drops.drop("ping_late", f"held {t3 - t2:.3f} s > {self.hold_max_s:g} s")
             return
-        pong = ClockPong(
-            sid=self.sid, seq=self._next_seq(), t=t3, ping_sid=msg.sid, ping_seq=msg.seq, t1=msg.t, t2=t2
-        )
+        pong = ClockPong(sid=self.sid, seq=self._next_seq(), t=t3, ping_sid=msg.sid, ping_seq=msg.seq, t1=msg.t, t2=t2)
         if self._send(pong):
             self.answered += 1
 

@@ -529,9 +529,7 @@ def _plain(value: Any, redact: bool) -> Any:
         out: dict[str, Any] = {}
         for f in dataclasses.fields(value):
             v = getattr(value, f.name)
-            secret = bool(f.metadata.get("secret")) or (
-                not f.metadata.get("path") and _is_secret_name(f.name)
-            )
+            secret = bool(f.metadata.get("secret")) or (not f.metadata.get("path") and _is_secret_name(f.name))
             out[f.name] = REDACTED if redact and secret and _is_set(v) else _plain(v, redact)
         return out
     if isinstance(value, Mapping):
@@ -632,17 +630,13 @@ def load_config(
         classes.update(extra_sections)
     if folder is not None:  # before the overrides: theirs stay relative to the working folder
         data = {
-            name: resolve_paths(classes[name], raw, folder)
-            if name in classes and isinstance(raw, Mapping)
-            else raw
+            name: resolve_paths(classes[name], raw, folder) if name in classes and isinstance(raw, Mapping) else raw
             for name, raw in data.items()
         }
     data = apply_overrides(data, overrides)
     unknown = sorted(set(data) - set(classes))
     if unknown:
-        raise ConfigError(
-            f"{label}: unknown section [{unknown[0]}]; known sections: {', '.join(sorted(classes))}"
-        )
+        raise ConfigError(f"{label}: unknown section [{unknown[0]}]; known sections: {', '.join(sorted(classes))}")
     sections: dict[str, Any] = {}
     for name, cls in classes.items():
         raw = data.get(name, {})

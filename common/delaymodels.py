@@ -41,8 +41,7 @@ __all__ = [
 ]
 
 ALLOWED_SPECS = (
-    "const:150ms, uniform:MEAN:HALFWIDTH, normal:MEAN:STD, "
-    "trace:FILE.csv:h1|h2 or trace:intercontinental:h1|h2"
+    "const:150ms, uniform:MEAN:HALFWIDTH, normal:MEAN:STD, trace:FILE.csv:h1|h2 or trace:intercontinental:h1|h2"
 )
 SHIPPED_TRACES = {"intercontinental": "intercontinental_delay.csv"}
 MAX_DELAY_S = 60.0
@@ -240,9 +239,7 @@ def load_trace(text: str, column: str, label: str = "trace") -> TraceDelay:
 
 def _trace_text(source: str) -> str:
     if source in SHIPPED_TRACES:
-        return (
-            resources.files("bipedtele.data").joinpath(SHIPPED_TRACES[source]).read_text("utf-8")
-        )
+        return resources.files("bipedtele.data").joinpath(SHIPPED_TRACES[source]).read_text("utf-8")
     return Path(source).read_text(encoding="utf-8")
 
 

@@ -72,9 +72,7 @@ class DropCounter:
                 return
             self._last_log[reason] = now
             self._unlogged[reason] = 0
-        LOG.warning(
-            "%s: dropped %d message(s): %s%s", self.name, pending, reason, f" ({detail})" if detail else ""
-        )
+        LOG.warning("%s: dropped %d message(s): %s%s", self.name, pending, reason, f" ({detail})" if detail else "")
 
     def counts(self) -> dict[str, int]:
         """Return the drops per reason since creation (a copy)."""

@@ -225,7 +225,9 @@ def parse_queue(spec: str) -> int:
         raise ConfigError(f"queue {spec!r}: not a size; allowed: {ALLOWED_QUEUE}")
     n = float(m.group(1)) * {"": 1, "k": 1000, "m": 1000_000}[m.group(2).lower()]
     if not MIN_QUEUE_BYTES <= n <= 1e9:
-        raise ConfigError(f"queue {spec!r}: out of range [1500 B, 1 GB] (a queue holds at least one frame); allowed: {ALLOWED_QUEUE}")
+        raise ConfigError(
+            f"queue {spec!r}: out of range [1500 B, 1 GB] (a queue holds at least one frame); allowed: {ALLOWED_QUEUE}"
+        )
     return int(n)
 
 

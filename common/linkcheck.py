@@ -129,7 +129,9 @@ def _resolve(host: str, port: int, timeout_s: float) -> list[tuple[int, tuple[ob
     return [(fam, addr) for fam, _, _, _, addr in res]
 
 
-def _connect(addrs: list[tuple[int, tuple[object, ...]]], timeout_s: float) -> tuple[socket.socket, float] | tuple[str, str]:
+def _connect(
+    addrs: list[tuple[int, tuple[object, ...]]], timeout_s: float
+) -> tuple[socket.socket, float] | tuple[str, str]:
     """Return a connected socket and the connect time [s], or ``(kind, detail)``."""
     kind, detail = "unreachable", "no address"
     for fam, addr in addrs:
@@ -140,9 +142,15 @@ def _connect(addrs: list[tuple[int, tuple[object, ...]]], timeout_s: float) -> t
             s.connect(addr)
             return s, time.monotonic() - t0
         except ConnectionRefusedError:
-            kind, detail = "refused", f"connection refused by {addr[0]}:{addr[1]} (is the router running and listening there?)"
+            kind, detail = (
+                "refused",
+                f"connection refused by {addr[0]}:{addr[1]} (is the router running and listening there?)",
+            )
         except TimeoutError:
-            kind, detail = "unreachable", f"no answer from {addr[0]}:{addr[1]} within {timeout_s:g} s (host down, or a firewall drops the packets)"
+            kind, detail = (
+                "unreachable",
+                f"no answer from {addr[0]}:{addr[1]} within {timeout_s:g} s (host down, or a firewall drops the packets)",
+            )
         except OSError as exc:
             kind, detail = "unreachable", f"{addr[0]}:{addr[1]} is unreachable ({exc.strerror or exc})"
         s.close()
@@ -215,17 +223,25 @@ def _tls_check(
     except TimeoutError:
         return "tls", f"TLS: no handshake within {timeout_s:g} s (is it a Zenoh router?)", 0.0
     except OSError as exc:
-        return "tls", f"TLS: the connection broke during the handshake ({exc.strerror or exc}); the router may require a client certificate", 0.0
+        return (
+            "tls",
+            f"TLS: the connection broke during the handshake ({exc.strerror or exc}); the router may require a client certificate",
+            0.0,
+        )
     handshake = time.monotonic() - t0
     wait = min(ALERT_WAIT_MAX_S, max(ALERT_WAIT_MIN_S, ALERT_WAIT_RTTS * max(rtt_s, handshake)))
     try:
         tls.settimeout(wait)
         data = tls.recv(1)
         if not data:
-            return "tls_client_cert", (
-                "TLS: the router closed the connection right after the handshake: it refused our client "
-                "certificate (network.tls_cert, tls_key)"
-            ), handshake
+            return (
+                "tls_client_cert",
+                (
+                    "TLS: the router closed the connection right after the handshake: it refused our client "
+                    "certificate (network.tls_cert, tls_key)"
+                ),
+                handshake,
+            )
     except TimeoutError:
         pass  # the router waits for us to speak: the TLS link is accepted
     except ssl.SSLError as exc:

@@ -148,4 +148,3 @@ def router_listen_endpoints(listen: list[str], layout: Layout) -> list[str]:
             if extra not in out:
                 out.append(extra)
     return out
-

@@ -132,7 +132,9 @@ class Node:
         # follower's takeover rule is its command gate's (watchdog).
         self.handshake: Handshake | None = None
         if self.auth is not None:
-            takeover = cfg.section("leader").feedback_timeout_s if role == "leader" else cfg.section("follower").watchdog_s
+            takeover = (
+                cfg.section("leader").feedback_timeout_s if role == "leader" else cfg.section("follower").watchdog_s
+            )
             self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover)
         self.drops = DropCounter(role)
         self.recorder: Recorder | None = None
@@ -305,6 +307,7 @@ class Node:
         kinds: tuple[type[Message], ...] = (ClockPing, ClockPong) if hs is None else (ClockPing, ClockPong, Hello)
         on_clock: Callable[[Received[Any]], None] = link.on_message
         if hs is not None:
+
             def hello_or_clock(got: Received[Any], _link: Callable[[Received[Any]], None] = link.on_message) -> None:
                 if isinstance(got.msg, Hello):
                     hs.on_hello(got.msg)

@@ -385,8 +385,7 @@ class Recorder:
             )
             self._writer.start(profile=PROFILE, library=f"bipedtele {__version__}")
             meta = {
-                str(k): v if isinstance(v, str) else json.dumps(v, default=str)
-                for k, v in (metadata or {}).items()
+                str(k): v if isinstance(v, str) else json.dumps(v, default=str) for k, v in (metadata or {}).items()
             }
             meta.setdefault("bipedtele_version", __version__)
             meta.setdefault("created_unix_s", repr(time.time()))

@@ -26,9 +26,7 @@ class RobotConfig:
 
     def __post_init__(self) -> None:
         if not _ROBOT_ID.match(self.id):
-            raise ValueError(
-                f"id = {self.id!r}: allowed: 1-64 characters of letters, digits, '_' or '-'"
-            )
+            raise ValueError(f"id = {self.id!r}: allowed: 1-64 characters of letters, digits, '_' or '-'")
 
 
 @dataclass(frozen=True)
@@ -52,7 +50,9 @@ class NetworkConfig:
     multicast_scouting: bool = param(False, doc="enable UDP multicast discovery")
     tls_root_ca: str = param("", path=True, doc="PEM file of the CA that signs the router's certificate")
     tls_cert: str = param(
-        "", path=True, doc="PEM certificate of this process (the router's server certificate, or a client's for mutual TLS)"
+        "",
+        path=True,
+        doc="PEM certificate of this process (the router's server certificate, or a client's for mutual TLS)",
     )
     tls_key: str = param("", path=True, doc="PEM private key matching tls_cert")
     tls_mutual: bool = param(False, doc="require and present client certificates")
@@ -90,9 +90,7 @@ class NetworkConfig:
         for ep in [*self.connect, *self.listen]:
             proto, sep, rest = ep.partition("/")
             if not sep or proto not in ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream") or not rest:
-                raise ValueError(
-                    f"endpoint {ep!r}: allowed: PROTO/HOST:PORT with PROTO in tcp, tls, udp, quic, ws"
-                )
+                raise ValueError(f"endpoint {ep!r}: allowed: PROTO/HOST:PORT with PROTO in tcp, tls, udp, quic, ws")
         if bool(self.tls_cert) != bool(self.tls_key):
             raise ValueError("tls_cert and tls_key: allowed: both set or both empty")
         if self.password and self.password_file:
@@ -111,9 +109,7 @@ class ClockConfig:
     mode: Literal["synced", "ntp"] = param(
         "synced", doc="synced: one clock (same host, chrony/PTP); ntp: ping exchange estimates the offset"
     )
-    delay_window_s: float = param(
-        1.0, lo=0.01, hi=60.0, unit="s", doc="moving-average window of the delay estimators"
-    )
+    delay_window_s: float = param(1.0, lo=0.01, hi=60.0, unit="s", doc="moving-average window of the delay estimators")
     ping_rate_hz: float = param(4.0, lo=0.1, hi=100.0, unit="Hz", doc="ntp mode: ping rate")
     ping_window: int = param(16, lo=1, hi=1024, doc="ntp mode: pings kept for min-RTT filtering")
     conservative_split: bool = param(

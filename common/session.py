@@ -59,9 +59,7 @@ __all__ = [
 
 INFO: Final = b"bipedtele session v1"
 #: What a payload under a session key this side does not hold is.
-OLD_SESSION_LINE: Final = (
-    "signed with a session key this side does not hold (an earlier session's traffic replayed, or another peer's session)"
-)
+OLD_SESSION_LINE: Final = "signed with a session key this side does not hold (an earlier session's traffic replayed, or another peer's session)"
 #: Hello rates [Hz]: until the handshake completes, then to let a restarted peer rebind.
 FAST_HZ: Final = 4.0
 SLOW_HZ: Final = 1.0
@@ -319,7 +317,10 @@ class Handshake:
         """
         if payload[:4] != SESSION_MAGIC or len(payload) < MAC_OVERHEAD:
             if payload[:4] == MAC_MAGIC:
-                raise MacError("no_session", f"signed with the message key, not a session key ({topic}): a peer without the handshake?")
+                raise MacError(
+                    "no_session",
+                    f"signed with the message key, not a session key ({topic}): a peer without the handshake?",
+                )
             self._master.verify(payload, topic)  # raises no_mac with its line
             raise MacError("no_session", topic)  # pragma: no cover - verify raised
         with self._lock:

@@ -146,9 +146,9 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     gain: Annotated[float | None, _d("link gain in use (0 to 1)")] = None
     enable: Annotated[bool | None, _d("the operator holds the device")] = None
     leader_state: Annotated[str | None, _d("leader loop state")] = None
-    link: Annotated[
-        str | None, _d("link state (waiting, ok, lossy, capacity-limited, stale, lost, no-follower)")
-    ] = None
+    link: Annotated[str | None, _d("link state (waiting, ok, lossy, capacity-limited, stale, lost, no-follower)")] = (
+        None
+    )
     feedback_age_ms: Annotated[float | None, _d("time since the feedback in use was received [ms]")] = None
     link_lost_s: Annotated[float | None, _d("state lost: time since the last feedback arrived [s]")] = None
     fb_age_ms: Annotated[float | None, _d("age of the newest feedback accepted, since it was sent [ms]")] = None

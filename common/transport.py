@@ -327,9 +327,7 @@ def _preflight(net: NetworkConfig, connect: list[str]) -> tuple[float, set[str]]
     # a router that is starting refuses connections for a moment: retry those (only)
     retry_until = time.monotonic() + min(REFUSED_RETRY_S, net.timeout_s)
     while True:
-        checks = [
-            check_endpoint(ep, root_ca=net.tls_root_ca, cert=cert, key=key, timeout_s=step) for ep in connect
-        ]
+        checks = [check_endpoint(ep, root_ca=net.tls_root_ca, cert=cert, key=key, timeout_s=step) for ep in connect]
         passed = [c for c in checks if c.ok]
         if passed or any(c.kind != "refused" for c in checks) or time.monotonic() + 0.25 > retry_until:
             break
@@ -377,8 +375,10 @@ def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason
         seen = "TCP was accepted, by the router or by a relay in front of it"
     slow = "or the router did not answer the handshake in time (a lossy or slow path; the router logs every refusal)"
     if net.links == "split":
-        slow += (", or UDP to the router's port is blocked (the control link of links = \"split\"; "
-                 "where only TCP passes, set network.links = \"split-tcp\")")
+        slow += (
+            ', or UDP to the router\'s port is blocked (the control link of links = "split"; '
+            'where only TCP passes, set network.links = "split-tcp")'
+        )
     if net.user:
         return LinkError(
             "credentials",
@@ -388,7 +388,9 @@ def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason
     return LinkError(
         "credentials",
         f"the router did not open a session ({seen}; {within}): it may require a user/password "
-        "(network.user, network.password_file)" + ("" if "tls" in checked else " or TLS (a tls/ endpoint)") + f", {slow}",
+        "(network.user, network.password_file)"
+        + ("" if "tls" in checked else " or TLS (a tls/ endpoint)")
+        + f", {slow}",
     )
 
 
@@ -751,7 +753,11 @@ class _Receiver(Generic[M]):
         self.handshake = handshake
         self.max_future_s = max_future_s
         self._max_age: Callable[[float], float] | None = (
-            None if max_age_s is None else max_age_s if callable(max_age_s) else functools.partial(_const, float(max_age_s))
+            None
+            if max_age_s is None
+            else max_age_s
+            if callable(max_age_s)
+            else functools.partial(_const, float(max_age_s))
         )
         self._on_too_old = on_too_old
         # the key expression the sender signed: ours when exact, else the sample's
@@ -1007,9 +1013,7 @@ class PresenceWatcher:
         self._alive: set[str] = set()
         self._cond = threading.Condition(threading.Lock())
         self.changes = 0
-        self._sub = session.liveliness().declare_subscriber(
-            f"{keys.presence(role)}/*", self._on_sample, history=True
-        )
+        self._sub = session.liveliness().declare_subscriber(f"{keys.presence(role)}/*", self._on_sample, history=True)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)

@@ -52,7 +52,13 @@ _LINE = re.compile(
 _SRC = re.compile(r"\s+at \S+\.rs:\d+\.?$")
 _ACCEPTED = re.compile(r"Accepted (?:TCP|TLS) connection on \S+: (?P<peer>\S+?)(?:\.\s+(?P<id>.*?))?\.?$")
 _HINT = ". Hint: increase the system open file limit."
-_LEVELS = {"TRACE": logging.DEBUG, "DEBUG": logging.DEBUG, "INFO": logging.INFO, "WARN": logging.WARNING, "ERROR": logging.ERROR}
+_LEVELS = {
+    "TRACE": logging.DEBUG,
+    "DEBUG": logging.DEBUG,
+    "INFO": logging.INFO,
+    "WARN": logging.WARNING,
+    "ERROR": logging.ERROR,
+}
 
 _TLS_REASONS = (
     ("peer sent no certificates", "no client certificate presented (the router requires mutual TLS)"),
@@ -141,6 +147,8 @@ class ZenohLogBridge:
             return
         if "did not match any configured ACL subject" in msg:
             zid = msg.split(" ", 1)[0]
-            LOG.info("session %s has no ACL role (not in publishers_allowed or followers_allowed): it may do nothing", zid)
+            LOG.info(
+                "session %s has no ACL role (not in publishers_allowed or followers_allowed): it may do nothing", zid
+            )
             return
         LOG.log(level if level >= logging.WARNING else logging.DEBUG, "%s: %s", target, msg)

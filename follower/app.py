@@ -88,9 +88,13 @@ class FollowerApp:
         self.realtime = self.fcfg.realtime if realtime is None else realtime
         simulated = "robot " + " or ".join(repr(n) for n in robot_names() if robot_spec(n).simulated)
         if not self.realtime and not self.spec.simulated:
-            raise ConfigError(f"--realtime off with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})")
+            raise ConfigError(
+                f"--realtime off with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})"
+            )
         if reset_on_leader and not self.spec.simulated:
-            raise ConfigError(f"--reset-on-leader with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})")
+            raise ConfigError(
+                f"--reset-on-leader with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})"
+            )
         self.reset_on_leader = reset_on_leader
         try:
             # Every setting is checked (the robot's section too) before anything is written.
@@ -223,7 +227,12 @@ class FollowerApp:
             )
             # Every accepted command: recorded and fed to h1 once, in the receiver.
             self._cmd_rx = node.receive(
-                node.keys.cmd, Command, self.gate, topic="cmd/recv", estimator=self.h1, on_message=self._on_command,
+                node.keys.cmd,
+                Command,
+                self.gate,
+                topic="cmd/recv",
+                estimator=self.h1,
+                on_message=self._on_command,
                 max_age_s=self.fcfg.max_cmd_age_s,  # before the gate: an old replay never binds it
             )
             backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))
@@ -326,8 +335,12 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
     realtime = None if args.realtime is None else args.realtime == "on"
     return main(
-        cfg, robot_name=args.robot, realtime=realtime, duration_s=args.duration,
-        record=Path(args.record) if args.record else None, reset_on_leader=args.reset_on_leader,
+        cfg,
+        robot_name=args.robot,
+        realtime=realtime,
+        duration_s=args.duration,
+        record=Path(args.record) if args.record else None,
+        reset_on_leader=args.reset_on_leader,
     )
 
 
@@ -336,16 +349,23 @@ def add_follower_parser(sub: Any) -> None:
     p = sub.add_parser("follower", help="run the robot side (pybullet NAO or a real NAO)")
     add_config_args(p)
     p.add_argument("--robot", choices=robot_names(), default=None, help="robot (default: [follower] robot)")
-    p.add_argument("--naoqi-url", default=None, metavar="URL", help="real NAO: tcp://HOST:9559 or tcps://HOST:9503 (sets naoqi.url)")
+    p.add_argument(
+        "--naoqi-url",
+        default=None,
+        metavar="URL",
+        help="real NAO: tcp://HOST:9559 or tcps://HOST:9503 (sets naoqi.url)",
+    )
     p.add_argument("--realtime", choices=["on", "off"], default=None, help="pace in real time (off: simulator only)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds of robot time")
     p.add_argument("--record", default=None, metavar="F.mcap", help="recording file")
     p.add_argument(
-        "--reset-on-leader", action="store_true",
+        "--reset-on-leader",
+        action="store_true",
         help="simulator only: put the robot back on the course start when a new leader session begins",
     )
     p.add_argument(
-        "--unguarded-robot-may-keep-walking", action="store_true",
+        "--unguarded-robot-may-keep-walking",
+        action="store_true",
         help="real NAO: walk even when no BipedteleGuard answers (sets naoqi.allow_unguarded = true). "
         "Without a guard, a follower that dies or loses the robot's network leaves the NAO walking",
     )

@@ -73,7 +73,9 @@ class DelayBaseline:
 
     def __init__(self, window_s: float = 10.0, relearn_s: float = 10.0) -> None:
         if not (math.isfinite(window_s) and window_s > 0 and math.isfinite(relearn_s) and relearn_s > 0):
-            raise ValueError(f"window_s = {window_s!r}, relearn_s = {relearn_s!r}: allowed: finite numbers of seconds > 0")
+            raise ValueError(
+                f"window_s = {window_s!r}, relearn_s = {relearn_s!r}: allowed: finite numbers of seconds > 0"
+            )
         self.relearn_s = float(relearn_s)
         self._accepted = WindowMin(window_s)
         self._dropped = WindowMin(window_s)

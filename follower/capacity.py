@@ -423,15 +423,19 @@ class UplinkBudget:
         self._check_cut(now)
         if math.isfinite(self.capacity_bps) and self._undo is None:
             self.start_budget_bps = None  # the path said what it carries: the start is over
-        elif (last is not None and self.start_budget_bps is not None and now - self._h2_at < self.gap_s
-              and self.excess_s <= 0.5 * self.delay_rise_s):
+        elif (
+            last is not None
+            and self.start_budget_bps is not None
+            and now - self._h2_at < self.gap_s
+            and self.excess_s <= 0.5 * self.delay_rise_s
+        ):
             dt = max(0.0, now - last)
             self._start_clear_s += dt
             tx = self.tx_bps()
             if self.start_budget_bps < 2.0 * tx + self.floor_bps:
                 # grown only while h2 says the path is clear and the budget is near what is
                 # sent (a budget far above the sending rate was never tested)
-                self.start_budget_bps *= self.start_growth ** dt
+                self.start_budget_bps *= self.start_growth**dt
             if self.start_budget_bps > self.start_max_bps:
                 self.start_budget_bps = None
             elif self._start_clear_s >= self.start_s:
@@ -486,9 +490,16 @@ class UplinkBudget:
         if now - u.t < max(1.0, 2.0 * u.peak_excess_s):
             return
         self._undo = None
-        if (self.excess_s >= 0.8 * u.peak_excess_s and self._last_rate_cut < u.t
-                and now - self._last_undo >= self.undo_gap_s):
-            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = u.capacity_bps, u.start_budget_bps, u.ceiling_bps
+        if (
+            self.excess_s >= 0.8 * u.peak_excess_s
+            and self._last_rate_cut < u.t
+            and now - self._last_undo >= self.undo_gap_s
+        ):
+            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = (
+                u.capacity_bps,
+                u.start_budget_bps,
+                u.ceiling_bps,
+            )
             self._last_signal = -math.inf
             self._last_undo = now
             self.signals["undone"] += 1

@@ -72,8 +72,10 @@ def _check_observation(obs: object) -> RobotObservation:
         if isinstance(v, bool):
             continue
         values = v if isinstance(v, tuple) else (v,)
-        _expect(all(isinstance(x, int | float) and math.isfinite(x) for x in values),
-                f"observe().{f.name} = {v!r}: expected finite numbers")
+        _expect(
+            all(isinstance(x, int | float) and math.isfinite(x) for x in values),
+            f"observe().{f.name} = {v!r}: expected finite numbers",
+        )
     _expect(len(obs.pose) == 3, f"observe().pose = {obs.pose!r}: expected (x, y, yaw)")
     _expect(len(obs.sonar_m) == 2, f"observe().sonar_m = {obs.sonar_m!r}: expected (left, right)")
     _expect(all(r >= 0 for r in obs.sonar_m), f"observe().sonar_m = {obs.sonar_m!r}: expected ranges >= 0")
@@ -132,10 +134,16 @@ def check_robot(factory: Callable[[], FollowerRobot], advance_s: float = 0.5) ->
         robot.advance(0.0)
         for cmd in _BAD_COMMANDS:
             sent = robot.send_walk(cmd)
-            _expect(isinstance(sent, WalkCommand), f"send_walk({cmd}) returned {type(sent).__name__}, expected WalkCommand")
+            _expect(
+                isinstance(sent, WalkCommand), f"send_walk({cmd}) returned {type(sent).__name__}, expected WalkCommand"
+            )
             _expect(_within(sent, robot.limits), f"send_walk({cmd}) returned {sent}: outside {robot.limits}")
-        good = WalkCommand(0.5 * robot.limits.max_forward_m_s, 0.0, float(np.mean(robot.limits.cycle_s)),
-                           float(np.mean(robot.limits.eps_s)))
+        good = WalkCommand(
+            0.5 * robot.limits.max_forward_m_s,
+            0.0,
+            float(np.mean(robot.limits.cycle_s)),
+            float(np.mean(robot.limits.eps_s)),
+        )
         sent = robot.send_walk(good)
         _expect(_within(sent, robot.limits), f"send_walk({good}) returned {sent}: outside {robot.limits}")
         t_prev = first.t
@@ -153,8 +161,10 @@ def check_robot(factory: Callable[[], FollowerRobot], advance_s: float = 0.5) ->
         for cam in cams:
             img = robot.capture(cam)
             if img is not None:
-                _expect(isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3
-                        and img.dtype == np.uint8, f"capture({cam!r}): expected None or an H x W x 3 uint8 array")
+                _expect(
+                    isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8,
+                    f"capture({cam!r}): expected None or an H x W x 3 uint8 array",
+                )
     finally:
         robot.disconnect()
     robot.disconnect()

@@ -14,7 +14,9 @@ __all__ = ["FollowerConfig"]
 class FollowerConfig:
     """Follower loop settings (see follower/loop.py)."""
 
-    robot: str = param("sim", doc="which robot: 'sim' (the pybullet NAO) or 'naoqi' (a real NAO); see follower/robots.py")
+    robot: str = param(
+        "sim", doc="which robot: 'sim' (the pybullet NAO) or 'naoqi' (a real NAO); see follower/robots.py"
+    )
     realtime: bool = param(True, doc="pace the loop in real time (off: as fast as possible, sim only)")
     control_rate_hz: float = param(50.0, lo=5.0, hi=1000.0, unit="Hz", doc="control loop rate")
     feedback_rate_hz: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="feedback publish rate")
@@ -26,7 +28,10 @@ class FollowerConfig:
         1.5, lo=0.05, hi=30.0, unit="s", doc="commands older than this (sender time) are dropped; above the worst delay"
     )
     backlog_window_s: float = param(
-        10.0, lo=1.0, hi=120.0, unit="s",
+        10.0,
+        lo=1.0,
+        hi=120.0,
+        unit="s",
         doc="baseline delay = minimum h1 of the commands applied over this window; a command delayed more than "
         "watchdog_s beyond it is an outage's backlog and dropped (cmd_backlog)",
     )

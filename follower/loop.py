@@ -212,9 +212,19 @@ class FollowerLoop:
         self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
         self.telemetry = FollowerTelemetry()
         self.counters: dict[str, int] = {
-            "cmd_accepted": 0, "cmd_too_old": 0, "cmd_future": 0, "watchdog_stops": 0, "falls": 0,
-            "collisions": 0, "robot_faults": 0, "walk_refused": 0, "leader_sessions": 0, "resets": 0,
-            "operator_stops": 0, "cmd_backlog": 0, "cmd_reordered": 0,
+            "cmd_accepted": 0,
+            "cmd_too_old": 0,
+            "cmd_future": 0,
+            "watchdog_stops": 0,
+            "falls": 0,
+            "collisions": 0,
+            "robot_faults": 0,
+            "walk_refused": 0,
+            "leader_sessions": 0,
+            "resets": 0,
+            "operator_stops": 0,
+            "cmd_backlog": 0,
+            "cmd_reordered": 0,
         }
         #: Publish a Feedback for every command picked up between ticks (False: the next
         #: periodic feedback acknowledges it; the program clears it on a full uplink).
@@ -289,7 +299,9 @@ class FollowerLoop:
                 self._next_future_log = now + 5.0
                 LOG.warning(
                     "ignoring a command stamped %.3f s ahead of this clock (tolerance %.3f s; %d so far): clocks not in sync, or a forged time",
-                    t_sent - now, self.max_future_s, self.counters["cmd_future"],
+                    t_sent - now,
+                    self.max_future_s,
+                    self.counters["cmd_future"],
                 )
             return False
         if self._feed_h1:
@@ -314,7 +326,10 @@ class FollowerLoop:
                 self._next_backlog_log = now + 5.0
                 LOG.warning(
                     "dropping a command queued in the path: delay %.3f s, baseline %.3f s, watchdog %.2f s (%d so far)",
-                    delay, base, self.cfg.watchdog_s, self.counters["cmd_backlog"],
+                    delay,
+                    base,
+                    self.cfg.watchdog_s,
+                    self.counters["cmd_backlog"],
                 )
             return False
         last = self._cmd
@@ -443,7 +458,8 @@ class FollowerLoop:
             LOG.error(
                 "robot fell (tilt %.1f deg, fall %d): stopping; it walks again after it stands "
                 "and the operator re-arms (release, then enable)",
-                math.degrees(obs.tilt_rad), self.counters["falls"],
+                math.degrees(obs.tilt_rad),
+                self.counters["falls"],
             )
             self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self.counters["falls"]})
             self.robot.stop()
@@ -463,11 +479,7 @@ class FollowerLoop:
         else:
             self._update_parameters(h1, h2)
 
-        fresh = (
-            self._cmd is not None
-            and now - self._cmd_recv <= self.cfg.watchdog_s
-            and self._cmd.enable
-        )
+        fresh = self._cmd is not None and now - self._cmd_recv <= self.cfg.watchdog_s and self._cmd.enable
         eta_meas = np.array([obs.v_hip_m_s * CM, math.degrees(obs.turn_rate_rad_s)])
         f_v = self.fictitious(*obs.sonar_m)
         ref = np.clip(np.asarray(self._cmd.ref), -self.eta_max, self.eta_max) if fresh and self._cmd else np.zeros(2)
@@ -508,7 +520,12 @@ class FollowerLoop:
         z_e = self.equivalent.step(ref, self._s_e, f_hold)
 
         tel.t, tel.state, tel.ref, tel.eta_meas = now, state, ref, eta_meas
-        tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = self.reference.eta.copy(), self.reference.z_r.copy(), np.asarray(z_e), f_v
+        tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = (
+            self.reference.eta.copy(),
+            self.reference.z_r.copy(),
+            np.asarray(z_e),
+            f_v,
+        )
         tel.h1_s, tel.h2_s, tel.s_e, tel.s_r = h1, h2, self._s_e, self._choice_s_r
         # Report what the robot really got (it clamps T and eps to what it can do).
         if sent is not None:
@@ -532,7 +549,9 @@ class FollowerLoop:
         self._ref_sum = self._ref_sum + np.asarray(ref, dtype=float)
         self._ref_n += 1
 
-    def _walk(self, ref: np.ndarray, eta_meas: np.ndarray, f_v: np.ndarray, now: float) -> tuple[WalkCommand | None, str]:
+    def _walk(
+        self, ref: np.ndarray, eta_meas: np.ndarray, f_v: np.ndarray, now: float
+    ) -> tuple[WalkCommand | None, str]:
         """Run the reference model (28) and send one walk command; a robot refusing to walk stands."""
         eta_cmd = self.reference.step(ref, eta_meas, self._choice_s_r, np.array([f_v[0], 0.0]), eta_max=self.eta_max)
         try:

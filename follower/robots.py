@@ -56,7 +56,10 @@ class RobotSpec:
 
 ROBOT_SPECS: dict[str, RobotSpec] = {
     "sim": RobotSpec(
-        "sim", "sim", simulated=True, doc="the pybullet NAO",
+        "sim",
+        "sim",
+        simulated=True,
+        doc="the pybullet NAO",
         step_s=lambda cfg: 1.0 / float(cfg.section("sim").physics_hz),
     ),
     "naoqi": RobotSpec("naoqi", "naoqi", simulated=False, doc="a real NAO through NAOqi"),

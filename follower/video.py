@@ -100,7 +100,13 @@ class VideoStreamer:
         self._stop = False
         self._thread: threading.Thread | None = None
         self.stats: dict[str, Any] = {
-            "captured": 0, "published": 0, "parts": 0, "dropped": 0, "errors": 0, "capture_s": 0.0, "encode_s": 0.0,
+            "captured": 0,
+            "published": 0,
+            "parts": 0,
+            "dropped": 0,
+            "errors": 0,
+            "capture_s": 0.0,
+            "encode_s": 0.0,
         }
         self._next_log = -float("inf")
         self._unlogged = 0
@@ -205,7 +211,9 @@ class VideoStreamer:
                 bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
                 if scale != 1.0:
                     h, w = bgr.shape[:2]
-                    bgr = cv2.resize(bgr, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+                    bgr = cv2.resize(
+                        bgr, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA
+                    )
                 ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
             except cv2.error as exc:
                 ok, buf = False, None
@@ -255,7 +263,6 @@ class VideoStreamer:
                 with self._cv:
                     self._sent_times.append(self._now())
                     self.width_sent = bgr.shape[1]
-
 
     # ------------------------------------------------------------------ budget
 
@@ -370,6 +377,12 @@ def _cut(jpeg: bytes, part_bits_max: float | None) -> list[bytes]:
 
 def _check_image(image: Any) -> None:
     """Raise ValueError unless ``image`` is an H x W x 3 uint8 array."""
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3 or 0 in image.shape:
+    if (
+        not isinstance(image, np.ndarray)
+        or image.dtype != np.uint8
+        or image.ndim != 3
+        or image.shape[2] != 3
+        or 0 in image.shape
+    ):
         what = f"{type(image).__name__} {getattr(image, 'shape', '')} {getattr(image, 'dtype', '')}".strip()
         raise ValueError(f"the robot gave {what}: expected an H x W x 3 uint8 image")

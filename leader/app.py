@@ -426,9 +426,7 @@ class LeaderApp:
             # Configuration, session and device are good: now the cockpit and the recording.
             if lc.cockpit:
                 self.cockpit = self._start_cockpit()
-            recorder = node.start_recording(
-                {"operator": self.op_name, "device": self.dev_name}, jpeg_every=10
-            )
+            recorder = node.start_recording({"operator": self.op_name, "device": self.dev_name}, jpeg_every=10)
             self._fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
                                        estimator=self.estimator, on_message=self._on_feedback,
                                        # too old: refused before the gate binds and h2 moves
@@ -590,7 +588,9 @@ def _summary(
     elif reach is not None and reach.never_reached:
         parts.append("NO COMMAND REACHED THE ROBOT (refused by the router's ACL? log in as a leader user)")
     elif reach is not None and reach.never_acknowledged:
-        parts.append("NO COMMAND ACKNOWLEDGED BY THE ROBOT (link lost: nothing heard from the follower; path or router down?)")
+        parts.append(
+            "NO COMMAND ACKNOWLEDGED BY THE ROBOT (link lost: nothing heard from the follower; path or router down?)"
+        )
     return ", ".join(parts)
 
 

@@ -117,4 +117,3 @@ def check_device(factory: Callable[[], LeaderDevice], *, steps: int = 200) -> No
         _expect(dev2.is_connected, "entering a with block must connect")
         _check_state(dev2, dev2.read(), "in a with block")
     _expect(not dev2.is_connected, "leaving a with block must disconnect")
-

@@ -48,9 +48,7 @@ class LeaderConfig:
     rt_priority: int = param(
         0, lo=0, hi=99, doc="SCHED_FIFO priority of the haptic loop thread (0: normal; needs CAP_SYS_NICE)"
     )
-    spin_s: float = param(
-        0.0003, lo=0.0, hi=0.005, unit="s", doc="pacing: busy-wait this long before each deadline"
-    )
+    spin_s: float = param(0.0003, lo=0.0, hi=0.005, unit="s", doc="pacing: busy-wait this long before each deadline")
     feedback_timeout_s: float = param(
         0.5, lo=0.01, hi=30.0, unit="s", doc="no new feedback for this long -> fade the force out"
     )
@@ -83,20 +81,28 @@ class LeaderConfig:
     # ---- pilot operator (Sec. 5, Fig. 10)
     pilot_passes: int = param(10, lo=1, hi=1000, doc="obstacle passes (sides alternate, left first)")
     pilot_obstacles: list[list[float]] = param(
-        default_factory=list, unit="m",
+        default_factory=list,
+        unit="m",
         doc="course: [x, y, radius] per obstacle, passed in order then back (empty: [world] obstacles)",
     )
     pilot_clearance_m: float = param(0.35, lo=0.05, hi=5.0, unit="m", doc="lateral clearance from an obstacle's edge")
     pilot_approach_m: float = param(0.7, lo=0.1, hi=10.0, unit="m", doc="waypoint distance before/after an obstacle")
     pilot_lookahead_m: float = param(0.5, lo=0.05, hi=5.0, unit="m", doc="pure-pursuit look-ahead distance")
     pilot_speed_cm_s: float = param(8.0, lo=0.0, lo_open=True, hi=100.0, unit="cm/s", doc="cruise forward speed")
-    pilot_turn_max_deg_s: float = param(20.0, lo=0.0, lo_open=True, hi=360.0, unit="deg/s", doc="largest turn speed asked")
+    pilot_turn_max_deg_s: float = param(
+        20.0, lo=0.0, lo_open=True, hi=360.0, unit="deg/s", doc="largest turn speed asked"
+    )
     pilot_slow_range_m: float = param(0.45, lo=0.0, hi=5.0, unit="m", doc="slow down when a sonar reads below this")
     pilot_predict: Literal["off", "now", "h1"] = param(
-        "h1", doc="pilot steers on: the reported pose (off), the predicted present pose (now), the pose predicted h1 ahead",
+        "h1",
+        doc="pilot steers on: the reported pose (off), the predicted present pose (now), the pose predicted h1 ahead",
     )
     pilot_predict_tau_s: float = param(
-        0.5, lo=0.0, hi=5.0, unit="s", doc="predictor: time constant of the robot's speed response to its reference",
+        0.5,
+        lo=0.0,
+        hi=5.0,
+        unit="s",
+        doc="predictor: time constant of the robot's speed response to its reference",
     )
     # ---- cockpit
     cockpit: bool = param(True, doc="serve the browser cockpit")

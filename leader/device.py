@@ -168,4 +168,3 @@ register_device = DEVICES.register
 
 #: Instantiate a registered device by name (``sim-falcon``, ``falcon``, ``joystick``).
 make_device = DEVICES.make
-

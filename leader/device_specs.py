@@ -90,7 +90,9 @@ def device_spec(name: str) -> DeviceSpec:
 class JoystickConfig:
     """The ``[joystick]`` section: which evdev device and how its axes map."""
 
-    device: str = param("", doc="/dev/input/eventN, or part of the device name; empty: the first device with the two axes")
+    device: str = param(
+        "", doc="/dev/input/eventN, or part of the device name; empty: the first device with the two axes"
+    )
     axis_forward: str = param("ABS_Y", doc="evdev axis giving handle axis 0 (forward speed)")
     axis_turn: str = param("ABS_X", doc="evdev axis giving handle axis 1 (turn)")
     invert_forward: bool = param(True, doc="stick forward reads negative on most pads: invert so forward is +")
@@ -98,19 +100,35 @@ class JoystickConfig:
     deadzone: float = param(0.05, lo=0.0, hi=0.5, doc="central dead zone, fraction of the half range")
     force_feedback: FFMode = param("auto", doc="auto: constant force if supported, else rumble, else none")
     ff_rate_hz: float = param(100.0, lo=1.0, hi=1000.0, unit="Hz", doc="largest effect update rate")
-    enable_button: str = param("", doc="dead-man button, reported as button 0 (e.g. BTN_SOUTH, BTN_TRIGGER): walking only while held; empty: none, and no buttons are reported")
+    enable_button: str = param(
+        "",
+        doc="dead-man button, reported as button 0 (e.g. BTN_SOUTH, BTN_TRIGGER): walking only while held; empty: none, and no buttons are reported",
+    )
 
 
 @dataclass(frozen=True)
 class FalconConfig:
     """The ``[falcon]`` section."""
 
-    firmware_file: str = param("", doc="Novint firmware image (e.g. nvent_firmware.bin from libnifalcon); needed once per power-up")
+    firmware_file: str = param(
+        "", doc="Novint firmware image (e.g. nvent_firmware.bin from libnifalcon); needed once per power-up"
+    )
     homing_timeout_s: float = param(60.0, lo=1.0, hi=600.0, unit="s", doc="give up homing after this long")
     io_rate_hz: float = param(1000.0, lo=100.0, hi=2000.0, unit="Hz", doc="I/O loop rate")
-    force_gain: float = param(1.0, lo=0.0, hi=10.0, doc="scale of motor efforts (libnifalcon's units: effort = -(dtheta/dp) F)")
-    hold_stiffness_n_m: float = param(150.0, lo=0.0, hi=2000.0, unit="N/m", doc="spring holding the unused vertical axis at the centre")
+    force_gain: float = param(
+        1.0, lo=0.0, hi=10.0, doc="scale of motor efforts (libnifalcon's units: effort = -(dtheta/dp) F)"
+    )
+    hold_stiffness_n_m: float = param(
+        150.0, lo=0.0, hi=2000.0, unit="N/m", doc="spring holding the unused vertical axis at the centre"
+    )
     hold_damping_n_s_m: float = param(3.0, lo=0.0, hi=100.0, unit="N s/m", doc="damper on the vertical axis")
     center_z_m: float = param(0.11, lo=0.05, hi=0.2, unit="m", doc="z of the workspace centre (grip rest point)")
-    enable_button: int = param(-1, lo=-1, hi=3, doc="grip button (bit 0-3) used as the dead-man switch, reported as button 0; -1: none, and no buttons are reported")
-    io_timeout_s: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="no status packet for this long: the Falcon is gone")
+    enable_button: int = param(
+        -1,
+        lo=-1,
+        hi=3,
+        doc="grip button (bit 0-3) used as the dead-man switch, reported as button 0; -1: none, and no buttons are reported",
+    )
+    io_timeout_s: float = param(
+        0.5, lo=0.01, hi=10.0, unit="s", doc="no status packet for this long: the Falcon is gone"
+    )

@@ -254,9 +254,7 @@ class LeaderLoop:
         self._update_damping(now)
         self._update_gain(now)
         z_e = np.asarray(self._fb.z_e, dtype=float) if self._fb is not None else self._k_g * self.x_m
-        f = leader_force(
-            self.x_m, self.dx_m, z_e, k_m=self._k_m, k_g=self._k_g, alpha_m=self.alpha_m, g_m=self._g_m
-        )
+        f = leader_force(self.x_m, self.dx_m, z_e, k_m=self._k_m, k_g=self._k_g, alpha_m=self.alpha_m, g_m=self._g_m)
         self.force_cmd = self.gain * f
         self.force = self.device.apply_force(self._slew(now, self.device.clamp_force(self.force_cmd)))
         if self.ticks % self._cmd_every == 0:

@@ -31,7 +31,11 @@ def _expect(cond: bool, rule: str) -> None:
 
 def _feedback(t: float, x_m: float) -> Feedback:
     return Feedback(
-        t=t, seq=int(t * 100) + 1, eta=[2.0, 0.0], z_r=[2.0, 0.0], pose=[x_m, 0.0, 0.0],
+        t=t,
+        seq=int(t * 100) + 1,
+        eta=[2.0, 0.0],
+        z_r=[2.0, 0.0],
+        pose=[x_m, 0.0, 0.0],
         sonar=[2.0, 2.0],
     )
 

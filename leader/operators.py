@@ -369,9 +369,7 @@ class PilotOperator(Operator):
         if predict not in PREDICT_MODES:
             raise ValueError(f"predict = {predict!r}: allowed: {', '.join(PREDICT_MODES)}")
         self.predict = predict
-        self.live: LivePredictor | None = (
-            None if predict == "off" else LivePredictor(predictor or DelayPredictor())
-        )
+        self.live: LivePredictor | None = None if predict == "off" else LivePredictor(predictor or DelayPredictor())
         self.predicted: tuple[PredictedPose, PredictedPose] | None = None
         self._fb_seen: Feedback | None = None
         self._pred_fb: Feedback | None = None
@@ -701,9 +699,7 @@ def register_operator(name: str) -> Callable[[OperatorFactory], OperatorFactory]
 @register_operator("scripted")
 def _scripted(ctx: OperatorContext) -> Operator:
     lc = ctx.leader
-    return ScriptedOperator(
-        lc.script, ctx.k_g, lc.script_interp, ctx.workspace_m, ctx.hand, hold_last=ctx.hold_script
-    )
+    return ScriptedOperator(lc.script, ctx.k_g, lc.script_interp, ctx.workspace_m, ctx.hand, hold_last=ctx.hold_script)
 
 
 @register_operator("pilot")

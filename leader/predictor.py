@@ -122,7 +122,10 @@ class CommandLog:
         lo = max(0, bisect.bisect_right(self._t, float(t_send.min())) - 1)
         hi = bisect.bisect_right(self._t, float(t_send.max()))
         if lo == 0 and self._t[0] > t_send.min():
-            ts, refs = np.asarray(self._t[:hi]), np.vstack([np.zeros((1, 2)), np.asarray(self._ref[:hi]).reshape(-1, 2)])
+            ts, refs = (
+                np.asarray(self._t[:hi]),
+                np.vstack([np.zeros((1, 2)), np.asarray(self._ref[:hi]).reshape(-1, 2)]),
+            )
             return refs[np.searchsorted(ts, t_send, side="right")]  # 0: before the first command
         ts, refs = np.asarray(self._t[lo:hi]), np.asarray(self._ref[lo:hi]).reshape(-1, 2)
         return refs[np.searchsorted(ts, t_send, side="right") - 1]

@@ -127,7 +127,7 @@ class CommandReach:
             self.feedback += 1
             self._last_fb = self._last_heard = now
             base = self._baseline.setdefault(fb.sid, fb.cmd_seq)
-            if fb.cmd_seq:
+            if fb.cmd_seq:  # noqa: SIM108 (two rules, clearer apart than in one ternary)
                 ok = 1 <= fb.cmd_seq <= sent and fb.cmd_seq != base
             else:
                 ok = fb.state == "walking" and sent > 0

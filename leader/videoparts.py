@@ -69,12 +69,19 @@ class FrameAssembler:
             return msg
         if cur is None:
             if msg.part != 0:
-                self.drops.drop("video_bad_part", f"seq={msg.seq}: part {msg.part} of {msg.parts} without its first part")
+                self.drops.drop(
+                    "video_bad_part", f"seq={msg.seq}: part {msg.part} of {msg.parts} without its first part"
+                )
                 return None
             cur = self._joining[msg.camera] = _Joining(msg)
         else:
             head = cur.first
-            same = (msg.parts, msg.width, msg.height, msg.t_capture) == (head.parts, head.width, head.height, head.t_capture)
+            same = (msg.parts, msg.width, msg.height, msg.t_capture) == (
+                head.parts,
+                head.width,
+                head.height,
+                head.t_capture,
+            )
             if not same or msg.part != len(cur.pieces) or cur.size + len(msg.jpeg) > MAX_JPEG_BYTES:
                 del self._joining[msg.camera]
                 self.drops.drop("video_bad_part", f"seq={msg.seq}: part {msg.part} of {msg.parts} does not continue "

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The README's test command: installs what the tests need, then runs the whole suite
-# (unit, integration, slow and e2e tests), then ruff and mypy.
+# (unit, integration, slow and e2e tests), then ruff (lint and format) and scripts/typecheck.sh (mypy -p bipedtele).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 scripts/bootstrap.sh --test || exit $?
@@ -12,4 +12,5 @@ if [[ $rc -eq 5 ]]; then
 fi
 [[ $rc -ne 0 ]] && exit $rc
 .venv/bin/ruff check common leader follower tests bench || exit 1
+.venv/bin/ruff format --check common leader follower configs docker tests bench || exit 1
 scripts/typecheck.sh || exit 1  # mypy -p bipedtele, the package as installed

@@ -32,7 +32,10 @@ class ControlConfig:
         (0.4, 0.4), lo=0.0, lo_open=True, unit="N per (cm/s) | N per (deg/s)", doc="leader gain (eq. 31)"
     )
     k_g: list[float] = _pair(
-        (160.0, 200.0), lo=0.0, lo_open=True, unit="(cm/s)/m | (deg/s)/m",
+        (160.0, 200.0),
+        lo=0.0,
+        lo_open=True,
+        unit="(cm/s)/m | (deg/s)/m",
         doc="handle position -> forward/turn speed (eq. 7, 11)",
     )
     beta_r: list[float] = _pair((0.5, 0.5), lo=0.0, lo_open=True, unit="s", doc="observer time constant (eq. 12)")
@@ -43,7 +46,10 @@ class ControlConfig:
     eps: float = param(0.5, lo=0.0, lo_open=True, unit="s", doc="nominal joint-servo gain (eq. 21)")
     dp: float = param(0.7, lo=0.0, hi=1.0, lo_open=True, doc="reset-map hip-speed factor at impact")
     dp_turn: float = param(
-        1.0, lo=0.0, hi=1.0, lo_open=True,
+        1.0,
+        lo=0.0,
+        hi=1.0,
+        lo_open=True,
         doc="reset-map turn-speed factor at impact (1 = the impact leaves the turn speed alone)",
     )
     dq: float = param(1.0, lo=0.0, lo_open=True, doc="Poincare Jacobian perturbation of positions (eq. 26)")
@@ -51,10 +57,10 @@ class ControlConfig:
     v_ref: float = param(5.0, lo=0.0, unit="cm/s", doc="calibration forward speed")
     turn_ref: float = param(4.0, lo=0.0, unit="deg/s", doc="calibration turn speed")
     margin: float = param(0.2, lo=0.0, hi=10.0, doc="relative margin on the conditions (40)")
-    alpha_m_min: float = param(0.05, lo=0.0, lo_open=True, unit="N s/m", doc="lower bound of alpha_m (leader damping, per channel)")
-    s_e_min: float = param(
-        0.05, lo=0.0, lo_open=True, unit="same as D", doc="lower bound of sigma_e (sigma_e_min > 0)"
+    alpha_m_min: float = param(
+        0.05, lo=0.0, lo_open=True, unit="N s/m", doc="lower bound of alpha_m (leader damping, per channel)"
     )
+    s_e_min: float = param(0.05, lo=0.0, lo_open=True, unit="same as D", doc="lower bound of sigma_e (sigma_e_min > 0)")
     s_r_range: list[float] = _pair((0.0, 10.0), lo=0.0, hi=100.0, doc="bounds of the real damping sigma_r")
     T_range: list[float] = _pair((0.5, 5.0), lo=0.05, hi=20.0, unit="s", doc="bounds of the walking cycle time")
     eps_range: list[float] = _pair((0.05, 1.0), lo=0.001, hi=10.0, unit="s", doc="bounds of eps")
@@ -67,7 +73,10 @@ class ControlConfig:
         doc="period over which (29) is discretised in (30): the candidate walking cycle T, or equivalent_period_s",
     )
     equivalent_period_s: float = param(
-        0.01, lo=0.001, hi=20.0, unit="s",
+        0.01,
+        lo=0.001,
+        hi=20.0,
+        unit="s",
         doc="the fixed period of (29) in (30) when equivalent_period = 'fixed' (0.01 s: the follower's control period)",
     )
     hybrid_model: Literal["paper", "calibrated"] = param(
@@ -75,12 +84,17 @@ class ControlConfig:
         doc="reduced model in the online choice (30): the paper's dp and k_v, or calibrated_dp and calibrated_k_v",
     )
     calibrated_dp: float = param(
-        1.0, lo=0.0, hi=1.0, lo_open=True,
+        1.0,
+        lo=0.0,
+        hi=1.0,
+        lo_open=True,
         doc="reset factor identified on the simulated walker (bipedtele calibrate, default [sim]; measured median 1.041: "
-            "the impact costs no speed, the reset (22) gets 1; docs/method.md)",
+        "the impact costs no speed, the reset (22) gets 1; docs/method.md)",
     )
     calibrated_k_v: float = param(
-        1.205, lo=0.0, lo_open=True,
+        1.205,
+        lo=0.0,
+        lo_open=True,
         doc="forward gain k_v identified on the simulated walker (bipedtele calibrate, default [sim]; docs/method.md)",
     )
 

@@ -41,7 +41,14 @@ import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.messages import MAX_DELAY_S, MAX_TIME, MIN_TIME
 
-__all__ = ["MAX_SCHEDULED_DELAY_S", "SAFE_DELAY_S", "Damping", "sanitize_delay", "schedule_damping", "schedule_damping_array"]
+__all__ = [
+    "MAX_SCHEDULED_DELAY_S",
+    "SAFE_DELAY_S",
+    "Damping",
+    "sanitize_delay",
+    "schedule_damping",
+    "schedule_damping_array",
+]
 
 #: Delay [s] used in place of a non-finite one: the largest a message may carry.
 SAFE_DELAY_S: float = float(MAX_DELAY_S)

@@ -41,9 +41,7 @@ def equivalent_matrices(
     """Continuous ``(A, B)`` of (29) for each channel: shapes ``(..., 2, 2)`` and ``(..., 2, 2)``."""
     s, d, k, b, kz = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (s_e, D, k_s, beta_e, k_z)))
     z = np.zeros_like(s)
-    a = np.stack(
-        [np.stack([-s / (d * b), (s / b - k) / d], -1), np.stack([1.0 / b, -1.0 / b], -1)], -2
-    )
+    a = np.stack([np.stack([-s / (d * b), (s / b - k) / d], -1), np.stack([1.0 / b, -1.0 / b], -1)], -2)
     bm = np.stack([np.stack([k / d, -kz / d], -1), np.stack([z, z], -1)], -2)
     return a, bm
 
@@ -82,9 +80,7 @@ def equivalent_zoh(
         ``x[k+1] = Phi x[k] + Gamma [ref, f_v]``.
     """
     key = tuple(
-        float(v)
-        for arr in (s_e, D, k_s, beta_e, k_z)
-        for v in np.broadcast_to(np.asarray(arr, dtype=float), (2,))
+        float(v) for arr in (s_e, D, k_s, beta_e, k_z) for v in np.broadcast_to(np.asarray(arr, dtype=float), (2,))
     )
     return _zoh_cached(key, float(dt))
 

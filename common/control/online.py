@@ -318,7 +318,11 @@ class OnlineChooser:
         LOG.info(
             "online choice (30): %s reduced model (dp %.3f, dp_turn %.3f, k_v %.3f, k_delta %.3f); "
             "(29) discretised over %s",
-            cfg.hybrid_model, hm.dp, hm.dp_turn, kv, kd,
+            cfg.hybrid_model,
+            hm.dp,
+            hm.dp_turn,
+            kv,
+            kd,
             "the walking cycle T" if cfg.equivalent_period == "cycle" else f"{cfg.equivalent_period_s:g} s",
         )
         sg, tg = self.sigma[:, None], self.T[None, :]
@@ -335,7 +339,9 @@ class OnlineChooser:
         self.interp_error = float(np.max(np.abs(exact_mid - 0.5 * (self._tab[:, 1:] + self._tab[:, :-1]))))
         self.band = cfg.tolerance - 2.0 * self.interp_error
         if self.band <= 0:
-            raise ValueError(f"tolerance = {cfg.tolerance} is below the table's interpolation error; allowed: > {2 * self.interp_error:.2e}")
+            raise ValueError(
+                f"tolerance = {cfg.tolerance} is below the table's interpolation error; allowed: > {2 * self.interp_error:.2e}"
+            )
         self._cols = np.arange(n_T)
         # Column-major flat copies: entry (row i, column c) is at c * n_sigma + i.
         self._flat = [np.ascontiguousarray(t.T).ravel() for t in self._tab]

@@ -465,8 +465,9 @@ def run_case(
     deficit = orbit_deficit(s_r, T_run, cfg)
 
     # operator intentions: the same for CP run i and VP run i
-    leader = SimulatedLeader(np.concatenate([inp.switch, inp.switch]), np.concatenate([inp.intent, inp.intent]),
-                             cfg, params)
+    leader = SimulatedLeader(
+        np.concatenate([inp.switch, inp.switch]), np.concatenate([inp.intent, inp.intent]), cfg, params
+    )
     k_g = np.asarray(cfg.k_g, dtype=float)
     dp = np.array([cfg.dp, cfg.dp_turn])
     eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
@@ -534,8 +535,11 @@ def run_case(
         "h1_ms": 1e3 * ch1.mean_s,
         "h2_ms": 1e3 * ch2.mean_s,
         "description": case.description,
-        "s_e": {"mean": s_e_k.mean(axis=0).tolist(), "max": s_e_k.max(axis=0).tolist(),
-                "floor_left": [bool(v) for v in np.asarray((s_e_k > cfg.s_e_min + 1e-12).any(axis=0)).tolist()]},
+        "s_e": {
+            "mean": s_e_k.mean(axis=0).tolist(),
+            "max": s_e_k.max(axis=0).tolist(),
+            "floor_left": [bool(v) for v in np.asarray((s_e_k > cfg.s_e_min + 1e-12).any(axis=0)).tolist()],
+        },
         "cp": _summary(mean_err[cp_sl], mean_offset[cp_sl], diverged[cp_sl]),
         "vp": _summary(mean_err[vp_sl], mean_offset[vp_sl], diverged[vp_sl]),
     }

@@ -175,7 +175,9 @@ def add_surfaces_parser(sub: Any) -> None:
     p.add_argument("--dp", type=float, nargs="+", default=[0.25, 0.5, 0.7], help="reset factors (0 < dp <= 1)")
     p.add_argument("--json", metavar="FILE", help="write the surfaces as JSON ('-' for stdout)")
     p.add_argument("--plot", metavar="FILE.png", help="write a figure")
-    p.add_argument("--n-sigma", type=int, default=41, choices=range(2, 1001), metavar="N", help="sigma_r points (default 41)")
+    p.add_argument(
+        "--n-sigma", type=int, default=41, choices=range(2, 1001), metavar="N", help="sigma_r points (default 41)"
+    )
     p.add_argument("--n-T", type=int, default=46, choices=range(2, 1001), metavar="N", help="T points (default 46)")
     add_config_args(p)
     p.set_defaults(func=_run_surfaces)
@@ -188,17 +190,30 @@ def add_study_parser(sub: Any) -> None:
     [--markdown F]``.
     """
     p = sub.add_parser("study", help="CP vs VP numerical study over the delay cases (Fig. 8)")
-    p.add_argument("--runs", type=int, default=None,
-                   help="runs per scheme and case (default 500; 100 with --sensitivity; 3 with --walker)")
+    p.add_argument(
+        "--runs",
+        type=int,
+        default=None,
+        help="runs per scheme and case (default 500; 100 with --sensitivity; 3 with --walker)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--duration", type=float, default=None,
-                   help="simulated seconds per run (default 60; 30 with --walker)")
+    p.add_argument(
+        "--duration", type=float, default=None, help="simulated seconds per run (default 60; 30 with --walker)"
+    )
     p.add_argument("--json", metavar="FILE", help="write the results as JSON ('-' for stdout)")
     p.add_argument("--plot", metavar="FILE.png", help="write Fig. 8")
-    p.add_argument("--sensitivity", action="store_true",
-                   help="repeat CP vs VP over the settings the paper leaves open and print one table")
-    p.add_argument("--walker", action="store_true",
-                   help="CP vs VP on the pybullet follower in simulated time (needs the follower package)")
-    p.add_argument("--markdown", metavar="FILE", help="with --sensitivity or --walker: write the table ('-' for stdout)")
+    p.add_argument(
+        "--sensitivity",
+        action="store_true",
+        help="repeat CP vs VP over the settings the paper leaves open and print one table",
+    )
+    p.add_argument(
+        "--walker",
+        action="store_true",
+        help="CP vs VP on the pybullet follower in simulated time (needs the follower package)",
+    )
+    p.add_argument(
+        "--markdown", metavar="FILE", help="with --sensitivity or --walker: write the table ('-' for stdout)"
+    )
     add_config_args(p)
     p.set_defaults(func=_run_study)

@@ -127,7 +127,11 @@ class DelayProxy:
         self._server = await asyncio.start_server(self._on_client, *self.listen, reuse_address=True)
         LOG.info(
             "delay-proxy listening on %s:%d -> %s:%d (forward %s, backward %s)",
-            self.listen[0], self.port, *self.target, self.forward.spec, self.backward.spec,
+            self.listen[0],
+            self.port,
+            *self.target,
+            self.forward.spec,
+            self.backward.spec,
         )
 
     async def close(self) -> None:

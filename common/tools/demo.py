@@ -160,11 +160,22 @@ class DemoPlan:
             leader_ep = f"tcp/127.0.0.1:{self.proxy_port}"
             in_l = in_f = []
         leader = [
-            *in_l, *exe, "leader", *common,
-            "--set", 'network.mode="client"', "--set", f'network.connect=["{leader_ep}"]',
-            "--set", 'network.listen=[]',
-            "--set", f"leader.cockpit_port={0 if self.headless else self.cockpit_port}",
-            "--operator", self.operator, "--record", str(self.record),
+            *in_l,
+            *exe,
+            "leader",
+            *common,
+            "--set",
+            'network.mode="client"',
+            "--set",
+            f'network.connect=["{leader_ep}"]',
+            "--set",
+            "network.listen=[]",
+            "--set",
+            f"leader.cockpit_port={0 if self.headless else self.cockpit_port}",
+            "--operator",
+            self.operator,
+            "--record",
+            str(self.record),
             *self.leader_args,
         ]
         if self.duration_s is not None:
@@ -172,17 +183,35 @@ class DemoPlan:
         out = {"router": [*in_f, *exe, "router", *common, "--listen", router_ep]}
         if self.backend == "proxy":
             out["proxy"] = [
-                *exe, "delay-proxy", "--listen", f"127.0.0.1:{self.proxy_port}",
-                "--target", f"127.0.0.1:{self.router_port}",
-                "--forward", self.forward, "--backward", self.backward, "--t0", f"{self.t0:.6f}",
+                *exe,
+                "delay-proxy",
+                "--listen",
+                f"127.0.0.1:{self.proxy_port}",
+                "--target",
+                f"127.0.0.1:{self.router_port}",
+                "--forward",
+                self.forward,
+                "--backward",
+                self.backward,
+                "--t0",
+                f"{self.t0:.6f}",
             ]
         return {
             **out,
             "follower": [
-                *in_f, *exe, "follower", *common,
-                "--set", 'network.mode="client"', "--set", f'network.connect=["{router_ep}"]',
-                "--set", 'network.listen=[]',
-                "--record", str(self.run_dir / "follower.mcap"), *self.follower_args,
+                *in_f,
+                *exe,
+                "follower",
+                *common,
+                "--set",
+                'network.mode="client"',
+                "--set",
+                f'network.connect=["{router_ep}"]',
+                "--set",
+                "network.listen=[]",
+                "--record",
+                str(self.run_dir / "follower.mcap"),
+                *self.follower_args,
             ],
             "leader": leader,
         }
@@ -207,7 +236,9 @@ class DemoPlan:
             f"{link.dev[FOLLOWER]}; seconds after the start, then the command",
         ]
         forward, backward = parse_delay_model(self.forward), parse_delay_model(self.backward)
-        lines += [f"{s.t:.3f} {' '.join(s.command)}" for s in schedule(link, forward, backward, t_end, self.netem_extra)]
+        lines += [
+            f"{s.t:.3f} {' '.join(s.command)}" for s in schedule(link, forward, backward, t_end, self.netem_extra)
+        ]
         lines += [
             "# teardown (after stopping the processes inside the namespaces)",
             *(" ".join(c) for c in link.teardown_commands()),
@@ -291,8 +322,17 @@ def run_demo(
     plan.run_dir.chmod(0o700)  # its leader.log holds the cockpit token
     plan.t0 = time.time()  # origin of trace delay models (recorded for later checks)
     (plan.run_dir / "plan.json").write_text(
-        json.dumps({"t0": plan.t0, "forward": plan.forward, "backward": plan.backward,
-                    "backend": plan.backend, "commands": plan.commands()}, indent=2) + "\n"
+        json.dumps(
+            {
+                "t0": plan.t0,
+                "forward": plan.forward,
+                "backward": plan.backward,
+                "backend": plan.backend,
+                "commands": plan.commands(),
+            },
+            indent=2,
+        )
+        + "\n"
     )
     with shutdown_on_signals() as stop, contextlib.ExitStack() as network:
         if plan.backend == "netem" and isinstance(plan.link, VethLink):
@@ -377,7 +417,9 @@ def scale_delay_spec(spec: str, k: float, folder: Path, name: str) -> str:
     if isinstance(model, UniformDelay):
         biggest = model.mean + model.half_width
     if k * biggest > MAX_DELAY_S:
-        raise ConfigError(f"--delay-scale {k:g}: {spec} becomes longer than {MAX_DELAY_S:g} s; allowed: a smaller scale")
+        raise ConfigError(
+            f"--delay-scale {k:g}: {spec} becomes longer than {MAX_DELAY_S:g} s; allowed: a smaller scale"
+        )
     ms = lambda s: f"{1e3 * k * s:.6g}ms"  # noqa: E731
     if isinstance(model, ConstDelay):
         return f"const:{ms(model.delay)}"
@@ -388,7 +430,9 @@ def scale_delay_spec(spec: str, k: float, folder: Path, name: str) -> str:
     if isinstance(model, TraceDelay):
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"delay-{name}-x{k:g}.csv"
-        rows = ["t_s,h1_ms,h2_ms"] + [f"{t:.6f},{1e3 * k * d:.6f},{1e3 * k * d:.6f}" for t, d in zip(model.t, model.d, strict=True)]
+        rows = ["t_s,h1_ms,h2_ms"] + [
+            f"{t:.6f},{1e3 * k * d:.6f},{1e3 * k * d:.6f}" for t, d in zip(model.t, model.d, strict=True)
+        ]
         path.write_text("\n".join(rows) + "\n", encoding="utf-8")
         return f"trace:{path.resolve()}:h1"
     raise ConfigError(f"--delay-scale: cannot scale the delay model {spec!r}")  # pragma: no cover
@@ -423,7 +467,9 @@ def _backend(requested: str, dry_run: bool) -> str:
         if not ok:
             raise ConfigError(f"--delay-backend netem: {why}; allowed here: proxy, or auto (or packet, as root)")
     if requested == "packet" and not dry_run and os.geteuid() != 0:
-        raise ConfigError("--delay-backend packet: network namespaces and raw sockets need root; allowed here: proxy, or auto")
+        raise ConfigError(
+            "--delay-backend packet: network namespaces and raw sockets need root; allowed here: proxy, or auto"
+        )
     return requested
 
 
@@ -434,7 +480,9 @@ def _impairments(args: argparse.Namespace, backend: str) -> list[str]:
     if backend == "netem" and args.outage:
         raise ConfigError("--outage: allowed only with --delay-backend packet (netem has no outage schedule)")
     if given and backend not in ("packet", "netem"):
-        raise ConfigError(f"{given[0]}: allowed only with --delay-backend packet or netem (the delay {backend} carries no loss, rate or outage)")
+        raise ConfigError(
+            f"{given[0]}: allowed only with --delay-backend packet or netem (the delay {backend} carries no loss, rate or outage)"
+        )
     out: list[str] = []
     if args.loss:
         parse_loss(args.loss)
@@ -530,10 +578,23 @@ def add_demo_parser(sub: Any) -> None:
         "demo", help="run the whole teleoperation on this machine with an intercontinental delay"
     )
     add_config_args(p, default="localhost-delay")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: when the task is done)")
-    p.add_argument("--delay-trace", default=None, metavar="F", help="CSV trace t_s,h1_ms,h2_ms (default: the shipped intercontinental trace)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after S seconds (default: when the task is done)",
+    )
+    p.add_argument(
+        "--delay-trace",
+        default=None,
+        metavar="F",
+        help="CSV trace t_s,h1_ms,h2_ms (default: the shipped intercontinental trace)",
+    )
     p.add_argument("--delay", default=None, metavar="FWD,BWD", help="delay models, e.g. const:150ms,const:220ms")
-    p.add_argument("--operator", default="pilot", choices=["pilot", "scripted", "browser"], help="who drives (default: pilot)")
+    p.add_argument(
+        "--operator", default="pilot", choices=["pilot", "scripted", "browser"], help="who drives (default: pilot)"
+    )
     p.add_argument("--headless", action="store_true", help="no cockpit server")
     p.add_argument("--record", default=None, metavar="F.mcap", help="leader recording (default: RUN_DIR/leader.mcap)")
     p.add_argument("--json", default=None, metavar="F", help="write the report as JSON")
@@ -544,14 +605,34 @@ def add_demo_parser(sub: Any) -> None:
         "veth pair), packet (root: the per-packet link emulator between two namespaces, see "
         "docs/linkemu.md) or auto (netem where available, else the proxy)",
     )  # fmt: skip
-    p.add_argument("--loss", default=None, metavar="SPEC", help="packet or netem backend: loss each way (1%%, ge:p=1%%,r=30%%)")
-    p.add_argument("--rate-up", default=None, metavar="RATE", help="packet or netem backend: leader -> follower rate cap (e.g. 2mbit)")
-    p.add_argument("--rate-down", default=None, metavar="RATE", help="packet or netem backend: follower -> leader rate cap (e.g. 8mbit)")
-    p.add_argument("--outage", action="append", default=[], metavar="SPEC", help="packet backend: outage both ways, at=30s,for=3s[,every=60s] (repeatable)")
+    p.add_argument(
+        "--loss", default=None, metavar="SPEC", help="packet or netem backend: loss each way (1%%, ge:p=1%%,r=30%%)"
+    )
+    p.add_argument(
+        "--rate-up",
+        default=None,
+        metavar="RATE",
+        help="packet or netem backend: leader -> follower rate cap (e.g. 2mbit)",
+    )
+    p.add_argument(
+        "--rate-down",
+        default=None,
+        metavar="RATE",
+        help="packet or netem backend: follower -> leader rate cap (e.g. 8mbit)",
+    )
+    p.add_argument(
+        "--outage",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="packet backend: outage both ways, at=30s,for=3s[,every=60s] (repeatable)",
+    )
     p.add_argument(
         "--delay-scale", default="1", metavar="K",
         help="multiply every delay of the chosen models by K (0 to 10; e.g. 2: the trace with its delays doubled)",
     )  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
-    p.add_argument("--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing")
+    p.add_argument(
+        "--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing"
+    )
     p.set_defaults(func=_run)

@@ -97,7 +97,12 @@ def disable_offloads(dev: str, features: tuple[str, ...] = ("gro", "gso", "tso",
 
 
 def build_direction(
-    delay: str, loss: str = "none", rate: str = "none", queue: str = "64kB", outages: list[str] | None = None, seed: int = 0
+    delay: str,
+    loss: str = "none",
+    rate: str = "none",
+    queue: str = "64kB",
+    outages: list[str] | None = None,
+    seed: int = 0,
 ) -> Direction:
     """Build one direction's model from its specs (ConfigError, one line, when one is bad)."""
     bps = parse_rate(rate)
@@ -198,7 +203,9 @@ class LinkEmulator:
                 c.dropped["outage"], c.queue_bytes_max,
             )  # fmt: skip
 
-    def run(self, stop: Callable[[], bool], stats_every_s: float = 10.0, on_stats: Callable[[], None] | None = None) -> None:
+    def run(
+        self, stop: Callable[[], bool], stats_every_s: float = 10.0, on_stats: Callable[[], None] | None = None
+    ) -> None:
         """Forward until ``stop()`` returns True (checked at least every 0.1 s)."""
         if not self._ports:
             self.open()
@@ -236,7 +243,11 @@ class LinkEmulator:
             if len(frame) > 1518:
                 self.oversize += 1
                 if self.oversize == 1:
-                    LOG.warning("link-emu: %d-byte frame on %s: turn off segmentation offloads on the sender", len(frame), port.dev)
+                    LOG.warning(
+                        "link-emu: %d-byte frame on %s: turn off segmentation offloads on the sender",
+                        len(frame),
+                        port.dev,
+                    )
             verdict = model.admit(self.now(), len(frame))
             if verdict.release_s is not None:
                 out.pending.append((verdict.release_s, frame))
@@ -276,7 +287,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         emu.open()
     except OSError as exc:
-        raise ConfigError(f"--a {args.a!r} / --b {args.b!r}: cannot open a raw socket ({exc.strerror}); allowed: existing interfaces, as root") from None
+        raise ConfigError(
+            f"--a {args.a!r} / --b {args.b!r}: cannot open a raw socket ({exc.strerror}); allowed: existing interfaces, as root"
+        ) from None
     stopping: list[int] = []
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -303,15 +316,40 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--a", required=True, metavar="DEV", help="interface of side A")
     p.add_argument("--b", required=True, metavar="DEV", help="interface of side B")
     for name, arrow in (("forward", "a -> b"), ("backward", "b -> a")):
-        p.add_argument(f"--{name}", default="const:0ms", metavar="MODEL", help=f"{arrow} delay model (default const:0ms)")
-        p.add_argument(f"--loss-{name}", default="none", metavar="SPEC", help=f"{arrow} loss: {ALLOWED_LOSS}".replace("%", "%%"))
+        p.add_argument(
+            f"--{name}", default="const:0ms", metavar="MODEL", help=f"{arrow} delay model (default const:0ms)"
+        )
+        p.add_argument(
+            f"--loss-{name}", default="none", metavar="SPEC", help=f"{arrow} loss: {ALLOWED_LOSS}".replace("%", "%%")
+        )
         p.add_argument(f"--rate-{name}", default="none", metavar="RATE", help=f"{arrow} rate cap: {ALLOWED_RATE}")
-        p.add_argument(f"--queue-{name}", default="64kB", metavar="SIZE", help=f"{arrow} queue of the rate cap: {ALLOWED_QUEUE} (default 64kB)")
-        p.add_argument(f"--outage-{name}", action="append", default=[], metavar="SPEC", help=f"{arrow} outage (repeatable): {ALLOWED_OUTAGE}")
+        p.add_argument(
+            f"--queue-{name}",
+            default="64kB",
+            metavar="SIZE",
+            help=f"{arrow} queue of the rate cap: {ALLOWED_QUEUE} (default 64kB)",
+        )
+        p.add_argument(
+            f"--outage-{name}",
+            action="append",
+            default=[],
+            metavar="SPEC",
+            help=f"{arrow} outage (repeatable): {ALLOWED_OUTAGE}",
+        )
     p.add_argument("--seed", type=int, default=0, help="seed of the random models (default 0)")
-    p.add_argument("--t0", type=float, default=None, metavar="UNIX_TIME", help="time origin of the models and outages (default: start)")
-    p.add_argument("--stats-every", type=float, default=10.0, metavar="S", help="log the counters every S seconds (default 10)")
-    p.add_argument("--stats-json", default=None, metavar="FILE", help="also write the counters to FILE (JSON) then and at exit")
+    p.add_argument(
+        "--t0",
+        type=float,
+        default=None,
+        metavar="UNIX_TIME",
+        help="time origin of the models and outages (default: start)",
+    )
+    p.add_argument(
+        "--stats-every", type=float, default=10.0, metavar="S", help="log the counters every S seconds (default 10)"
+    )
+    p.add_argument(
+        "--stats-json", default=None, metavar="FILE", help="also write the counters to FILE (JSON) then and at exit"
+    )
 
 
 DESCRIPTION = (
@@ -322,7 +360,9 @@ DESCRIPTION = (
 
 def add_link_emu_parser(sub: Any) -> None:
     """Register ``bipedtele link-emu``."""
-    p = sub.add_parser("link-emu", help="per-packet link emulator between two interfaces (root)", description=DESCRIPTION)
+    p = sub.add_parser(
+        "link-emu", help="per-packet link emulator between two interfaces (root)", description=DESCRIPTION
+    )
     _add_arguments(p)
     p.set_defaults(func=run)
 

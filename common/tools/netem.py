@@ -92,7 +92,9 @@ def tc_commands(
         elif loss.startswith("ge:"):
             cmd += impairment_args(loss=loss)
         else:
-            raise ConfigError(f"--loss {loss!r}: allowed: a percentage like 0.1%, or ge:p=1%,r=30%[,bad=100%][,good=0%]")
+            raise ConfigError(
+                f"--loss {loss!r}: allowed: a percentage like 0.1%, or ge:p=1%,r=30%[,bad=100%][,good=0%]"
+            )
     cmd += impairment_args(rate=rate, queue=queue)
     return [cmd]
 
@@ -132,9 +134,7 @@ def netem_available(
         pass
     modprobe = shutil.which("modprobe")
     if modprobe is not None:
-        res = subprocess.run(
-            [modprobe, "-n", "sch_netem"], capture_output=True, text=True, timeout=10, check=False
-        )
+        res = subprocess.run([modprobe, "-n", "sch_netem"], capture_output=True, text=True, timeout=10, check=False)
         if res.returncode == 0:
             return True, "sch_netem can be loaded"
     return False, f"kernel {release} has no sch_netem module (not loaded, not built in, not loadable)"
@@ -142,7 +142,9 @@ def netem_available(
 
 def run(args: argparse.Namespace) -> int:
     """``bipedtele netem apply|clear|show``."""
-    cmds = tc_commands(args.action, args.dev, args.delay, args.jitter, args.distribution, args.loss, args.rate, args.queue)
+    cmds = tc_commands(
+        args.action, args.dev, args.delay, args.jitter, args.distribution, args.loss, args.rate, args.queue
+    )
     if args.dry_run:
         for c in cmds:
             print(" ".join(c))  # noqa: T201 (CLI output)
@@ -153,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
             sys.stderr.write(f"bipedtele netem: netem unavailable: {why}; {FALLBACK}\n")
             return 1
         if os.geteuid() != 0:
-            sys.stderr.write("bipedtele netem: changing qdiscs needs root (run with sudo); " f"or {FALLBACK}\n")
+            sys.stderr.write(f"bipedtele netem: changing qdiscs needs root (run with sudo); or {FALLBACK}\n")
             return 1
     elif shutil.which("tc") is None:
         sys.stderr.write(f"bipedtele netem: the `tc` command (iproute2) is not installed; {FALLBACK}\n")

@@ -163,6 +163,7 @@ def schedule(
     more = {side: list((extra or {}).get(side, ())) for side in models}
     for side, model in models.items():
         yield Step(0.0, side, _command(link, side, "add", netem_args(model, 0.0, more[side])))
+
     def tagged(order: int, side: str) -> Iterator[tuple[float, int, str]]:
         for t in replay_times(models[side], t_end):
             yield t, order, side

@@ -143,7 +143,12 @@ class VethLink:
             raise
         LOG.info(
             "netns: %s (%s %s) <-> %s (%s %s)",
-            self.ns[LEADER], self.dev[LEADER], self.leader_ip, self.ns[FOLLOWER], self.dev[FOLLOWER], self.follower_ip,
+            self.ns[LEADER],
+            self.dev[LEADER],
+            self.leader_ip,
+            self.ns[FOLLOWER],
+            self.dev[FOLLOWER],
+            self.follower_ip,
         )
         return self
 
@@ -271,7 +276,12 @@ class EmulatedLink:
             ip = self.ip(side)
             cmds += [
                 ["ip", "link", "add", d[side], "type", "veth", "peer", "name", d[inner]],
-                ["ethtool", "-K", d[side], *(x for f in WIRE_OFFLOADS for x in (f.replace("tx-checksum", "tx"), "off"))],
+                [
+                    "ethtool",
+                    "-K",
+                    d[side],
+                    *(x for f in WIRE_OFFLOADS for x in (f.replace("tx-checksum", "tx"), "off")),
+                ],
                 ["ethtool", "-K", d[inner], "gro", "off"],
                 ["ip", "link", "set", d[side], "netns", n[side]],
                 ["ip", "link", "set", d[inner], "netns", n[MIDDLE]],
@@ -320,7 +330,14 @@ class EmulatedLink:
         except BaseException:
             self.remove()
             raise
-        LOG.info("netns: %s (%s) <-> link-emu in %s <-> %s (%s)", self.ns[SIDE_A], self.a_ip, self.ns[MIDDLE], self.ns[SIDE_B], self.b_ip)
+        LOG.info(
+            "netns: %s (%s) <-> link-emu in %s <-> %s (%s)",
+            self.ns[SIDE_A],
+            self.a_ip,
+            self.ns[MIDDLE],
+            self.ns[SIDE_B],
+            self.b_ip,
+        )
         return self
 
     def pin_neighbours(self) -> None:
@@ -509,7 +526,15 @@ class CockpitRelay:
             sock.bind(("127.0.0.1", self.port))
             sock.listen(16)
             fd = sock.fileno()
-            cmd = [*self.link.exec_prefix(self.side), sys.executable, "-m", "bipedtele.tools.netns", "relay", str(fd), str(self.port)]
+            cmd = [
+                *self.link.exec_prefix(self.side),
+                sys.executable,
+                "-m",
+                "bipedtele.tools.netns",
+                "relay",
+                str(fd),
+                str(self.port),
+            ]
             self.proc = subprocess.Popen(cmd, pass_fds=[fd], start_new_session=True)
         return self
 

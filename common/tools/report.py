@@ -272,9 +272,7 @@ def _collect(records: Iterable[Record]) -> _Run:
                     run.status[sid] = []
                     run.status_order.append(sid)
                 if isinstance(sid, int):
-                    run.status[sid].append(
-                        {k: v for k, v in counters.items() if isinstance(v, int)}
-                    )
+                    run.status[sid].append({k: v for k, v in counters.items() if isinstance(v, int)})
     return run
 
 
@@ -385,9 +383,7 @@ def compute_report(records: Iterable[Record], follower: Iterable[Record] | None 
             out["forward_error_cm_s"] = float(err[:, 0] @ w)
             out["turn_error_deg_s"] = float(err[:, 1] @ w)
             out["odometry_source"] = source
-    out["falls"] = max(
-        run.event_counts.get("fall", 0), _status_increase(run, "falls"), run.fallen_transitions
-    )
+    out["falls"] = max(run.event_counts.get("fall", 0), _status_increase(run, "falls"), run.fallen_transitions)
     out["collisions"] = max(run.event_counts.get("collision", 0), _status_increase(run, "collisions"))
     return out
 
@@ -469,7 +465,7 @@ def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tupl
         j = i  # the walking run is [i, j]
         while j + 1 < n and walking[j + 1] and ts[j + 1] - ts[j] <= half[j]:
             j += 1
-        seg_t, seg_p = ts[i:j + 1], pose[i:j + 1]
+        seg_t, seg_p = ts[i : j + 1], pose[i : j + 1]
         t0 = ts[i]
         while True:
             k = i + int(np.searchsorted(seg_t, t0, side="right")) - 1
@@ -481,7 +477,7 @@ def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tupl
                 p0 = [float(np.interp(t0, seg_t, seg_p[:, c])) for c in range(3)]
                 p1 = [float(np.interp(t1, seg_t, seg_p[:, c])) for c in range(3)]
                 v, w = _step_speed(p0, p1, t1 - t0)
-                ref = refs[i:j + 1][keep].mean(axis=0)
+                ref = refs[i : j + 1][keep].mean(axis=0)
                 out.append((t1 - t0, v, w, float(ref[0]), float(ref[1])))
             t0 = t1
         i = j + 1
@@ -739,10 +735,16 @@ def add_report_parser(sub: Any) -> None:
         description="Print the paper's Table 2 columns for a recorded run (MCAP) and "
         "optionally write them as JSON and the Fig. 9/11/12-like figures as PNG.",
     )
-    p.add_argument("recording", metavar="RUN.mcap",
-                   help="a leader or follower recording, or a run folder holding leader.mcap (and follower.mcap)")
-    p.add_argument("--follower", metavar="F.mcap",
-                   help="the follower's recording of the same run: exact per-step speeds from its footfalls")
+    p.add_argument(
+        "recording",
+        metavar="RUN.mcap",
+        help="a leader or follower recording, or a run folder holding leader.mcap (and follower.mcap)",
+    )
+    p.add_argument(
+        "--follower",
+        metavar="F.mcap",
+        help="the follower's recording of the same run: exact per-step speeds from its footfalls",
+    )
     p.add_argument("--json", metavar="F", help="write the report as JSON to this file")
     p.add_argument("--plots", metavar="DIR", help="write fig9/fig11/fig12 PNGs into this folder")
     p.set_defaults(func=_run_report)

@@ -134,9 +134,7 @@ def check_router_name(name: str) -> str:
         pass
     if len(name) <= 253 and _DNS_NAME.match(name) and not name.replace(".", "").isdigit():
         return name
-    raise ConfigError(
-        f"--router-name {name!r}: allowed: the router's DNS name (router.example.org) or IP address"
-    )
+    raise ConfigError(f"--router-name {name!r}: allowed: the router's DNS name (router.example.org) or IP address")
 
 
 def _openssl(*args: str) -> None:
@@ -470,7 +468,11 @@ def _instructions(result: TwoHosts, router_name: str, port: int) -> str:
         "robot": "the robot host (runs the follower; the NAO's network for a real robot)",
         "operator": "the operator host (runs the leader and its cockpit)",
     }
-    lines = [f"setup: wrote {o}/ for the router {router_name}:{port}", "", "1. Copy each folder to its host (keep the modes: scp -rp, rsync -a):"]
+    lines = [
+        f"setup: wrote {o}/ for the router {router_name}:{port}",
+        "",
+        "1. Copy each folder to its host (keep the modes: scp -rp, rsync -a):",
+    ]
     width = max(len(f"{o / h}/") for h in HOSTS)
     lines += [f"     {f'{o / h}/':<{width}}  ->  {role[h]}" for h in HOSTS]
     lines += ["", "2. On each host, in the folder that holds the copied folder, run:"]
@@ -509,7 +511,9 @@ def _run_message_key(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.file}: exists; allowed: a new file (a key is never overwritten)") from None
     except OSError as exc:
         raise ConfigError(f"{args.file}: cannot create ({exc.strerror}); allowed: a writable folder") from None
-    os.write(1, f"setup: wrote a message key to {path} (mode 0600); copy it to the robot and operator hosts only\n".encode())
+    os.write(
+        1, f"setup: wrote a message key to {path} (mode 0600); copy it to the robot and operator hosts only\n".encode()
+    )
     return 0
 
 
@@ -522,7 +526,9 @@ def add_setup_parser(sub: Any) -> None:
     t.add_argument("--router-name", action="append", required=True, metavar="NAME",
                    help="the router's DNS name or IP address, as the robot and operator reach it")  # fmt: skip
     t.add_argument("--router-port", type=int, default=7447, metavar="PORT", help="the router's TLS port (default 7447)")
-    t.add_argument("--out", default="two-hosts", metavar="DIR", help="new or empty folder to write (default: two-hosts)")
+    t.add_argument(
+        "--out", default="two-hosts", metavar="DIR", help="new or empty folder to write (default: two-hosts)"
+    )
     t.add_argument("--robot-id", default="nao1", metavar="ID", help="robot id (default nao1)")
     t.set_defaults(func=_run_two_hosts)
     c = ss.add_parser("certs", help="a CA and router/leader/follower certificates (as scripts/make-certs.sh)")

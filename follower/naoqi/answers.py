@@ -62,10 +62,14 @@ def decode_image(value: Any) -> np.ndarray:
     if value is None:
         raise RobotError("ALVideoDevice.getImageRemote answered no image (camera busy or not subscribed)")
     if isinstance(value, str | bytes) or not isinstance(value, Sequence) or len(value) < 7:
-        raise RobotError(f"ALVideoDevice.getImageRemote answered {_short(value)}: expected [w, h, layers, colorspace, s, us, data, ...]")
+        raise RobotError(
+            f"ALVideoDevice.getImageRemote answered {_short(value)}: expected [w, h, layers, colorspace, s, us, data, ...]"
+        )
     w, h, layers = value[0], value[1], value[2]
     if not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in (w, h, layers)):
-        raise RobotError(f"ALVideoDevice image header {_short(list(value[:6]))}: expected positive integer width, height, layers")
+        raise RobotError(
+            f"ALVideoDevice image header {_short(list(value[:6]))}: expected positive integer width, height, layers"
+        )
     if layers != 3:
         raise RobotError(f"ALVideoDevice image has {layers} layers: expected 3 (kRGBColorSpace = 11)")
     data = value[6]
@@ -74,5 +78,7 @@ def decode_image(value: Any) -> np.ndarray:
     if not isinstance(data, bytes | bytearray):
         raise RobotError(f"ALVideoDevice image data is {type(data).__name__}: expected raw bytes")
     if len(data) != w * h * layers:
-        raise RobotError(f"ALVideoDevice image data has {len(data)} bytes: expected {w}x{h}x{layers} = {w * h * layers}")
+        raise RobotError(
+            f"ALVideoDevice image data has {len(data)} bytes: expected {w}x{h}x{layers} = {w * h * layers}"
+        )
     return np.frombuffer(bytes(data), dtype=np.uint8).reshape(h, w, layers).copy()

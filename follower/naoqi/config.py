@@ -12,7 +12,12 @@ from bipedtele.config import ConfigError, param
 __all__ = ["SONAR_RANGES_M", "NaoqiConfig"]
 
 #: Reliable sonar range [m] per NAO head/body version (docs/hardware.md).
-SONAR_RANGES_M: dict[str, tuple[float, float]] = {"v5": (0.20, 0.80), "v6": (0.20, 0.80), "v4": (0.25, 2.55), "v3": (0.25, 2.55)}
+SONAR_RANGES_M: dict[str, tuple[float, float]] = {
+    "v5": (0.20, 0.80),
+    "v6": (0.20, 0.80),
+    "v4": (0.25, 2.55),
+    "v3": (0.25, 2.55),
+}
 
 
 @dataclass(frozen=True)
@@ -25,30 +30,50 @@ class NaoqiConfig:
     ``[2 min_step_period_s, 2 max_step_period_s]``.
     """
 
-    url: str = param("tcp://nao.local:9559", doc="NAOqi URL: tcp://HOST:9559, or tcps://HOST:9503 (NAOqi >= 2.9, with user/password)")
+    url: str = param(
+        "tcp://nao.local:9559", doc="NAOqi URL: tcp://HOST:9559, or tcps://HOST:9503 (NAOqi >= 2.9, with user/password)"
+    )
     user: str = param("", doc="user for tcps:// (NAOqi >= 2.9), usually 'nao'")
     password: str = param("", doc="password for tcps:// (prefer password_file)")
     password_file: str = param("", doc="file whose first line is the password")
     connect_timeout_s: float = param(10.0, lo=0.1, hi=300.0, unit="s", doc="session connect timeout")
-    call_timeout_s: float = param(2.0, lo=0.05, hi=60.0, unit="s", doc="longest wait for one NAOqi call before the robot counts as gone")
+    call_timeout_s: float = param(
+        2.0, lo=0.05, hi=60.0, unit="s", doc="longest wait for one NAOqi call before the robot counts as gone"
+    )
     posture_timeout_s: float = param(30.0, lo=1.0, hi=300.0, unit="s", doc="longest wait for wakeUp and StandInit")
     posture_speed: float = param(0.5, lo=0.05, hi=1.0, doc="ALRobotPosture.goToPosture speed fraction")
     reconnect_timeout_s: float = param(30.0, lo=0.0, hi=3600.0, unit="s", doc="reconnect(): give up after this long")
-    reconnect_backoff_s: list[float] = param(default_factory=lambda: [0.2, 5.0], unit="s", doc="reconnect(): first and largest wait between tries (doubling)")
+    reconnect_backoff_s: list[float] = param(
+        default_factory=lambda: [0.2, 5.0], unit="s", doc="reconnect(): first and largest wait between tries (doubling)"
+    )
     # ---- walk
-    max_step_x_m: float = param(0.04, lo=0.001, hi=0.08, unit="m", doc="MaxStepX: longest forward step (NAO default 0.04)")
-    max_step_y_m: float = param(0.14, lo=0.101, hi=0.16, unit="m", doc="MaxStepY: lateral foot separation bound (NAO default 0.14)")
-    max_step_theta_rad: float = param(0.349, lo=0.001, hi=0.524, unit="rad", doc="MaxStepTheta: largest turn per step (NAO default 0.349)")
+    max_step_x_m: float = param(
+        0.04, lo=0.001, hi=0.08, unit="m", doc="MaxStepX: longest forward step (NAO default 0.04)"
+    )
+    max_step_y_m: float = param(
+        0.14, lo=0.101, hi=0.16, unit="m", doc="MaxStepY: lateral foot separation bound (NAO default 0.14)"
+    )
+    max_step_theta_rad: float = param(
+        0.349, lo=0.001, hi=0.524, unit="rad", doc="MaxStepTheta: largest turn per step (NAO default 0.349)"
+    )
     step_height_m: float = param(0.02, lo=0.005, hi=0.04, unit="m", doc="StepHeight (NAO default 0.02)")
     min_step_period_s: float = param(0.40, lo=0.1, hi=2.0, unit="s", doc="step period at MaxStepFrequency = 1")
     max_step_period_s: float = param(0.60, lo=0.1, hi=2.0, unit="s", doc="step period at MaxStepFrequency = 0")
-    max_forward_m_s: float = param(0.10, lo=0.0, lo_open=True, hi=0.2, unit="m/s", doc="largest forward speed asked of NAO")
-    max_turn_rad_s: float = param(math.radians(20.0), lo=0.0, lo_open=True, hi=1.5, unit="rad/s", doc="largest turn rate asked of NAO")
+    max_forward_m_s: float = param(
+        0.10, lo=0.0, lo_open=True, hi=0.2, unit="m/s", doc="largest forward speed asked of NAO"
+    )
+    max_turn_rad_s: float = param(
+        math.radians(20.0), lo=0.0, lo_open=True, hi=1.5, unit="rad/s", doc="largest turn rate asked of NAO"
+    )
     use_sensors: bool = param(False, doc="odometry from joint sensors (getRobotPosition(True)) instead of commands")
     # ---- sensors
-    sonar_version: Literal["v3", "v4", "v5", "v6"] = param("v6", doc="NAO version: sets the reliable sonar range (v5/v6 0.20-0.80 m, v3/v4 0.25-2.55 m)")
+    sonar_version: Literal["v3", "v4", "v5", "v6"] = param(
+        "v6", doc="NAO version: sets the reliable sonar range (v5/v6 0.20-0.80 m, v3/v4 0.25-2.55 m)"
+    )
     fall_tilt_rad: float = param(0.8, lo=0.1, hi=1.6, unit="rad", doc="torso tilt beyond this counts as fallen")
-    camera_fps: float = param(15.0, lo=1.0, hi=30.0, unit="Hz", doc="frame rate asked of ALVideoDevice (top camera, QVGA RGB)")
+    camera_fps: float = param(
+        15.0, lo=1.0, hi=30.0, unit="Hz", doc="frame rate asked of ALVideoDevice (top camera, QVGA RGB)"
+    )
     client_name: str = param("bipedtele", doc="name used for ALSonar / ALVideoDevice subscriptions")
     # ---- watchdog beside the robot (follower/naoqi/nao_guard.py, docs/hardware.md)
     allow_unguarded: bool = param(
@@ -68,7 +93,9 @@ class NaoqiConfig:
             raise ValueError("min_step_period_s, max_step_period_s: allowed: min_step_period_s < max_step_period_s")
         lo, hi = self.reconnect_backoff_s if len(self.reconnect_backoff_s) == 2 else (-1.0, -1.0)
         if not 0 < lo <= hi:
-            raise ValueError(f"reconnect_backoff_s = {self.reconnect_backoff_s!r}: allowed: [first s, largest s] with 0 < first <= largest")
+            raise ValueError(
+                f"reconnect_backoff_s = {self.reconnect_backoff_s!r}: allowed: [first s, largest s] with 0 < first <= largest"
+            )
 
     @property
     def sonar_range_m(self) -> tuple[float, float]:

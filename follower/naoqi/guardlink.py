@@ -147,7 +147,12 @@ class GuardLink:
                 LOG.debug("no %s yet: %s", GUARD_SERVICE, exc)
                 return
             if not version.startswith("bipedtele-guard "):
-                LOG.error("%s answered version %r: expected 'bipedtele-guard %d'; not a guard this bridge can use", GUARD_SERVICE, version, PROTOCOL)
+                LOG.error(
+                    "%s answered version %r: expected 'bipedtele-guard %d'; not a guard this bridge can use",
+                    GUARD_SERVICE,
+                    version,
+                    PROTOCOL,
+                )
                 return
             self._proxy, self.version = proxy, version
             LOG.info("NAO guard found (%s): heartbeats every %.0f ms", version, 1000 * self.period_s)

@@ -107,9 +107,16 @@ class Guard(object):
         """Return the guard's state and counters as a dict."""
         with self._lock:
             since = None if self.last_beat is None else self._clock() - self.last_beat
-            return {"armed": self.armed, "owner": self.owner, "since_last_s": since, "beats": self.beats,
-                    "stops": self.stops, "failed_stops": self.failed_stops, "lapse_s": self.lapse_s,
-                    "pending": self._pending}
+            return {
+                "armed": self.armed,
+                "owner": self.owner,
+                "since_last_s": since,
+                "beats": self.beats,
+                "stops": self.stops,
+                "failed_stops": self.failed_stops,
+                "lapse_s": self.lapse_s,
+                "pending": self._pending,
+            }
 
     def check(self):
         """Fire when a lapse began; retry a failed stop. Returns True when it called stop."""
@@ -119,8 +126,11 @@ class Guard(object):
                 self.armed = False
                 self._pending = True
                 self._next_retry = now
-                LOG.warning("no heartbeat from %s for %.3f s: stopping NAO (ALMotion.stopMove)",
-                            self.owner, now - self.last_beat)
+                LOG.warning(
+                    "no heartbeat from %s for %.3f s: stopping NAO (ALMotion.stopMove)",
+                    self.owner,
+                    now - self.last_beat,
+                )
             if not self._pending or now < self._next_retry:
                 return False
         try:
@@ -285,8 +295,13 @@ class Runner(object):
                 return 3
             with self._lock:
                 self._session, self._motion = session, None
-            LOG.info("%s registered on %s (%s, lapse %.2f s): waiting for heartbeats",
-                     SERVICE, self.url, VERSION, self.guard.lapse_s)
+            LOG.info(
+                "%s registered on %s (%s, lapse %.2f s): waiting for heartbeats",
+                SERVICE,
+                self.url,
+                VERSION,
+                self.guard.lapse_s,
+            )
             while not self.stopping.is_set() and _connected(session):
                 self.stopping.wait(0.2)
             with self._lock:
@@ -322,12 +337,22 @@ def build_parser(parser=None):
     """Return the guard's command-line options (also used by ``bipedtele nao-guard``)."""
     if parser is None:
         parser = argparse.ArgumentParser(prog="nao_guard.py", description=__doc__.splitlines()[0])
-    parser.add_argument("--url", "--naoqi-url", dest="url", default=None,
-                        help="NAOqi URL (default %s; tcps://HOST:9503 with --user on NAOqi >= 2.9)" % DEFAULT_URL)
+    parser.add_argument(
+        "--url",
+        "--naoqi-url",
+        dest="url",
+        default=None,
+        help="NAOqi URL (default %s; tcps://HOST:9503 with --user on NAOqi >= 2.9)" % DEFAULT_URL,
+    )
     parser.add_argument("--pip", default=None, help="NAOqi address (as autoload passes it)")
     parser.add_argument("--pport", type=int, default=None, help="NAOqi port (as autoload passes it)")
-    parser.add_argument("--lapse", type=float, default=DEFAULT_LAPSE_S, metavar="S",
-                        help="stop NAO when no heartbeat came for S seconds (default %.1f)" % DEFAULT_LAPSE_S)
+    parser.add_argument(
+        "--lapse",
+        type=float,
+        default=DEFAULT_LAPSE_S,
+        metavar="S",
+        help="stop NAO when no heartbeat came for S seconds (default %.1f)" % DEFAULT_LAPSE_S,
+    )
     parser.add_argument("--user", default="", help="user for tcps:// (NAOqi >= 2.9)")
     parser.add_argument("--password-file", default="", help="file whose first line is the password")
     parser.add_argument("--log-file", default="", help="log here too (on the robot: /home/nao/bipedtele-guard.log)")

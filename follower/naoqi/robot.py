@@ -76,7 +76,6 @@ _OPTIONAL = ("ALSonar", "ALVideoDevice")
 _TOP_CAMERA, _K_QVGA, _K_RGB = 0, 1, 11
 
 
-
 @register_robot("naoqi")
 class NaoqiRobot(FollowerRobot):
     """A real NAO through NAOqi.
@@ -145,15 +144,21 @@ class NaoqiRobot(FollowerRobot):
                         self._proxies[name] = proxy
                 self._call("ALMotion", "stopMove")
                 self._call("ALMotion", "wakeUp", timeout_s=cfg.posture_timeout_s)
-                ok = self._call("ALRobotPosture", "goToPosture", "StandInit", cfg.posture_speed, timeout_s=cfg.posture_timeout_s)
+                ok = self._call(
+                    "ALRobotPosture", "goToPosture", "StandInit", cfg.posture_speed, timeout_s=cfg.posture_timeout_s
+                )
                 if not as_bool(ok, "ALRobotPosture.goToPosture('StandInit')"):
-                    raise RobotError(f"NAO at {cfg.url} could not reach StandInit: is it lying down or held? stand it up and connect again")
+                    raise RobotError(
+                        f"NAO at {cfg.url} could not reach StandInit: is it lying down or held? stand it up and connect again"
+                    )
                 if "ALSonar" in self._proxies:
                     self._call("ALSonar", "subscribe", cfg.client_name)
                     self._sonar_subscribed = True
                 else:
                     self._warn_once("sonar", "NAOqi has no ALSonar service: sonar values may be stale")
-                pos = as_floats(self._call("ALMotion", "getRobotPosition", cfg.use_sensors), 3, "ALMotion.getRobotPosition")
+                pos = as_floats(
+                    self._call("ALMotion", "getRobotPosition", cfg.use_sensors), 3, "ALMotion.getRobotPosition"
+                )
                 self._origin = (pos[0], pos[1], pos[2])
                 self._start_guard()
             except BaseException:
@@ -165,15 +170,25 @@ class NaoqiRobot(FollowerRobot):
         cfg = self.config
         self._activity = time.monotonic()
         guard = GuardLink(
-            self._session, self.owner, 1.0 / cfg.guard_heartbeat_hz, min(cfg.call_timeout_s, 0.25),
+            self._session,
+            self.owner,
+            1.0 / cfg.guard_heartbeat_hz,
+            min(cfg.call_timeout_s, 0.25),
             lambda: self._activity,
         )
         self._guard = guard
         if guard.probe():
-            LOG.info("NAO guard answers (%s): it stops NAO %.2f s after the last heartbeat", guard.version, guard.lapse_s or 0.0)
+            LOG.info(
+                "NAO guard answers (%s): it stops NAO %.2f s after the last heartbeat",
+                guard.version,
+                guard.lapse_s or 0.0,
+            )
         elif cfg.allow_unguarded:
-            LOG.warning("no BipedteleGuard answers on %s and allow_unguarded is set: if this follower dies or loses "
-                        "the robot's network, NAO keeps walking its last move", cfg.url)
+            LOG.warning(
+                "no BipedteleGuard answers on %s and allow_unguarded is set: if this follower dies or loses "
+                "the robot's network, NAO keeps walking its last move",
+                cfg.url,
+            )
         else:
             LOG.error("%s", self._refusal_text())
         guard.start()
@@ -223,7 +238,9 @@ class NaoqiRobot(FollowerRobot):
             except RobotError as exc:
                 left = deadline - time.monotonic()
                 if left <= 0 or (stop is not None and stop.is_set()):
-                    raise RobotError(f"NAO at {self.config.url} still unreachable after {tries} tries over {limit:.0f} s: {exc}") from None
+                    raise RobotError(
+                        f"NAO at {self.config.url} still unreachable after {tries} tries over {limit:.0f} s: {exc}"
+                    ) from None
                 LOG.info("NAO not back yet (%s); retrying in %.1f s", exc, min(wait, left))
                 if stop is not None:
                     if stop.wait(min(wait, left)):
@@ -309,9 +326,13 @@ class NaoqiRobot(FollowerRobot):
                 "mem": self._start("ALMemory", "getListData", list(MEMORY_KEYS)),
                 "active": self._start("ALMotion", "moveIsActive"),
             }
-            vx, _vy, w = as_floats(self._wait(futs["vel"], "ALMotion", "getRobotVelocity"), 3, "ALMotion.getRobotVelocity")
+            vx, _vy, w = as_floats(
+                self._wait(futs["vel"], "ALMotion", "getRobotVelocity"), 3, "ALMotion.getRobotVelocity"
+            )
             pos = as_floats(self._wait(futs["pos"], "ALMotion", "getRobotPosition"), 3, "ALMotion.getRobotPosition")
-            left, right, ax, ay = as_floats(self._wait(futs["mem"], "ALMemory", "getListData"), 4, "ALMemory.getListData(sonar, torso angles)")
+            left, right, ax, ay = as_floats(
+                self._wait(futs["mem"], "ALMemory", "getListData"), 4, "ALMemory.getListData(sonar, torso angles)"
+            )
             walking = as_bool(self._wait(futs["active"], "ALMotion", "moveIsActive"), "ALMotion.moveIsActive")
         tilt = math.acos(max(-1.0, min(1.0, math.cos(ax) * math.cos(ay))))
         pose = self._relative_pose(pos)
@@ -370,7 +391,10 @@ class NaoqiRobot(FollowerRobot):
             if self._session is None:
                 raise RobotNotConnectedError("NaoqiRobot.stop() before connect()")
             if self._lost:
-                self._warn_once("stop-lost", f"cannot stop NAO at {self.config.url}: the link is down; it is stopped first thing on reconnect")
+                self._warn_once(
+                    "stop-lost",
+                    f"cannot stop NAO at {self.config.url}: the link is down; it is stopped first thing on reconnect",
+                )
                 return
             self._try("ALMotion", "stopMove")
 
@@ -394,7 +418,15 @@ class NaoqiRobot(FollowerRobot):
                 self._warn_once("video", "NAOqi has no ALVideoDevice service: no head camera")
                 return None
             if self._video_handle is None:
-                handle = self._call("ALVideoDevice", "subscribeCamera", self.config.client_name, _TOP_CAMERA, _K_QVGA, _K_RGB, round(self.config.camera_fps))
+                handle = self._call(
+                    "ALVideoDevice",
+                    "subscribeCamera",
+                    self.config.client_name,
+                    _TOP_CAMERA,
+                    _K_QVGA,
+                    _K_RGB,
+                    round(self.config.camera_fps),
+                )
                 if not isinstance(handle, str) or not handle:
                     raise RobotError(f"ALVideoDevice.subscribeCamera answered {handle!r}: expected a subscriber name")
                 self._video_handle = handle
@@ -406,7 +438,9 @@ class NaoqiRobot(FollowerRobot):
         if self._session is None:
             raise RobotNotConnectedError("NaoqiRobot: call connect() first")
         if self._lost:
-            raise RobotNotConnectedError(f"the link to NAO at {self.config.url} is down: call connect() or reconnect() when it is back")
+            raise RobotNotConnectedError(
+                f"the link to NAO at {self.config.url} is down: call connect() or reconnect() when it is back"
+            )
 
     def _service(self, name: str, required: bool) -> Any:
         try:
@@ -417,7 +451,9 @@ class NaoqiRobot(FollowerRobot):
                 self._lost = True
                 raise RobotError(f"NAO at {self.config.url} vanished while looking up {name}: {exc}") from None
             if required:
-                raise RobotError(f"NAOqi at {self.config.url} has no {name} service ({exc}): is this a NAO running NAOqi 2.x?") from None
+                raise RobotError(
+                    f"NAOqi at {self.config.url} has no {name} service ({exc}): is this a NAO running NAOqi 2.x?"
+                ) from None
             return None
 
     def _start(self, service: str, method: str, *args: Any) -> Any:
@@ -454,7 +490,9 @@ class NaoqiRobot(FollowerRobot):
         if "timeout" in text.lower():
             # Slow is not gone: the link stays up and the next call tries again.
             waited = f" after {timeout_ms} ms" if timeout_ms is not None else ""
-            return RobotError(f"NAOqi call {service}.{method} timed out{waited} (NAO at {self.config.url} is slow or busy; the link is up)")
+            return RobotError(
+                f"NAOqi call {service}.{method} timed out{waited} (NAO at {self.config.url} is slow or busy; the link is up)"
+            )
         return RobotError(f"NAOqi refused {service}.{method}: {text}")
 
     def _session_connected(self) -> bool:

@@ -85,7 +85,10 @@ def open_session(url: str, user: str, password: str, timeout_s: float) -> Any:
     if user or password:
         session.setClientAuthenticatorFactory(UserTokenAuthenticatorFactory(user, password))
     elif url.startswith("tcps://"):
-        LOG.warning("connecting to %s without user/password: NAOqi >= 2.9 will refuse; set naoqi.user and naoqi.password_file", url)
+        LOG.warning(
+            "connecting to %s without user/password: NAOqi >= 2.9 will refuse; set naoqi.user and naoqi.password_file",
+            url,
+        )
     try:
         fut = session.connect(url, _async=True)
         fut.value(int(timeout_s * 1000))

@@ -57,8 +57,14 @@ __all__ = ["add_calibrate_parser", "calibrate", "identify_dp", "identify_speed_r
 LOG = logging.getLogger(__name__)
 
 
-def identify_dp(T: float, *, control: ControlConfig | None = None, sim: SimConfig | None = None,
-                settings: MapSettings | None = None, cycles: int = 20) -> dict[str, Any]:
+def identify_dp(
+    T: float,
+    *,
+    control: ControlConfig | None = None,
+    sim: SimConfig | None = None,
+    settings: MapSettings | None = None,
+    cycles: int = 20,
+) -> dict[str, Any]:
     """Reset factor of the walker at cycle ``T`` [s] (module docstring).
 
     Returns
@@ -90,12 +96,17 @@ def identify_dp(T: float, *, control: ControlConfig | None = None, sim: SimConfi
             before = v[k - 1]
             if abs(before) > 1e-6:
                 ratios.append(float(v[k] / before))
-                step_ratios.append(float(v[k: k + half].mean() / v[k - half: k].mean()))
+                step_ratios.append(float(v[k : k + half].mean() / v[k - half : k].mean()))
     if not ratios:
         raise RuntimeError("no touchdown observed: the walker did not walk")
     q25, q75 = np.percentile(ratios, [25, 75])
-    return {"dp": float(np.median(ratios)), "dp_iqr": [float(q25), float(q75)],
-            "dp_step": float(np.median(step_ratios)), "touchdowns": len(ratios), "T": T}
+    return {
+        "dp": float(np.median(ratios)),
+        "dp_iqr": [float(q25), float(q75)],
+        "dp_step": float(np.median(step_ratios)),
+        "touchdowns": len(ratios),
+        "T": T,
+    }
 
 
 def model_dp(measured: float) -> float:
@@ -118,9 +129,16 @@ def _first_order(t: np.ndarray, tau: float, t_d: float, v0: float, v1: float) ->
     return v1 + (v0 - v1) * np.exp(-s / tau)
 
 
-def identify_speed_response(T: float, *, control: ControlConfig | None = None, sim: SimConfig | None = None,
-                            settings: MapSettings | None = None, v0: float = 2.0, v1: float = 5.0,
-                            duration_s: float = 30.0) -> dict[str, Any]:
+def identify_speed_response(
+    T: float,
+    *,
+    control: ControlConfig | None = None,
+    sim: SimConfig | None = None,
+    settings: MapSettings | None = None,
+    v0: float = 2.0,
+    v1: float = 5.0,
+    duration_s: float = 30.0,
+) -> dict[str, Any]:
     """Closed-loop forward speed step response of the walker and the fitted ``k_v``.
 
     Returns
@@ -132,8 +150,14 @@ def identify_speed_response(T: float, *, control: ControlConfig | None = None, s
     """
     control = control or ControlConfig()
     st = settings or MapSettings()
-    with WalkerMap([0.0, 0.0], T, st_eps(control), control=control, sim=sim,
-                   settings=MapSettings(v_ref=v0, turn_ref=0.0, control_rate_hz=st.control_rate_hz)) as m:
+    with WalkerMap(
+        [0.0, 0.0],
+        T,
+        st_eps(control),
+        control=control,
+        sim=sim,
+        settings=MapSettings(v_ref=v0, turn_ref=0.0, control_rate_hz=st.control_rate_hz),
+    ) as m:
         sv, robot = m.servo, m.robot
         sv.tick()
         sv.run(st.warmup_s)
@@ -149,21 +173,36 @@ def identify_speed_response(T: float, *, control: ControlConfig | None = None, s
     avg = np.convolve(v, np.ones(w) / w, mode="valid")
     t = (np.arange(avg.size) + w) * sv.dt  # time at the end of each averaging window
     t = t - 0.5 * w * sv.dt  # ... centred
-    (tau, t_d, a0, a1), _ = curve_fit(_first_order, t, avg, p0=[4.0, 0.2, v0, v1],
-                                      bounds=([0.05, 0.0, -20.0, -20.0], [60.0, 5.0, 20.0, 20.0]))
+    (tau, t_d, a0, a1), _ = curve_fit(
+        _first_order, t, avg, p0=[4.0, 0.2, v0, v1], bounds=([0.05, 0.0, -20.0, -20.0], [60.0, 5.0, 20.0, 20.0])
+    )
     rms = float(np.sqrt(np.mean((_first_order(t, tau, t_d, a0, a1) - avg) ** 2)))
     d = xy[-1, :2] - xy[-1 - w, :2]
     heading = xy[-1, 2]
     ground = (d[0] * math.cos(heading) + d[1] * math.sin(heading)) / (w * sv.dt) * 100.0
     m_fwd = float(control.D[0])
-    return {"tau_s": float(tau), "dead_time_s": float(t_d), "k_v": m_fwd / float(tau),
-            "gain": float(avg[-1] / v1), "ground_gain": float(ground / v1), "rms": rms,
-            "T": T, "v0": v0, "v1": v1, "M": m_fwd}
+    return {
+        "tau_s": float(tau),
+        "dead_time_s": float(t_d),
+        "k_v": m_fwd / float(tau),
+        "gain": float(avg[-1] / v1),
+        "ground_gain": float(ground / v1),
+        "rms": rms,
+        "T": T,
+        "v0": v0,
+        "v1": v1,
+        "M": m_fwd,
+    }
 
 
-def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = None,
-              settings: MapSettings | None = None, T: float = 0.8,
-              points: Sequence[tuple[Sequence[float], float]] | None = None) -> dict[str, Any]:
+def calibrate(
+    *,
+    control: ControlConfig | None = None,
+    sim: SimConfig | None = None,
+    settings: MapSettings | None = None,
+    T: float = 0.8,
+    points: Sequence[tuple[Sequence[float], float]] | None = None,
+) -> dict[str, Any]:
     """Identify ``dp`` and ``k_v`` and compare the radii of the walker and both reduced models.
 
     Parameters
@@ -182,8 +221,9 @@ def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = N
     reset = identify_dp(T, control=control, sim=sim, settings=st)
     resp = identify_speed_response(T, control=control, sim=sim, settings=st)
     dp = model_dp(reset["dp"])
-    calibrated = dataclasses.replace(control, hybrid_model="calibrated", calibrated_dp=dp,
-                                     calibrated_k_v=resp["k_v"]).hybrid()
+    calibrated = dataclasses.replace(
+        control, hybrid_model="calibrated", calibrated_dp=dp, calibrated_k_v=resp["k_v"]
+    ).hybrid()
     if points is None:
         op = operating_point(control, sim)
         points = [(op["sigma_r"], op["T"]), ([0.0, 0.0], 0.8), ([0.0, 0.0], 1.6)]
@@ -193,21 +233,29 @@ def calibrate(*, control: ControlConfig | None = None, sim: SimConfig | None = N
         res = WalkerMap(s_r, t, eps, control=control, sim=sim, settings=st)
         with res as wm:
             r = wm.analyse()
-        rows.append({
-            "sigma_r": [float(v) for v in s_r], "T": float(t), "eps": eps,
-            "rho_walker": r.rho_walker,
-            "contraction": r.contraction,
-            "rho_reduced": rho_hybrid(s_r, t, eps, control.dp, control),
-            "rho_reduced_calibrated": rho_hybrid(s_r, t, eps, calibrated.dp, calibrated),
-            "fixed_point_speed": r.fixed_point_speed,
-        })
+        rows.append(
+            {
+                "sigma_r": [float(v) for v in s_r],
+                "T": float(t),
+                "eps": eps,
+                "rho_walker": r.rho_walker,
+                "contraction": r.contraction,
+                "rho_reduced": rho_hybrid(s_r, t, eps, control.dp, control),
+                "rho_reduced_calibrated": rho_hybrid(s_r, t, eps, calibrated.dp, calibrated),
+                "fixed_point_speed": r.fixed_point_speed,
+            }
+        )
     err_paper = [abs(r["rho_reduced"] - r["rho_walker"]) for r in rows]
     err_cal = [abs(r["rho_reduced_calibrated"] - r["rho_walker"]) for r in rows]
     return {
-        "dp": reset, "speed_response": resp,
+        "dp": reset,
+        "speed_response": resp,
         "calibrated": {"dp": dp, "k_v": resp["k_v"]},
-        "set": ["control.hybrid_model=\"calibrated\"", f"control.calibrated_dp={dp:.4f}",
-                f"control.calibrated_k_v={resp['k_v']:.4f}"],
+        "set": [
+            'control.hybrid_model="calibrated"',
+            f"control.calibrated_dp={dp:.4f}",
+            f"control.calibrated_k_v={resp['k_v']:.4f}",
+        ],
         "points": rows,
         "max_abs_error": {"paper": max(err_paper), "calibrated": max(err_cal)},
     }

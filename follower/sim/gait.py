@@ -426,8 +426,7 @@ class Gait:
                 x = x_lo + v_sw * d * u - (x_lo + v_sw * d - x_td) * done
                 w = np.clip(u / _LIFT_DONE, 0.0, 1.0)
                 lift = cfg.step_height_m * 16.0 * w**2 * (1 - w) ** 2
-                y = (sway(tau) + (y_lo - float(sway(np.array(t_ds)))) * (1.0 - done)
-                     + (y_td - y_td_t) * done)
+                y = sway(tau) + (y_lo - float(sway(np.array(t_ds)))) * (1.0 - done) + (y_td - y_td_t) * done
                 # the swing leg leads: the foot's own yaw (hip yaw + torso yaw) turns ahead
                 yaw = yaw_lo - omega * d * u + (yaw_td - yaw_lo + omega * d) * done
                 q_sw = leg_angles(x, lift, y, yaw)
@@ -435,8 +434,8 @@ class Gait:
                 x, y, yaw = at(tau, gx_sw, gy_sw, gyaw_sw)
                 q_sw = leg_angles(x, np.zeros_like(tau), y, yaw)
             samples = np.zeros((len(s), 12))
-            samples[:, st:st + 6] = q_st
-            samples[:, sw:sw + 6] = q_sw
+            samples[:, st : st + 6] = q_st
+            samples[:, sw : sw + 6] = q_sw
             if a == 0.0:  # join the previous reference exactly, spread the rest out
                 delta = q0 - samples[0]
             samples += np.outer(1.0 - _smooth(tau / ts), delta)

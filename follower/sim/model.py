@@ -104,8 +104,16 @@ def _shape(geom: str, xyz: tuple[float, float, float], color: str, collide: bool
     return vis + col
 
 
-def _joint(name: str, kind: str, parent: str, child: str, xyz: tuple[float, float, float],
-           axis: str, limit: tuple[float, float] | None, effort: float) -> str:
+def _joint(
+    name: str,
+    kind: str,
+    parent: str,
+    child: str,
+    xyz: tuple[float, float, float],
+    axis: str,
+    limit: tuple[float, float] | None,
+    effort: float,
+) -> str:
     x, y, z = xyz
     lim = ""
     if limit is not None:
@@ -158,27 +166,51 @@ def nao_urdf(geom: NaoGeometry | None = None, effort_nm: float = 10.0) -> str:
             a, b = lim["HipYaw"]
             lim["HipYaw"] = (-b, -a)
         names = [f"{side}{j}" for j in LEG_JOINTS]
-        links = [f"{side}_hipyaw", f"{side}_hiproll", f"{side}_thigh", f"{side}_tibia",
-                 f"{side}_anklepitch", f"{side}_foot"]
+        links = [
+            f"{side}_hipyaw",
+            f"{side}_hiproll",
+            f"{side}_thigh",
+            f"{side}_tibia",
+            f"{side}_anklepitch",
+            f"{side}_foot",
+        ]
         parts.append(_link(links[0], g.m_small, (0, 0, 0), small, ""))
         parts.append(_link(links[1], g.m_small, (0, 0, 0), small, ""))
         thigh_geom = f'<cylinder radius="0.035" length="{g.thigh - 0.02:.4f}"/>'
-        parts.append(_link(links[2], g.m_thigh, (0, 0, -g.thigh / 2),
-                           _box_inertia(g.m_thigh, 0.07, 0.07, g.thigh),
-                           _shape(thigh_geom, (0, 0, -g.thigh / 2), "white")))
+        parts.append(
+            _link(
+                links[2],
+                g.m_thigh,
+                (0, 0, -g.thigh / 2),
+                _box_inertia(g.m_thigh, 0.07, 0.07, g.thigh),
+                _shape(thigh_geom, (0, 0, -g.thigh / 2), "white"),
+            )
+        )
         tibia_geom = f'<cylinder radius="0.03" length="{g.tibia - 0.02:.4f}"/>'
-        parts.append(_link(links[3], g.m_tibia, (0, 0, -g.tibia / 2),
-                           _box_inertia(g.m_tibia, 0.06, 0.06, g.tibia),
-                           _shape(tibia_geom, (0, 0, -g.tibia / 2), "white")))
+        parts.append(
+            _link(
+                links[3],
+                g.m_tibia,
+                (0, 0, -g.tibia / 2),
+                _box_inertia(g.m_tibia, 0.06, 0.06, g.tibia),
+                _shape(tibia_geom, (0, 0, -g.tibia / 2), "white"),
+            )
+        )
         parts.append(_link(links[4], g.m_small, (0, 0, 0), small, ""))
         sole_t = 0.015
         foot_c = (g.foot_x, s * g.foot_y_out, -g.foot_height + sole_t / 2)
         foot_geom = f'<box size="{g.foot_length} {g.foot_width} {sole_t}"/>'
         ankle_geom = '<box size="0.05 0.05 0.03"/>'
-        parts.append(_link(links[5], g.m_foot, (g.foot_x, 0, -g.foot_height + 0.015),
-                           _box_inertia(g.m_foot, g.foot_length, g.foot_width, 0.03),
-                           _shape(foot_geom, foot_c, "grey")
-                           + _shape(ankle_geom, (0, 0, -g.foot_height / 2), "white", collide=False)))
+        parts.append(
+            _link(
+                links[5],
+                g.m_foot,
+                (g.foot_x, 0, -g.foot_height + 0.015),
+                _box_inertia(g.m_foot, g.foot_length, g.foot_width, 0.03),
+                _shape(foot_geom, foot_c, "grey")
+                + _shape(ankle_geom, (0, 0, -g.foot_height / 2), "white", collide=False),
+            )
+        )
         chain = [
             ("torso", (0.0, s * g.hip_offset_y, -g.hip_offset_z), "0 0 1"),
             (links[0], (0, 0, 0), "1 0 0"),

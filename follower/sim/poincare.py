@@ -98,8 +98,20 @@ _GROUPS: list[tuple[str, list[str]]] = [
 ]
 
 # Robot attributes that are handles or configuration (not state): never copied.
-_NOT_STATE = {"_client", "_robot", "_floor", "_joints", "_feet", "_obstacles", "world", "config", "geom",
-              "limits", "sonar_range_m", "_dt"}
+_NOT_STATE = {
+    "_client",
+    "_robot",
+    "_floor",
+    "_joints",
+    "_feet",
+    "_obstacles",
+    "world",
+    "config",
+    "geom",
+    "limits",
+    "sonar_range_m",
+    "_dt",
+}
 
 
 def state_names() -> list[str]:
@@ -180,8 +192,9 @@ class WalkerServo:
         Control period [s].
     """
 
-    def __init__(self, robot: SimNao, control: ControlConfig, s_r: Any, T: float, eps: float,
-                 ref: Any, dt: float) -> None:
+    def __init__(
+        self, robot: SimNao, control: ControlConfig, s_r: Any, T: float, eps: float, ref: Any, dt: float
+    ) -> None:
         self.robot = robot
         self.s_r = np.broadcast_to(np.asarray(s_r, dtype=float), (2,)).copy()
         self.T = float(T)
@@ -207,8 +220,11 @@ class WalkerServo:
     def send(self) -> None:
         """Send the reference model's current ``eta`` with ``T`` and ``eps`` to the robot."""
         eta = self.reference.eta
-        self.robot.send_walk(WalkCommand(forward_m_s=float(eta[0]) / CM, turn_rad_s=math.radians(float(eta[1])),
-                                         cycle_s=self.T, eps_s=self.eps))
+        self.robot.send_walk(
+            WalkCommand(
+                forward_m_s=float(eta[0]) / CM, turn_rad_s=math.radians(float(eta[1])), cycle_s=self.T, eps_s=self.eps
+            )
+        )
 
     def step(self) -> None:
         """One control period: advance the physics, then tick."""
@@ -287,10 +303,19 @@ class WalkerServo:
         g = r.gait
         ref_q = g._phases[-1].ctrl[-1] if g._phases else g._q
         sway = g._sway_end if g._phases else g._sway
-        return np.concatenate([
-            [pos[2], roll, pitch], rot @ np.asarray(lin), rot @ np.asarray(ang), q, qd,
-            self.reference.eta, self.reference.z_r, ref_q, [sway],
-        ])
+        return np.concatenate(
+            [
+                [pos[2], roll, pitch],
+                rot @ np.asarray(lin),
+                rot @ np.asarray(ang),
+                q,
+                qd,
+                self.reference.eta,
+                self.reference.z_r,
+                ref_q,
+                [sway],
+            ]
+        )
 
     def set_state(self, x: np.ndarray) -> None:
         """Put the simulation in state ``x`` (keeps the current horizontal position and yaw).
@@ -358,8 +383,16 @@ class WalkerMap:
     settings : MapSettings, optional
     """
 
-    def __init__(self, s_r: Any, T: float, eps: float, *, control: ControlConfig | None = None,
-                 sim: SimConfig | None = None, settings: MapSettings | None = None) -> None:
+    def __init__(
+        self,
+        s_r: Any,
+        T: float,
+        eps: float,
+        *,
+        control: ControlConfig | None = None,
+        sim: SimConfig | None = None,
+        settings: MapSettings | None = None,
+    ) -> None:
         self.settings = settings or MapSettings()
         self.sim = sim or SimConfig()
         check_alignment(T, self.sim.physics_hz, self.settings.control_rate_hz)
@@ -370,8 +403,9 @@ class WalkerMap:
         self.robot = SimNao(self.sim, world=WorldConfig())
         self.robot.connect()
         st = self.settings
-        self.servo = WalkerServo(self.robot, self.control, s_r, T, eps, [st.v_ref, st.turn_ref],
-                                 1.0 / st.control_rate_hz)
+        self.servo = WalkerServo(
+            self.robot, self.control, s_r, T, eps, [st.v_ref, st.turn_ref], 1.0 / st.control_rate_hz
+        )
         self.evaluations = 0
         self.sim_seconds = 0.0
         self.transient = math.nan
@@ -451,8 +485,9 @@ class WalkerMap:
             jac[:, i] = (plus - minus) / (2.0 * d[i])
         return jac, fallen
 
-    def contraction(self, x0: np.ndarray, *, directions: int = 2, cycles: int = 20, size: float = 30.0,
-                    seed: int = 0) -> float:
+    def contraction(
+        self, x0: np.ndarray, *, directions: int = 2, cycles: int = 20, size: float = 30.0, seed: int = 0
+    ) -> float:
         """Measured contraction per cycle of a perturbation, without linearisation.
 
         From ``x0`` and from ``x0 + size * delta * v`` (``v`` a random unit direction in
@@ -546,7 +581,9 @@ def alignment_quantum(physics_hz: float, control_rate_hz: float) -> float:
     """Smallest ``T/2`` step [s] that is a whole number of physics and control periods."""
     a, b = round(physics_hz), round(control_rate_hz)
     if abs(a - physics_hz) > 1e-9 or abs(b - control_rate_hz) > 1e-9:
-        raise ConfigError(f"physics_hz = {physics_hz:g}, control_rate_hz = {control_rate_hz:g}: allowed: whole numbers of Hz")
+        raise ConfigError(
+            f"physics_hz = {physics_hz:g}, control_rate_hz = {control_rate_hz:g}: allowed: whole numbers of Hz"
+        )
     return 1.0 / math.gcd(a, b)
 
 
@@ -562,9 +599,16 @@ def operating_point(control: ControlConfig, sim: SimConfig, control_rate_hz: flo
     choice = OnlineChooser(control).choose(schedule_damping(0.0, 0.0, control).s_e)
     q = 2.0 * alignment_quantum(sim.physics_hz, control_rate_hz)
     T = float(np.clip(choice.T, sim.cycle_min_s, sim.cycle_max_s))
-    T = float(np.clip(round(T / q) * q, math.ceil(sim.cycle_min_s / q - 1e-9) * q, math.floor(sim.cycle_max_s / q + 1e-9) * q))
-    return {"sigma_r": [float(v) for v in choice.s_r], "T": T, "eps": float(np.clip(choice.eps, 0.02, 1.0)),
-            "T_chosen": float(choice.T), "eps_chosen": float(choice.eps)}
+    T = float(
+        np.clip(round(T / q) * q, math.ceil(sim.cycle_min_s / q - 1e-9) * q, math.floor(sim.cycle_max_s / q + 1e-9) * q)
+    )
+    return {
+        "sigma_r": [float(v) for v in choice.s_r],
+        "T": T,
+        "eps": float(np.clip(choice.eps, 0.02, 1.0)),
+        "T_chosen": float(choice.T),
+        "eps_chosen": float(choice.eps),
+    }
 
 
 # ----------------------------------------------------------------------------- grid and CLI
@@ -672,8 +716,12 @@ def plot_poincare(data: dict[str, Any]) -> Any:
     Ts = sorted({p["T"] for p in pts})
     look = {(p["sigma_r"][0], p["T"]): p for p in pts}
     s, t = np.meshgrid(np.asarray(sig), np.asarray(Ts), indexing="ij")
-    keys = (("rho_walker", "3-D walker: radius of (26)"), ("contraction", "3-D walker: measured contraction"),
-            ("rho_reduced", "reduced model, paper dp, k_v"), ("rho_reduced_calibrated", "reduced model, calibrated"))
+    keys = (
+        ("rho_walker", "3-D walker: radius of (26)"),
+        ("contraction", "3-D walker: measured contraction"),
+        ("rho_reduced", "reduced model, paper dp, k_v"),
+        ("rho_reduced_calibrated", "reduced model, calibrated"),
+    )
     fig = Figure(figsize=(17.0, 4.4), layout="constrained")
     for i, (key, title) in enumerate(keys):
         ax = fig.add_subplot(1, len(keys), i + 1, projection="3d")
@@ -716,12 +764,18 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--jobs {args.jobs}: allowed: >= 1")
     if not args.warmup >= 5.0:
         raise ConfigError(f"--warmup {args.warmup}: allowed: >= 5 s")
-    st = MapSettings(foot=args.foot, warmup_s=args.warmup, delta_scale=args.delta_scale,
-                     control_rate_hz=cfg.section("follower").control_rate_hz)
+    st = MapSettings(
+        foot=args.foot,
+        warmup_s=args.warmup,
+        delta_scale=args.delta_scale,
+        control_rate_hz=cfg.section("follower").control_rate_hz,
+    )
     sim = cfg.section("sim")
     for T in Ts:
         if not sim.cycle_min_s - 1e-9 <= T <= sim.cycle_max_s + 1e-9:
-            raise ConfigError(f"--T {T:g}: allowed: the simulated NAO's cycle range [{sim.cycle_min_s:g}, {sim.cycle_max_s:g}] s")
+            raise ConfigError(
+                f"--T {T:g}: allowed: the simulated NAO's cycle range [{sim.cycle_min_s:g}, {sim.cycle_max_s:g}] s"
+            )
     data = poincare_grid(sigmas, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
     if args.json:
         try:
@@ -734,11 +788,15 @@ def _run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise ConfigError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
     out = sys.stdout
-    out.write("sigma_r      T [s]  rho_walker  contraction  transient  rho_reduced  rho_calibrated  speed [cm/s]  spread\n")
+    out.write(
+        "sigma_r      T [s]  rho_walker  contraction  transient  rho_reduced  rho_calibrated  speed [cm/s]  spread\n"
+    )
     for p in [*data["points"], data["operating_point"]]:
         s = "/".join(f"{v:.2f}" for v in p["sigma_r"])
-        out.write(f"{s:<12} {p['T']:5.2f}  {p['rho_walker']:10.3f}  {p['contraction']:11.3f}  {p['transient']:9.2f}  {p['rho_reduced']:11.3f}  "
-                  f"{p['rho_reduced_calibrated']:14.3f}  {p['fixed_point_speed']:12.2f}  {p['spread']:6.1f}\n")
+        out.write(
+            f"{s:<12} {p['T']:5.2f}  {p['rho_walker']:10.3f}  {p['contraction']:11.3f}  {p['transient']:9.2f}  {p['rho_reduced']:11.3f}  "
+            f"{p['rho_reduced_calibrated']:14.3f}  {p['fixed_point_speed']:12.2f}  {p['spread']:6.1f}\n"
+        )
     out.write("(last row: the follower's operating point at zero delay)\n")
     return 0
 
@@ -749,10 +807,16 @@ def add_poincare_parser(sub: Any) -> None:
 
     p = sub.add_parser("poincare", help="the simulated walker's own Poincare map next to the reduced model's")
     p.add_argument("--sigma", default="0,2.5,5", help="real damping values, both channels (default 0,2.5,5)")
-    p.add_argument("--T", default="0.8,1.2,1.6", help="walking cycles [s]; T/2 on the control and physics grid (default 0.8,1.2,1.6)")
+    p.add_argument(
+        "--T",
+        default="0.8,1.2,1.6",
+        help="walking cycles [s]; T/2 on the control and physics grid (default 0.8,1.2,1.6)",
+    )
     p.add_argument("--foot", choices=["L", "R"], default="L", help="foot whose touchdown is the section (default L)")
     p.add_argument("--warmup", type=float, default=30.0, help="walking time before the fixed point [s] (default 30)")
-    p.add_argument("--delta-scale", type=float, default=1.0, help="factor on the perturbation sizes of (26) (default 1)")
+    p.add_argument(
+        "--delta-scale", type=float, default=1.0, help="factor on the perturbation sizes of (26) (default 1)"
+    )
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     p.add_argument("--json", metavar="FILE", help="write the points as JSON")
     p.add_argument("--plot", metavar="FILE.png", help="write the surfaces (Fig. 6 counterpart)")

@@ -77,15 +77,22 @@ class SimNao(FollowerRobot):
         An override is not a field of :class:`SimConfig` or out of range.
     """
 
-    def __init__(self, config: SimConfig | Config | None = None, world: WorldConfig | None = None,
-                 **overrides: Any) -> None:
+    def __init__(
+        self, config: SimConfig | Config | None = None, world: WorldConfig | None = None, **overrides: Any
+    ) -> None:
         cfg = resolve_section(config, SimConfig, "sim", overrides)
         self.world = world or resolve_section(config if isinstance(config, Config) else None, WorldConfig, "world")
         self.config = cfg
         self.geom = NaoGeometry()
-        self.gait = Gait(GaitConfig(leg_height_m=cfg.leg_height_m, step_height_m=cfg.step_height_m,
-                                    double_support=cfg.double_support, max_step_m=cfg.max_step_m),
-                         self.geom)
+        self.gait = Gait(
+            GaitConfig(
+                leg_height_m=cfg.leg_height_m,
+                step_height_m=cfg.step_height_m,
+                double_support=cfg.double_support,
+                max_step_m=cfg.max_step_m,
+            ),
+            self.geom,
+        )
         self.limits = WalkLimits(
             max_forward_m_s=2.0 * cfg.max_step_m / cfg.cycle_min_s,
             max_turn_rad_s=math.radians(cfg.max_turn_deg_s),
@@ -146,8 +153,12 @@ class SimNao(FollowerRobot):
         self._t, self._steps = 0.0, 0
         self.gait.reset(0.0)
         self._last_yaw = self._yaw_unwrapped = self._base()[2]
-        LOG.info("sim NAO ready: %.0f Hz physics, %d obstacles, sonar %s", cfg.physics_hz,
-                 len(self.world.obstacles), cfg.nao_version)
+        LOG.info(
+            "sim NAO ready: %.0f Hz physics, %d obstacles, sonar %s",
+            cfg.physics_hz,
+            len(self.world.obstacles),
+            cfg.nao_version,
+        )
 
     def _build_world(self) -> None:
         cfg, c = self.config, self._client
@@ -155,8 +166,13 @@ class SimNao(FollowerRobot):
         pb.setTimeStep(self._dt, physicsClientId=c)
         pb.setPhysicsEngineParameter(numSolverIterations=cfg.solver_iterations, physicsClientId=c)
         plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
-        plane_vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[15, 15, 0.001], visualFramePosition=[0, 0, -0.001],
-                                         rgbaColor=[0.75, 0.72, 0.65, 1], physicsClientId=c)
+        plane_vis = pb.createVisualShape(
+            pb.GEOM_BOX,
+            halfExtents=[15, 15, 0.001],
+            visualFramePosition=[0, 0, -0.001],
+            rgbaColor=[0.75, 0.72, 0.65, 1],
+            physicsClientId=c,
+        )
         self._floor = pb.createMultiBody(0, plane, plane_vis, physicsClientId=c)
         pb.changeDynamics(self._floor, -1, lateralFriction=self.world.floor_friction, physicsClientId=c)
         fd, path = tempfile.mkstemp(suffix=".urdf", prefix="bipedtele_nao_")
@@ -164,12 +180,13 @@ class SimNao(FollowerRobot):
             with os.fdopen(fd, "w") as fh:
                 fh.write(nao_urdf(self.geom, cfg.max_torque_nm))
             z0 = cfg.leg_height_m + self.geom.foot_height + self.geom.hip_offset_z + 0.001
-            self._robot = pb.loadURDF(path, [0, 0, z0], flags=pb.URDF_USE_INERTIA_FROM_FILE,
-                                      physicsClientId=c)
+            self._robot = pb.loadURDF(path, [0, 0, z0], flags=pb.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
         finally:
             os.unlink(path)
-        index = {pb.getJointInfo(self._robot, j, physicsClientId=c)[1].decode(): j
-                 for j in range(pb.getNumJoints(self._robot, physicsClientId=c))}
+        index = {
+            pb.getJointInfo(self._robot, j, physicsClientId=c)[1].decode(): j
+            for j in range(pb.getNumJoints(self._robot, physicsClientId=c))
+        }
         self._joints = [index[f"{side}{name}"] for side in "LR" for name in LEG_JOINTS]
         self._feet = [index["LAnkleRoll"], index["RAnkleRoll"]]
         for j in self._feet:
@@ -182,13 +199,15 @@ class SimNao(FollowerRobot):
             if ob.shape == "box":
                 half = [s / 2 for s in ob.size]
                 col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c)
-                vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=[0.8, 0.3, 0.2, 1],
-                                           physicsClientId=c)
+                vis = pb.createVisualShape(
+                    pb.GEOM_BOX, halfExtents=half, rgbaColor=[0.8, 0.3, 0.2, 1], physicsClientId=c
+                )
             else:
                 r, h = ob.size
                 col = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=r, height=h, physicsClientId=c)
-                vis = pb.createVisualShape(pb.GEOM_CYLINDER, radius=r, length=h,
-                                           rgbaColor=[0.2, 0.6, 0.3, 1], physicsClientId=c)
+                vis = pb.createVisualShape(
+                    pb.GEOM_CYLINDER, radius=r, length=h, rgbaColor=[0.2, 0.6, 0.3, 1], physicsClientId=c
+                )
             self._obstacles.append(pb.createMultiBody(0, col, vis, list(ob.position), physicsClientId=c))
         self._qref = q0.copy()
 
@@ -234,8 +253,11 @@ class SimNao(FollowerRobot):
         self._need()
         c = cmd.clamped(self.limits)
         vmax, wmax = self.gait.max_forward(c.cycle_s), self.gait.max_turn(c.cycle_s)
-        c = dataclasses.replace(c, forward_m_s=float(np.clip(c.forward_m_s, -vmax, vmax)),
-                                turn_rad_s=float(np.clip(c.turn_rad_s, -wmax, wmax)))
+        c = dataclasses.replace(
+            c,
+            forward_m_s=float(np.clip(c.forward_m_s, -vmax, vmax)),
+            turn_rad_s=float(np.clip(c.turn_rad_s, -wmax, wmax)),
+        )
         self._eps = c.eps_s
         self.gait.command(c.forward_m_s, c.turn_rad_s, c.cycle_s)
         return c
@@ -269,8 +291,9 @@ class SimNao(FollowerRobot):
             if step != self._gait_step:
                 self._step_changed(step)
             vel = qdref + (qref - q) / self._eps
-            pb.setJointMotorControlArray(rob, joints, pb.VELOCITY_CONTROL, targetVelocities=vel.tolist(),
-                                         forces=force, physicsClientId=c)
+            pb.setJointMotorControlArray(
+                rob, joints, pb.VELOCITY_CONTROL, targetVelocities=vel.tolist(), forces=force, physicsClientId=c
+            )
             pb.stepSimulation(physicsClientId=c)
             self._steps += 1
             self._t = self._steps * self._dt
@@ -289,8 +312,9 @@ class SimNao(FollowerRobot):
             return
         self._touchdowns += 1
         x, y, yaw, _, _ = self._base()
-        self._footfall = Footfall(self._touchdowns, float(step[1]), (float(x), float(y), float(yaw)),
-                                  float(step[1] - prev[1]))
+        self._footfall = Footfall(
+            self._touchdowns, float(step[1]), (float(x), float(y), float(yaw)), float(step[1] - prev[1])
+        )
 
     # ------------------------------------------------------------------ measurements
 
@@ -321,8 +345,7 @@ class SimNao(FollowerRobot):
         cfg = self.config
         fallen = tilt > math.radians(cfg.fall_tilt_deg) or z < cfg.fall_height_m
         err = float(np.sqrt(np.mean((self._qref - self._q) ** 2)))
-        contact = any(pb.getContactPoints(self._robot, ob, physicsClientId=self._client)
-                      for ob in self._obstacles)
+        contact = any(pb.getContactPoints(self._robot, ob, physicsClientId=self._client) for ob in self._obstacles)
         return RobotObservation(
             t=self._t,
             v_hip_m_s=float(self._v_hip_last),
@@ -389,7 +412,7 @@ class SimNao(FollowerRobot):
         obstacles = set(self._obstacles)
         for k in range(2):
             r = hi
-            for h in hits[k * per:(k + 1) * per]:
+            for h in hits[k * per : (k + 1) * per]:
                 if h[0] in obstacles:
                     r = min(r, h[2] * hi)
             out.append(float(np.clip(r, lo, hi)))
@@ -414,7 +437,8 @@ class SimNao(FollowerRobot):
             proj = pb.computeProjectionMatrixFOV(self.world.scene_camera_fov_deg, w / h, 0.05, 20.0)
         else:
             return None
-        img = pb.getCameraImage(w, h, view, proj, renderer=pb.ER_TINY_RENDERER,
-                                flags=pb.ER_NO_SEGMENTATION_MASK, physicsClientId=c)
+        img = pb.getCameraImage(
+            w, h, view, proj, renderer=pb.ER_TINY_RENDERER, flags=pb.ER_NO_SEGMENTATION_MASK, physicsClientId=c
+        )
         rgba = np.asarray(img[2], dtype=np.uint8).reshape(h, w, 4)
         return np.ascontiguousarray(rgba[:, :, :3])

@@ -108,8 +108,9 @@ def walker_run(
     dt = params.dt
     k_steps = h1.size
     every = max(1, round(1.0 / (follower.control_rate_hz * dt)))
-    fcfg = dataclasses.replace(follower, realtime=False,
-                               max_cmd_age_s=max(follower.max_cmd_age_s, float(h1.max()) + 0.5))
+    fcfg = dataclasses.replace(
+        follower, realtime=False, max_cmd_age_s=max(follower.max_cmd_age_s, float(h1.max()) + 0.5)
+    )
     clock = [0.0]
     arr1 = _arrivals(h1, dt)
     pending_cmd: list[tuple[int, int, Command]] = []
@@ -159,8 +160,16 @@ def walker_run(
             h2_l = h2_est.value(t) or 0.0
             alpha, _, _, _ = schedule_damping_array(np.asarray(h1_l), np.asarray(h2_l), control)
             x = leader.step(t, z_rx[None, :], alpha)[0]
-            cmd = Command(sid=sid, seq=k + 1, t=t, ref=[float(v) for v in k_g * x], x_m=[float(v) for v in x],
-                          h2_s=float(h2_l), alpha_m=[float(v) for v in alpha], enable=True)
+            cmd = Command(
+                sid=sid,
+                seq=k + 1,
+                t=t,
+                ref=[float(v) for v in k_g * x],
+                x_m=[float(v) for v in x],
+                h2_s=float(h2_l),
+                alpha_m=[float(v) for v in alpha],
+                enable=True,
+            )
             heapq.heappush(pending_cmd, (int(arr1[k]), k, cmd))
             while pending_cmd and pending_cmd[0][0] <= k:
                 ka, ks, c = heapq.heappop(pending_cmd)
@@ -181,8 +190,9 @@ def walker_run(
         robot.disconnect()
     n = max(ticks, 1)
     mean_T = sum_T / n_walk if n_walk else math.nan
-    return WalkerRun(float(err[0] / n), float(err[1] / n), fell, mean_T, (sum_sr / n).tolist(), ticks,
-                     time.perf_counter() - t_wall)
+    return WalkerRun(
+        float(err[0] / n), float(err[1] / n), fell, mean_T, (sum_sr / n).tolist(), ticks, time.perf_counter() - t_wall
+    )
 
 
 def _ci95(x: np.ndarray) -> tuple[float, list[float]]:
@@ -199,11 +209,17 @@ def _summary(rs: list[WalkerRun]) -> dict[str, Any]:
     ok = [r for r in rs if not r.fell]
     f, fci = _ci95(np.array([r.forward_error for r in ok]))
     t, tci = _ci95(np.array([r.turn_error for r in ok]))
-    return {"forward_error": f, "forward_ci95": fci, "turn_error": t, "turn_ci95": tci,
-            "falls": sum(r.fell for r in rs), "diverged": sum(r.fell for r in rs),
-            "mean_T_s": float(np.mean([r.mean_T for r in rs])),
-            "mean_s_r": np.mean([r.mean_s_r for r in rs], axis=0).tolist(),
-            "runs": [dataclasses.asdict(r) for r in rs]}
+    return {
+        "forward_error": f,
+        "forward_ci95": fci,
+        "turn_error": t,
+        "turn_ci95": tci,
+        "falls": sum(r.fell for r in rs),
+        "diverged": sum(r.fell for r in rs),
+        "mean_T_s": float(np.mean([r.mean_T for r in rs])),
+        "mean_s_r": np.mean([r.mean_s_r for r in rs], axis=0).tolist(),
+        "runs": [dataclasses.asdict(r) for r in rs],
+    }
 
 
 def run_walker_study(
@@ -235,22 +251,52 @@ def run_walker_study(
         inp = case_inputs(case, runs, seed, control, params, T_bounds=(t_lo, t_hi))
         res: dict[str, list[WalkerRun]] = {"cp": [], "vp": []}
         for i in range(runs):
-            common: dict[str, Any] = {"switch": inp.switch[i:i + 1], "intent": inp.intent[i:i + 1], "h1": inp.h1, "h2": inp.h2,
-                      "control": control, "follower": follower, "sim": sim, "params": params}
+            common: dict[str, Any] = {
+                "switch": inp.switch[i : i + 1],
+                "intent": inp.intent[i : i + 1],
+                "h1": inp.h1,
+                "h2": inp.h2,
+                "control": control,
+                "follower": follower,
+                "sim": sim,
+                "params": params,
+            }
             res["cp"].append(walker_run(cp=(inp.cp_s_r[i], float(inp.cp_T[i]), control.eps), **common))
             res["vp"].append(walker_run(cp=None, **common))
             ticks += res["cp"][-1].ticks + res["vp"][-1].ticks
-            LOG.info("walker study %s run %d: CP %.2f/%.2f VP %.2f/%.2f", case.name, i,
-                     res["cp"][-1].forward_error, res["cp"][-1].turn_error,
-                     res["vp"][-1].forward_error, res["vp"][-1].turn_error)
-        out.append({"name": case.name, "h1_ms": 1e3 * float(inp.h1.mean()), "h2_ms": 1e3 * float(inp.h2.mean()),
-                    "description": case.description, "cp": _summary(res["cp"]), "vp": _summary(res["vp"])})
+            LOG.info(
+                "walker study %s run %d: CP %.2f/%.2f VP %.2f/%.2f",
+                case.name,
+                i,
+                res["cp"][-1].forward_error,
+                res["cp"][-1].turn_error,
+                res["vp"][-1].forward_error,
+                res["vp"][-1].turn_error,
+            )
+        out.append(
+            {
+                "name": case.name,
+                "h1_ms": 1e3 * float(inp.h1.mean()),
+                "h2_ms": 1e3 * float(inp.h2.mean()),
+                "description": case.description,
+                "cp": _summary(res["cp"]),
+                "vp": _summary(res["vp"]),
+            }
+        )
     wall = time.perf_counter() - t0
-    return {"seed": seed, "runs": runs, "duration_s": duration_s, "dt_s": params.dt, "wall_s": wall,
-            "ticks_per_s": ticks / wall if wall > 0 else math.nan, "cases": out}
+    return {
+        "seed": seed,
+        "runs": runs,
+        "duration_s": duration_s,
+        "dt_s": params.dt,
+        "wall_s": wall,
+        "ticks_per_s": ticks / wall if wall > 0 else math.nan,
+        "cases": out,
+    }
 
 
 def run_walker_cli(cfg: Config, *, runs: int, seed: int, duration_s: float) -> dict[str, Any]:
     """Entry point of ``bipedtele study --walker`` (group ``bipedtele.study_backends``)."""
-    return run_walker_study(cfg.section("control"), cfg.section("follower"), cfg.section("sim"),
-                            runs=runs, seed=seed, duration_s=duration_s)
+    return run_walker_study(
+        cfg.section("control"), cfg.section("follower"), cfg.section("sim"), runs=runs, seed=seed, duration_s=duration_s
+    )

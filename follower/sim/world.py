@@ -48,7 +48,10 @@ class Obstacle:
         default_factory=lambda: [1.0, 0.0, 0.25], lo=-100.0, hi=100.0, unit="m", doc="centre x, y, z"
     )
     size: list[float] = param(
-        default_factory=lambda: [0.2, 0.3, 0.5], lo=0.001, hi=50.0, unit="m",
+        default_factory=lambda: [0.2, 0.3, 0.5],
+        lo=0.001,
+        hi=50.0,
+        unit="m",
         doc="box: edge lengths x, y, z; cylinder: radius, height",
     )
 

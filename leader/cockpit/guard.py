@@ -291,9 +291,7 @@ class Throttle(logging.Filter):
             record.args = None
         record.exc_info, record.exc_text, record.stack_info = None, None, None
         if held:
-            record.msg = (
-                f"{record.getMessage()} (and {held} more like it in the last {self.interval_s:g} s)"
-            )
+            record.msg = f"{record.getMessage()} (and {held} more like it in the last {self.interval_s:g} s)"
             record.args = None
         if len(self._last) > 1000:
             self._last.clear()

@@ -378,9 +378,7 @@ class CockpitServer:
         ready = threading.Event()
         failure: list[BaseException] = []
         _throttle_logs(self.limits.log_interval_s)
-        self._thread = threading.Thread(
-            target=self._thread_main, args=(ready, failure), name="cockpit", daemon=True
-        )
+        self._thread = threading.Thread(target=self._thread_main, args=(ready, failure), name="cockpit", daemon=True)
         self._thread.start()
         if not ready.wait(timeout_s):
             raise RuntimeError("cockpit server did not start in time")
@@ -685,17 +683,13 @@ class CockpitServer:
         return web.Response(status=204)
 
     async def _healthz(self, request: web.Request) -> web.Response:
-        return web.json_response(
-            {"ok": True, "clients": len(self._clients), "cameras": sorted(self._frames)}
-        )
+        return web.json_response({"ok": True, "clients": len(self._clients), "cameras": sorted(self._frames)})
 
     async def _video_jpeg(self, request: web.Request) -> web.Response:
         frame = self._frames.get(request.match_info["camera"])
         if frame is None:
             raise web.HTTPNotFound(text="no frame yet")
-        return web.Response(
-            body=frame[2], content_type="image/jpeg", headers={"Cache-Control": "no-store"}
-        )
+        return web.Response(body=frame[2], content_type="image/jpeg", headers={"Cache-Control": "no-store"})
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._origin_ok(request):
@@ -728,8 +722,9 @@ class CockpitServer:
         moved_joystick = False
         try:
             await ws.send_str(
-                json.dumps({"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS,
-                            "course": self.course})
+                json.dumps(
+                    {"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS, "course": self.course}
+                )
             )
             pusher = asyncio.create_task(self._push(client))
             async for msg in ws:

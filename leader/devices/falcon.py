@@ -53,7 +53,13 @@ class FalconDevice(LeaderDevice):
         Fields of :class:`FalconConfig`.
     """
 
-    def __init__(self, config: FalconConfig | Config | None = None, *, lib_loader: Callable[[], Any] | None = None, **overrides: Any) -> None:
+    def __init__(
+        self,
+        config: FalconConfig | Config | None = None,
+        *,
+        lib_loader: Callable[[], Any] | None = None,
+        **overrides: Any,
+    ) -> None:
         self.config = resolve_section(config, FalconConfig, "falcon", overrides)
         self._lib_loader = lib_loader or load_libftdi
         self._usb: FalconUsb | None = None
@@ -121,7 +127,9 @@ class FalconDevice(LeaderDevice):
         x = np.clip([-(p[2] - self.config.center_z_m), -p[0]], -w, w)
         eb = self.config.enable_button
         order = [eb] + [i for i in range(fp.BUTTON_BITS) if i != eb] if eb >= 0 else []
-        return HandleState(t=t - self._t0, x_m=x, dx_m=np.array([-v[2], -v[0]]), buttons=tuple(bool(buttons >> i & 1) for i in order))
+        return HandleState(
+            t=t - self._t0, x_m=x, dx_m=np.array([-v[2], -v[0]]), buttons=tuple(bool(buttons >> i & 1) for i in order)
+        )
 
     def apply_force(self, force_n: np.ndarray) -> np.ndarray:
         """Set the force [N] the I/O thread renders (clamped to 8 N per axis)."""
@@ -148,7 +156,9 @@ class FalconDevice(LeaderDevice):
             if usb.exchange(fp.encode_command(np.zeros(3)), 0.02) is not None:
                 return  # firmware already running
         if not self.config.firmware_file:
-            raise DeviceError("falcon: the Falcon has no firmware loaded: set falcon.firmware_file to Novint's image (nvent_firmware.bin, shipped with libnifalcon)")
+            raise DeviceError(
+                "falcon: the Falcon has no firmware loaded: set falcon.firmware_file to Novint's image (nvent_firmware.bin, shipped with libnifalcon)"
+            )
         usb.load_firmware(self.config.firmware_file)
         if usb.exchange(fp.encode_command(np.zeros(3)), 0.1) is None:
             raise DeviceError("falcon: firmware loaded but the Falcon does not answer: power-cycle it and retry")
@@ -161,7 +171,9 @@ class FalconDevice(LeaderDevice):
             if status is not None and fp.decode_status(status)[1] == 0x7:
                 usb.exchange(fp.encode_command(np.zeros(3), fp.LED_GREEN))
                 return
-        raise DeviceError(f"falcon: not homed within {self.config.homing_timeout_s:.0f} s: move the handle fully out and in, then connect again")
+        raise DeviceError(
+            f"falcon: not homed within {self.config.homing_timeout_s:.0f} s: move the handle fully out and in, then connect again"
+        )
 
     def _io_loop(self) -> None:
         usb = self._usb

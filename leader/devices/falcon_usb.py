@@ -95,8 +95,12 @@ class FalconUsb:
             self.lib.ftdi_free(self.ctx)
             self.ctx = None
             if rc == -8:
-                raise DeviceError("falcon: no permission on the Falcon's USB device: install the udev rule (docs/hardware.md) and replug it")
-            raise DeviceError("falcon: no Novint Falcon (USB 0403:cb48) found: plug it in and power it (the power brick, not only USB)")
+                raise DeviceError(
+                    "falcon: no permission on the Falcon's USB device: install the udev rule (docs/hardware.md) and replug it"
+                )
+            raise DeviceError(
+                "falcon: no Novint Falcon (USB 0403:cb48) found: plug it in and power it (the power brick, not only USB)"
+            )
         self.normal_mode()
 
     def close(self) -> None:
@@ -142,7 +146,9 @@ class FalconUsb:
         try:
             image = Path(path).read_bytes()
         except OSError as exc:
-            raise DeviceError(f"falcon: cannot read firmware file {path!r} ({exc.strerror}); set falcon.firmware_file") from None
+            raise DeviceError(
+                f"falcon: cannot read firmware file {path!r} ({exc.strerror}); set falcon.firmware_file"
+            ) from None
         lib, ctx = self.lib, self.ctx
         self._check(lib.ftdi_usb_purge_buffers(ctx), "purge")
         self._check(lib.ftdi_usb_reset(ctx), "reset")

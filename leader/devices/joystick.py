@@ -37,6 +37,7 @@ __all__ = ["JoystickConfig", "JoystickDevice", "ff_direction"]
 
 LOG = logging.getLogger(__name__)
 
+
 def ff_direction(force_n: np.ndarray) -> int:
     """Linux force-feedback direction (0..0xFFFF) of a handle force.
 
@@ -49,12 +50,13 @@ def ff_direction(force_n: np.ndarray) -> int:
     return round(angle / (2.0 * math.pi) * 0x10000) & 0xFFFF
 
 
-
 def _import_evdev() -> Any:
     try:
         import evdev
     except ImportError:
-        raise DeviceError("joystick: the python evdev package is missing: pip install 'bipedtele[joystick]' (Linux only)") from None
+        raise DeviceError(
+            "joystick: the python evdev package is missing: pip install 'bipedtele[joystick]' (Linux only)"
+        ) from None
     return evdev
 
 
@@ -219,7 +221,9 @@ class JoystickDevice(LeaderDevice):
             except FileNotFoundError:
                 raise DeviceError(f"joystick: no device at {want}: {hint}") from None
             except PermissionError:
-                raise DeviceError(f"joystick: no permission to open {want}: add your user to the 'input' group") from None
+                raise DeviceError(
+                    f"joystick: no permission to open {want}: add your user to the 'input' group"
+                ) from None
         denied = 0
         for path in lister():
             try:
@@ -229,13 +233,17 @@ class JoystickDevice(LeaderDevice):
                 continue
             except OSError:
                 continue
-            axes = {c if isinstance(c, int) else c[0] for c in dev.capabilities(absinfo=False).get(self._ecodes.EV_ABS, [])}
+            axes = {
+                c if isinstance(c, int) else c[0] for c in dev.capabilities(absinfo=False).get(self._ecodes.EV_ABS, [])
+            }
             if all(c in axes for c in codes) and want.lower() in str(dev.name).lower():
                 return dev
             dev.close()
         what = f"named like {want!r} " if want else ""
         extra = f" ({denied} input devices could not be opened: permissions)" if denied else ""
-        raise DeviceError(f"joystick: no joystick {what}with axes {self.config.axis_forward}/{self.config.axis_turn} found{extra}: {hint}")
+        raise DeviceError(
+            f"joystick: no joystick {what}with axes {self.config.axis_forward}/{self.config.axis_turn} found{extra}: {hint}"
+        )
 
     def _setup_ff(self, ff_caps: list[int]) -> None:
         e = self._ecodes
@@ -248,7 +256,11 @@ class JoystickDevice(LeaderDevice):
         else:
             self.ff_mode = "none"
             if want != "none":
-                LOG.warning("joystick %r has no %s force feedback: the leader's force is not rendered", self._dev.name, "usable" if want == "auto" else want)
+                LOG.warning(
+                    "joystick %r has no %s force feedback: the leader's force is not rendered",
+                    self._dev.name,
+                    "usable" if want == "auto" else want,
+                )
             return
         if e.FF_GAIN in ff_caps:
             self._dev.write(e.EV_FF, e.FF_GAIN, 0xFFFF)
@@ -279,7 +291,9 @@ class JoystickDevice(LeaderDevice):
         try:
             self._effect_id = int(self._dev.upload_effect(effect))
         except OSError as exc:
-            raise DeviceError(f"joystick {self._dev.name!r}: force feedback upload failed ({exc}); set joystick.force_feedback = 'none'") from None
+            raise DeviceError(
+                f"joystick {self._dev.name!r}: force feedback upload failed ({exc}); set joystick.force_feedback = 'none'"
+            ) from None
         self._ff_sent, self._ff_last = (level, direction), now
 
     def _drain(self) -> None:
@@ -299,7 +313,9 @@ class JoystickDevice(LeaderDevice):
         except OSError as exc:  # unplugged
             dev, self._dev = self._dev, None
             dev.close()
-            raise DeviceError(f"joystick {getattr(dev, 'name', '?')!r} is gone ({exc}): plug it back in and reconnect") from None
+            raise DeviceError(
+                f"joystick {getattr(dev, 'name', '?')!r} is gone ({exc}): plug it back in and reconnect"
+            ) from None
 
     def _norm(self, code: int) -> float:
         center, half, flat = self._axes[code]

@@ -80,9 +80,7 @@ class SimFalconParams:
         if not (0 < self.step_s <= 0.01):
             raise ValueError(f"step_s = {self.step_s!r}: allowed: a number in (0, 0.01] s")
         if self.viscous_n_s_m * self.step_s / self.mass_kg >= 1.0:
-            raise ValueError(
-                "viscous_n_s_m * step_s / mass_kg: allowed: < 1 (explicit friction stability)"
-            )
+            raise ValueError("viscous_n_s_m * step_s / mass_kg: allowed: < 1 (explicit friction stability)")
 
 
 @register_device("sim-falcon")

@@ -148,7 +148,9 @@ def wait_recorded_state(path: Path, state: str, since: float, timeout_s: float, 
         if start is not None and fbs[-1][0] - start >= hold_s:
             return start
         if time.monotonic() > deadline:
-            raise AssertionError(f"no {state!r} for {hold_s:g} s in {path.name}: last states {[s for _, s in fbs[-10:]]}")
+            raise AssertionError(
+                f"no {state!r} for {hold_s:g} s in {path.name}: last states {[s for _, s in fbs[-10:]]}"
+            )
         time.sleep(0.5)
 
 

@@ -127,7 +127,9 @@ async def _brute(port: int, total: int, seconds: float, workers: int) -> dict[st
                     reader, writer = await asyncio.wait_for(asyncio.open_connection(HOST, port), 2.0)
                 assert reader is not None
                 sent[0] += 1
-                writer.write(f"GET /?token={secrets.token_urlsafe(24)} HTTP/1.1\r\nHost: {HOST}:{port}\r\n\r\n".encode())
+                writer.write(
+                    f"GET /?token={secrets.token_urlsafe(24)} HTTP/1.1\r\nHost: {HOST}:{port}\r\n\r\n".encode()
+                )
                 line = await asyncio.wait_for(reader.readline(), 2.0)
                 if not line:
                     raise ConnectionResetError("closed")

@@ -105,9 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     names = args.keys.split(",")
     sent: Counter[str] = Counter()
     kinds: Counter[str] = Counter()
-    net = NetworkConfig(
-        mode="client", connect=[args.connect], timeout_s=10.0, user=args.user, password=args.password
-    )
+    net = NetworkConfig(mode="client", connect=[args.connect], timeout_s=10.0, user=args.user, password=args.password)
     with open_session(net) as session:
         # Block rather than drop on congestion: every payload must reach the receivers
         # so that the test can compare counts.

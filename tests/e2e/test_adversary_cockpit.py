@@ -101,7 +101,9 @@ async def _drive(url: str, origin: str | None, headers: dict[str, str] | None = 
             return f"refused {exc.status}"
 
 
-def _forward_commands(leader: Leader, attack: str, origin: str | None, headers: dict[str, str] | None = None) -> tuple[str, float]:
+def _forward_commands(
+    leader: Leader, attack: str, origin: str | None, headers: dict[str, str] | None = None
+) -> tuple[str, float]:
     """Run one websocket attack while listening to the leader's commands; return how the
     attack went and the largest forward speed the leader then commanded [cm/s]."""
     net = NetworkConfig(mode="peer", connect=[leader.endpoint], timeout_s=10.0)
@@ -343,7 +345,9 @@ def test_leader_reconnects_to_a_restarted_router_while_the_cockpit_is_flooded(pr
     router = start_router(procs, ep)
     leader = _start_leader(procs, client_args(ep), limited=True)
     with Monitor(ep, leader.robot) as mon:
-        wait_until(lambda: any(r.msg.role == "leader" for r in (mon.poll(), mon.status)[1]), 20.0, "the leader's status")
+        wait_until(
+            lambda: any(r.msg.role == "leader" for r in (mon.poll(), mon.status)[1]), 20.0, "the leader's status"
+        )
         idle = _flood_bg("idle", "--port", str(leader.port), "--n", "3000", "--seconds", "25")
         brute = _flood_bg("brute", "--port", str(leader.port), "--requests", "60000", "--seconds", "20")
         try:

@@ -93,9 +93,7 @@ def _decode_any(payload: bytes) -> Any:
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("keyed", [True, False], ids=["key", "no_key"])
-def test_a_restarted_leader_never_shows_replayed_feedback_as_live(
-    procs: Procs, tmp_path: Path, keyed: bool
-) -> None:
+def test_a_restarted_leader_never_shows_replayed_feedback_as_live(procs: Procs, tmp_path: Path, keyed: bool) -> None:
     """Finding 1b: feedback captured earlier, republished at 20 Hz to a restarted leader.
 
     Setup: router, sim follower, leader 1 walking the robot (``clock.mode = "synced"``; the
@@ -161,23 +159,11 @@ def test_a_restarted_leader_never_shows_replayed_feedback_as_live(
     puts_seen = [t for t in rep["puts"] if t > t_first + 0.5]  # leader 2 subscribed by then
     replayed_recv = [d for d in fb_recv if (d["sid"], d["seq"]) in old_ids]
     shown_old = [
-        s
-        for s in samples
-        if s.get("pose_x") is not None and (s["pose_x"], s["pose_y"], s["pose_yaw"]) in old_poses
+        s for s in samples if s.get("pose_x") is not None and (s["pose_x"], s["pose_y"], s["pose_yaw"]) in old_poses
     ]
-    ok_old = [
-        s
-        for s in samples
-        if s.get("link") == "ok" and (s.get("fb_age_ms") or 0.0) > 1000.0 * FB_BOUND_S
-    ]
-    aged = [
-        s
-        for s in samples
-        if s.get("pose_x") is not None and (s.get("fb_age_ms") or 0.0) > 1000.0 * FB_BOUND_S
-    ]
-    dropped = drops(
-        last, "fb_too_old", "old_session", "bad_mac", "too_old", "stale", "foreign_session"
-    )
+    ok_old = [s for s in samples if s.get("link") == "ok" and (s.get("fb_age_ms") or 0.0) > 1000.0 * FB_BOUND_S]
+    aged = [s for s in samples if s.get("pose_x") is not None and (s.get("fb_age_ms") or 0.0) > 1000.0 * FB_BOUND_S]
+    dropped = drops(last, "fb_too_old", "old_session", "bad_mac", "too_old", "stale", "foreign_session")
     figures = {
         "keyed": keyed, "captured": len(msgs), "replay_age_min_s": round(rep["puts"][0] - newest_sent, 2),
         "replayed": rep["replayed"], "replayed_after_leader2_up": len(puts_seen),
@@ -188,9 +174,7 @@ def test_a_restarted_leader_never_shows_replayed_feedback_as_live(
     }  # fmt: skip
     print(json.dumps(figures))
     assert len(puts_seen) >= 100, figures
-    assert len(fb_recv) >= 100 and figures["samples_ok"] > 0, (
-        f"leader 2 never got genuine feedback: {figures}"
-    )
+    assert len(fb_recv) >= 100 and figures["samples_ok"] > 0, f"leader 2 never got genuine feedback: {figures}"
     assert not replayed_recv, f"replayed feedback recorded as received: {figures}"
     assert not shown_old, f"replayed feedback shown: {figures}"
     assert not ok_old, f"link 'ok' on feedback older than the bound: {figures}"
@@ -273,9 +257,7 @@ def test_a_forged_high_sequence_copy_without_a_key_costs_the_leader_at_most_2_co
     wait_recorded_state(f_rec, "walking", time.time() - 60, timeout_s=30.0, hold_s=1.0)
     script = tmp_path / "forge.py"
     script.write_text(FORGE)
-    attacker = procs.start(
-        "forger", [str(script), ep, "bipedtele/nao1/cmd", str(dseq), str(dt), "1.0"], raw=True
-    )
+    attacker = procs.start("forger", [str(script), ep, "bipedtele/nao1/cmd", str(dseq), str(dt), "1.0"], raw=True)
     assert attacker.popen.wait(timeout=90.0) == 0, attacker.tail()
     rep = _json_lines(attacker.log())
     time.sleep(3.0)  # the leader walks on
@@ -293,16 +275,12 @@ def test_a_forged_high_sequence_copy_without_a_key_costs_the_leader_at_most_2_co
     s0, n = rep["seq0"], 200  # 2 s of commands at 100 Hz after the copied one
     lost = [s for s in range(s0 + 1, s0 + n + 1) if s not in genuine]
     lost_before = [s for s in range(s0 - n, s0 + 1) if s not in genuine]
-    events = [
-        r.data for r in recs if r.topic == "events" and rep["t_put"] - 0.1 <= r.data["t"] < t_stop
-    ]
+    events = [r.data for r in recs if r.topic == "events" and rep["t_put"] - 0.1 <= r.data["t"] < t_stop]
     watchdog = [e for e in events if e["event"] == "watchdog_stop"]
     st = counters(recs)
     before = [c for t, c in st if t < rep["t_put"]]
     c0, c1 = (before[-1] if before else {}), st[-1][1]
-    delta = {
-        k: v - c0.get(k, 0) for k, v in c1.items() if k.startswith("drop_") and v != c0.get(k, 0)
-    }
+    delta = {k: v - c0.get(k, 0) for k, v in c1.items() if k.startswith("drop_") and v != c0.get(k, 0)}
     figures = {
         "dseq": dseq, "dt": dt, "forged_accepted": len(forged_accepted), "lost_after": lost,
         "lost_before": lost_before, "max_seq_recv": max(seqs) if seqs else None, "watchdog_stops": len(watchdog),
@@ -310,9 +288,7 @@ def test_a_forged_high_sequence_copy_without_a_key_costs_the_leader_at_most_2_co
     }  # fmt: skip
     print(json.dumps(figures))
     assert max(genuine) >= s0 + n, f"the leader's commands stopped reaching the robot: {figures}"
-    assert len(lost) <= 2, (
-        f"the forged copy cost the genuine leader {len(lost)} commands: {figures}"
-    )
+    assert len(lost) <= 2, f"the forged copy cost the genuine leader {len(lost)} commands: {figures}"
     assert not watchdog, f"watchdog stop after the forged copy: {figures}"
     if dt < -100.0:
         assert not forged_accepted and drops(delta, "too_old") >= 1, figures
@@ -321,6 +297,4 @@ def test_a_forged_high_sequence_copy_without_a_key_costs_the_leader_at_most_2_co
     else:
         assert drops(delta, "seq_jump") >= 1, figures
     if dseq <= 100:
-        assert forged_accepted, (
-            f"a jump within the seq margin was not accepted: nothing tested: {figures}"
-        )
+        assert forged_accepted, f"a jump within the seq margin was not accepted: nothing tested: {figures}"

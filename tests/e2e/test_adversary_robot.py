@@ -93,7 +93,9 @@ def test_a_timed_out_get_robot_velocity_stops_the_nao_and_it_walks_again(procs: 
     t_fault = time.time()
     ctl.set_fault("getRobotVelocity", "hang")
     try:
-        wait_until(lambda: nao.state()["vel"] == [0.0, 0.0, 0.0], 15.0, "the NAO stopped while calls time out", procs.logs)
+        wait_until(
+            lambda: nao.state()["vel"] == [0.0, 0.0, 0.0], 15.0, "the NAO stopped while calls time out", procs.logs
+        )
         assert any(c[3] > t_fault for c in nao.calls("stopMove"))
         time.sleep(3.0)  # calls keep timing out: the follower stays up, the NAO stands
         assert follower.alive(), follower.tail()

@@ -114,7 +114,10 @@ def engine(tmp_path: Path) -> Iterator[Engine]:
     _engine_can_run()
     dockerd = _tool("dockerd", "/usr/sbin/dockerd", "/usr/bin/dockerd")
     # The client packaged with the engine (docker.io), else any on PATH.
-    eng = Engine(_tool("docker", str(Path(dockerd).parent.parent / "bin" / "docker"), "/usr/bin/docker"), tmp_path / "dockerd.log")
+    eng = Engine(
+        _tool("docker", str(Path(dockerd).parent.parent / "bin" / "docker"), "/usr/bin/docker"),
+        tmp_path / "dockerd.log",
+    )
     if not eng.answers():
         if _running_dockerd():
             deadline = time.monotonic() + 60.0  # someone's engine is starting: wait for it
@@ -349,7 +352,9 @@ def test_compose_stack_builds_runs_records_and_reports(engine: Engine, tmp_path:
             engine.run("image", "rm", "-f", image, timeout=120, check=False)
             if engine.process is not None:  # our own engine: its build cache is ours too
                 engine.run("builder", "prune", "-a", "-f", timeout=300, check=False)
-        left = engine.run("ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={compose.project}", check=False)
+        left = engine.run(
+            "ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={compose.project}", check=False
+        )
         timings["down + clean"] = time.monotonic() - t
         timings["total"] = time.monotonic() - t_start
         sys.stdout.write("compose test timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + "\n")

@@ -20,9 +20,18 @@ from bipedtele.recording import read_records
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
 REPORT_KEYS = {
-    "min_delay_ms", "max_delay_ms", "mean_delay_ms", "completion_s", "passes",
-    "forward_error_cm_s", "turn_error_deg_s", "forward_error_instant_cm_s", "turn_error_instant_deg_s",
-    "falls", "collisions", "odometry_source",
+    "min_delay_ms",
+    "max_delay_ms",
+    "mean_delay_ms",
+    "completion_s",
+    "passes",
+    "forward_error_cm_s",
+    "turn_error_deg_s",
+    "forward_error_instant_cm_s",
+    "turn_error_instant_deg_s",
+    "falls",
+    "collisions",
+    "odometry_source",
 }
 
 
@@ -31,11 +40,23 @@ def test_demo_completes_the_paper_task_under_the_intercontinental_delay(tmp_path
     run_dir = tmp_path / "run"
     out_json = tmp_path / "report.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", "demo", "--headless", "--run-dir", str(run_dir),
-         "--json", str(out_json),
-         # Video off: nobody watches in a headless test, and it halves the CPU load.
-         "--set", "follower.camera_fps=0"],
-        capture_output=True, text=True, timeout=700,
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "demo",
+            "--headless",
+            "--run-dir",
+            str(run_dir),
+            "--json",
+            str(out_json),
+            # Video off: nobody watches in a headless test, and it halves the CPU load.
+            "--set",
+            "follower.camera_fps=0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=700,
     )
     logs = {p.name: p.read_text(errors="replace")[-3000:] for p in run_dir.glob("*.log")}
     assert proc.returncode == 0, f"demo failed: {proc.stderr[-2000:]}\n{logs}"

@@ -61,7 +61,9 @@ def test_garbage_on_every_key_is_dropped_and_counted(procs: Procs, tmp_path: Pat
         f0, l0 = latest("follower"), latest("leader")
         assert f0 is not None and l0 is not None
         t0 = time.time()
-        g = procs.start("garbage", [str(HERE / "garbage.py"), "--connect", ep, "--count", str(COUNT), "--seconds", "2"], raw=True)
+        g = procs.start(
+            "garbage", [str(HERE / "garbage.py"), "--connect", ep, "--count", str(COUNT), "--seconds", "2"], raw=True
+        )
         assert g.popen.wait(timeout=60) == 0, g.tail()
         t1 = time.time()
         report = json.loads(g.log().strip().splitlines()[-1])

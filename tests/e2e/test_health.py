@@ -38,7 +38,9 @@ def test_health_roles_against_running_setup(procs: Procs) -> None:
     assert leader.stop() == 0
     gone = procs.start("health-gone", ["health", *client_args(ep), *fast, "--role", "leader", "--timeout", "1"])
     nobody = f"tcp/127.0.0.1:{free_port()}"
-    no_router = procs.start("health-norouter", ["health", *client_args(nobody), "--set", "network.timeout_s=1", "--role", "router"])
+    no_router = procs.start(
+        "health-norouter", ["health", *client_args(nobody), "--set", "network.timeout_s=1", "--role", "router"]
+    )
     assert gone.popen.wait(timeout=30) == 1, gone.log()
     assert "unhealthy: no leader present" in gone.log()
     assert no_router.popen.wait(timeout=30) == 1, no_router.log()

@@ -92,7 +92,9 @@ def netns_pair() -> Iterator[NetnsPair]:
         for ns in (pair.leader_ns, pair.follower_ns):
             r = _ip("netns", "add", ns)
             if r.returncode != 0:
-                pytest.skip(f"cannot create network namespaces (`ip netns add` needs root/CAP_SYS_ADMIN): {r.stderr.strip()}")
+                pytest.skip(
+                    f"cannot create network namespaces (`ip netns add` needs root/CAP_SYS_ADMIN): {r.stderr.strip()}"
+                )
             created.append(ns)
         vl, vf = f"btl-{tag}", f"btf-{tag}"
         steps = [
@@ -160,7 +162,9 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
     proxy_ep = f"tls/127.0.0.1:{proxy_port}"
     f_rec, l_rec = tmp_path / "follower.mcap", tmp_path / "leader.mcap"
 
-    router = procs.start("router", ["router", "--config", str(prof["router"]), "--listen", router_ep], netns=pair.follower_ns)
+    router = procs.start(
+        "router", ["router", "--config", str(prof["router"]), "--listen", router_ep], netns=pair.follower_ns
+    )
     router.wait_log(r"router: \S+ listening on", 30.0)
     proxy = procs.start(
         "proxy",
@@ -169,7 +173,12 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
         netns=pair.leader_ns,
     )  # fmt: skip
     follower = start_follower(
-        procs, router_ep, ["--config", str(prof["follower"]), *NO_VIDEO], netns=pair.follower_ns, record=f_rec, wait=False
+        procs,
+        router_ep,
+        ["--config", str(prof["follower"]), *NO_VIDEO],
+        netns=pair.follower_ns,
+        record=f_rec,
+        wait=False,
     )
     leader = start_leader(
         procs, proxy_ep, ["--config", str(prof["leader"]), *walking_script(5.0)],
@@ -239,8 +248,12 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
     late = warm[len(warm) // 2 :]
     h1_est = statistics.median(s["h1_ms"] for s in late) / 1000
     h2_est = statistics.median(s["h2_ms"] for s in late) / 1000
-    print(f"h1: emulated {FORWARD_S * 1000:.0f} ms, message median {h1_msgs * 1000:.1f} ms, leader's estimate {h1_est * 1000:.1f} ms")
-    print(f"h2: emulated {BACKWARD_S * 1000:.0f} ms, message median {h2_msgs * 1000:.1f} ms, leader's estimate {h2_est * 1000:.1f} ms")
+    print(
+        f"h1: emulated {FORWARD_S * 1000:.0f} ms, message median {h1_msgs * 1000:.1f} ms, leader's estimate {h1_est * 1000:.1f} ms"
+    )
+    print(
+        f"h2: emulated {BACKWARD_S * 1000:.0f} ms, message median {h2_msgs * 1000:.1f} ms, leader's estimate {h2_est * 1000:.1f} ms"
+    )
     # the emulated delay plus TLS, Zenoh and scheduling on this host: a few ms
     for got, want in ((h1_msgs, FORWARD_S), (h1_est, FORWARD_S), (h2_msgs, BACKWARD_S), (h2_est, BACKWARD_S)):
         assert want <= got + 0.002 and got < want + 0.025, (got, want)

@@ -47,9 +47,10 @@ def main(argv: list[str] | None = None) -> int:
         with open_session(net) as session:
             out["opened"] = True
             keys = Keys(args.robot_id)
-            with MessageReceiver(session, keys.feedback, Feedback, DropCounter("zclient")) as rx, Publishers(
-                session, keys
-            ) as pubs:
+            with (
+                MessageReceiver(session, keys.feedback, Feedback, DropCounter("zclient")) as rx,
+                Publishers(session, keys) as pubs,
+            ):
                 stamper, n = Stamper(), 0
                 end = time.monotonic() + args.seconds
                 while time.monotonic() < end:

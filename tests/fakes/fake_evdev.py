@@ -32,7 +32,10 @@ class FakeInputDevice:
     ) -> None:
         self.name, self.path = name, path
         center = (lo + hi) // 2 + (1 if (lo + hi) % 2 else 0)
-        self._abs = {c: AbsInfo(value=center, min=lo, max=hi, fuzz=0, flat=flat, resolution=0) for c in (ecodes.ABS_X, ecodes.ABS_Y)}
+        self._abs = {
+            c: AbsInfo(value=center, min=lo, max=hi, fuzz=0, flat=flat, resolution=0)
+            for c in (ecodes.ABS_X, ecodes.ABS_Y)
+        }
         self._buttons = list(buttons)
         self._ff = list(ff)
         self.queue: list[InputEvent] = []

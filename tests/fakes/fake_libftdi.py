@@ -20,7 +20,9 @@ from bipedtele.leader.devices import falcon_protocol as fp
 
 
 class FakeFalconLib:
-    def __init__(self, present: bool = True, firmware_loaded: bool = True, homing_packets: int = 20, permission: bool = True) -> None:
+    def __init__(
+        self, present: bool = True, firmware_loaded: bool = True, homing_packets: int = 20, permission: bool = True
+    ) -> None:
         self.present, self.permission = present, permission
         self.firmware_running = firmware_loaded
         self.homing_packets = homing_packets

@@ -315,7 +315,20 @@ class ALVideoDevice:
         if self.w.fault("getImageRemote") == "short":
             data = data[: len(data) // 2]
         now = time.time()
-        return (width, height, layers, colorspace, int(now), int((now % 1) * 1e6), data, camera, 0.53, -0.41, -0.53, 0.41)
+        return (
+            width,
+            height,
+            layers,
+            colorspace,
+            int(now),
+            int((now % 1) * 1e6),
+            data,
+            camera,
+            0.53,
+            -0.41,
+            -0.53,
+            0.41,
+        )
 
     def unsubscribe(self, handle: str) -> bool:
         self.w.record("ALVideoDevice", "unsubscribe", handle)
@@ -360,11 +373,18 @@ class FakeNaoControl:
     def state_json(self) -> str:
         with self.w.lock:
             self.w.update()
-            return json.dumps({
-                "pose": self.w.pose, "vel": self.w.vel, "awake": self.w.awake, "posture": self.w.posture,
-                "sonar_subscribers": sorted(self.w.sonar_subscribers), "video_subscribers": sorted(self.w.video_subscribers),
-                "move_config": self.w.last_move_config, "memory": self.w.memory,
-            })
+            return json.dumps(
+                {
+                    "pose": self.w.pose,
+                    "vel": self.w.vel,
+                    "awake": self.w.awake,
+                    "posture": self.w.posture,
+                    "sonar_subscribers": sorted(self.w.sonar_subscribers),
+                    "video_subscribers": sorted(self.w.video_subscribers),
+                    "move_config": self.w.last_move_config,
+                    "memory": self.w.memory,
+                }
+            )
 
     def calls_json(self) -> str:
         with self.w.lock:
@@ -429,9 +449,18 @@ class FakeNaoqi:
             while True:
                 # libqi logs to stdout/stderr: to /dev/null, so a full pipe never blocks it.
                 self.proc = subprocess.Popen(
-                    [sys.executable, __file__, "--port", str(self.port), "--ready-file", str(ready),
-                     "--image-data", self.image_data],
-                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                    [
+                        sys.executable,
+                        __file__,
+                        "--port",
+                        str(self.port),
+                        "--ready-file",
+                        str(ready),
+                        "--image-data",
+                        self.image_data,
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
                 )
                 while time.monotonic() < deadline and self.proc.poll() is None and not ready.exists():
                     time.sleep(0.05)

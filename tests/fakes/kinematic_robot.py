@@ -60,9 +60,15 @@ class KinematicRobot(FollowerRobot):
         sonar = min(max(ahead, 0.2), 0.8)
         fallen = self.t >= self.fall_at
         return RobotObservation(
-            t=self.t, v_hip_m_s=self.v, turn_rate_rad_s=self.w, pose=(self.x, self.y, self.yaw),
-            sonar_m=(sonar, sonar), tilt_rad=1.2 if fallen else 0.0, fallen=fallen,
-            walking=abs(self.v) > 1e-4 or abs(self.w) > 1e-4, in_contact=self.x >= self.wall_x - 0.05,
+            t=self.t,
+            v_hip_m_s=self.v,
+            turn_rate_rad_s=self.w,
+            pose=(self.x, self.y, self.yaw),
+            sonar_m=(sonar, sonar),
+            tilt_rad=1.2 if fallen else 0.0,
+            fallen=fallen,
+            walking=abs(self.v) > 1e-4 or abs(self.w) > 1e-4,
+            in_contact=self.x >= self.wall_x - 0.05,
         )
 
     def send_walk(self, cmd: WalkCommand) -> WalkCommand:

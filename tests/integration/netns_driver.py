@@ -39,12 +39,19 @@ def main() -> int:
             if health.returncode == 0:
                 break
             time.sleep(0.5)
-        print(json.dumps({
-            "ns": link.ns, "dev": link.dev, "router_pid": router.pid,
-            "health_rc": None if health is None else health.returncode,
-            "health": "" if health is None else (health.stdout + health.stderr).strip(),
-            "pids_inside": link.pids(),
-        }), flush=True)
+        print(
+            json.dumps(
+                {
+                    "ns": link.ns,
+                    "dev": link.dev,
+                    "router_pid": router.pid,
+                    "health_rc": None if health is None else health.returncode,
+                    "health": "" if health is None else (health.stdout + health.stderr).strip(),
+                    "pids_inside": link.pids(),
+                }
+            ),
+            flush=True,
+        )
         stop.wait(120.0)
     router.wait(timeout=10)
     return 0

@@ -199,7 +199,16 @@ def _map_sample(t: float) -> dict[str, object]:
     x, y = 1.2 + 0.02 * math.sin(t), 0.1
     ahead = {f"{name}_{k}": v for name, d in (("pred", 0.35), ("ahead", 0.7))
              for k, v in (("x", x + d * math.cos(yaw)), ("y", y + d * math.sin(yaw)), ("yaw", yaw))}  # fmt: skip
-    return {"t": t, "pose_x": x, "pose_y": y, "pose_yaw": yaw, **ahead, "ahead_dt": 0.18, "h1_ms": 180.0, "h2_ms": 200.0}
+    return {
+        "t": t,
+        "pose_x": x,
+        "pose_y": y,
+        "pose_yaw": yaw,
+        **ahead,
+        "ahead_dt": 0.18,
+        "h1_ms": 180.0,
+        "h2_ms": 200.0,
+    }
 
 
 @pytest.mark.timeout(90)
@@ -231,7 +240,9 @@ def test_cockpit_map_shows_the_course_the_path_and_the_predicted_ghosts() -> Non
                 page.on("pageerror", lambda e: errors.append(str(e)))
                 page.on("console", lambda m: errors.append(m.text) if "Content Security Policy" in m.text else None)
                 page.goto(server.url)
-                _wait_for(page, "cockpit.map.ghostDrawn && cockpit.map.draws > 3 && cockpit.map.path.length > 1", 20_000)
+                _wait_for(
+                    page, "cockpit.map.ghostDrawn && cockpit.map.draws > 3 && cockpit.map.path.length > 1", 20_000
+                )
                 got = page.evaluate(
                     """() => {
                         const m = cockpit.map;

@@ -37,8 +37,11 @@ class SimRun:
         self.published: list[object] = []
         self.stances: list[str] = []  # the sim gait's stance foot at each tick
         self.loop = FollowerLoop(
-            self.robot, cfg.section("control"), cfg.section("follower"),
-            lambda: (self.cmd, self.cmd_t) if self.cmd else None, self.published.append,
+            self.robot,
+            cfg.section("control"),
+            cfg.section("follower"),
+            lambda: (self.cmd, self.cmd_t) if self.cmd else None,
+            self.published.append,
             now=lambda: self.t,
         )
 
@@ -95,7 +98,7 @@ def test_watchdog_stops_and_stands_within_the_watchdog_period_plus_a_cycle(sim) 
     cycle = max(t.T for t in tels)
     assert standing[0].t - last_cmd <= run.loop.cfg.watchdog_s + cycle + run.loop.dt
     assert not any(t.obs.fallen for t in tels)
-    assert all(t.state == "standing" for t in tels[tels.index(standing[0]):])
+    assert all(t.state == "standing" for t in tels[tels.index(standing[0]) :])
     assert run.loop.counters["watchdog_stops"] == 1
 
 

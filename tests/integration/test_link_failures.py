@@ -177,7 +177,10 @@ def test_router_logs_refusals_and_health_says_which(certs: tuple[Path, Path], tm
         ):
             _failure(net)
     text = "\n".join(log)
-    assert re.search(r"refused a session from 127\.0\.0\.1:\d+ \(Common Name: follower\): user/password refused: wrong password", text), text[-3000:]
+    assert re.search(
+        r"refused a session from 127\.0\.0\.1:\d+ \(Common Name: follower\): user/password refused: wrong password",
+        text,
+    ), text[-3000:]
     assert "refused a TLS connection: no client certificate presented" in text, text[-3000:]
     assert "refused a TLS connection: client certificate not signed by this router's CA" in text, text[-3000:]
     assert re.search(r"router shutting down \([1-9]\d* session\(s\) refused\)", text), text[-3000:]

@@ -185,8 +185,13 @@ def test_bad_answers_raise_robot_error_and_the_bridge_survives(fake, robot):
 
 def test_robot_vanishing_mid_walk_then_reconnect():
     with FakeNaoqi() as fake:
-        robot = NaoqiRobot(url=fake.url, call_timeout_s=1.0, connect_timeout_s=1.0, reconnect_backoff_s=[0.1, 0.5],
-                           allow_unguarded=True)
+        robot = NaoqiRobot(
+            url=fake.url,
+            call_timeout_s=1.0,
+            connect_timeout_s=1.0,
+            reconnect_backoff_s=[0.1, 0.5],
+            allow_unguarded=True,
+        )
         robot.connect()
         robot.send_walk(WalkCommand(forward_m_s=0.05, cycle_s=1.0))
         fake.kill()
@@ -245,7 +250,9 @@ def test_registered_robot_and_config_section():
 
 
 def test_contract_checker(fake):
-    check = pytest.importorskip("bipedtele.follower.check", reason="the contract checker (follower/check.py) is not there yet")
+    check = pytest.importorskip(
+        "bipedtele.follower.check", reason="the contract checker (follower/check.py) is not there yet"
+    )
     fake.control().set_obstacles([])
     check.check_robot(lambda: NaoqiRobot(url=fake.url, allow_unguarded=True))
 

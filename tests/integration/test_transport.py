@@ -56,8 +56,21 @@ def delay_proxy(target: int, forward: str, backward: str, *extra: str) -> Iterat
     """Run `bipedtele delay-proxy` on a free port; yield the port; SIGINT it after."""
     port = free_port()
     p = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "delay-proxy", "--listen", f"127.0.0.1:{port}",
-         "--target", f"127.0.0.1:{target}", "--forward", forward, "--backward", backward, *extra],
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "delay-proxy",
+            "--listen",
+            f"127.0.0.1:{port}",
+            "--target",
+            f"127.0.0.1:{target}",
+            "--forward",
+            forward,
+            "--backward",
+            backward,
+            *extra,
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -262,9 +275,11 @@ def test_mac_drops_unsigned_and_forged_messages_before_decoding(tmp_path: Path) 
             raw.append((keys.cmd, payload.hex()))
     port = free_port()
     with_key, without_key = DropCounter("with-key"), DropCounter("without-key")
-    with open_session(NetworkConfig(listen=[f"tcp/127.0.0.1:{port}"])) as s, MessageReceiver(
-        s, keys.cmd, Command, with_key, auth=auth
-    ) as rx, MessageReceiver(s, keys.cmd, Command, without_key) as plain:
+    with (
+        open_session(NetworkConfig(listen=[f"tcp/127.0.0.1:{port}"])) as s,
+        MessageReceiver(s, keys.cmd, Command, with_key, auth=auth) as rx,
+        MessageReceiver(s, keys.cmd, Command, without_key) as plain,
+    ):
         run_sender(tmp_path, {"connect": f"tcp/127.0.0.1:{port}", "key_file": str(key_file), "raw": raw, "signed": 20})
         time.sleep(0.3)
         got = rx.drain()
@@ -297,13 +312,12 @@ def test_send_time_sanity(tmp_path: Path) -> None:
     est_a, est_c = DelayEstimator(30.0), DelayEstimator(30.0)
     drops = {n: DropCounter(n) for n in "abc"}
     port = free_port()
-    with open_session(NetworkConfig(listen=[f"tcp/127.0.0.1:{port}"])) as s, MessageReceiver(
-        s, keys.cmd, Command, drops["a"], estimator=est_a, max_future_s=0.25
-    ) as a, MessageReceiver(
-        s, keys.cmd, Command, drops["b"], clock_sync=unsynced, max_future_s=0.25
-    ) as b, MessageReceiver(
-        s, keys.cmd, Command, drops["c"], estimator=est_c, clock_sync=synced, max_future_s=0.25
-    ) as c:
+    with (
+        open_session(NetworkConfig(listen=[f"tcp/127.0.0.1:{port}"])) as s,
+        MessageReceiver(s, keys.cmd, Command, drops["a"], estimator=est_a, max_future_s=0.25) as a,
+        MessageReceiver(s, keys.cmd, Command, drops["b"], clock_sync=unsynced, max_future_s=0.25) as b,
+        MessageReceiver(s, keys.cmd, Command, drops["c"], estimator=est_c, clock_sync=synced, max_future_s=0.25) as c,
+    ):
         run_sender(tmp_path, {"connect": f"tcp/127.0.0.1:{port}", "stamped": [0.2, 0.2, 1.0, 10.0, 10.2, 11.0]})
         time.sleep(0.3)
         got = {"a": a.drain(), "b": b.drain(), "c": c.drain()}

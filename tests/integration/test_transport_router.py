@@ -54,11 +54,13 @@ def test_router_auth_and_command_acl(tmp_path: Path) -> None:
         lead, foll = Stamper(), Stamper()
         drops = DropCounter("acl")
         with open_session(_client(ep, "leader", "lpw")) as ls, open_session(_client(ep, "follower", "fpw")) as fs:  # noqa: SIM117
-            with MessageReceiver(fs, keys.cmd, Command, drops) as f_cmd, MessageReceiver(
-                ls, keys.cmd, Command, drops
-            ) as l_cmd, MessageReceiver(ls, keys.status, Status, drops) as l_status, Publishers(
-                ls, keys
-            ) as lp, Publishers(fs, keys) as fp:
+            with (
+                MessageReceiver(fs, keys.cmd, Command, drops) as f_cmd,
+                MessageReceiver(ls, keys.cmd, Command, drops) as l_cmd,
+                MessageReceiver(ls, keys.status, Status, drops) as l_status,
+                Publishers(ls, keys) as lp,
+                Publishers(fs, keys) as fp,
+            ):
                 time.sleep(0.5)
                 # control traffic drops on congestion: on a loaded machine a message can be
                 # lost, so publish until 3 of each went through (bounded)
@@ -95,4 +97,6 @@ def test_router_auth_and_command_acl(tmp_path: Path) -> None:
     assert router.returncode == 0, err[-2000:]
     assert "router shutting down" in err
     # the router logged the refusal: the reason and the client's address
-    assert re.search(r"refused a session from 127\.0\.0\.1:\d+: user/password refused: wrong password", err), err[-3000:]
+    assert re.search(r"refused a session from 127\.0\.0\.1:\d+: user/password refused: wrong password", err), err[
+        -3000:
+    ]

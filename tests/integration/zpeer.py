@@ -119,16 +119,16 @@ def main() -> int:
     result: dict[str, Any] = {"role": args.role, "series": [], "sent": 0}
     t_end = time.monotonic() + args.duration
     period = 1.0 / args.rate
-    with open_session(net) as session, Publishers(session, keys) as pubs, declare_presence(
-        session, keys, "leader" if args.role in ("leader", "fuzz") else "follower"
+    with (
+        open_session(net) as session,
+        Publishers(session, keys) as pubs,
+        declare_presence(session, keys, "leader" if args.role in ("leader", "fuzz") else "follower"),
     ):
         if args.role in ("leader", "follower"):
             rx_key, rx_type = ("feedback", Feedback) if args.role == "leader" else ("cmd", Command)
             est = DelayEstimator(args.window)
             drops = DropCounter(f"{args.role}/{rx_key}")
-            with LatestReceiver(
-                session, getattr(keys, rx_key), rx_type, drops, SequenceGate(), estimator=est
-            ) as rx:
+            with LatestReceiver(session, getattr(keys, rx_key), rx_type, drops, SequenceGate(), estimator=est) as rx:
                 first = None
                 while time.monotonic() < t_end:
                     now = time.time()

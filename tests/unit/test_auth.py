@@ -45,7 +45,7 @@ def test_sign_verify_round_trip_and_framing() -> None:
     # ...and one with the key never takes an unsigned payload for a signed one
     assert _reason(lambda: auth.verify(body, TOPIC)) == "no_mac"
     assert _reason(lambda: auth.verify(b"", TOPIC)) == "no_mac"
-    assert _reason(lambda: auth.verify(signed[:MAC_OVERHEAD - 1], TOPIC)) == "no_mac"
+    assert _reason(lambda: auth.verify(signed[: MAC_OVERHEAD - 1], TOPIC)) == "no_mac"
 
 
 def test_tag_covers_every_byte_the_topic_and_the_key() -> None:

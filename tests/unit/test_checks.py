@@ -42,9 +42,16 @@ def test_the_type_check_fails_on_a_planted_type_error_and_a_missing_internal_imp
     assert "Found 3 errors in 1 file" in out, out  # the package itself is clean
 
 
-def test_ruff_fails_on_a_planted_error(tmp_path: Path) -> None:
+def test_ruff_lint_and_format_fail_on_planted_errors(tmp_path: Path) -> None:
     bad = tmp_path / "bad.py"
     bad.write_text('"""A module."""\n\nimport os\n')
+    ugly = tmp_path / "ugly.py"
+    ugly.write_text('"""A module."""\n\nx = {  "a":1 }\n')
+    res = subprocess.run(
+        [str(Path(sys.executable).parent / "ruff"), "format", "--check", "--config", str(ROOT / "pyproject.toml"), str(ugly)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert res.returncode == 1 and "would be reformatted" in res.stdout, res.stdout + res.stderr
     res = subprocess.run(
         [str(Path(sys.executable).parent / "ruff"), "check", "--config", str(ROOT / "pyproject.toml"), str(bad)],
         capture_output=True, text=True, timeout=60,

@@ -12,9 +12,7 @@ pytestmark = pytest.mark.timeout(60)
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=50
-    )
+    return subprocess.run([sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=50)
 
 
 @pytest.mark.parametrize(
@@ -29,7 +27,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
         (["demo", "--set", "follower.watchdog_s=-1"], "follower.watchdog_s"),
         (["follower", "--robot", "naoqi", "--realtime", "off"], "only with the simulator"),
         (["follower", "--duration", "0"], "> 0"),
-        (["follower", "--set", "follower.cameras=[\"tail\"]"], "head"),
+        (["follower", "--set", 'follower.cameras=["tail"]'], "head"),
         (["health", "--role", "router", "--timeout", "0"], "> 0"),
     ],
 )

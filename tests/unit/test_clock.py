@@ -235,8 +235,12 @@ def test_inconsistent_answers() -> None:
 
 @settings(max_examples=300, deadline=None)
 @given(
-    st.floats(0.0, 1e9), st.floats(-1e9, 1e9), st.floats(0.0, 1.0), st.floats(0.0, 10.0),
-    st.integers(0, 2**63 - 1), st.integers(0, 2**32 - 1),
+    st.floats(0.0, 1e9),
+    st.floats(-1e9, 1e9),
+    st.floats(0.0, 1.0),
+    st.floats(0.0, 10.0),
+    st.integers(0, 2**63 - 1),
+    st.integers(0, 2**32 - 1),
 )
 def test_no_answer_makes_the_round_trip_shorter_than_measured_minus_hold(
     t2: float, hold: float, t1_frac: float, elapsed: float, seq: int, sid: int

@@ -83,6 +83,7 @@ def test_endpoints_and_websocket_protocol() -> None:
                 aiohttp.ClientSession() as cs,
                 cs.ws_connect(_u(server, "ws"), origin=_origin(server)) as ws,
             ):
+
                 def got_t2() -> bool:
                     return any(s.get("t") == 2.0 for m in texts for s in m.get("samples", []))
 
@@ -166,7 +167,13 @@ def test_dns_rebinding_host_is_refused() -> None:
     # Host (and Origin) evil.example: refused, even with the token (e.g. leaked in a log).
     with CockpitServer(allowed_hosts=["Robot-Desk.lan"]) as server:
         port = server.port
-        for host in (f"evil.example:{port}", "evil.example", f"127.0.0.1.evil.example:{port}", f"user@localhost:{port}", ""):
+        for host in (
+            f"evil.example:{port}",
+            "evil.example",
+            f"127.0.0.1.evil.example:{port}",
+            f"user@localhost:{port}",
+            "",
+        ):
             status, headers, _ = _request(server.url, {"Host": host})
             assert status == 403, host
             assert "frame-ancestors 'none'" in headers["Content-Security-Policy"]

@@ -19,7 +19,9 @@ class Clock:
         return self.t
 
 
-def run(reach: CommandReach, clock: Clock, sent: list[int], seconds: float, fb: dict | None, present: bool = True) -> None:
+def run(
+    reach: CommandReach, clock: Clock, sent: list[int], seconds: float, fb: dict | None, present: bool = True
+) -> None:
     """``seconds`` of a leader at 100 Hz commands, 50 Hz feedback built from ``fb``
     (``cmd_seq`` a callable of our last seq), the side thread checking at 20 Hz."""
     for k in range(round(seconds * 100)):

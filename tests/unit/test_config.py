@@ -120,9 +120,7 @@ class _Files:
 _EXTRA = {"files": _Files}
 
 
-def test_profile_file_paths_are_relative_to_its_folder(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_profile_file_paths_are_relative_to_its_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     host = tmp_path / "copied" / "robot"
     (host / "certs").mkdir(parents=True)
     (host / "certs" / "ca.pem").write_text("ca")
@@ -169,9 +167,7 @@ def test_network_paths_in_a_profile_file_follow_the_file(tmp_path: Path) -> None
     assert {"tls_root_ca", "tls_cert", "tls_key", "password_file", "credentials_file"} <= marked
     folder = tmp_path / "operator"
     folder.mkdir()
-    (folder / "p.toml").write_text(
-        '[network]\ntls_root_ca = "certs/ca.pem"\npassword_file = "secrets/leader.pw"\n'
-    )
+    (folder / "p.toml").write_text('[network]\ntls_root_ca = "certs/ca.pem"\npassword_file = "secrets/leader.pw"\n')
     net = load_config(folder / "p.toml").section("network")
     assert net.tls_root_ca == str(folder / "certs" / "ca.pem")
     assert net.password_file == str(folder / "secrets" / "leader.pw")
@@ -181,9 +177,7 @@ def test_network_paths_in_a_profile_file_follow_the_file(tmp_path: Path) -> None
 
 
 def test_to_dict_redacts_secrets_by_default(tmp_path: Path) -> None:
-    (tmp_path / "p.toml").write_text(
-        '[files]\napi_credential = "c0ffee"\ntoken = "t0ken"\ntoken_file = "secrets/t"\n'
-    )
+    (tmp_path / "p.toml").write_text('[files]\napi_credential = "c0ffee"\ntoken = "t0ken"\ntoken_file = "secrets/t"\n')
     cfg = load_config(tmp_path / "p.toml", ['network.password="hunter2"'], extra_sections=_EXTRA)
     shown = cfg.to_dict()
     assert shown["files"]["api_credential"] == "***"  # marked secret=True

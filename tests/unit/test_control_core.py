@@ -20,7 +20,9 @@ CFG = ControlConfig()
 
 
 def test_leader_force_is_eq31() -> None:
-    f = leader_force([0.01, -0.02], [0.1, 0.0], [1.0, 2.0], k_m=[0.4, 0.5], k_g=[160, 200], alpha_m=[3.0, 4.0], g_m=[0.2, 0.0])
+    f = leader_force(
+        [0.01, -0.02], [0.1, 0.0], [1.0, 2.0], k_m=[0.4, 0.5], k_g=[160, 200], alpha_m=[3.0, 4.0], g_m=[0.2, 0.0]
+    )
     expected = np.array([-0.4 * (1.6 - 1.0) + 0.2 - 0.3, -0.5 * (-4.0 - 2.0)])
     np.testing.assert_allclose(f, expected, rtol=1e-12)
 

@@ -19,7 +19,10 @@ from bipedtele.control.hybrid import (
 CFG = ControlConfig()
 
 
-@pytest.mark.parametrize(("s_r", "T", "eps", "dp"), [([2.0, 3.0], 1.2, 0.5, 0.7), ([0.0, 10.0], 0.5, 0.05, 0.25), ([10.0, 0.0], 5.0, 1.0, 0.5)])
+@pytest.mark.parametrize(
+    ("s_r", "T", "eps", "dp"),
+    [([2.0, 3.0], 1.2, 0.5, 0.7), ([0.0, 10.0], 0.5, 0.05, 0.25), ([10.0, 0.0], 5.0, 1.0, 0.5)],
+)
 def test_central_difference_jacobian_equals_analytic(s_r: list[float], T: float, eps: float, dp: float) -> None:
     jc = jacobian_central(s_r, T, eps, dp, CFG)  # numerical integration, paper's dq/dqdot
     ja = analytic_jacobian(s_r, T, eps, dp, CFG)

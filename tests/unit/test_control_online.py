@@ -24,6 +24,8 @@ def solve_exact(s_e: list[float], cfg: ControlConfig) -> Choice:
     if cfg is CFG:
         return _exact_cached((s_e[0], s_e[1]))
     return _solve_exact(s_e, cfg)
+
+
 S_E = [[0.05, 0.05], [0.5, 0.05], [2.0, 1.0], [0.05, 3.0], [6.0, 6.0]]
 
 

@@ -65,7 +65,12 @@ def test_study_delays_reach_the_loop_and_vp_uses_the_online_choice() -> None:
 def test_surfaces_command_json_shape(tmp_path: Path) -> None:
     out = tmp_path / "s.json"
     png = tmp_path / "s.png"
-    assert main(["surfaces", "--dp", "0.25", "0.7", "--n-sigma", "5", "--n-T", "4", "--json", str(out), "--plot", str(png)]) == 0
+    assert (
+        main(
+            ["surfaces", "--dp", "0.25", "0.7", "--n-sigma", "5", "--n-T", "4", "--json", str(out), "--plot", str(png)]
+        )
+        == 0
+    )
     data = json.loads(out.read_text())
     assert data["dp"] == [0.25, 0.7]
     assert len(data["sigma_r"]) == 5 and len(data["T"]) == 4

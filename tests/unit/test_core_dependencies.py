@@ -27,7 +27,9 @@ class Refuse(importlib.abc.MetaPathFinder):
 sys.meta_path.insert(0, Refuse())
 """
 
-CORE = BLOCK + r"""
+CORE = (
+    BLOCK
+    + r"""
 import importlib, json, pkgutil
 import bipedtele
 skip = ("bipedtele.tools", "bipedtele.leader", "bipedtele.follower")
@@ -44,8 +46,11 @@ for name in names:
 print(json.dumps({"imported": names, "failed": failed,
                   "loaded": sorted({m.split(".")[0] for m in sys.modules} & BLOCKED)}))
 """
+)
 
-CLI = BLOCK + r"""
+CLI = (
+    BLOCK
+    + r"""
 from bipedtele.cli import main
 sys.argv[0] = "bipedtele"
 try:
@@ -55,6 +60,7 @@ except SystemExit as exc:
 sys.stdout.flush()
 sys.exit(code)
 """
+)
 
 
 def _run(script: str, *args: str) -> subprocess.CompletedProcess[str]:

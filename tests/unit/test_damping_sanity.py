@@ -104,9 +104,7 @@ def test_schedule_damping_never_raises_and_satisfies_40(h1: float, h2: float) ->
     st.lists(st.tuples(TIMES, TIMES, st.booleans(), TIMES), min_size=1, max_size=40),
     st.floats(0.01, 10.0),
 )
-def test_estimator_never_raises_nor_goes_negative(
-    ops: list[tuple[float, float, bool, float]], window: float
-) -> None:
+def test_estimator_never_raises_nor_goes_negative(ops: list[tuple[float, float, bool, float]], window: float) -> None:
     e = DelayEstimator(window, max_samples=16)
     for t_sent, t_recv, query, now in ops:
         e.update(t_sent, t_recv)

@@ -49,7 +49,9 @@ def test_unknown_device_names_the_allowed_ones() -> None:
 def test_leader_device_choices_come_from_the_specs() -> None:
     out = subprocess.run(
         [sys.executable, "-m", "bipedtele.cli", "leader", "--device", "nope", "--help"],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert out.returncode == 2, out.stderr  # argparse: a bad choice, one line, exit 2
     for name in device_names():

@@ -33,9 +33,7 @@ LONG_RUNNING = ("router", "delay", "follower", "leader")
 
 
 def _bipedtele(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=60
-    )
+    return subprocess.run([sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=60)
 
 
 def _services() -> dict[str, dict]:
@@ -141,9 +139,9 @@ def test_restarts_are_bounded_and_there_is_one_init() -> None:
     image_has_init = any(Path(p).name in ("tini", "docker-init", "dumb-init") for p in _entrypoint()[:1])
     for name, svc in _services().items():
         restart = str(svc.get("restart", "no"))
-        assert restart == "no" or (
-            restart.startswith("on-failure:") and int(restart.split(":")[1]) >= 1
-        ), f"{name}: restart {restart!r} would hide a crash loop"
+        assert restart == "no" or (restart.startswith("on-failure:") and int(restart.split(":")[1]) >= 1), (
+            f"{name}: restart {restart!r} would hide a crash loop"
+        )
         assert not (image_has_init and svc.get("init")), f"{name}: init: true and an init in the image"
     assert image_has_init or all(s.get("init") for s in _services().values())
 
@@ -158,7 +156,9 @@ def test_published_ports_are_on_the_host_loopback_only() -> None:
 def _dockerignored(rel: str, patterns: list[str]) -> bool:
     parts = rel.split("/")
     return any(
-        fnmatch.fnmatch(rel, p.lstrip("/")) or fnmatch.fnmatch(parts[0], p) or fnmatch.fnmatch(parts[-1], p.removeprefix("**/"))
+        fnmatch.fnmatch(rel, p.lstrip("/"))
+        or fnmatch.fnmatch(parts[0], p)
+        or fnmatch.fnmatch(parts[-1], p.removeprefix("**/"))
         for p in patterns
     )
 

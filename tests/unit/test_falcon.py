@@ -136,8 +136,14 @@ def test_fake_falcon_drives_a_full_leader_loop():
     lib = FakeFalconLib(homing_packets=2)
     sent = []
     with FalconDevice(lib_loader=lambda: lib) as dev:
-        loop = LeaderLoop(dev, None, ControlConfig(), sent.append, lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now),
-                          cfg=LeaderConfig(haptic_rate_hz=1000.0, cmd_rate_hz=100.0))
+        loop = LeaderLoop(
+            dev,
+            None,
+            ControlConfig(),
+            sent.append,
+            lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now),
+            cfg=LeaderConfig(haptic_rate_hz=1000.0, cmd_rate_hz=100.0),
+        )
         lib.grip = fp.CENTER + np.array([0.0, 0.0, -0.04])  # the hand pushes the grip forward
         _until(lambda: dev.read().x_m[0] > 0.039)
         for _ in range(400):
@@ -153,7 +159,9 @@ def test_fake_falcon_drives_a_full_leader_loop():
 def test_cli_without_falcon_exits_with_what_is_missing():
     proc = subprocess.run(
         [sys.executable, "-m", "bipedtele.cli", "leader", "--device", "falcon", "--set", "leader.cockpit=false"],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert proc.returncode in (1, 2)
     assert "libftdi1" in proc.stderr or "no Novint Falcon" in proc.stderr

@@ -35,8 +35,13 @@ class Harness:
         self._taken: Command | None = None
         robot.connect()
         self.loop = FollowerLoop(
-            robot, cfg.section("control"), cfg.section("follower"), self.latest, self.published.append,
-            now=lambda: self.t, on_event=lambda n, d: self.events.append((n, d)),
+            robot,
+            cfg.section("control"),
+            cfg.section("follower"),
+            self.latest,
+            self.published.append,
+            now=lambda: self.t,
+            on_event=lambda n, d: self.events.append((n, d)),
         )
 
     def latest(self) -> tuple[Command, float] | None:
@@ -50,7 +55,9 @@ class Harness:
     def command(self, v: float, w: float, enable: bool = True, sent_at: float | None = None) -> None:
         self.seq += 1
         t_sent = self.t if sent_at is None else sent_at
-        self.sent.append((t_sent + self.h1, Command(sid=7, seq=self.seq, t=t_sent, ref=[v, w], h2_s=0.2, enable=enable)))
+        self.sent.append(
+            (t_sent + self.h1, Command(sid=7, seq=self.seq, t=t_sent, ref=[v, w], h2_s=0.2, enable=enable))
+        )
 
     def run(self, seconds: float, v: float | None = None, w: float = 0.0, cmd_every: float = 0.01) -> list:
         tels = []
@@ -155,8 +162,13 @@ def test_conservative_split_uses_the_round_trip_for_both_delays() -> None:
     cfg = load_config("default")
     seen: list[tuple[float, float]] = []
     loop = FollowerLoop(
-        robot, cfg.section("control"), cfg.section("follower"), lambda: None, lambda m: None,
-        now=lambda: 0.0, conservative_rtt=lambda: 0.4,
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        lambda: None,
+        lambda m: None,
+        now=lambda: 0.0,
+        conservative_rtt=lambda: 0.4,
     )
     original = loop._update_parameters
 

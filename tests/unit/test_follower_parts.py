@@ -98,7 +98,10 @@ def test_camera_faults_cost_frames_never_the_loop(caplog: pytest.LogCaptureFixtu
         np.full((24, 32, 3), 7, dtype=np.uint8),
     ]
     frames: list[VideoFrame] = []
-    with caplog.at_level(logging.WARNING), VideoStreamer(robot, ["head"], 10.0, frames.append, now=lambda: 0.0) as video:
+    with (
+        caplog.at_level(logging.WARNING),
+        VideoStreamer(robot, ["head"], 10.0, frames.append, now=lambda: 0.0) as video,
+    ):
         for k in range(4):
             video.maybe_capture(k * 0.1)  # must not raise
         deadline = time.monotonic() + 5.0

@@ -160,7 +160,12 @@ def test_release_then_same_session_continues() -> None:
 
 
 def test_bad_parameters() -> None:
-    for kw in ({"takeover_after_s": 0.0}, {"takeover_after_s": float("nan")}, {"max_rate_hz": -1.0}, {"seq_margin": -1}):
+    for kw in (
+        {"takeover_after_s": 0.0},
+        {"takeover_after_s": float("nan")},
+        {"max_rate_hz": -1.0},
+        {"seq_margin": -1},
+    ):
         with pytest.raises(ValueError, match="allowed"):
             SequenceGate(**kw)  # type: ignore[arg-type]
 
@@ -182,5 +187,5 @@ def test_concurrent_senders_bind_exactly_one() -> None:
     for t in threads:
         t.join(10.0)
     assert len(passed) == 1
-    (sid, n), = passed.items()
+    ((sid, n),) = passed.items()
     assert g.bound_sid == sid and n == 2000

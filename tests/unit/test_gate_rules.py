@@ -98,4 +98,6 @@ def test_estimator_is_the_mean_of_clamped_delays_in_the_window(seed: int) -> Non
         got, want = est.value(last), _window_mean(kept, last, 0.05)
         assert (got is None) == (want is None)
         if got is not None and want is not None:
-            assert got >= 0.0 and math.isclose(got, want, rel_tol=1e-9, abs_tol=1e-4)  # running sum of up to 1e9 s samples
+            assert got >= 0.0 and math.isclose(
+                got, want, rel_tol=1e-9, abs_tol=1e-4
+            )  # running sum of up to 1e9 s samples

@@ -98,7 +98,9 @@ def test_missing_device_and_unplug_are_one_line_errors():
         JoystickDevice(opener=lambda p: FakeInputDevice(), lister=lambda: []).connect()
     assert "\n" not in str(info.value)
     with pytest.raises(DeviceError, match="named like 'xbox'"):
-        JoystickDevice(device="xbox", opener=lambda p: FakeInputDevice(name="Fake Pad"), lister=lambda: ["/dev/input/event3"]).connect()
+        JoystickDevice(
+            device="xbox", opener=lambda p: FakeInputDevice(name="Fake Pad"), lister=lambda: ["/dev/input/event3"]
+        ).connect()
     with pytest.raises(DeviceError, match="no device at /nonexistent/event0"):
         JoystickDevice(device="/nonexistent/event0").connect()
     fake = FakeInputDevice()
@@ -128,8 +130,14 @@ def test_fake_stream_drives_a_full_leader_loop():
     fake = FakeInputDevice(ff=(ecodes.FF_CONSTANT,))
     sent = []
     with _device(fake, ff_rate_hz=1000.0, deadzone=0.0) as dev:
-        loop = LeaderLoop(dev, None, ControlConfig(), sent.append, lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now),
-                          cfg=LeaderConfig(haptic_rate_hz=1000.0, cmd_rate_hz=100.0))
+        loop = LeaderLoop(
+            dev,
+            None,
+            ControlConfig(),
+            sent.append,
+            lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now),
+            cfg=LeaderConfig(haptic_rate_hz=1000.0, cmd_rate_hz=100.0),
+        )
         fake.move(ecodes.ABS_Y, 0)  # full forward: the robot is asked to walk, z_e = 0 pulls back
         for _ in range(400):
             loop.tick()
@@ -145,10 +153,15 @@ def test_fake_stream_drives_a_full_leader_loop():
 uinput_ok = os.path.exists("/dev/uinput") and os.access("/dev/uinput", os.W_OK)
 
 
-@pytest.mark.skipif(not uinput_ok, reason="/dev/uinput is missing or not writable here (needs the uinput module and permission)")
+@pytest.mark.skipif(
+    not uinput_ok, reason="/dev/uinput is missing or not writable here (needs the uinput module and permission)"
+)
 def test_virtual_uinput_pad():
     caps = {
-        ecodes.EV_ABS: [(ecodes.ABS_X, evdev.AbsInfo(0, -100, 100, 0, 0, 0)), (ecodes.ABS_Y, evdev.AbsInfo(0, -100, 100, 0, 0, 0))],
+        ecodes.EV_ABS: [
+            (ecodes.ABS_X, evdev.AbsInfo(0, -100, 100, 0, 0, 0)),
+            (ecodes.ABS_Y, evdev.AbsInfo(0, -100, 100, 0, 0, 0)),
+        ],
         ecodes.EV_KEY: [ecodes.BTN_SOUTH],
     }
     with evdev.UInput(caps, name="bipedtele-test-pad") as ui:

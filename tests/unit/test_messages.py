@@ -122,8 +122,7 @@ def test_random_msgpack_only_message_error(obj: object) -> None:
 _envelopes = st.fixed_dictionaries(
     {"v": st.just(SCHEMA_VERSION), "k": st.sampled_from(sorted(MESSAGE_TYPES))},
     optional={
-        name: _mp_value
-        for name in ("sid", "seq", "t", "ref", "z_e", "jpeg", "counters", "state", "t1", "enable")
+        name: _mp_value for name in ("sid", "seq", "t", "ref", "z_e", "jpeg", "counters", "state", "t1", "enable")
     },
 )
 
@@ -243,7 +242,10 @@ def test_every_float_field_is_bounded_both_sides() -> None:
         assert isinstance(info, mi.StructType)
         for f in info.fields:
             for ft in floats(f.type):
-                assert (ft.ge is not None or ft.gt is not None) and (ft.le is not None or ft.lt is not None), (cls, f.name)
+                assert (ft.ge is not None or ft.gt is not None) and (ft.le is not None or ft.lt is not None), (
+                    cls,
+                    f.name,
+                )
 
 
 def test_every_field_is_required_on_the_wire() -> None:

@@ -40,7 +40,9 @@ STDLIB_OK = {"argparse", "json", "logging", "os", "signal", "sys", "threading", 
 
 def test_the_guard_is_one_file_python2_can_parse_with_only_qi_and_the_standard_library() -> None:
     tree = ast.parse(GUARD.read_text())
-    futures = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module == "__future__" for a in n.names}
+    futures = {
+        a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module == "__future__" for a in n.names
+    }
     assert {"print_function", "division", "absolute_import"} <= futures
     for node in ast.walk(tree):
         assert not isinstance(node, ast.JoinedStr), f"f-string at line {node.lineno}"
@@ -49,7 +51,9 @@ def test_the_guard_is_one_file_python2_can_parse_with_only_qi_and_the_standard_l
         )
         if isinstance(node, ast.FunctionDef):
             args = node.args
-            assert node.returns is None and not args.kwonlyargs and not args.posonlyargs, f"py3-only signature: {node.name}"
+            assert node.returns is None and not args.kwonlyargs and not args.posonlyargs, (
+                f"py3-only signature: {node.name}"
+            )
             assert all(a.annotation is None for a in [*args.args, args.vararg, args.kwarg] if a is not None), node.name
         if isinstance(node, ast.Import):
             assert {a.name.split(".")[0] for a in node.names} <= STDLIB_OK, ast.dump(node)
@@ -68,7 +72,9 @@ def _python27() -> str | None:
         if not exe:
             continue
         try:
-            out = subprocess.run([exe, "-c", "import sys; print(sys.version_info[:2])"], capture_output=True, text=True, timeout=20)
+            out = subprocess.run(
+                [exe, "-c", "import sys; print(sys.version_info[:2])"], capture_output=True, text=True, timeout=20
+            )
         except OSError:
             continue
         if out.returncode == 0 and out.stdout.strip() == "(2, 7)":
@@ -215,7 +221,9 @@ def test_the_guard_registers_again_when_naoqi_comes_back(tmp_path: Path) -> None
     ],
 )
 def test_nao_guard_command_errors_are_one_line(args: list[str], needle: str) -> None:
-    proc = subprocess.run([sys.executable, "-m", "bipedtele.cli", "nao-guard", *args], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "nao-guard", *args], capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and needle in lines[0], proc.stderr

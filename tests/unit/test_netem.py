@@ -25,9 +25,26 @@ def _netem(*args: str) -> subprocess.CompletedProcess[str]:
 
 def test_tc_commands() -> None:
     assert tc_commands("apply", "veth0", "150ms", "20ms", "normal", "0.1%") == [
-        ["tc", "qdisc", "replace", "dev", "veth0", "root", "netem", "delay", "150ms", "20ms", "distribution", "normal", "loss", "0.1%"]
+        [
+            "tc",
+            "qdisc",
+            "replace",
+            "dev",
+            "veth0",
+            "root",
+            "netem",
+            "delay",
+            "150ms",
+            "20ms",
+            "distribution",
+            "normal",
+            "loss",
+            "0.1%",
+        ]
     ]
-    assert tc_commands("apply", "eth0", "0.2s") == [["tc", "qdisc", "replace", "dev", "eth0", "root", "netem", "delay", "0.2s"]]
+    assert tc_commands("apply", "eth0", "0.2s") == [
+        ["tc", "qdisc", "replace", "dev", "eth0", "root", "netem", "delay", "0.2s"]
+    ]
     assert tc_commands("clear", "eth0") == [["tc", "qdisc", "del", "dev", "eth0", "root"]]
     assert tc_commands("show", "eth0") == [["tc", "qdisc", "show", "dev", "eth0"]]
 
@@ -51,7 +68,20 @@ def test_bad_arguments(kw: dict, match: str) -> None:
 
 
 def test_dry_run_prints_commands() -> None:
-    res = _netem("apply", "--dev", "lo", "--delay", "150ms", "--jitter", "20ms", "--distribution", "normal", "--loss", "0.1%", "--dry-run")
+    res = _netem(
+        "apply",
+        "--dev",
+        "lo",
+        "--delay",
+        "150ms",
+        "--jitter",
+        "20ms",
+        "--distribution",
+        "normal",
+        "--loss",
+        "0.1%",
+        "--dry-run",
+    )
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "tc qdisc replace dev lo root netem delay 150ms 20ms distribution normal loss 0.1%"
     res = _netem("clear", "--dev", "lo", "--dry-run")
@@ -131,16 +161,19 @@ def test_demo_dry_run_prints_the_netem_plan_over_time(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     head = next(line for line in lines if line.startswith("# netem backend:"))
-    m = re.search(r"leader in (bt-dl-\w+) \((btdl-\w+) 10\.233\.0\.1\), follower and router in (bt-df-\w+) \((btdf-\w+) 10\.233\.0\.2\)", head)
+    m = re.search(
+        r"leader in (bt-dl-\w+) \((btdl-\w+) 10\.233\.0\.1\), follower and router in (bt-df-\w+) \((btdf-\w+) 10\.233\.0\.2\)",
+        head,
+    )
     assert m, head
     l_ns, l_dev, f_ns, f_dev = m.groups()
     # processes: router and follower in the follower's namespace, the leader in its own,
     # the leader dialling the router across the veth pair; no proxy
-    procs = {line.split(":")[0][len("# process "):]: line for line in lines if line.startswith("# process ")}
+    procs = {line.split(":")[0][len("# process ") :]: line for line in lines if line.startswith("# process ")}
     assert set(procs) == {"router", "follower", "leader"}
     assert f"ip netns exec {f_ns} " in procs["router"] and "--listen tcp/10.233.0.2:" in procs["router"]
     assert f"ip netns exec {f_ns} " in procs["follower"]
-    assert f"ip netns exec {l_ns} " in procs["leader"] and "network.connect=[\"tcp/10.233.0.2:" in procs["leader"]
+    assert f"ip netns exec {l_ns} " in procs["leader"] and 'network.connect=["tcp/10.233.0.2:' in procs["leader"]
     setup = lines[lines.index("# setup") + 1 : lines.index("# setup") + 12]
     assert setup == [
         f"ip netns add {l_ns}", f"ip netns add {f_ns}",
@@ -165,7 +198,9 @@ def test_demo_dry_run_prints_the_netem_plan_over_time(tmp_path: Path) -> None:
 
 
 def test_demo_auto_backend_says_which(tmp_path: Path) -> None:
-    res = _demo("--delay-backend", "auto", "--dry-run", "--headless", "--duration", "1", "--run-dir", str(tmp_path / "r"))
+    res = _demo(
+        "--delay-backend", "auto", "--dry-run", "--headless", "--duration", "1", "--run-dir", str(tmp_path / "r")
+    )
     assert res.returncode == 0, res.stderr
     first = res.stdout.splitlines()[0]
     ok, why = netem_available()
@@ -213,7 +248,10 @@ def test_dry_run_prints_loss_bursts_and_rate() -> None:
     res = _netem("apply", "--dev", "lo", "--delay", "150ms", "--loss", "ge:p=1%,r=30%", "--rate", "600kbit",
                  "--queue", "64kB", "--dry-run")  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert res.stdout.strip() == "tc qdisc replace dev lo root netem delay 150ms loss gemodel 1% 30% 100% 0% rate 600000bit limit 42"
+    assert (
+        res.stdout.strip()
+        == "tc qdisc replace dev lo root netem delay 150ms loss gemodel 1% 30% 100% 0% rate 600000bit limit 42"
+    )
     res = _netem("apply", "--dev", "lo", "--delay", "150ms", "--rate", "fast", "--dry-run")
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
 

@@ -207,7 +207,11 @@ def test_sim_nao_footfalls_reach_the_recording_through_the_loop() -> None:
     report = compute_report(records)
     assert report["odometry_source"] == "footfalls"
     steps = len(late) - 1
-    assert report["turn_error_deg_s"] == pytest.approx(
-        sum(abs(10.0 - w) * (b["t"] - a["t"]) for w, (a, b) in zip(turn, itertools.pairwise(late), strict=True))
-        / sum(b["t"] - a["t"] for a, b in itertools.pairwise(late))
-    ) and steps > 10
+    assert (
+        report["turn_error_deg_s"]
+        == pytest.approx(
+            sum(abs(10.0 - w) * (b["t"] - a["t"]) for w, (a, b) in zip(turn, itertools.pairwise(late), strict=True))
+            / sum(b["t"] - a["t"] for a, b in itertools.pairwise(late))
+        )
+        and steps > 10
+    )

@@ -11,7 +11,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-FOLDERS = {"common": "bipedtele", "leader": "bipedtele/leader", "follower": "bipedtele/follower", "configs": "bipedtele/configs"}
+FOLDERS = {
+    "common": "bipedtele",
+    "leader": "bipedtele/leader",
+    "follower": "bipedtele/follower",
+    "configs": "bipedtele/configs",
+}
 
 
 @pytest.fixture(scope="module")

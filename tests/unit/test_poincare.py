@@ -95,7 +95,23 @@ def test_operating_point_radius_is_finite_and_below_one() -> None:
 @pytest.mark.timeout(900)
 def test_poincare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out, png = tmp_path / "p.json", tmp_path / "p.png"
-    rc = main(["poincare", "--sigma", "0", "--T", "0.8", "--warmup", "6", "--jobs", "2", "--json", str(out), "--plot", str(png)])
+    rc = main(
+        [
+            "poincare",
+            "--sigma",
+            "0",
+            "--T",
+            "0.8",
+            "--warmup",
+            "6",
+            "--jobs",
+            "2",
+            "--json",
+            str(out),
+            "--plot",
+            str(png),
+        ]
+    )
     assert rc == 0
     data = json.loads(out.read_text())
     pts = [*data["points"], data["operating_point"]]

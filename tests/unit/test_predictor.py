@@ -71,7 +71,9 @@ def test_predicted_present_pose_is_close_to_the_true_one(h1: float, h2: float) -
     assert math.degrees(float(np.max(err_yaw))) < 1.0
     assert float(np.mean(err_pred)) * 10 < e_delayed, (np.mean(err_pred), e_delayed)
     assert e_delayed > 0.01  # the delay matters: the shown pose lags by a centimetre or more
-    print(f"h1 {h1} h2 {h2}: delayed {e_delayed * 100:.2f} cm, predicted mean/max {np.mean(err_pred) * 100:.3f}/{e_pred * 100:.3f} cm, ahead max {max(ahead_errors) * 100:.3f} cm")
+    print(
+        f"h1 {h1} h2 {h2}: delayed {e_delayed * 100:.2f} cm, predicted mean/max {np.mean(err_pred) * 100:.3f}/{e_pred * 100:.3f} cm, ahead max {max(ahead_errors) * 100:.3f} cm"
+    )
     assert float(np.max(ahead_errors)) < 0.015
 
 

@@ -68,7 +68,14 @@ def _receiver(max_age_s: Any, **kwargs: Any) -> tuple[FakeSession, LatestReceive
     session, drops, clock = FakeSession(), DropCounter("cmd"), Clock(T0)
     gate = SequenceGate(takeover_after_s=0.5, clock=clock)
     rx: LatestReceiver[Command] = LatestReceiver(
-        session, "bipedtele/nao1/cmd", Command, drops, gate, clock=clock, max_future_s=0.25, max_age_s=max_age_s,
+        session,
+        "bipedtele/nao1/cmd",
+        Command,
+        drops,
+        gate,
+        clock=clock,
+        max_future_s=0.25,
+        max_age_s=max_age_s,
         **kwargs,
     )  # type: ignore[arg-type]
     return session, rx, drops, clock

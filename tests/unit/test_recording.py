@@ -161,9 +161,7 @@ CHILD = textwrap.dedent(
 @pytest.mark.timeout(60)
 def test_sigkilled_writer_keeps_all_but_the_last_flush_interval(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
-    proc = subprocess.Popen(
-        [sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True
-    )
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "running"

@@ -157,9 +157,7 @@ def test_cli_bad_file_one_line_exit_2(
     assert err.count("\n") == 1 and err.startswith("bipedtele report: ")
 
 
-def test_truncated_recording_reports_up_to_the_cut(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_truncated_recording_reports_up_to_the_cut(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "long.mcap"
     with Recorder(path, flush_s=0.05) as rec:
         rec.write("events", {"event": "task_start"}, 0.0)
@@ -213,8 +211,9 @@ def test_fig11_shades_where_the_fictitious_force_acts(tmp_path: Path, source: st
             fv = [4.0, 1.0] if near else [0.0, 0.0]
             rec.write("cmd/sent", Command(seq=k, t=t, ref=[5.0, 0.0]), t)
             if source == "feedback":
-                fb = Feedback(t=t, ref=[5.0, 0.0], eta=[3.0 if near else 5.0, 0.0], z_e=[1.0 if near else 5.0, 0.0],
-                              f_v=fv)
+                fb = Feedback(
+                    t=t, ref=[5.0, 0.0], eta=[3.0 if near else 5.0, 0.0], z_e=[1.0 if near else 5.0, 0.0], f_v=fv
+                )
                 rec.write("feedback/recv", fb, t)
             state = {"t": t, "force_v": -2.0 if near else 0.0, "force_w": 0.0}
             if source == "leader_state":

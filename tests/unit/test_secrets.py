@@ -48,7 +48,9 @@ def test_make_certs_from_another_folder_keeps_the_ca_key_off_the_copied_files(tm
     assert "DNS:router.example.org" in san and "IP Address:192.0.2.7" in san
     again = _run([str(MAKE_CERTS), "certs", "other.example.org"], cwd=tmp_path)
     assert again.returncode == 2 and "exists" in again.stderr  # nothing overwritten
-    assert "DNS:router.example.org" in _openssl("x509", "-in", str(out / "router.pem"), "-noout", "-ext", "subjectAltName")
+    assert "DNS:router.example.org" in _openssl(
+        "x509", "-in", str(out / "router.pem"), "-noout", "-ext", "subjectAltName"
+    )
 
 
 def test_make_certs_usage_names_ips_and_rejects_bad_names(tmp_path: Path) -> None:

@@ -63,7 +63,9 @@ def test_each_host_folder_holds_its_own_files_only(hosts: Path) -> None:
 
 
 def test_secrets_are_private_and_consistent(hosts: Path) -> None:
-    secret_files = [p for p in hosts.rglob("*") if p.is_file() and (p.suffix in (".key", ".pw") or p.parent.name == "secrets")]
+    secret_files = [
+        p for p in hosts.rglob("*") if p.is_file() and (p.suffix in (".key", ".pw") or p.parent.name == "secrets")
+    ]
     # 4 TLS keys (the CA's and 3 hosts'), 2 message keys, 2 passwords, 1 credentials file.
     assert len(secret_files) == 9
     for p in secret_files:
@@ -115,7 +117,9 @@ def _toml_shipped(name: str) -> dict:
     return tomllib.loads(resources.files("bipedtele.configs").joinpath(f"{name}.toml").read_text())
 
 
-def test_each_profile_loads_from_any_working_folder(hosts: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_each_profile_loads_from_any_working_folder(
+    hosts: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.chdir(tmp_path)  # not the folder holding the host folders
     course = load_config("localhost-delay").section("world").obstacles
     for host, user in (("router", ""), ("robot", "follower"), ("operator", "leader")):
@@ -168,8 +172,10 @@ def _handshake(server: ssl.SSLContext, client: ssl.SSLContext, server_name: str)
     t = threading.Thread(target=serve, daemon=True)
     t.start()
     try:
-        with socket.create_connection(("127.0.0.1", port), timeout=10) as raw, \
-                client.wrap_socket(raw, server_hostname=server_name) as tls:
+        with (
+            socket.create_connection(("127.0.0.1", port), timeout=10) as raw,
+            client.wrap_socket(raw, server_hostname=server_name) as tls,
+        ):
             assert tls.recv(2) == b"ok"
         return None
     except (ssl.SSLError, ssl.CertificateError, OSError) as exc:
@@ -254,7 +260,11 @@ def test_command_prints_one_folder_and_one_command_per_host(tmp_path: Path) -> N
     out = res.stdout
     for host in ("router", "robot", "operator"):
         assert f"deploy/{host}/" in out
-    commands = [line.split(":", 1)[1].strip() for line in out.splitlines() if line.strip().startswith(("router:", "robot:", "operator:"))]
+    commands = [
+        line.split(":", 1)[1].strip()
+        for line in out.splitlines()
+        if line.strip().startswith(("router:", "robot:", "operator:"))
+    ]
     assert commands == [
         "bipedtele router --config router/bipedtele.toml",
         "bipedtele follower --config robot/bipedtele.toml",

@@ -79,8 +79,12 @@ def test_hip_advances_over_the_stance_foot_at_the_commanded_speed(cycle: float) 
     late = ts[1:] > cycle + 1.0  # after the start step
     np.testing.assert_allclose(rate[same & late], v, rtol=0.03, atol=2e-4)
     # eq. (8) with its lever arms at the current posture is that rate
-    v8 = np.array([hip_speed(qq[k + HIP], qq[k + KNEE], dd[k + HIP], dd[k + KNEE], L1, L2)
-                   for qq, dd, k in zip(q, qd, o, strict=True)])
+    v8 = np.array(
+        [
+            hip_speed(qq[k + HIP], qq[k + KNEE], dd[k + HIP], dd[k + KNEE], L1, L2)
+            for qq, dd, k in zip(q, qd, o, strict=True)
+        ]
+    )
     np.testing.assert_allclose(v8[1:][same & late], v, rtol=0.03, atol=2e-4)
     # eq. (8) with the bare link lengths (linearised about straight legs) reads about 10 % fast
     p = np.array([p_hip_linear(qq[k + HIP], qq[k + KNEE], L1, L2) for qq, k in zip(q, o, strict=True)])

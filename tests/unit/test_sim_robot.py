@@ -58,7 +58,9 @@ def test_make_robot_sim_and_config_errors() -> None:
         SimNao(cycle_min_s=3.0, cycle_max_s=2.0)
     with pytest.raises(ConfigError, match=r"world.obstacles\[0\]"):
         parse_section(WorldConfig, {"obstacles": [{"shape": "cylinder", "size": [1, 2, 3]}]}, "world")
-    w = parse_section(WorldConfig, {"obstacles": [{"shape": "box", "position": [1, 0, 0.2], "size": [0.1, 0.2, 0.4]}]}, "world")
+    w = parse_section(
+        WorldConfig, {"obstacles": [{"shape": "box", "position": [1, 0, 0.2], "size": [0.1, 0.2, 0.4]}]}, "world"
+    )
     assert w.obstacles[0] == Obstacle("box", [1.0, 0.0, 0.2], [0.1, 0.2, 0.4])
     with pytest.raises(ConfigError, match="nao_version"):
         parse_section(SimConfig, {"nao_version": "V7"}, "sim")
@@ -91,8 +93,12 @@ def test_sonar_range_follows_the_nao_version(version: str, seen: bool) -> None:
 
 
 def test_sonar_cones_see_their_own_side_and_clamp_at_the_minimum() -> None:
-    world = WorldConfig(obstacles=[Obstacle("cylinder", [0.5, 0.35, 0.3], [0.06, 0.6]),
-                                   Obstacle("box", [0.12, -0.25, 0.3], [0.05, 0.3, 0.6])])
+    world = WorldConfig(
+        obstacles=[
+            Obstacle("cylinder", [0.5, 0.35, 0.3], [0.06, 0.6]),
+            Obstacle("box", [0.12, -0.25, 0.3], [0.05, 0.3, 0.6]),
+        ]
+    )
     with SimNao(world=world) as robot:
         left, right = robot.observe().sonar_m
         assert 0.45 < left < 0.65  # the cylinder ahead-left, 22 degrees + cone
@@ -120,8 +126,9 @@ def test_cameras_render_qvga_rgb() -> None:
 def test_a_pushed_robot_is_reported_fallen() -> None:
     with SimNao() as robot:
         assert not robot.observe().fallen
-        pb.resetBasePositionAndOrientation(robot._robot, [0, 0, 0.2], pb.getQuaternionFromEuler([1.2, 0, 0]),
-                                           physicsClientId=robot._client)
+        pb.resetBasePositionAndOrientation(
+            robot._robot, [0, 0, 0.2], pb.getQuaternionFromEuler([1.2, 0, 0]), physicsClientId=robot._client
+        )
         robot.advance(1.0)
         obs = robot.observe()
         assert obs.fallen and obs.tilt_rad > math.radians(45)
@@ -154,8 +161,9 @@ def test_reset_pose_puts_a_walked_or_fallen_robot_back_on_the_start_standing() -
         assert back.pose == pytest.approx(start.pose, abs=0.01)
         assert not back.fallen and not back.walking
         assert back.sonar_m == pytest.approx(start.sonar_m, abs=0.01)  # the same world
-        pb.resetBasePositionAndOrientation(robot._robot, [0, 0, 0.2], pb.getQuaternionFromEuler([1.2, 0, 0]),
-                                           physicsClientId=robot._client)
+        pb.resetBasePositionAndOrientation(
+            robot._robot, [0, 0, 0.2], pb.getQuaternionFromEuler([1.2, 0, 0]), physicsClientId=robot._client
+        )
         robot.advance(1.0)
         assert robot.observe().fallen
         robot.reset_pose()

@@ -15,9 +15,7 @@ from bipedtele.transport import Keys, access_control_json, zenoh_config
 def test_keys() -> None:
     k = Keys("nao1")
     assert k.cmd == "bipedtele/nao1/cmd"
-    assert k.all() == {
-        n: f"bipedtele/nao1/{n}" for n in ("cmd", "feedback", "video", "clock", "status")
-    }
+    assert k.all() == {n: f"bipedtele/nao1/{n}" for n in ("cmd", "feedback", "video", "clock", "status")}
     assert k.presence("leader") == "bipedtele/nao1/presence/leader"
     with pytest.raises(ValueError, match="allowed: leader"):
         k.presence("boss")
@@ -119,8 +117,13 @@ def test_access_control_roles_deny_by_default(tmp_path: Path) -> None:
         assert not _allowed(acl, user, "ingress", "liveliness_token", f"{root}/presence/{other}/abc")
         assert _allowed(acl, user, "ingress", "declare_liveliness_subscriber", f"{root}/presence/{other}/*")
         assert _allowed(acl, user, "egress", "liveliness_token", f"{root}/presence/{other}/abc")
-    for flow, message in (("ingress", "put"), ("ingress", "declare_subscriber"), ("egress", "put"),
-                          ("ingress", "liveliness_token"), ("ingress", "declare_liveliness_subscriber")):
+    for flow, message in (
+        ("ingress", "put"),
+        ("ingress", "declare_subscriber"),
+        ("egress", "put"),
+        ("ingress", "liveliness_token"),
+        ("ingress", "declare_liveliness_subscriber"),
+    ):
         for key in ("**", f"{root}/feedback", f"{root}/presence/leader/x", f"{root}/presence/*/*"):
             assert not _allowed(acl, "viewer", flow, message, key), (flow, message, key)  # fmt: skip
     # a leader-only ACL: the follower user has no role at all

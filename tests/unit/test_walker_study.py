@@ -45,8 +45,15 @@ def test_delay_reaches_the_walker(sections: tuple) -> None:
     control, follower, sim = sections
     params = StudyParams(duration_s=6.0)
     inp = case_inputs(CASES[0], 1, 0, control, params)
-    common = {"switch": inp.switch, "intent": inp.intent, "control": control, "follower": follower, "sim": sim,
-              "params": params, "cp": None}
+    common = {
+        "switch": inp.switch,
+        "intent": inp.intent,
+        "control": control,
+        "follower": follower,
+        "sim": sim,
+        "params": params,
+        "cp": None,
+    }
     fast = walker_run(h1=np.full(600, 0.002), h2=np.full(600, 0.002), **common)
     slow = walker_run(h1=np.full(600, 1.0), h2=np.full(600, 1.0), **common)
     assert slow.forward_error != fast.forward_error
