@@ -2,7 +2,7 @@
 
 The stack itself is built and run on a real engine by tests/e2e/test_compose.py. Here:
 the compose file is valid for the Compose CLI; every service runs an existing sub-command
-whose configuration validates; the healthcheck entry point answers for a real router
+whose configuration validates; the healthcheck (`bipedtele health`) answers for a real router
 (healthy) and for none (unhealthy); restarts are bounded and there is one init; the
 cockpit is published on the host's loopback only; every file the Dockerfile copies is in
 the build context and not excluded by .dockerignore.
@@ -28,7 +28,6 @@ pytestmark = pytest.mark.timeout(120)
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "docker" / "compose.yaml"
 DOCKERFILE = ROOT / "docker" / "Dockerfile"
-HEALTHCHECK = ROOT / "docker" / "healthcheck.py"
 LONG_RUNNING = ("router", "delay", "follower", "leader")
 
 
@@ -87,22 +86,25 @@ def _free_port() -> int:
 
 
 def _healthcheck(args: list[str]) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, str(HEALTHCHECK), *args], capture_output=True, text=True, timeout=60)
+    """Run a service's healthcheck command (``bipedtele health ARGS``) as the image would."""
+    return subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "health", *args], capture_output=True, text=True, timeout=60
+    )
 
 
 @pytest.mark.parametrize("service", LONG_RUNNING)
 def test_every_long_running_service_has_a_healthcheck_that_parses(service: str) -> None:
     test = _services()[service]["healthcheck"]["test"]
-    assert test[:2] == ["CMD", "bipedtele-health"]
-    checked = _bipedtele("config", *_config_args(test[2:]))
+    assert test[:3] == ["CMD", "bipedtele", "health"]
+    checked = _bipedtele("config", *_config_args(test[3:]))
     assert checked.returncode == 0, checked.stderr
-    bad = _healthcheck([*test[2:], "--timeout", "-1"])
+    bad = _healthcheck([*test[3:], "--timeout", "-1"])
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
 
 
 def test_router_healthcheck_is_healthy_with_a_router_and_unhealthy_without(tmp_path: Path) -> None:
     port = _free_port()
-    args = _services()["router"]["healthcheck"]["test"][2:]
+    args = _services()["router"]["healthcheck"]["test"][3:]
     local = [*args, "--set", f'network.connect=["tcp/127.0.0.1:{port}"]', "--set", "network.timeout_s=3.0"]
     down = _healthcheck(local)
     assert down.returncode == 1 and down.stderr.startswith("unhealthy:"), down.stderr
