@@ -284,11 +284,10 @@ def test_idle_connections_are_closed_and_the_cockpit_still_answers(procs: Procs)
     assert res["opened"] == 3000, res
     # Closed by the header timeout (5 s) or refused at once by the caps: none left.
     assert res["still_open"] == 0, res
-    # Without the header timeout every held connection stays open the flood's 20 s. With
-    # it, the 5 s run from the accept: the niced cockpit accepts late under load (a clean-
-    # clone CI run had 2,994 closed at 12 s and the last 6 at 13-20 s), so most by 12 s.
-    closed_by = dict(res["timeline"])
-    assert closed_by.get(12, closed_by[max(closed_by)]) >= 0.99 * 3000, res["timeline"]
+    # Without the header timeout every accepted connection stays open the flood's 20 s (the
+    # assertion above). When each closes is not asserted: the 5 s run from the accept, and
+    # the niced cockpit accepts late under load (two clean-clone CI runs had 6 and 32 of
+    # 3,000 closed between 12 and 20 s; a bound at 12 s failed on each).
     assert _genuine(leader) == 200
     wait_until(lambda: _descriptors(leader.proc.pid) <= fds0 + 20, 15.0, "the descriptors to come back",
                lambda: f"{fds0} -> {_descriptors(leader.proc.pid)}")  # fmt: skip
