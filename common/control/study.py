@@ -47,7 +47,6 @@ leaves open (:data:`SENSITIVITY`) and :func:`sensitivity_markdown` writes its ta
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -57,10 +56,10 @@ from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping_array
 from bipedtele.control.equivalent import equivalent_matrices
 from bipedtele.control.hybrid import orbit_speed_deficit
-from bipedtele.control.linalg import mat2, zoh2
+from bipedtele.control.linalg import zoh2
 from bipedtele.control.online import Choice, OnlineChooser
+from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, ci95, hybrid_zoh
 from bipedtele.delaymodels import parse_delay_model
-from scipy import stats
 
 __all__ = [
     "CASES",
@@ -130,48 +129,6 @@ CASES: tuple[DelayCase, ...] = (
 )
 
 
-@dataclass(frozen=True)
-class StudyParams:
-    """Simulation settings that are not controller parameters.
-
-    Attributes
-    ----------
-    duration_s : float
-        Simulated time per run [s].
-    dt : float
-        Control period [s].
-    leader_mass_kg : float
-        Effective moving mass of the handle [kg].
-    force_max_n : float
-        Device force limit [N].
-    hand_k, hand_b, hand_f_max, hand_tau : float
-        Operator hand stiffness [N/m], damping [N s/m], strength [N], target lag [s].
-    intent_mean_s, intent_min_s : float
-        Mean and minimum time between changes of the operator's intention [s].
-    forward_range, turn_max : tuple / float
-        Intended forward speeds [cm/s] (uniform) and turn speeds in +-turn_max [deg/s].
-    window_s : float
-        Delay-estimate moving-average window [s].
-    diverge_limit : float
-        A run whose speed exceeds this [cm/s or deg/s] or becomes non-finite has diverged.
-    """
-
-    duration_s: float = 60.0
-    dt: float = 0.01
-    leader_mass_kg: float = 0.15
-    force_max_n: float = 8.0
-    hand_k: float = 300.0
-    hand_b: float = 8.0
-    hand_f_max: float = 15.0
-    hand_tau: float = 0.15
-    intent_mean_s: float = 6.0
-    intent_min_s: float = 1.0
-    forward_range: tuple[float, float] = (1.0, 7.0)
-    turn_max: float = 7.0
-    window_s: float = 1.0
-    diverge_limit: float = 1e4
-
-
 # ----------------------------------------------------------------------------- delays
 
 
@@ -181,88 +138,18 @@ def delay_sampler(spec: str, seed: int) -> Callable[[float], float]:
     return delay_s
 
 
-@dataclass(frozen=True)
-class _Channel:
-    """Shared per-case channel arrays over ``K`` steps."""
-
-    idx: np.ndarray  # newest message index arrived by step k (-1: none yet)
-    estimate: np.ndarray  # 1 s moving-average delay estimate at step k [s]
-    mean_s: float
-    ring: int  # ring-buffer length that covers every lag
-
-
-def _channel(delays: np.ndarray, dt: float, window_s: float) -> _Channel:
-    k_steps = delays.shape[0]
-    n = np.arange(k_steps)
-    arrive = n + np.ceil(delays / dt - 1e-9).astype(int)
-    newest = np.full(k_steps, -1)
-    ok = arrive < k_steps
-    np.maximum.at(newest, arrive[ok], n[ok])
-    newest = np.maximum.accumulate(newest)
-    lag = np.where(newest >= 0, n - newest, 0)
-    # moving average over arrival time of the delays received in (t - window, t]
-    w = max(1, round(window_s / dt))
-    sums = np.bincount(arrive[ok], weights=delays[ok], minlength=k_steps)[:k_steps]
-    counts = np.bincount(arrive[ok], minlength=k_steps)[:k_steps].astype(float)
-    cs, cc = np.cumsum(sums), np.cumsum(counts)
-    ws = cs - np.concatenate([np.zeros(w), cs[:-w]])
-    wc = cc - np.concatenate([np.zeros(w), cc[:-w]])
-    est = np.where(wc > 0, ws / np.maximum(wc, 1.0), np.nan)
-    # before the first arrival: the receiver knows nothing; hold the first estimate
-    first = np.flatnonzero(~np.isnan(est))
-    est = np.where(np.isnan(est), est[first[0]] if first.size else 0.0, est)
-    # gaps longer than the window: hold the last estimate
-    est = _ffill(np.where(wc > 0, est, np.nan))
-    return _Channel(idx=newest, estimate=est, mean_s=float(delays.mean()), ring=int(lag.max()) + 2)
-
-
-def _ffill(a: np.ndarray) -> np.ndarray:
-    idx = np.where(~np.isnan(a), np.arange(a.size), 0)
-    np.maximum.accumulate(idx, out=idx)
-    out = a[idx]
-    return np.where(np.isnan(out), np.nanmean(a) if np.any(~np.isnan(a)) else 0.0, out)
-
-
 # ----------------------------------------------------------------------------- follower
 
 
-def _hybrid_zoh(s_r: np.ndarray, cfg: ControlConfig, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per-run ZOH of the real follower speed dynamics ``[eta, z_r]`` per channel.
-
-    ``D eta' = k_s (ref - eta) - sigma_r (eta - z_r)/beta_r``, ``z_r' = (eta - z_r)/beta_r``.
-    ``s_r`` has shape (n, 2); returns ``Phi`` (n, 2, 2, 2) and ``Gamma`` (n, 2, 2).
-    """
-    d = np.asarray(cfg.D, dtype=float)
-    k = np.asarray(cfg.k_s, dtype=float)
-    b = np.asarray(cfg.beta_r, dtype=float)
-    s = np.asarray(s_r, dtype=float)
-    a = mat2(-k / d - s / (d * b), s / (d * b), 1.0 / b + 0.0 * s, -1.0 / b + 0.0 * s)
-    bm = np.zeros((*s.shape, 2, 1))
-    bm[..., 0, 0] = k / d
-    phi, gam = zoh2(a, bm, dt)
-    return phi, gam[..., 0]
-
-
 # ----------------------------------------------------------------------------- one case
-
-
-def _ci95(x: np.ndarray) -> tuple[float, list[float]]:
-    n = x.size
-    if n == 0:
-        return math.nan, [math.nan, math.nan]
-    m = float(x.mean())
-    if n < 2:
-        return m, [m, m]
-    half = float(stats.t.ppf(0.975, n - 1) * x.std(ddof=1) / math.sqrt(n))
-    return m, [m - half, m + half]
 
 
 def _summary(err: np.ndarray, offset: np.ndarray, diverged: np.ndarray) -> dict[str, Any]:
     ok = ~diverged
     out: dict[str, Any] = {}
     for c, ch in enumerate(("forward", "turn")):
-        m, ci = _ci95(err[ok, c])
-        o, oci = _ci95(offset[ok, c])
+        m, ci = ci95(err[ok, c])
+        o, oci = ci95(offset[ok, c])
         out[f"{ch}_error"] = m
         out[f"{ch}_ci95"] = ci
         out[f"{ch}_orbit_offset"] = o
@@ -346,71 +233,6 @@ def case_inputs(
     return CaseInputs(h[0], h[1], cp_sr, cp_T, switch, np.stack([fwd_t, turn_t], -1))
 
 
-class SimulatedLeader:
-    """The simulated operator's hand on the leader device, vectorised over runs.
-
-    The operator intends the speeds ``intent`` (switching at the times ``switch``); the
-    intention ``ref / k_g`` is smoothed (``hand_tau``) and a PD hand pulls the handle. The
-    handle (1) moves under the hand and the leader force (31) clamped to ``force_max_n``,
-    damping terms implicit.
-
-    Parameters
-    ----------
-    switch, intent : numpy.ndarray
-        As :class:`CaseInputs` (``n`` runs).
-    cfg : ControlConfig
-        ``k_g``, ``k_m``.
-    params : StudyParams
-        Hand, handle and period.
-    """
-
-    def __init__(self, switch: np.ndarray, intent: np.ndarray, cfg: ControlConfig, params: StudyParams) -> None:
-        self.switch, self.intent, self.params = switch, intent, params
-        n = switch.shape[0]
-        self.n_seg = switch.shape[1] - 1
-        self.k_g = np.asarray(cfg.k_g, dtype=float)
-        self.k_m = np.asarray(cfg.k_m, dtype=float)
-        self.a_hand = 1.0 - math.exp(-params.dt / params.hand_tau)
-        self.rows = np.arange(n)
-        self.x = np.zeros((n, 2))
-        self.v = np.zeros((n, 2))
-        self.x_d = np.zeros((n, 2))
-        self.seg = np.zeros(n, dtype=int)
-        self.f_m = np.zeros((n, 2))
-
-    def step(self, t: float, z_rx: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-        """Advance one period at time ``t`` [s]; return the handle position ``x_m`` [m].
-
-        ``z_rx`` is the received ``z_e``, ``alpha`` the leader damping [N s/m].
-        """
-        p, dt, m = self.params, self.params.dt, self.params.leader_mass_kg
-        adv = self.switch[self.rows, np.minimum(self.seg + 1, self.n_seg)] <= t
-        self.seg = np.where(adv, np.minimum(self.seg + 1, self.n_seg), self.seg)
-        target = self.intent[self.rows, self.seg] / self.k_g
-        self.x_d += (target - self.x_d) * self.a_hand
-        x, v = self.x, self.v
-        spring = -self.k_m * (self.k_g * x - z_rx)
-        hand_pos = p.hand_k * (self.x_d - x)
-        v_new = (v + dt / m * (spring + hand_pos)) / (1.0 + dt * (alpha + p.hand_b) / m)
-        f_m = spring - alpha * v_new
-        f_h = hand_pos - p.hand_b * v_new
-        clamp_m = np.abs(f_m) > p.force_max_n
-        clamp_h = np.abs(f_h) > p.hand_f_max
-        if clamp_m.any() or clamp_h.any():
-            # saturated forces are constant over the step; unsaturated damping stays implicit
-            denom = 1.0 + dt * (np.where(clamp_m, 0.0, alpha) + np.where(clamp_h, 0.0, p.hand_b)) / m
-            num = v + dt / m * (
-                np.where(clamp_m, np.sign(f_m) * p.force_max_n, spring)
-                + np.where(clamp_h, np.sign(f_h) * p.hand_f_max, hand_pos)
-            )
-            v_new = num / denom
-            f_m = np.where(clamp_m, np.sign(f_m) * p.force_max_n, spring - alpha * v_new)
-        self.f_m = f_m
-        self.v = v_new
-        self.x = x + dt * v_new
-        return self.x
-
-
 def run_case(
     case: DelayCase,
     runs: int,
@@ -433,8 +255,8 @@ def run_case(
     dt = params.dt
     k_steps = round(params.duration_s / dt)
     inp = case_inputs(case, runs, seed, cfg, params)
-    ch1 = _channel(inp.h1, dt, params.window_s)
-    ch2 = _channel(inp.h2, dt, params.window_s)
+    ch1 = channel(inp.h1, dt, params.window_s)
+    ch2 = channel(inp.h2, dt, params.window_s)
     alpha_k, s_e_k, _, _ = schedule_damping_array(ch1.estimate, ch2.estimate, cfg)
 
     # VP: the online choice for every distinct s_e met along the case (shared by all runs)
@@ -473,7 +295,7 @@ def run_case(
     eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
     hy = np.zeros((n_all, 2, 2))  # [eta, z_r] per channel
     phase = np.zeros(n_all)
-    phi_h, gam_h = _hybrid_zoh(s_r, cfg, dt)
+    phi_h, gam_h = hybrid_zoh(s_r, cfg, dt)
     cmd_buf = np.zeros((ch1.ring, n_all, 2))
     fb_buf = np.zeros((ch2.ring, n_all, 2))
     err_sum = np.zeros((n_all, 2))
@@ -516,7 +338,7 @@ def run_case(
                 T_run[upd] = ck.T
                 s_r[upd] = ck.s_r
                 eps_used[upd] = ck.eps
-                p, g = _hybrid_zoh(s_r[upd], cfg, dt)
+                p, g = hybrid_zoh(s_r[upd], cfg, dt)
                 phi_h[upd] = p
                 gam_h[upd] = g
                 deficit[upd] = orbit_deficit(s_r[upd], T_run[upd], cfg)
