@@ -36,7 +36,9 @@ clock by more than ``max_future_s`` is ignored and counted (``cmd_future``); eve
 is clamped at >= 0 before the estimators and control laws see it, so no timestamp can
 make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a tick or a
 robot call failed: the robot is stopped if it can be reached and the walk state is
-forgotten, so walking resumes smoothly once the robot answers again.
+forgotten, so walking resumes smoothly once the robot answers again. What the walk is
+(standing, walking, a stop pending, a refusal reported, the fall latch's steps) is one
+:class:`~bipedtele.follower.walkstate.WalkState`, moved by the events of its table.
 
 Event-driven pickup: a command that arrives between two ticks need not wait for the next
 one. :meth:`FollowerLoop.pickup` (called by the program as soon as the receiver signals a
@@ -72,6 +74,7 @@ from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
+from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
 from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
 
 __all__ = ["DEFAULT_MAX_FUTURE_S", "FollowerLoop", "FollowerTelemetry"]
@@ -249,12 +252,8 @@ class FollowerLoop:
         self._eps = control.eps
         clamped = WalkCommand(cycle_s=self._T, eps_s=self._eps).clamped(robot.limits)
         self._T_sent, self._eps_sent = clamped.cycle_s, clamped.eps_s
-        self._walking_cmd = False
-        self._stop_pending = False
-        self._refused = False
-        self._fallen = False
-        self._fall_latched = False
-        self._rearm_off = False
+        #: The walk's state (:mod:`bipedtele.follower.walkstate`): motion, fall latch, refusal.
+        self.walk_state = WalkState.STANDING
         self._leader_sid: int | None = None
         self._next_future_log = -math.inf
         self._in_contact = False
@@ -354,8 +353,7 @@ class FollowerLoop:
         self.counters["resets"] += 1
         self.reference.reset()
         self.equivalent.reset()
-        self._walking_cmd = self._stop_pending = False
-        self._fall_latched = self._fallen = self._rearm_off = False
+        self._fire(WalkEvent.RESET)
         LOG.info("new leader session: robot back on its start pose")
         self._on_event("reset", {"t": now})
 
@@ -370,8 +368,7 @@ class FollowerLoop:
         """
         self.counters["robot_faults"] += 1
         self.reference.reset()
-        self._walking_cmd = False
-        self._stop_pending = True
+        self._fire(WalkEvent.FAULT)
         self.telemetry.state = "error"
         try:
             self.robot.stop()
@@ -453,7 +450,7 @@ class FollowerLoop:
             self._on_event("collision", {"t": now, "pose": list(obs.pose)})
         self._in_contact = obs.in_contact
 
-        if obs.fallen and not self._fallen:  # every fall: stop, count, latch
+        if obs.fallen and not self.walk_state.lying:  # every fall: stop, count, latch
             self.counters["falls"] += 1
             LOG.error(
                 "robot fell (tilt %.1f deg, fall %d): stopping; it walks again after it stands "
@@ -463,9 +460,9 @@ class FollowerLoop:
             )
             self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self.counters["falls"]})
             self.robot.stop()
-            self._fall_latched = True
-            self._walking_cmd = self._stop_pending = False
-        self._fallen = obs.fallen
+            self._fire(WalkEvent.FELL)
+        elif not obs.fallen and self.walk_state.lying:
+            self._fire(WalkEvent.STOOD)
 
     def _control(self, now: float, obs: RobotObservation) -> FollowerTelemetry:
         """Run the period's control update: (40)/(30) when due, (28) and (29), the walk or stop."""
@@ -486,10 +483,10 @@ class FollowerLoop:
         # The tangential force acting on the forward channel, held over the period: the
         # reference model (28) and the equivalent follower (33) get the same one.
         f_hold = np.zeros(2)
-        if self._fall_latched:
+        if self.walk_state.latched:
             self._update_latch(obs, fresh)
 
-        if self._fall_latched:
+        if self.walk_state.latched:
             state = "fallen"
             self.reference.reset()
             sent = None
@@ -498,8 +495,8 @@ class FollowerLoop:
             if sent is not None:
                 f_hold = np.array([f_v[0], 0.0])
         else:
-            if self._walking_cmd or self._stop_pending:
-                if self._walking_cmd:
+            if self.walk_state.stop_due:
+                if self.walk_state is WalkState.WALKING:
                     released = (
                         self._cmd is not None and not self._cmd.enable and now - self._cmd_recv <= self.cfg.watchdog_s
                     )
@@ -511,7 +508,7 @@ class FollowerLoop:
                         self.counters["watchdog_stops"] += 1
                         LOG.warning("stopping: no fresh command")
                         self._on_event("watchdog_stop", {"t": now, "why": "no fresh command"})
-                self._walking_cmd = self._stop_pending = False
+                self._fire(WalkEvent.NO_FRESH_COMMAND)
                 self.robot.stop()
             self.reference.reset(z_r=self.reference.z_r)
             sent = None
@@ -565,29 +562,33 @@ class FollowerLoop:
             )
         except WalkRefusedError as exc:
             # The robot stopped itself and said why (once); do not wind the model up.
-            if not self._refused:
-                self._refused = True
+            reported = self.walk_state.refused
+            self._fire(WalkEvent.WALK_REFUSED)
+            if not reported:
                 self._on_event("walk_refused", {"t": now, "why": str(exc)})
             self.counters["walk_refused"] += 1
             self.reference.reset()
-            self._walking_cmd = self._stop_pending = False
             return None, "standing"
-        self._refused = False
-        self._walking_cmd = True
-        self._stop_pending = False
+        self._fire(WalkEvent.WALK_SENT)
         return sent, "walking"
 
     def _update_latch(self, obs: RobotObservation, fresh: bool) -> None:
         """Fall latch: released by enable false, then a fresh enable true, while standing."""
         if obs.fallen:
-            self._rearm_off = False  # the re-arm counts only once the robot stands again
-        elif self._cmd is not None and not self._cmd.enable:
-            self._rearm_off = True
-        elif self._rearm_off and fresh:
-            self._fall_latched = self._rearm_off = False
+            return  # lying: the re-arm counts only once the robot stands again
+        if self._cmd is not None and not self._cmd.enable:
+            self._fire(WalkEvent.RELEASE)
+        elif fresh and self._fire(WalkEvent.REARM):
             self.reference.reset()
             LOG.info("operator re-armed after the fall: walking again")
             self._on_event("rearmed", {"t": self._now()})
+
+    def _fire(self, event: WalkEvent) -> bool:
+        """Move the walk state on ``event`` (:data:`~bipedtele.follower.walkstate.TRANSITIONS`); True when it changed."""
+        state = next_state(self.walk_state, event)
+        changed = state is not self.walk_state
+        self.walk_state = state
+        return changed
 
     # ------------------------------------------------------------------ messages
 
@@ -637,9 +638,9 @@ class FollowerLoop:
         return counters
 
     def _status_note(self) -> str:
-        if self._fall_latched:
+        if self.walk_state.latched:
             return " fall latched: stand the robot up, then release and re-enable"
-        if self._refused:
+        if self.walk_state.refused:
             return " robot refuses to walk (see the follower log)"
         if self.telemetry.state == "error":
             return " robot fault (see the follower log)"
