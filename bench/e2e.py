@@ -65,7 +65,7 @@ from bipedtele.leader.app import COCKPIT_TOKEN_ENV
 from bipedtele.messages import Command, Feedback, encode
 from bipedtele.recording import read_records
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import open_session
+from bipedtele.zenohsession import open_session
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 PING, PONG = "benche2e/ping", "benche2e/pong"

@@ -37,8 +37,10 @@ from bipedtele.clock import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, Feedback, encode
+from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, LatestReceiver, Publishers, Received, Stamper, open_session
+from bipedtele.transport import Keys, Publishers, Stamper
+from bipedtele.zenohsession import open_session
 
 BARE_PING, BARE_PONG = "benchbare/ping", "benchbare/pong"
 QOS: dict[str, Any] = {

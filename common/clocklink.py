@@ -66,7 +66,7 @@ from bipedtele.drops import DropCounter
 from bipedtele.messages import ClockPing, ClockPong, Message
 
 if TYPE_CHECKING:
-    from bipedtele.transport import Received
+    from bipedtele.receivers import Received
 
 __all__ = ["ClockLink"]
 

@@ -44,19 +44,12 @@ from bipedtele.config import Config, ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
+from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.recording import Recorder, recording_for_run
 from bipedtele.session import Handshake
 from bipedtele.shutdown import shutdown_on_signals
-from bipedtele.transport import (
-    Keys,
-    LatestReceiver,
-    MessagePublisher,
-    PresenceWatcher,
-    Publishers,
-    Received,
-    declare_presence,
-    open_session,
-)
+from bipedtele.transport import Keys, MessagePublisher, PresenceWatcher, Publishers, declare_presence
+from bipedtele.zenohsession import open_session
 
 __all__ = ["Node", "StepClock"]
 

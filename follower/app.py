@@ -38,7 +38,8 @@ from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.pacer import Pacer
-from bipedtele.transport import LatestReceiver, MessagePublisher, Received
+from bipedtele.receivers import LatestReceiver, Received
+from bipedtele.transport import MessagePublisher
 
 __all__ = ["FollowerApp", "add_follower_parser", "main"]
 

@@ -55,8 +55,9 @@ from bipedtele.leader.reach import KEY_MISMATCH, CommandReach
 from bipedtele.leader.videoparts import FrameAssembler
 from bipedtele.messages import MAX_SEQ, Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
+from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.telemetry import LeaderSample
-from bipedtele.transport import LatestReceiver, PresenceWatcher, Publishers, Received
+from bipedtele.transport import PresenceWatcher, Publishers
 
 __all__ = ["LeaderApp", "add_leader_parser", "main"]
 

@@ -21,7 +21,9 @@ from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
-from bipedtele.transport import Keys, LinkError, PresenceWatcher, open_session
+from bipedtele.linkcheck import LinkError
+from bipedtele.transport import Keys, PresenceWatcher
+from bipedtele.zenohsession import open_session
 
 __all__ = ["add_health_parser", "check_health"]
 

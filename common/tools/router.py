@@ -26,8 +26,8 @@ from bipedtele.config import ConfigError
 from bipedtele.linkcheck import split_endpoint
 from bipedtele.sections import NetworkConfig
 from bipedtele.shutdown import shutdown_on_signals
-from bipedtele.transport import open_session
 from bipedtele.zenohlog import ZenohLogBridge
+from bipedtele.zenohsession import open_session
 
 __all__ = ["DEFAULT_LISTEN", "add_router_parser", "exposure_warnings", "router_endpoints"]
 

@@ -187,7 +187,7 @@ class Attacker:
         from contextlib import ExitStack
 
         from bipedtele.sections import NetworkConfig
-        from bipedtele.transport import open_session
+        from bipedtele.zenohsession import open_session
 
         a = self.args
         logins = {"a": (a.user, a.password)}

@@ -26,9 +26,11 @@ from pathlib import Path
 import pytest
 from bipedtele.drops import DropCounter
 from bipedtele.messages import Feedback, Status
+from bipedtele.receivers import MessageReceiver, Received
 from bipedtele.recording import Record, read_records
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, MessageReceiver, Received, open_session
+from bipedtele.transport import Keys
+from bipedtele.zenohsession import open_session
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 HERE = Path(__file__).resolve().parent

@@ -33,7 +33,8 @@ from bipedtele.messages import (
     encode,
 )
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, open_session
+from bipedtele.transport import Keys
+from bipedtele.zenohsession import open_session
 
 # What each receiver expects on each key; a *valid* message of another kind is garbage there.
 WRONG_KIND: dict[str, type[Message]] = {

@@ -21,8 +21,10 @@ from bipedtele.config import ConfigError
 from bipedtele.drops import DropCounter
 from bipedtele.linkcheck import LinkError
 from bipedtele.messages import Command, Feedback
+from bipedtele.receivers import MessageReceiver
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, MessageReceiver, Publishers, Stamper, open_session
+from bipedtele.transport import Keys, Publishers, Stamper
+from bipedtele.zenohsession import open_session
 
 
 def main(argv: list[str] | None = None) -> int:

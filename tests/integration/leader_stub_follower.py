@@ -23,8 +23,10 @@ from bipedtele.delaymodels import ConstDelay
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, Feedback, new_session_id
+from bipedtele.receivers import LatestReceiver
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, LatestReceiver, Publishers, declare_presence, open_session
+from bipedtele.transport import Keys, Publishers, declare_presence
+from bipedtele.zenohsession import open_session
 from delayline import DelayLine
 
 TAU = 0.3  # s

@@ -31,16 +31,10 @@ import pytest
 import zenoh
 from bipedtele.drops import DropCounter
 from bipedtele.messages import ClockPing, Command, Feedback, Status, VideoFrame, encode
+from bipedtele.receivers import MessageReceiver
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import (
-    Keys,
-    MessageReceiver,
-    PresenceWatcher,
-    Publishers,
-    Stamper,
-    declare_presence,
-    open_session,
-)
+from bipedtele.transport import Keys, PresenceWatcher, Publishers, Stamper, declare_presence
+from bipedtele.zenohsession import open_session
 
 COMMAND_FORMS = ["**", "bipedtele/**", "bipedtele/*/*", "bipedtele/nao1/*", "bipedtele/*/cmd", "bipedtele/nao1/cmd"]
 USERS = {"leader": "lpw", "follower": "fpw", "viewer": "vpw"}

@@ -28,8 +28,9 @@ from pathlib import Path
 
 import pytest
 from bipedtele import cli
+from bipedtele.linkcheck import LinkError
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import LinkError, open_session
+from bipedtele.zenohsession import open_session
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -247,8 +247,10 @@ def test_mac_drops_unsigned_and_forged_messages_before_decoding(tmp_path: Path) 
     from bipedtele.auth import MessageAuth, load_message_auth, write_message_key
     from bipedtele.drops import DropCounter
     from bipedtele.messages import Command, encode
+    from bipedtele.receivers import MessageReceiver
     from bipedtele.sections import NetworkConfig
-    from bipedtele.transport import Keys, MessageReceiver, Stamper, open_session
+    from bipedtele.transport import Keys, Stamper
+    from bipedtele.zenohsession import open_session
 
     key_file = tmp_path / "message.key"
     write_message_key(key_file)
@@ -302,8 +304,10 @@ def test_send_time_sanity(tmp_path: Path) -> None:
     from bipedtele.clock import ClockSync, DelayEstimator
     from bipedtele.drops import DropCounter
     from bipedtele.messages import Command
+    from bipedtele.receivers import MessageReceiver
     from bipedtele.sections import NetworkConfig
-    from bipedtele.transport import Keys, MessageReceiver, open_session
+    from bipedtele.transport import Keys
+    from bipedtele.zenohsession import open_session
 
     keys = Keys("nao1")
     unsynced = ClockSync()

@@ -21,14 +21,10 @@ from bipedtele.auth import MessageAuth
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command
+from bipedtele.receivers import MAX_CONTROL_PAYLOAD, MAX_ZENOH_MESSAGE, LatestReceiver
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import (
-    MAX_CONTROL_PAYLOAD,
-    MAX_ZENOH_MESSAGE,
-    Keys,
-    LatestReceiver,
-    open_session,
-)
+from bipedtele.transport import Keys
+from bipedtele.zenohsession import open_session
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -14,9 +14,12 @@ from pathlib import Path
 
 import pytest
 from bipedtele.drops import DropCounter
+from bipedtele.linkcheck import LinkError
 from bipedtele.messages import Command, Status
+from bipedtele.receivers import MessageReceiver
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, LinkError, MessageReceiver, Publishers, Stamper, open_session
+from bipedtele.transport import Keys, Publishers, Stamper
+from bipedtele.zenohsession import open_session
 
 
 def free_port() -> int:

@@ -43,17 +43,10 @@ from bipedtele.messages import (
     VideoFrame,
     encode,
 )
+from bipedtele.receivers import LatestReceiver, MessageReceiver
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import (
-    Keys,
-    LatestReceiver,
-    MessagePublisher,
-    MessageReceiver,
-    Publishers,
-    Stamper,
-    declare_presence,
-    open_session,
-)
+from bipedtele.transport import Keys, MessagePublisher, Publishers, Stamper, declare_presence
+from bipedtele.zenohsession import open_session
 
 KEY_TYPES: dict[str, Any] = {
     "cmd": Command,

@@ -9,8 +9,8 @@ from bipedtele.config import load_config
 from bipedtele.leader.app import LeaderApp, fill_link, link_counters
 from bipedtele.leader.linkquality import LinkQuality, link_words
 from bipedtele.messages import MAX_SEQ, Feedback, Status, VideoFrame, encode
+from bipedtele.receivers import Received
 from bipedtele.telemetry import LINK_STATES, LeaderSample
-from bipedtele.transport import Received
 
 T0 = 1_790_000_000.0
 FB_BYTES = 400

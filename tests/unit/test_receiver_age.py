@@ -15,7 +15,7 @@ from bipedtele.clock import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, encode
-from bipedtele.transport import LatestReceiver, Received
+from bipedtele.receivers import LatestReceiver, Received
 
 T0 = 1_700_000_000.0
 

@@ -7,9 +7,11 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from bipedtele.acl import access_control_json
 from bipedtele.config import ConfigError, load_config
 from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, access_control_json, zenoh_config
+from bipedtele.transport import Keys
+from bipedtele.zenohsession import zenoh_config
 
 
 def test_keys() -> None:
