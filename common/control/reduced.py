@@ -191,35 +191,39 @@ class SimulatedLeader:
         self.seg = np.zeros(n, dtype=int)
         self.f_m = np.zeros((n, 2))
         self.f_h = np.zeros((n, 2))
+        #: Time the operator lets go of the handle [s] (never, by default).
+        self.release_t = math.inf
 
     def step(self, t: float, z_rx: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         """Advance one period at time ``t`` [s]; return the handle position ``x_m`` [m].
 
-        ``z_rx`` is the received ``z_e``, ``alpha`` the leader damping [N s/m].
+        ``z_rx`` is the received ``z_e``, ``alpha`` the leader damping [N s/m]. From
+        :attr:`release_t` [s] on the operator has let go: no hand force.
         """
         p, dt, m = self.params, self.params.dt, self.params.leader_mass_kg
+        hand_k, hand_b = (p.hand_k, p.hand_b) if t < self.release_t else (0.0, 0.0)
         adv = self.switch[self.rows, np.minimum(self.seg + 1, self.n_seg)] <= t
         self.seg = np.where(adv, np.minimum(self.seg + 1, self.n_seg), self.seg)
         target = self.intent[self.rows, self.seg] / self.k_g
         self.x_d += (target - self.x_d) * self.a_hand
         x, v = self.x, self.v
         spring = -self.k_m * (self.k_g * x - z_rx)
-        hand_pos = p.hand_k * (self.x_d - x)
-        v_new = (v + dt / m * (spring + hand_pos)) / (1.0 + dt * (alpha + p.hand_b) / m)
+        hand_pos = hand_k * (self.x_d - x)
+        v_new = (v + dt / m * (spring + hand_pos)) / (1.0 + dt * (alpha + hand_b) / m)
         f_m = spring - alpha * v_new
-        f_h = hand_pos - p.hand_b * v_new
+        f_h = hand_pos - hand_b * v_new
         clamp_m = np.abs(f_m) > p.force_max_n
         clamp_h = np.abs(f_h) > p.hand_f_max
         if clamp_m.any() or clamp_h.any():
             # saturated forces are constant over the step; unsaturated damping stays implicit
-            denom = 1.0 + dt * (np.where(clamp_m, 0.0, alpha) + np.where(clamp_h, 0.0, p.hand_b)) / m
+            denom = 1.0 + dt * (np.where(clamp_m, 0.0, alpha) + np.where(clamp_h, 0.0, hand_b)) / m
             num = v + dt / m * (
                 np.where(clamp_m, np.sign(f_m) * p.force_max_n, spring)
                 + np.where(clamp_h, np.sign(f_h) * p.hand_f_max, hand_pos)
             )
             v_new = num / denom
             f_m = np.where(clamp_m, np.sign(f_m) * p.force_max_n, spring - alpha * v_new)
-            f_h = np.where(clamp_h, np.sign(f_h) * p.hand_f_max, hand_pos - p.hand_b * v_new)
+            f_h = np.where(clamp_h, np.sign(f_h) * p.hand_f_max, hand_pos - hand_b * v_new)
         self.f_m = f_m
         self.f_h = f_h
         self.v = v_new

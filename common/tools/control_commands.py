@@ -19,10 +19,11 @@ from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
 from bipedtele.tools.plots import require_matplotlib
 
-__all__ = ["add_study_parser", "add_surfaces_parser"]
+__all__ = ["add_study_parser", "add_surfaces_parser", "progress_bar", "save_figure", "write_json", "write_text"]
 
 
-def _write_json(path: str, data: Any) -> None:
+def write_json(path: str, data: Any) -> None:
+    """Write ``data`` as JSON to ``path`` (``-``: stdout); an unwritable path is a config error."""
     text = json.dumps(data, indent=1)
     if path == "-":
         sys.stdout.write(text + "\n")
@@ -33,7 +34,8 @@ def _write_json(path: str, data: Any) -> None:
         raise ConfigError(f"--json {path}: cannot write ({exc.strerror})") from None
 
 
-def _save_fig(fig: Any, path: str) -> None:
+def save_figure(fig: Any, path: str) -> None:
+    """Save a figure to ``path``; an unwritable path is a config error naming ``--plot``."""
     try:
         fig.savefig(path, dpi=90)
     except OSError as exc:
@@ -51,11 +53,11 @@ def _run_surfaces(args: argparse.Namespace) -> int:
     cfg = config_from_args(args).section("control")
     data = compute_surfaces(args.dp, cfg, n_sigma=args.n_sigma, n_T=args.n_T)
     if args.json:
-        _write_json(args.json, data)
+        write_json(args.json, data)
     if args.plot:
         from bipedtele.tools.plots import plot_surfaces
 
-        _save_fig(plot_surfaces(data), args.plot)
+        save_figure(plot_surfaces(data), args.plot)
     if args.json != "-":
         for i, dp in enumerate(data["dp"]):
             flat = [v for row in data["rho"][i] for v in row]
@@ -63,7 +65,8 @@ def _run_surfaces(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_text(path: str, text: str, flag: str) -> None:
+def write_text(path: str, text: str, flag: str) -> None:
+    """Write ``text`` to ``path`` (``-``: stdout); an unwritable path is a config error naming ``flag``."""
     if path == "-":
         sys.stdout.write(text)
         return
@@ -74,7 +77,7 @@ def _write_text(path: str, text: str, flag: str) -> None:
 
 
 @contextlib.contextmanager
-def _progress_bar(total: int) -> Iterator[Callable[[int], None] | None]:
+def progress_bar(total: int, desc: str = "study") -> Iterator[Callable[[int], None] | None]:
     """Yield a tqdm bar's ``update`` when stderr is a terminal and tqdm is installed, else None."""
     if not sys.stderr.isatty():
         yield None
@@ -84,7 +87,7 @@ def _progress_bar(total: int) -> Iterator[Callable[[int], None] | None]:
     except ImportError:  # the optional extra is not installed: no bar
         yield None
         return
-    with tqdm(total=total, unit="step", desc="study", leave=False, file=sys.stderr) as bar:
+    with tqdm(total=total, unit="step", desc=desc, leave=False, file=sys.stderr) as bar:
         yield bar.update
 
 
@@ -127,17 +130,17 @@ def _run_study(args: argparse.Namespace) -> int:
         result = _walker_backend()(cfg, runs=runs, seed=args.seed, duration_s=duration)
     elif args.sensitivity:
         total = study_steps(params) * len(SENSITIVITY)
-        with _progress_bar(total) as update:
+        with progress_bar(total) as update:
             result = run_sensitivity(runs, args.seed, control, params, progress=update)
     else:
-        with _progress_bar(study_steps(params)) as update:
+        with progress_bar(study_steps(params)) as update:
             result = run_study(runs, args.seed, control, params, progress=update)
     if args.json:
-        _write_json(args.json, result)
+        write_json(args.json, result)
     if args.sensitivity:
         table = sensitivity_markdown(result)
         if args.markdown:
-            _write_text(args.markdown, table, "--markdown")
+            write_text(args.markdown, table, "--markdown")
         if args.json != "-" and args.markdown != "-":
             sys.stdout.write(table)
         return 0
@@ -146,14 +149,14 @@ def _run_study(args: argparse.Namespace) -> int:
 
         table = study_markdown(result)
         if args.markdown:
-            _write_text(args.markdown, table, "--markdown")
+            write_text(args.markdown, table, "--markdown")
         if args.json != "-" and args.markdown != "-":
             sys.stdout.write(table)
         return 0
     if args.plot:
         from bipedtele.tools.plots import plot_study
 
-        _save_fig(plot_study(result), args.plot)
+        save_figure(plot_study(result), args.plot)
     if args.json != "-":
         sys.stdout.write(f"study: {runs} runs per scheme, {duration:g} s each, seed {args.seed}\n")
         for c in result["cases"]:

@@ -1,4 +1,4 @@
-"""Figures of the control core's analyses: Fig. 6 surfaces, the eq. (29) trend, Fig. 8.
+"""Figures of the control core's analyses: Fig. 6 surfaces, the eq. (29) trend, Fig. 8, the schemes.
 
 Each function takes what :mod:`bipedtele.control` computes and returns a
 :class:`matplotlib.figure.Figure` (no pyplot: nothing shown or written); the caller saves it.
@@ -19,7 +19,7 @@ from bipedtele.control.equivalent import equivalent_max_real
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["plot_equivalent_trend", "plot_study", "plot_surfaces", "require_matplotlib"]
+__all__ = ["plot_compare", "plot_equivalent_trend", "plot_study", "plot_surfaces", "require_matplotlib"]
 
 
 def require_matplotlib(flag: str) -> None:
@@ -116,4 +116,38 @@ def plot_study(result: dict[str, Any]) -> Figure:
         ax.set_title(f"({'a' if key == 'forward' else 'b'}) {key} speed")
         ax.legend()
     fig.suptitle(f"Coordination errors, {result['runs']} runs per scheme, seed {result['seed']}")
+    return fig
+
+
+def plot_compare(result: dict[str, Any]) -> Figure:
+    """Draw the scheme comparison: paired differences against ``paper`` per regime and channel.
+
+    One panel per channel; per regime a group of bars (one per scheme but ``paper``) with the
+    95 % interval of the paired difference (below zero: better than the paper).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    regimes = list(result["cells"])
+    schemes = [n for n in result["schemes"] if n != "paper"]
+    fig = Figure(figsize=(11.0, 6.5), layout="constrained")
+    width = 0.8 / max(1, len(schemes))
+    x = np.arange(len(regimes))
+    for row, (key, unit) in enumerate((("forward_error", "cm/s"), ("turn_error", "deg/s"))):
+        ax = fig.add_subplot(2, 1, row + 1)
+        for j, name in enumerate(schemes):
+            diffs = [result["cells"][r][name][key]["diff"] for r in regimes]
+            mean = np.array([d["mean"] for d in diffs])
+            ci = np.array([d["ci95"] for d in diffs])
+            err = np.abs(ci.T - mean)
+            ax.bar(x + (j - (len(schemes) - 1) / 2) * width, mean, width, yerr=err, capsize=2, label=name)
+        ax.axhline(0.0, color="black", linewidth=0.8)
+        ax.set_xticks(x, regimes, rotation=15)
+        ax.set_ylabel(f"{key.split('_')[0]} error - paper [{unit}]")
+        if row == 0:
+            ax.set_title(f"Paired difference against the paper ({result['runs']} runs per cell, reduced model)")
+            ax.legend(ncol=min(5, len(schemes)), fontsize="small")
     return fig

@@ -1,0 +1,47 @@
+"""Bilateral control schemes, one module each, registered as entry points.
+
+The registry is the entry-point group ``bipedtele.schemes``: a new scheme is one module and
+one entry in its package's ``pyproject.toml``.
+
+``paper`` (the default), ``paper-constant``, ``pd-worst-case``, ``pd-measured``, ``wave``,
+``tdpa``; the contract is :class:`~bipedtele.control.schemes.base.Scheme`.
+"""
+
+from __future__ import annotations
+
+from importlib import metadata
+
+from bipedtele.control.schemes.base import Scheme
+
+__all__ = ["ENTRY_POINT_GROUP", "Scheme", "scheme_class", "scheme_names"]
+
+#: Entry-point group that registers schemes (name -> Scheme subclass).
+ENTRY_POINT_GROUP = "bipedtele.schemes"
+
+
+def _registered() -> dict[str, metadata.EntryPoint]:
+    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def scheme_names() -> list[str]:
+    """Return the registered schemes' names, the paper's first, then sorted."""
+    names = sorted(_registered())
+    return (["paper"] if "paper" in names else []) + [n for n in names if n != "paper"]
+
+
+def scheme_class(name: str) -> type[Scheme]:
+    """Return the scheme registered as ``name``.
+
+    Raises
+    ------
+    ValueError
+        No such scheme, or its entry point is not a :class:`Scheme`; the message names
+        the allowed ones.
+    """
+    ep = _registered().get(name)
+    if ep is None:
+        raise ValueError(f"scheme {name!r}: allowed: {', '.join(scheme_names())}")
+    cls = ep.load()
+    if not (isinstance(cls, type) and issubclass(cls, Scheme)) or getattr(cls, "name", None) != name:
+        raise ValueError(f"scheme {name!r}: its entry point {ep.value} is not a Scheme named {name!r}")
+    return cls

@@ -1,0 +1,101 @@
+"""The control schemes: the registry, a contract checker over every registered scheme, the port laws."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.schemes import Scheme, scheme_class, scheme_names
+from bipedtele.control.schemes.ports import (
+    EnergyCounter,
+    follower_passivity,
+    leader_passivity,
+    wave_follower,
+    wave_gain,
+    wave_leader,
+)
+
+CFG = ControlConfig()
+EXPECTED = {"paper", "paper-constant", "pd-worst-case", "pd-measured", "wave", "tdpa"}
+
+
+def test_the_registry_holds_the_six_schemes_paper_first() -> None:
+    names = scheme_names()
+    assert set(names) >= EXPECTED
+    assert names[0] == "paper"
+
+
+def test_an_unknown_scheme_names_the_allowed_ones() -> None:
+    with pytest.raises(ValueError, match=r"scheme 'nope': allowed: paper, .*tdpa"):
+        scheme_class("nope")
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("name", scheme_names())
+def test_every_registered_scheme_keeps_the_contract(name: str) -> None:
+    cls = scheme_class(name)
+    assert issubclass(cls, Scheme) and cls.name == name and cls.title
+    assert cls.feedback in ("equivalent", "measured", "wave")
+    scheme = cls(CFG, (0.4, 0.3))
+    low = np.zeros(50)
+    high = np.full(50, 3.0)
+    for h1, h2 in ((low, low), (high, high), (np.linspace(0, 3, 50), np.linspace(3, 0, 50))):
+        alpha, s_e = scheme.damping(h1, h2)
+        assert alpha.shape == (50, 2) and s_e.shape == (50, 2)
+        assert np.all(np.isfinite(alpha)) and np.all(np.isfinite(s_e))
+        assert np.all(alpha >= CFG.alpha_m_min) and np.all(s_e >= CFG.s_e_min)
+    # a scheme that says it adapts changes its damping with the delay; one that does not, does not
+    changes = not np.allclose(scheme.damping(low, low)[0], scheme.damping(high, high)[0])
+    assert changes == cls.adapts
+
+
+def test_worst_case_damping_is_the_papers_at_the_worst_delay() -> None:
+    worst = scheme_class("pd-worst-case")(CFG, (0.6, 0.5))
+    paper = scheme_class("paper")(CFG)
+    a_w, s_w = worst.damping(np.zeros(3), np.zeros(3))
+    a_p, s_p = paper.damping(np.full(3, 0.6), np.full(3, 0.5))
+    assert np.allclose(a_w, a_p) and np.allclose(s_w, s_p)
+
+
+def test_the_wave_channel_passes_a_steady_speed_unchanged() -> None:
+    b = np.array([0.4, 0.4])
+    r = np.array([5.0, -3.0])
+    eta = r.copy()  # the robot walks at the commanded speed
+    _, v_s = wave_follower(np.zeros(2), eta, b)
+    f_m, u_m = wave_leader(r, v_s, b)
+    r_s, _ = wave_follower(u_m, eta, b)
+    assert np.allclose(r_s, r)
+    assert np.allclose(f_m, 0.0)  # nothing to feel when the robot keeps up
+
+
+def test_the_wave_gain_is_one_on_a_constant_delay_and_below_one_while_it_grows() -> None:
+    steady = np.arange(100) - 20  # one new message per period
+    assert np.allclose(wave_gain(steady, 10)[40:], 1.0)  # once messages flow (-1: none yet)
+    growing = (np.arange(100) * 0.5).astype(int)  # messages arrive half as often: dh/dt = 0.5
+    g = wave_gain(growing, 10)[20:]
+    assert np.all(g < 0.8) and np.all(g > 0.6)
+
+
+def test_the_passivity_controllers_never_give_out_more_than_came_in() -> None:
+    rng = np.random.default_rng(3)
+    dt = 0.01
+    k_m = np.full(1000, 0.4)
+    observer = rng.uniform(0.0, 0.05, 1000)
+    r = rng.normal(0.0, 5.0, 1000)
+    f = rng.normal(0.0, 3.0, 1000)
+    f_pc = leader_passivity(f, r, observer, dt)
+    assert np.all(f_pc * r * dt >= -observer - 1e-12)
+    assert np.allclose(f_pc[f * r * dt >= -observer], f[f * r * dt >= -observer])  # untouched when passive
+    eta = rng.normal(0.0, 5.0, 1000)
+    c = follower_passivity(r, eta, observer, k_m, dt)
+    assert np.all(k_m * (c - eta) * c * dt <= observer + 1e-9)
+    passive = k_m * (r - eta) * r * dt <= observer
+    assert np.allclose(c[passive], r[passive])
+
+
+def test_the_energy_counter_tracks_the_observers_least_value() -> None:
+    port = EnergyCounter((1,))
+    port.add(np.array([2.0]), 1.0, np.array([0.0]))  # 2 in
+    port.add(np.array([-3.0]), 1.0, np.array([1.0]))  # 3 out, the other side put in 1: observer -2
+    assert port.e_in[0] == 2.0 and port.e_out[0] == 3.0
+    assert port.min_observer[0] == -2.0
