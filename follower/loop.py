@@ -87,6 +87,22 @@ CM = 100.0  # cm per m
 DEFAULT_MAX_FUTURE_S = 0.25
 #: Largest delay the loop passes on to (40) and (30) [s] (as the messages allow).
 _MAX_DELAY_S = 60.0
+#: The loop's counters, in every Status (``FollowerLoop.counters``).
+_COUNTERS = (
+    "cmd_accepted",
+    "cmd_too_old",
+    "cmd_future",
+    "watchdog_stops",
+    "falls",
+    "collisions",
+    "robot_faults",
+    "walk_refused",
+    "leader_sessions",
+    "resets",
+    "operator_stops",
+    "cmd_backlog",
+    "cmd_reordered",
+)
 
 
 @dataclass
@@ -205,30 +221,11 @@ class FollowerLoop:
         self.chooser = OnlineChooser(control)
         self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
         self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt, k_z=control.k_z)
-        self.fictitious = FictitiousForce(
-            d_safe=cfg.sonar_d_safe_m,
-            d_stop=cfg.sonar_d_stop_m,
-            f_max=cfg.sonar_f_max,
-            sonar_yaw_rad=math.radians(cfg.sonar_yaw_deg),
-        )
+        self.fictitious = _fictitious_force(cfg)
         lim = robot.limits
         self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
         self.telemetry = FollowerTelemetry()
-        self.counters: dict[str, int] = {
-            "cmd_accepted": 0,
-            "cmd_too_old": 0,
-            "cmd_future": 0,
-            "watchdog_stops": 0,
-            "falls": 0,
-            "collisions": 0,
-            "robot_faults": 0,
-            "walk_refused": 0,
-            "leader_sessions": 0,
-            "resets": 0,
-            "operator_stops": 0,
-            "cmd_backlog": 0,
-            "cmd_reordered": 0,
-        }
+        self.counters: dict[str, int] = dict.fromkeys(_COUNTERS, 0)
         #: Publish a Feedback for every command picked up between ticks (False: the next
         #: periodic feedback acknowledges it; the program clears it on a full uplink).
         self.ack_each_command = True
@@ -248,8 +245,7 @@ class FollowerLoop:
         self._h_used: tuple[float, float] | None = None
         self._s_e = np.full(2, control.s_e_min)
         self._choice_s_r = np.zeros(2)
-        self._T = 1.0
-        self._eps = control.eps
+        self._T, self._eps = 1.0, control.eps
         clamped = WalkCommand(cycle_s=self._T, eps_s=self._eps).clamped(robot.limits)
         self._T_sent, self._eps_sent = clamped.cycle_s, clamped.eps_s
         #: The walk's state (:mod:`bipedtele.follower.walkstate`): motion, fall latch, refusal.
@@ -257,13 +253,10 @@ class FollowerLoop:
         self._leader_sid: int | None = None
         self._next_future_log = -math.inf
         self._in_contact = False
-        self._fb_seq = 0
-        self._st_seq = 0
-        self._next_fb = -math.inf
-        self._next_status = -math.inf
+        self._fb_seq = self._st_seq = 0
+        self._next_fb = self._next_status = -math.inf
         self._footfall_n: int | None = None
-        self._ref_sum = np.zeros(2)
-        self._ref_n = 0
+        self._ref_sum, self._ref_n = np.zeros(2), 0
         self._update_parameters(0.0, 0.0)
 
     # ------------------------------------------------------------------ parameters
@@ -645,6 +638,16 @@ class FollowerLoop:
         if self.telemetry.state == "error":
             return " robot fault (see the follower log)"
         return ""
+
+
+def _fictitious_force(cfg: FollowerConfig) -> FictitiousForce:
+    """Return the sonar's fictitious force f_v (Sec. 3.2.1) as the ``[follower]`` section sets it."""
+    return FictitiousForce(
+        d_safe=cfg.sonar_d_safe_m,
+        d_stop=cfg.sonar_d_stop_m,
+        f_max=cfg.sonar_f_max,
+        sonar_yaw_rad=math.radians(cfg.sonar_yaw_deg),
+    )
 
 
 def _delay(h: float | None) -> float:
