@@ -13,6 +13,9 @@ Metrics per run (channels ``forward`` [cm/s] and ``turn`` [deg/s]):
 
 * ``*_error``: time mean of ``|k_g x_m(t - h1) - eta|``, eqs. (6), (10) (the operator's
   command as received against the robot's speed);
+* ``*_intent_error``: time mean of ``|intended speed - eta|``: what the operator wanted
+  against what the robot did (the coordination error also falls when the force drags the
+  handle towards the robot; this one does not);
 * ``*_force_error``: RMS of the coupling force felt less ``k_m (k_g x_m - eta)``, the force
   with no delay (transparency) [N];
 * ``*_effort``: time mean of the operator's hand force ``|f_h|`` [N];
@@ -112,7 +115,7 @@ REGIMES: tuple[Regime, ...] = (
 #: Delay scales of the shipped trace over which the stability margin is sought.
 MARGIN_SCALES: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 
-_CHANNEL_METRICS = ("error", "force_error", "effort", "po_leader", "po_follower")
+_CHANNEL_METRICS = ("error", "intent_error", "force_error", "effort", "po_leader", "po_follower")
 #: Every metric reported per run (``unstable`` is a count, not a mean).
 METRICS: tuple[str, ...] = (
     *(f"{c}_{m}" for m in _CHANNEL_METRICS for c in ("forward", "turn")),
@@ -207,7 +210,7 @@ class _Loop:
         self.fb_buf = np.zeros((self.ch2.ring, n, 2))  # z_e, eta or v_s sent back
         self.ein_s_buf = np.zeros((self.ch2.ring, n, 2))
         self.port_m, self.port_s = EnergyCounter((n, 2)), EnergyCounter((n, 2))
-        self.sums = {m: np.zeros((n, 2)) for m in ("error", "force2", "effort")}
+        self.sums = {m: np.zeros((n, 2)) for m in ("error", "intent", "force2", "effort")}
         self.peak = np.zeros(n)
         self.late_from = round(0.75 * inp.h1.size)
         self.late_v2 = np.zeros((n, 2))
@@ -273,6 +276,8 @@ class _Loop:
             self.fb_buf[slot] = self.hy[..., 0]
         self.ein_s_buf[slot] = self.port_s.e_in
         self.sums["error"] += np.abs(ref - self.hy[..., 0])
+        lead = self.leader
+        self.sums["intent"] += np.abs(lead.intent[lead.rows, lead.seg] - self.hy[..., 0])
         self.peak = np.maximum(self.peak, np.abs(self.hy[..., 0]).max(axis=1))
 
 
@@ -316,6 +321,7 @@ def simulate(
     out: dict[str, np.ndarray] = {}
     for c, ch in enumerate(("forward", "turn")):
         out[f"{ch}_error"] = loop.sums["error"][:, c] / k_steps
+        out[f"{ch}_intent_error"] = loop.sums["intent"][:, c] / k_steps
         out[f"{ch}_force_error"] = np.sqrt(loop.sums["force2"][:, c] / k_steps)
         out[f"{ch}_effort"] = loop.sums["effort"][:, c] / k_steps
         out[f"{ch}_po_leader"] = loop.port_m.min_observer[:, c]
@@ -450,19 +456,23 @@ def compare_markdown(result: dict[str, Any]) -> str:
         f"Reduced model, {result['runs']} paired runs per scheme and regime, {result['duration_s']:g} s each, "
         f"seed {result['seed']}. Mean [95 % CI] of the time-mean coordination error |eq. (6)| [cm/s] and "
         "|eq. (10)| [deg/s], the paired difference against `paper` (negative: better than the paper), the "
+        "paired difference of the intent error (intended speed against the robot's), the "
         "force error against the delay-free coupling [N, forward], and the least passivity observer at the "
         "leader and follower ports [N cm, forward]; unstable runs are left out and counted.",
         "",
-        "| regime | scheme | forward | - paper | turn | - paper | force error | PO leader / follower | unstable |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| regime | scheme | forward | - paper | turn | - paper | intent fwd - paper | intent turn - paper "
+        "| force error | PO leader / follower | unstable |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for regime, per in result["cells"].items():
         for name, c in per.items():
             dfw = _fmt(c["forward_error"], "diff") if "diff" in c["forward_error"] else ""
             dtu = _fmt(c["turn_error"], "diff") if "diff" in c["turn_error"] else ""
+            ifw = _fmt(c["forward_intent_error"], "diff") if "diff" in c["forward_intent_error"] else ""
+            itu = _fmt(c["turn_intent_error"], "diff") if "diff" in c["turn_intent_error"] else ""
             po = f"{c['forward_po_leader']['mean']:.1f} / {c['forward_po_follower']['mean']:.1f}"
             lines.append(
-                f"| {regime} | {name} | {_fmt(c['forward_error'])} | {dfw} | {_fmt(c['turn_error'])} | {dtu} | "
+                f"| {regime} | {name} | {_fmt(c['forward_error'])} | {dfw} | {_fmt(c['turn_error'])} | {dtu} | {ifw} | {itu} | "
                 f"{_fmt(c['forward_force_error'])} | {po} | {c['unstable']} |"
             )
     if result.get("margin"):

@@ -1,0 +1,94 @@
+"""Benchmark and study of the scheme comparison (``bipedtele compare``) on the reduced model.
+
+Prints: the wall time of the default comparison (every scheme x every regime x 200 paired
+runs x 60 s, plus the released-handle margin runs) and its simulated periods per wall
+second; with ``--adapt``, what adapting to the delay buys: ``paper`` against
+``paper-constant`` (paired) over every regime, for the default settings and for the settings
+the paper leaves open where adapting could matter (``k_wt = 0.01``: (30) may choose longer
+cycles; ``dp_turn = 0.7``: the impact also costs turn speed; the walker-calibrated reduced
+model), each with and without the operator letting go of the handle.
+
+Usage: ``.venv/bin/python bench/compare.py [--runs 200] [--adapt] [--json F]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from typing import Any
+
+import numpy as np
+from bipedtele.control.compare import REGIMES, CompareParams, regime_inputs, run_compare, simulate
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.online import OnlineChooser
+from bipedtele.control.reduced import ci95
+from bipedtele.control.schemes import scheme_class, scheme_names
+
+SETTINGS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("defaults", {}),
+    ("k_wt = 0.01", {"k_wt": 0.01}),
+    ("dp_turn = 0.7", {"dp_turn": 0.7}),
+    ("walker-calibrated model", {"hybrid_model": "calibrated"}),
+)
+
+
+def _diff(a: np.ndarray, b: np.ndarray) -> str:
+    mean, (lo, hi) = ci95(a - b)
+    return f"{mean:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+
+
+def _adapt(runs: int, seed: int) -> dict[str, Any]:
+    cp = CompareParams()
+    out: dict[str, Any] = {}
+    print("\nWhat adapting buys: paper - paper-constant, paired (negative: adapting helps)")
+    print("| setting | regime | forward error | turn error | intent fwd | intent turn | released: oscillating |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for label, overrides in SETTINGS:
+        cfg = dataclasses.replace(ControlConfig(), **overrides)
+        chooser = OnlineChooser(cfg)
+        for regime in REGIMES:
+            inp = regime_inputs(regime, runs, seed, cfg, cp.study)
+            worst = (float(inp.h1.max()), float(inp.h2.max()))
+            res = {n: simulate(scheme_class(n)(cfg, worst), inp, cfg, cp, chooser) for n in ("paper", "paper-constant")}
+            rel = {
+                n: simulate(scheme_class(n)(cfg, worst), inp, cfg, cp, chooser, release=True)
+                for n in ("paper", "paper-constant")
+            }
+            a, b = res["paper"], res["paper-constant"]
+            osc = f"{100 * rel['paper']['oscillating'].mean():.0f} % / {100 * rel['paper-constant']['oscillating'].mean():.0f} %"
+            row = [
+                _diff(a[k], b[k]) for k in ("forward_error", "turn_error", "forward_intent_error", "turn_intent_error")
+            ]
+            print(f"| {label} | {regime.name} | {' | '.join(row)} | {osc} |")
+            out[f"{label}/{regime.name}"] = {"diffs": row, "oscillating_paper_vs_constant": osc}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--runs", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--adapt", action="store_true", help="also run the paper vs paper-constant sweep")
+    ap.add_argument("--json", metavar="FILE", help="write the default comparison's result")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    result = run_compare(args.runs, args.seed)
+    wall = time.perf_counter() - t0
+    cp = CompareParams()
+    periods = round(cp.study.duration_s / cp.study.dt) * len(scheme_names())
+    cells = len(REGIMES) + len(result["margin"].get("paper", {}).get("oscillating_by_scale", {}))
+    print(
+        f"default compare: {len(scheme_names())} schemes x {len(REGIMES)} regimes + margin, {args.runs} runs x "
+        f"{cp.study.duration_s:g} s: {wall:.0f} s wall ({periods * cells / wall:.0f} periods/s of {args.runs} runs)"
+    )
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(result, f, indent=1)
+    if args.adapt:
+        _adapt(args.runs, args.seed)
+
+
+if __name__ == "__main__":
+    main()
