@@ -98,8 +98,37 @@ class ControlConfig:
         doc="forward gain k_v identified on the simulated walker (bipedtele calibrate, default [sim]; docs/method.md)",
     )
 
+    scheme: str = param(
+        "paper",
+        doc="bilateral control scheme, a registered name (docs/schemes.md; bipedtele compare runs them all)",
+    )
+    worst_delays_s: list[float] = _pair(
+        (0.7, 0.7),
+        lo=0.0,
+        hi=60.0,
+        unit="s",
+        doc="largest forward and backward delays the link may have [h1, h2]: what pd-worst-case sizes its damping for",
+    )
+
     def __post_init__(self) -> None:
-        for name in ("D", "k_s", "k_m", "k_g", "beta_r", "beta_e", "k_z", "s_r_range", "T_range", "eps_range"):
+        # the registry imports this module: looked up here, at validation
+        from bipedtele.control.schemes import scheme_names
+
+        if self.scheme not in scheme_names():
+            raise ValueError(f"scheme = {self.scheme!r}: allowed: {', '.join(scheme_names())}")
+        for name in (
+            "D",
+            "k_s",
+            "k_m",
+            "k_g",
+            "beta_r",
+            "beta_e",
+            "k_z",
+            "s_r_range",
+            "T_range",
+            "eps_range",
+            "worst_delays_s",
+        ):
             value = getattr(self, name)
             if len(value) != 2:
                 raise ValueError(f"{name} = {value!r}: allowed: a list of exactly 2 numbers")

@@ -10,10 +10,14 @@ one entry in its package's ``pyproject.toml``.
 from __future__ import annotations
 
 from importlib import metadata
+from typing import TYPE_CHECKING
 
 from bipedtele.control.schemes.base import Scheme
 
-__all__ = ["ENTRY_POINT_GROUP", "Scheme", "scheme_class", "scheme_names"]
+if TYPE_CHECKING:
+    from bipedtele.control.config import ControlConfig
+
+__all__ = ["ENTRY_POINT_GROUP", "Scheme", "make_scheme", "scheme_class", "scheme_names"]
 
 #: Entry-point group that registers schemes (name -> Scheme subclass).
 ENTRY_POINT_GROUP = "bipedtele.schemes"
@@ -45,3 +49,9 @@ def scheme_class(name: str) -> type[Scheme]:
     if not (isinstance(cls, type) and issubclass(cls, Scheme)) or getattr(cls, "name", None) != name:
         raise ValueError(f"scheme {name!r}: its entry point {ep.value} is not a Scheme named {name!r}")
     return cls
+
+
+def make_scheme(cfg: ControlConfig) -> Scheme:
+    """Return the scheme ``cfg.scheme`` built for ``cfg`` (worst delays ``cfg.worst_delays_s``)."""
+    w1, w2 = cfg.worst_delays_s
+    return scheme_class(cfg.scheme)(cfg, (w1, w2))
