@@ -6,11 +6,12 @@ Every haptic tick (1 kHz by default) the loop
 2. takes the latest feedback; a new one feeds the backward-delay estimator h2 (1 s moving
    average of ``t_recv - feedback.t``); h1 is the follower's own estimate
    (``feedback.h1_s``); in ntp mode with the conservative split, ``h1 = h2 = rtt``;
-3. schedules the damping alpha_m from (40) at the current (h1, h2)
+3. takes the damping alpha_m from the control scheme (``[control] scheme``,
+   :mod:`bipedtele.control.schemes`) at the current (h1, h2): the paper's schedules (40)
    (:func:`bipedtele.control.damping.schedule_damping`);
 4. computes the force (31) with the latest ``z_e``, which is ``z_e(t - h2)`` by
-   construction (it travelled h2 to get here)
-   (:func:`bipedtele.control.leader_law.leader_force`);
+   construction (it travelled h2 to get here), or with the robot's measured speed for a
+   P+d scheme (:func:`bipedtele.control.leader_law.leader_force`);
 5. scales it by the *link gain*: 1 while feedback is fresh; once no new feedback arrived
    for ``feedback_timeout_s`` it falls linearly to 0 over ``fade_s`` (and rises the same
    way when feedback returns), so a lost link never leaves the operator pushed by a
@@ -43,10 +44,10 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from bipedtele.clock import DelayEstimator, conservative_delays
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.damping import schedule_damping
 from bipedtele.control.leader_law import leader_force
+from bipedtele.control.schemes import make_scheme
+from bipedtele.delayestimate import DelayEstimator, conservative_delays
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operators import Operator
@@ -152,7 +153,9 @@ class LeaderLoop:
         self.h1: float | None = None
         self.h2: float | None = None
         self._damp_at: tuple[float, float] | None = None
-        self.alpha_m = np.asarray(schedule_damping(0.0, 0.0, control).alpha_m, dtype=float)
+        #: The control scheme (``[control] scheme``): the damping and what the force follows.
+        self.scheme = make_scheme(control)
+        self.alpha_m = self._scheme_damping(0.0, 0.0)
         self.force = np.zeros(2)
         self.force_cmd = np.zeros(2)
         self._force_t: float | None = None
@@ -203,7 +206,19 @@ class LeaderLoop:
         last = self._damp_at
         if last is None or abs(h1 - last[0]) > _DAMPING_STEP_S or abs(h2 - last[1]) > _DAMPING_STEP_S:
             self._damp_at = (h1, h2)
-            self.alpha_m = np.asarray(schedule_damping(h1, h2, self.control).alpha_m, dtype=float)
+            self.alpha_m = self._scheme_damping(h1, h2)
+
+    def _scheme_damping(self, h1: float, h2: float) -> np.ndarray:
+        """Return the scheme's leader damping at delays ``h1``, ``h2`` [s] (the paper's: (40)) [N s/m]."""
+        alpha_m, _ = self.scheme.damping(np.array([h1]), np.array([h2]))
+        return np.asarray(alpha_m[0], dtype=float)
+
+    def _felt_speed(self) -> np.ndarray:
+        """Return what the force (31) follows: ``z_e`` (the paper) or the robot's measured speed (P+d) [cm/s, deg/s]."""
+        fb = self._fb
+        if fb is None:
+            return np.asarray(self._k_g * self.x_m, dtype=float)
+        return np.asarray(fb.eta if self.scheme.feedback == "measured" else fb.z_e, dtype=float)
 
     def _update_gain(self, now: float) -> None:
         fresh = self._fb is not None and now - self._fb_recv <= self.cfg.feedback_timeout_s
@@ -253,8 +268,9 @@ class LeaderLoop:
         self._take_feedback()
         self._update_damping(now)
         self._update_gain(now)
-        z_e = np.asarray(self._fb.z_e, dtype=float) if self._fb is not None else self._k_g * self.x_m
-        f = leader_force(self.x_m, self.dx_m, z_e, k_m=self._k_m, k_g=self._k_g, alpha_m=self.alpha_m, g_m=self._g_m)
+        f = leader_force(
+            self.x_m, self.dx_m, self._felt_speed(), k_m=self._k_m, k_g=self._k_g, alpha_m=self.alpha_m, g_m=self._g_m
+        )
         self.force_cmd = self.gain * f
         self.force = self.device.apply_force(self._slew(now, self.device.clamp_force(self.force_cmd)))
         if self.ticks % self._cmd_every == 0:

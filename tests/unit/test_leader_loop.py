@@ -41,7 +41,9 @@ class FeedbackSource:
         s = T0 + k * self.period
         if self.latest is None or self.latest[0].t != s:
             self.seq = k + 1
-            fb = Feedback(sid=7, seq=self.seq, t=s, z_e=list(self.z_fn(s)), h1_s=self.h1, state="walking")
+            z = list(self.z_fn(s))
+            fb = Feedback(sid=7, seq=self.seq, t=s, z_e=z, eta=[0.5 * z[0] + 1.0, 0.5 * z[1] - 1.0], h1_s=self.h1,
+                          state="walking")  # fmt: skip
             self.latest = (fb, s + self.h2_fn(s))
         return self.latest
 
@@ -250,3 +252,35 @@ def test_run_in_real_time_stops_on_request():
     timer.cancel()
     assert stop.is_set() and loop.ticks > 0 and len(sent) > 0
     assert loop.period_stats.summary(loop.dt)["ticks"] == loop.ticks
+
+
+def test_a_pd_scheme_feels_the_robots_measured_speed_and_the_paper_feels_z_e():
+    # The feedback carries z_e and eta apart; the scheme picks which one the force (31) follows.
+    def run(scheme):
+        loop, _, cfg = make_loop(z_wave, lambda s: 0.2, overrides=[f'control.scheme="{scheme}"'])
+        for k in range(1500):
+            loop.tick(now=T0 + k * 0.001)
+        fb = loop.feedback
+        assert fb is not None
+        return loop, cfg, fb
+
+    loop, cfg, fb = run("paper")
+    c, x, dx, a = cfg.control, loop.x_m, loop.dx_m, loop.alpha_m
+    want = [-c.k_m[i] * (c.k_g[i] * x[i] - fb.z_e[i]) - a[i] * dx[i] for i in range(2)]
+    assert loop.force_cmd.tolist() == pytest.approx(want)
+    loop, cfg, fb = run("pd-measured")
+    c, x, dx, a = cfg.control, loop.x_m, loop.dx_m, loop.alpha_m
+    assert fb.eta != fb.z_e
+    want = [-c.k_m[i] * (c.k_g[i] * x[i] - fb.eta[i]) - a[i] * dx[i] for i in range(2)]
+    assert loop.force_cmd.tolist() == pytest.approx(want)
+
+
+def test_paper_constant_holds_the_zero_delay_damping_on_a_long_delay():
+    loop, _, cfg = make_loop(z_wave, lambda s: 1.5, h1=1.5, overrides=['control.scheme="paper-constant"'])
+    paper, _, _ = make_loop(z_wave, lambda s: 1.5, h1=1.5)
+    for k in range(4000):
+        loop.tick(now=T0 + k * 0.001)
+        paper.tick(now=T0 + k * 0.001)
+    floor = schedule_damping(0.0, 0.0, cfg.control).alpha_m
+    assert loop.alpha_m.tolist() == pytest.approx(np.asarray(floor).tolist())
+    assert np.all(paper.alpha_m > 5 * np.asarray(floor))  # the paper's (40) follows the 1.5 s delays
