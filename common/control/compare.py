@@ -25,7 +25,7 @@ Metrics per run (channels ``forward`` [cm/s] and ``turn`` [deg/s]):
   times the largest intended speed (such runs are left out of the other means and counted).
 
 The **stability margin** of a scheme is the largest delay scale of the shipped trace
-(``margin_scales``) up to which at most 5 % of the runs oscillate at every scale, in runs
+(``margin_scales``; x0: no delay) up to which at most 5 % of the runs oscillate at every scale, in runs
 where the operator lets go of the handle mid-run (the hand holds no longer; what is left is
 the handle, the link and the robot): a run oscillates when the released handle still moves
 (RMS speed over the last quarter above ``oscillation_m_s``) or the robot's speed leaves the
@@ -113,7 +113,7 @@ REGIMES: tuple[Regime, ...] = (
 )
 
 #: Delay scales of the shipped trace over which the stability margin is sought.
-MARGIN_SCALES: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+MARGIN_SCALES: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 
 _CHANNEL_METRICS = ("error", "intent_error", "force_error", "effort", "po_leader", "po_follower")
 #: Every metric reported per run (``unstable`` is a count, not a mean).
@@ -352,8 +352,8 @@ def compare_steps(runs_steps: int, schemes: int, regimes: int, margin_scales: in
     return runs_steps * schemes * (regimes + margin_scales)
 
 
-def _margin(unstable_by_scale: dict[float, float]) -> float:
-    best = 0.0
+def _margin(unstable_by_scale: dict[float, float]) -> float | None:
+    best: float | None = None
     for s in sorted(unstable_by_scale):
         if unstable_by_scale[s] > 0.05:
             break
@@ -450,6 +450,36 @@ def _fmt(v: dict[str, Any], key: str = "") -> str:
     return f"{d['mean']:.2f} [{lo:.2f}, {hi:.2f}]"
 
 
+_WINNER_METRICS = (
+    ("forward_error", "coordination fwd"),
+    ("turn_error", "coordination turn"),
+    ("forward_intent_error", "intent fwd"),
+    ("turn_intent_error", "intent turn"),
+    ("forward_force_error", "force error fwd"),
+)
+
+
+def _winners(result: dict[str, Any]) -> list[str]:
+    """Per regime and metric: the scheme with the lowest mean, and whether it beats the paper for sure."""
+    head = " | ".join(label for _, label in _WINNER_METRICS)
+    lines = [
+        "Lowest mean per regime and metric (a `*`: its paired 95 % interval against `paper` lies below zero; "
+        "`paper` itself: no other scheme's lies below zero).",
+        "",
+        f"| regime | {head} |",
+        "| --- |" + " --- |" * len(_WINNER_METRICS),
+    ]
+    for regime, per in result["cells"].items():
+        row = []
+        for metric, _ in _WINNER_METRICS:
+            name = min(per, key=lambda n: per[n][metric]["mean"] if math.isfinite(per[n][metric]["mean"]) else math.inf)
+            diff = per[name][metric].get("diff")
+            sure = name == "paper" or (diff is not None and diff["ci95"][1] < 0.0)
+            row.append(f"{name}{'*' if sure and name != 'paper' else ''}")
+        lines.append(f"| {regime} | {' | '.join(row)} |")
+    return lines
+
+
 def compare_markdown(result: dict[str, Any]) -> str:
     """Return the comparison as markdown: per regime, each scheme's errors and the paired differences."""
     lines = [
@@ -475,6 +505,7 @@ def compare_markdown(result: dict[str, Any]) -> str:
                 f"| {regime} | {name} | {_fmt(c['forward_error'])} | {dfw} | {_fmt(c['turn_error'])} | {dtu} | {ifw} | {itu} | "
                 f"{_fmt(c['forward_force_error'])} | {po} | {c['unstable']} |"
             )
+    lines += ["", *_winners(result)]
     if result.get("margin"):
         lines += [
             "",
@@ -488,6 +519,7 @@ def compare_markdown(result: dict[str, Any]) -> str:
         for name, m in result["margin"].items():
             share = ", ".join(f"x{s}: {100 * v:.0f} %" for s, v in m["oscillating_by_scale"].items())
             med = ", ".join(f"x{s}: {1e3 * v:.1f}" for s, v in m["released_motion_median_m_s"].items())
-            margin = f"x{m['scale']:g}" if m["scale"] > 0 else "below x1"
+            first = min(float(k) for k in m["oscillating_by_scale"])
+            margin = f"x{m['scale']:g}" if m["scale"] is not None else f"none (oscillates at x{first:g})"
             lines.append(f"| {name} | {margin} | {share} | {med} |")
     return "\n".join(lines) + "\n"
