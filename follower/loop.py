@@ -65,10 +65,10 @@ from typing import Any
 import numpy as np
 from bipedtele.clock import DelayEstimator, conservative_delays
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.damping import schedule_damping
 from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
+from bipedtele.control.schemes import make_scheme
 from bipedtele.drops import DropCounter
 from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.config import FollowerConfig
@@ -219,6 +219,8 @@ class FollowerLoop:
         self.h1 = DelayEstimator(delay_window_s) if estimator is None else estimator
         self._drops = drops
         self.chooser = OnlineChooser(control)
+        #: The control scheme (``[control] scheme``): the damping sigma_e that (29) and (30) use.
+        self.scheme = make_scheme(control)
         self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
         self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt, k_z=control.k_z)
         self.fictitious = _fictitious_force(cfg)
@@ -262,15 +264,15 @@ class FollowerLoop:
     # ------------------------------------------------------------------ parameters
 
     def _update_parameters(self, h1: float, h2: float) -> None:
-        """V.2 and V.3 of the cascade: sigma_e from (40), then (sigma_r, T, eps) from (30)."""
+        """V.2 and V.3 of the cascade: sigma_e from the scheme (the paper's: (40)), then (sigma_r, T, eps) (30)."""
         h1, h2 = _delay(h1), _delay(h2)
         if self._h_used is not None:
             moved = max(abs(h1 - self._h_used[0]), abs(h2 - self._h_used[1]))
             if moved <= self.cfg.param_update_s:
                 return
-        damping = schedule_damping(h1, h2, self.control)
-        choice = self.chooser.choose(np.asarray(damping.s_e, dtype=float))
-        self._s_e = np.asarray(damping.s_e, dtype=float)
+        _, s_e = self.scheme.damping(np.array([h1]), np.array([h2]))
+        choice = self.chooser.choose(s_e[0])
+        self._s_e = np.asarray(s_e[0], dtype=float)
         self._choice_s_r = np.asarray(choice.s_r, dtype=float)
         self._T = float(choice.T)
         self._eps = float(choice.eps)

@@ -423,7 +423,7 @@ def test_a_command_given_again_is_taken_again_the_gate_is_the_only_dedupe() -> N
 
 
 def test_a_given_estimator_is_fed_by_the_receiver_not_the_loop() -> None:
-    from bipedtele.clock import DelayEstimator
+    from bipedtele.delayestimate import DelayEstimator
 
     robot = KinematicRobot()
     robot.connect()
@@ -603,3 +603,25 @@ def test_a_delay_that_rises_while_commands_keep_coming_is_not_a_backlog() -> Non
     c = h.loop.counters
     assert c["cmd_backlog"] == 0 and c["watchdog_stops"] == 0, c
     assert h.loop.telemetry.state == "walking" and h.robot.v > 0.01
+
+
+@pytest.mark.parametrize(
+    ("scheme", "scheduled"),
+    [("paper", True), ("pd-measured", True), ("paper-constant", False), ("pd-worst-case", False)],
+)
+def test_sigma_e_and_the_walk_parameters_come_from_the_configured_scheme(scheme: str, scheduled: bool) -> None:
+    from bipedtele.control.damping import schedule_damping
+
+    # h1 = 4 s lifts the turn channel's sigma_e off its floor in (40); worst delays 3 s, more still
+    h = Harness(KinematicRobot(), h1=4.0, control__scheme=f'"{scheme}"', control__worst_delays_s="[3.0, 3.0]")
+    h.run(7.0, v=5.0)
+    fb = [m for m in h.published if isinstance(m, Feedback)][-1]
+    cfg = h.loop.control
+    used = h.loop._h_used  # the delays the loop last scheduled on
+    assert used is not None and used[0] > 3.0
+    paper = schedule_damping(*used, cfg).s_e
+    assert paper[1] > 2 * cfg.s_e_min  # the schemes differ here
+    delays = used if scheduled else ((0.0, 0.0) if scheme == "paper-constant" else (3.0, 3.0))
+    want = schedule_damping(*delays, cfg).s_e
+    assert fb.s_e == pytest.approx(np.asarray(want).tolist(), rel=1e-9)
+    assert pytest.approx(h.loop.chooser.choose(np.asarray(want)).T) == h.loop._T  # (30) at that sigma_e
