@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 from bipedtele.config import load_config
 from bipedtele.control.damping import schedule_damping
-from bipedtele.recording import RecordingError, read_records
+from bipedtele.recordformat import RecordingError, read_records
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 REPO = Path(__file__).resolve().parent.parent

@@ -63,7 +63,7 @@ from typing import Any
 import zenoh
 from bipedtele.leader.app import COCKPIT_TOKEN_ENV
 from bipedtele.messages import Command, Feedback, encode
-from bipedtele.recording import read_records
+from bipedtele.recordformat import read_records
 from bipedtele.sections import NetworkConfig
 from bipedtele.zenohsession import open_session
 

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.recording import RecordingError, read_records
+from bipedtele.recordformat import RecordingError, read_records
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 ROBOT = "nao1"

@@ -75,7 +75,7 @@ from typing import Any
 
 import numpy as np
 from bipedtele.delaymodels import parse_delay_model
-from bipedtele.recording import Record, read_records
+from bipedtele.recordformat import Record, read_records
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
 from bipedtele.tools.report import compute_report
 

@@ -25,7 +25,8 @@ import msgpack
 import numpy as np
 from bipedtele.leader.cockpit import CockpitServer
 from bipedtele.messages import Command, Feedback, VideoFrame
-from bipedtele.recording import Recorder, message_to_dict
+from bipedtele.recordformat import message_to_dict
+from bipedtele.recording import Recorder
 from bipedtele.schemas import LEADER_STATE_FIELDS
 
 N = 20_000

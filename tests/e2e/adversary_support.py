@@ -125,7 +125,7 @@ def drops(c: dict[str, int], *reasons: str) -> int:
 
 def recorded_feedback(path: Path) -> list[tuple[float, str]]:
     """``(t, state)`` of the ``feedback/sent`` records a running follower has flushed so far."""
-    from bipedtele.recording import RecordingError, read_records
+    from bipedtele.recordformat import RecordingError, read_records
 
     try:
         return [(r.data["t"], r.data["state"]) for r in read_records(path) if r.topic == "feedback/sent"]

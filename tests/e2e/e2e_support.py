@@ -27,7 +27,7 @@ import pytest
 from bipedtele.drops import DropCounter
 from bipedtele.messages import Feedback, Status
 from bipedtele.receivers import MessageReceiver, Received
-from bipedtele.recording import Record, read_records
+from bipedtele.recordformat import Record, read_records
 from bipedtele.sections import NetworkConfig
 from bipedtele.transport import Keys
 from bipedtele.zenohsession import open_session

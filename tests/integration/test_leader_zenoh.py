@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from bipedtele.config import load_config
 from bipedtele.control.damping import schedule_damping
-from bipedtele.recording import read_records
+from bipedtele.recordformat import read_records
 
 HERE = Path(__file__).parent
 D1, D2, SWITCH, SILENT, TOTAL = 0.05, 0.4, 3.5, 6.5, 9.0

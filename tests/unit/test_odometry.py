@@ -16,7 +16,8 @@ from bipedtele.config import load_config
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.odometry import StepSampler
 from bipedtele.messages import Command, Feedback
-from bipedtele.recording import Record, Recorder, read_records
+from bipedtele.recordformat import Record, read_records
+from bipedtele.recording import Recorder
 from bipedtele.tools.report import compute_report
 
 pytestmark = pytest.mark.timeout(120)

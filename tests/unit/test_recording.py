@@ -18,14 +18,8 @@ import numpy as np
 import pytest
 from bipedtele.config import load_config
 from bipedtele.messages import Command, Feedback, VideoFrame
-from bipedtele.recording import (
-    Recorder,
-    RecordingError,
-    new_recording_path,
-    open_recording,
-    read_metadata,
-    read_records,
-)
+from bipedtele.recordformat import RecordingError, read_metadata, read_records
+from bipedtele.recording import Recorder, new_recording_path, open_recording
 
 
 def test_round_trip_messages_dicts_and_metadata(tmp_path: Path) -> None:

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from bipedtele.cli import main
 from bipedtele.messages import Command, Feedback, Status
-from bipedtele.recording import Recorder, read_records
+from bipedtele.recordformat import read_records
+from bipedtele.recording import Recorder
 from bipedtele.telemetry import LeaderSample
 from bipedtele.tools.report import REPORT_KEYS, compute_report, fictitious_intervals, plot_report
 

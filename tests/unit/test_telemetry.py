@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from bipedtele.leader.cockpit import SAMPLE_KEYS
 from bipedtele.leader.cockpit.server import _sample_json
-from bipedtele.recording import Recorder, read_records
+from bipedtele.recordformat import read_records
+from bipedtele.recording import Recorder
 from bipedtele.schemas import LEADER_STATE, LEADER_STATE_FIELDS, leader_state_schema
 from bipedtele.telemetry import LeaderSample, sample_from_map, sample_to_json
 from jsonschema import Draft202012Validator
