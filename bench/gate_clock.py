@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from bipedtele.clock import DelayEstimator
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command
 from bipedtele.transport import Stamper

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from bipedtele.clock import DelayEstimator
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, Feedback, encode

@@ -38,9 +38,10 @@ from typing import Any, TypeVar
 
 import zenoh
 from bipedtele.auth import MessageAuth, load_message_auth
-from bipedtele.clock import ClockSync, DelayEstimator
+from bipedtele.clock import ClockSync
 from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id

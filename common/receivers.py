@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar, cast
 import msgspec
 import zenoh
 from bipedtele.auth import UNEXPECTED_MAC_LINE, MacError, MessageAuth, is_signed
-from bipedtele.clock import ClockSync, DelayEstimator
+from bipedtele.clock import ClockSync
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import MAX_JPEG_BYTES, Message, MessageError, VideoFrame, decode

@@ -25,8 +25,8 @@ from typing import Any
 
 from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.realtime import RealtimeStepper

@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config, ConfigError
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.leader.device import DeviceError, LeaderDevice, make_device

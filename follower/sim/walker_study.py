@@ -39,12 +39,12 @@ import time
 from typing import Any
 
 import numpy as np
-from bipedtele.clock import DelayEstimator
 from bipedtele.config import Config
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping_array
 from bipedtele.control.reduced import SimulatedLeader, StudyParams
 from bipedtele.control.study import CASES, DelayCase, case_inputs
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.sim.config import SimConfig

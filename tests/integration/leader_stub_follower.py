@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/: the delay line
 
-from bipedtele.clock import DelayEstimator
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.delaymodels import ConstDelay
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate

@@ -301,7 +301,8 @@ def test_mac_drops_unsigned_and_forged_messages_before_decoding(tmp_path: Path) 
 @pytest.mark.slow
 @pytest.mark.timeout(90)
 def test_send_time_sanity(tmp_path: Path) -> None:
-    from bipedtele.clock import ClockSync, DelayEstimator
+    from bipedtele.clock import ClockSync
+    from bipedtele.delayestimate import DelayEstimator
     from bipedtele.drops import DropCounter
     from bipedtele.messages import Command
     from bipedtele.receivers import MessageReceiver

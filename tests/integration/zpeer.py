@@ -30,7 +30,7 @@ from typing import Any
 
 import msgpack
 import zenoh
-from bipedtele.clock import DelayEstimator
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import (

@@ -12,7 +12,6 @@ import math
 
 import numpy as np
 import pytest
-from bipedtele.clock import DelayEstimator
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import (
     MAX_SCHEDULED_DELAY_S,
@@ -21,6 +20,7 @@ from bipedtele.control.damping import (
     schedule_damping,
     schedule_damping_array,
 )
+from bipedtele.delayestimate import DelayEstimator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

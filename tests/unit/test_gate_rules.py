@@ -12,7 +12,7 @@ import math
 import random
 
 import pytest
-from bipedtele.clock import DelayEstimator
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command
 from bipedtele.transport import Stamper

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bipedtele.clock import DelayEstimator
+from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.messages import Command, encode
