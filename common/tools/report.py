@@ -53,17 +53,14 @@ import logging
 import math
 import sys
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from bipedtele.recording import Record, RecordingError, read_records
-from bipedtele.telemetry import LeaderSample, sample_from_map
+from bipedtele.recordformat import Record, RecordingError, read_records
 from bipedtele.tools.plots import require_matplotlib
-
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
+from bipedtele.tools.reportdata import Run, collect, delay_source, task_window
+from bipedtele.tools.reportplots import fictitious_intervals, plot_report
 
 __all__ = ["REPORT_KEYS", "add_report_parser", "compute_report", "fictitious_intervals", "format_report", "plot_report"]
 
@@ -84,225 +81,11 @@ REPORT_KEYS: tuple[str, ...] = (
     "odometry_source",
 )
 
-CMD_TOPICS = ("cmd/sent", "cmd/recv")
-FEEDBACK_TOPICS = ("feedback/recv", "feedback/sent")
-STATUS_TOPICS = ("status/recv", "status/sent")
-#: Short event names the leader program may use for the task events.
-EVENT_ALIASES = {"start": "task_start", "done": "task_done", "pass": "pass_done"}
+
+# ---------------------------------------------------------------------- metrics
 
 
-# ---------------------------------------------------------------------- extraction
-
-
-def _num(v: Any) -> float | None:
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-def _pair(v: Any) -> tuple[float, float] | None:
-    if not isinstance(v, list | tuple) or len(v) < 2:
-        return None
-    a, b = _num(v[0]), _num(v[1])
-    return None if a is None or b is None else (a, b)
-
-
-@dataclass
-class _Run:
-    """The signals of one recording, as arrays of (time [s], values)."""
-
-    cmd_t: list[float] = field(default_factory=list)
-    cmd_ref: list[tuple[float, float]] = field(default_factory=list)
-    fb_t: list[float] = field(default_factory=list)
-    fb_ref: list[tuple[float, float]] = field(default_factory=list)
-    fb_eta: list[tuple[float, float]] = field(default_factory=list)
-    fb_yaw: list[float] = field(default_factory=list)
-    # feedback poses for the odometry fallback: t_recv, own t, x, y, yaw, ref, T, state
-    pose_t: list[float] = field(default_factory=list)
-    pose_tmsg: list[float] = field(default_factory=list)
-    pose: list[tuple[float, float, float]] = field(default_factory=list)
-    pose_ref: list[tuple[float, float]] = field(default_factory=list)
-    pose_T: list[float] = field(default_factory=list)
-    pose_walking: list[bool] = field(default_factory=list)
-    # footfall events: t_recv, own t, pose, step_s, ref (None if not recorded)
-    footfalls: list[tuple[float, float, tuple[float, float, float], float, tuple[float, float] | None]] = field(
-        default_factory=list
-    )
-    fv_t: list[float] = field(default_factory=list)
-    fv: list[tuple[float, float]] = field(default_factory=list)  # tangential, normal
-    ze_t: list[float] = field(default_factory=list)
-    ze: list[tuple[float, float]] = field(default_factory=list)
-    state_fv_t: list[float] = field(default_factory=list)
-    state_fv: list[tuple[float, float]] = field(default_factory=list)
-    delay_t: list[float] = field(default_factory=list)
-    delay: list[tuple[float, float]] = field(default_factory=list)  # (h1, h2) [s]
-    delay_fallback_t: list[float] = field(default_factory=list)
-    delay_fallback: list[tuple[float, float]] = field(default_factory=list)
-    force_t: list[float] = field(default_factory=list)
-    force: list[tuple[float, float]] = field(default_factory=list)
-    state_delay_t: list[float] = field(default_factory=list)
-    state_delay: list[tuple[float, float]] = field(default_factory=list)
-    state_force_t: list[float] = field(default_factory=list)
-    state_force: list[tuple[float, float]] = field(default_factory=list)
-    task_start: float | None = None
-    task_done: list[float] = field(default_factory=list)
-    passes: list[float] = field(default_factory=list)
-    event_counts: dict[str, int] = field(default_factory=dict)
-    status: dict[int, list[dict[str, int]]] = field(default_factory=dict)  # sid -> counters
-    status_order: list[int] = field(default_factory=list)
-    fallen_transitions: int = 0
-    _last_state: dict[int, str] = field(default_factory=dict)
-    first_t: float | None = None
-    last_t: float | None = None
-    n_records: int = 0
-
-
-def _positive_pair(h1: Any, h2: Any) -> tuple[float, float] | None:
-    a, b = _num(h1), _num(h2)
-    if a is None or b is None or a <= 0 or b <= 0:
-        return None
-    return a, b
-
-
-def _add_state(run: _Run, t: float, sample: LeaderSample) -> None:
-    """Fold one ``leader/state`` sample in: delay estimates, handle and fictitious forces."""
-    pair = _positive_pair(sample.h1_ms, sample.h2_ms)
-    if pair is not None:
-        run.state_delay_t.append(t)
-        run.state_delay.append((pair[0] / 1000.0, pair[1] / 1000.0))
-    fv, fw = _num(sample.force_v), _num(sample.force_w)
-    if fv is not None and fw is not None:
-        run.state_force_t.append(t)
-        run.state_force.append((fv, fw))
-    ft, fn = _num(sample.f_v_t), _num(sample.f_v_n)
-    if ft is not None and fn is not None:
-        run.state_fv_t.append(t)
-        run.state_fv.append((ft, fn))
-
-
-def _collect(records: Iterable[Record]) -> _Run:
-    run = _Run()
-    for rec in records:
-        t, d, topic = rec.t_recv, rec.data, rec.topic
-        run.n_records += 1
-        run.first_t = t if run.first_t is None else min(run.first_t, t)
-        run.last_t = t if run.last_t is None else max(run.last_t, t)
-        if topic in CMD_TOPICS:
-            ref = _pair(d.get("ref"))
-            if ref is not None:
-                run.cmd_t.append(t)
-                run.cmd_ref.append(ref)
-            if topic == "cmd/recv":
-                sent = _num(d.get("t"))
-                pair = _positive_pair(t - sent if sent is not None else None, d.get("h2_s"))
-                if pair is not None:
-                    run.delay_fallback_t.append(t)
-                    run.delay_fallback.append(pair)
-        elif topic in FEEDBACK_TOPICS:
-            ref, eta = _pair(d.get("ref")), _pair(d.get("eta"))
-            pose = d.get("pose")
-            yaw = _num(pose[2]) if isinstance(pose, list | tuple) and len(pose) >= 3 else None
-            if ref is not None and eta is not None:
-                run.fb_t.append(t)
-                run.fb_ref.append(ref)
-                run.fb_eta.append(eta)
-                run.fb_yaw.append(math.nan if yaw is None else yaw)
-                xy = _pair(pose)
-                t_msg = _num(d.get("t"))
-                if xy is not None and yaw is not None and t_msg is not None:
-                    run.pose_t.append(t)
-                    run.pose_tmsg.append(t_msg)
-                    run.pose.append((xy[0], xy[1], yaw))
-                    run.pose_ref.append(ref)
-                    period = _num(d.get("T"))
-                    run.pose_T.append(period if period is not None and period > 0 else math.nan)
-                    run.pose_walking.append(d.get("state", "walking") == "walking")
-            fv_pair, ze_pair = _pair(d.get("f_v")), _pair(d.get("z_e"))
-            if fv_pair is not None:
-                run.fv_t.append(t)
-                run.fv.append(fv_pair)
-            if ze_pair is not None:
-                run.ze_t.append(t)
-                run.ze.append(ze_pair)
-            if topic == "feedback/recv":
-                sent = _num(d.get("t"))
-                pair = _positive_pair(d.get("h1_s"), t - sent if sent is not None else None)
-                if pair is not None:
-                    run.delay_fallback_t.append(t)
-                    run.delay_fallback.append(pair)
-            sid = d.get("sid", 0)
-            state = d.get("state")
-            if isinstance(state, str) and isinstance(sid, int):
-                if state == "fallen" and run._last_state.get(sid) != "fallen":
-                    run.fallen_transitions += 1
-                run._last_state[sid] = state
-        elif topic == "estimates":
-            pair = _positive_pair(d.get("h1_s"), d.get("h2_s"))
-            if pair is not None:
-                run.delay_t.append(t)
-                run.delay.append(pair)
-            f = _pair(d.get("f_m"))
-            if f is not None:
-                run.force_t.append(t)
-                run.force.append(f)
-        elif topic == "leader/state":  # the leader loop's sample (ms, N)
-            sample = sample_from_map(d)
-            if sample is not None:
-                _add_state(run, t, sample)
-        elif topic == "events":
-            ev = d.get("event")
-            if not isinstance(ev, str):
-                continue
-            ev = EVENT_ALIASES.get(ev, ev)
-            run.event_counts[ev] = run.event_counts.get(ev, 0) + 1
-            if ev == "task_start" and run.task_start is None:
-                run.task_start = t
-            elif ev == "task_done":
-                run.task_done.append(t)
-            elif ev == "pass_done":
-                run.passes.append(t)
-            elif ev == "footfall":
-                _add_footfall(run, t, d)
-        elif topic in STATUS_TOPICS:
-            counters = d.get("counters")
-            sid = d.get("sid", 0)
-            if d.get("role", "follower") == "follower" and isinstance(counters, dict):
-                if isinstance(sid, int) and sid not in run.status:
-                    run.status[sid] = []
-                    run.status_order.append(sid)
-                if isinstance(sid, int):
-                    run.status[sid].append({k: v for k, v in counters.items() if isinstance(v, int)})
-    return run
-
-
-def _add_footfall(run: _Run, t: float, d: dict[str, Any]) -> None:
-    pose = d.get("pose")
-    t_ff, step_s = _num(d.get("t")), _num(d.get("step_s"))
-    xy = _pair(pose)
-    yaw = _num(pose[2]) if isinstance(pose, list | tuple) and len(pose) >= 3 else None
-    if t_ff is None or step_s is None or step_s <= 0 or xy is None or yaw is None:
-        return
-    run.footfalls.append((t, t_ff, (xy[0], xy[1], yaw), step_s, _pair(d.get("ref"))))
-
-
-def _window(run: _Run) -> tuple[float, float] | None:
-    t0 = run.task_start
-    if t0 is None:
-        t0 = min(run.cmd_t) if run.cmd_t else run.first_t
-    if t0 is None:
-        return None
-    done = [t for t in run.task_done if t >= t0]
-    if done:
-        t1 = min(done)
-    elif run.cmd_t:
-        t1 = max(run.cmd_t)
-    else:
-        t1 = run.last_t if run.last_t is not None else t0
-    return t0, max(t0, t1)
-
-
-def _status_increase(run: _Run, key: str) -> int:
+def _status_increase(run: Run, key: str) -> int:
     total = 0
     for i, sid in enumerate(run.status_order):
         values = [c[key] for c in run.status[sid] if key in c]
@@ -313,18 +96,9 @@ def _status_increase(run: _Run, key: str) -> int:
     return total
 
 
-def _delay_source(run: _Run) -> tuple[list[float], list[tuple[float, float]]]:
-    """Return the best delay signal: ``estimates``, else ``leader/state``, else per-message."""
-    if run.delay:
-        return run.delay_t, run.delay
-    if run.state_delay:
-        return run.state_delay_t, run.state_delay
-    return run.delay_fallback_t, run.delay_fallback
-
-
-def _delays(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def _delays(run: Run, window: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """Return (times [s], h1 and h2 [s] as an (n, 2) array) inside the window."""
-    t, d = _delay_source(run)
+    t, d = delay_source(run)
     ta = np.asarray(t, dtype=float)
     da = np.asarray(d, dtype=float).reshape(-1, 2)
     keep = (ta >= window[0]) & (ta <= window[1])
@@ -354,11 +128,11 @@ def compute_report(records: Iterable[Record], follower: Iterable[Record] | None 
         ``collisions`` (ints), ``odometry_source`` (``"footfalls"``, ``"feedback"`` or
         None). Definitions in the module docstring.
     """
-    run = _collect(records)
+    run = collect(records)
     if not run.footfalls and follower is not None:
-        run.footfalls = _collect(follower).footfalls
+        run.footfalls = collect(follower).footfalls
     out: dict[str, Any] = dict.fromkeys(REPORT_KEYS)
-    window = _window(run)
+    window = task_window(run)
     if run.task_start is not None or run.passes:
         lo, hi = window if window is not None else (-math.inf, math.inf)
         out["passes"] = sum(1 for t in run.passes if lo <= t <= hi)
@@ -399,7 +173,7 @@ def _step_speed(p0: Sequence[float], p1: Sequence[float], dt: float) -> tuple[fl
     return 100.0 * ahead / dt, math.degrees(dyaw) / dt
 
 
-def _mean_ref(run: _Run, t0: float, t1: float) -> tuple[float, float] | None:
+def _mean_ref(run: Run, t0: float, t1: float) -> tuple[float, float] | None:
     """Mean of the feedback references with own time in [t0, t1) (None without any)."""
     ts = np.asarray(run.pose_tmsg, dtype=float)
     keep = (ts >= t0) & (ts < t1)
@@ -411,7 +185,7 @@ def _mean_ref(run: _Run, t0: float, t1: float) -> tuple[float, float] | None:
 
 def _steps_from_footfalls(
     footfalls: Sequence[tuple[float, float, tuple[float, float, float], float, tuple[float, float] | None]],
-    run: _Run | None = None,
+    run: Run | None = None,
 ) -> list[tuple[float, float, float, float, float]]:
     """Return the steps between consecutive footfalls.
 
@@ -435,7 +209,7 @@ def _steps_from_footfalls(
     return out
 
 
-def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tuple[float, float, float, float, float]]:
+def _odometry_from_feedback(run: Run, window: tuple[float, float]) -> list[tuple[float, float, float, float, float]]:
     """Return the steps approximated by windows of one step time (T/2) of the feedback poses.
 
     Over the feedback inside the task window in state ``walking``, on the feedback's own
@@ -484,167 +258,13 @@ def _odometry_from_feedback(run: _Run, window: tuple[float, float]) -> list[tupl
     return out
 
 
-def _odometry_steps(run: _Run, window: tuple[float, float]) -> tuple[np.ndarray, str | None]:
+def _odometry_steps(run: Run, window: tuple[float, float]) -> tuple[np.ndarray, str | None]:
     """Return (steps as an (n, 5) array, source): from footfalls if any, else from feedback windows."""
     ff = sorted((f for f in run.footfalls if window[0] <= f[0] <= window[1]), key=lambda f: f[1])
     steps, source = _steps_from_footfalls(ff, run), "footfalls"
     if not steps:
         steps, source = _odometry_from_feedback(run, window), "feedback"
     return np.asarray(steps, dtype=float).reshape(-1, 5), source if steps else None
-
-
-# ---------------------------------------------------------------------- figures
-
-
-def fictitious_intervals(t: np.ndarray, f_t: np.ndarray, threshold: float = 1e-6) -> list[tuple[float, float]]:
-    """Time intervals [s] where the tangential fictitious force acts (``|f_t| > threshold``).
-
-    An interval runs from its first active sample to the first inactive one after it (to
-    the last sample if it lasts to the end).
-    """
-    t = np.asarray(t, dtype=float)
-    on = np.abs(np.asarray(f_t, dtype=float)) > threshold
-    out: list[tuple[float, float]] = []
-    start: float | None = None
-    for ti, o in zip(t, on, strict=True):
-        if o and start is None:
-            start = float(ti)
-        elif not o and start is not None:
-            out.append((start, float(ti)))
-            start = None
-    if start is not None:
-        out.append((start, float(t[-1])))
-    return out
-
-
-def _rel(t: Sequence[float], t0: float) -> np.ndarray:
-    return np.asarray(t, dtype=float) - t0
-
-
-def plot_report(records: Iterable[Record]) -> dict[str, Figure]:
-    """Figures like the paper's: ``fig9_delay``, ``fig11_coordination``, ``fig12_tracking``.
-
-    Parameters
-    ----------
-    records : iterable of Record
-        A recording (read once).
-
-    Returns
-    -------
-    dict of str to matplotlib Figure
-        Time axes in seconds from the task start; the task window is shaded.
-        ``fig9_delay``: h1, h2 and h1 + h2 [ms]. ``fig11_coordination``: (a) commanded
-        (sent) vs robot forward speed and the equivalent speed z_e the operator feels
-        [cm/s], (b) the same for the turn speed [deg/s], (c) the fictitious force f_v
-        (tangential, normal; from the feedback, else the leader's state samples), (d) the
-        handle force f_m [N] (when recorded); the intervals where the tangential f_v acts
-        (:func:`fictitious_intervals`) are shaded on every panel. ``fig12_tracking``: (a) the reference
-        applied on the robot vs its forward speed [cm/s], (b) the turn angle commanded
-        (integral of the applied turn-speed reference) vs the robot's yaw [deg].
-    """
-    run = _collect(records)
-    window = _window(run) or (0.0, 0.0)
-    t0 = window[0]
-    from matplotlib.figure import Figure  # the ``plots`` extra: only the figures need it
-
-    figs: dict[str, Figure] = {}
-
-    def shade(ax: Any) -> None:
-        ax.axvspan(0.0, window[1] - t0, color="0.9", zorder=0)
-        ax.grid(True, alpha=0.3)
-
-    # Fig. 9: total delay.
-    fig = Figure(figsize=(8, 3.2), layout="constrained")
-    ax = fig.add_subplot()
-    t, d = _delay_source(run)
-    if d:
-        da = 1000.0 * np.asarray(d)
-        tr = _rel(t, t0)
-        ax.plot(tr, da.sum(axis=1), color="C3", label="h1 + h2")
-        ax.plot(tr, da[:, 0], color="C0", lw=0.8, ls="--", label="h1 (forward)")
-        ax.plot(tr, da[:, 1], color="C1", lw=0.8, ls="--", label="h2 (backward)")
-        ax.legend(loc="upper right", fontsize=8)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("delay [ms]")
-    ax.set_title("Total delay h1 + h2 (1 s moving average)")
-    shade(ax)
-    figs["fig9_delay"] = fig
-
-    # Fig. 11: commanded vs robot speeds, the fictitious force and the handle force; the
-    # intervals where f_v acts are shaded (the paper's rectangles).
-    fig = Figure(figsize=(8, 9), layout="constrained")
-    axes = fig.subplots(4, 1, sharex=True)
-    cmd = np.asarray(run.cmd_ref, dtype=float).reshape(-1, 2)
-    eta = np.asarray(run.fb_eta, dtype=float).reshape(-1, 2)
-    ze = np.asarray(run.ze, dtype=float).reshape(-1, 2)
-    fv_t, fv = (run.fv_t, run.fv) if run.fv else (run.state_fv_t, run.state_fv)
-    fva = np.asarray(fv, dtype=float).reshape(-1, 2)
-    acts = fictitious_intervals(_rel(fv_t, t0), fva[:, 0]) if len(fva) else []
-
-    def shade_fv(ax: Any) -> None:
-        for i, (a0, a1) in enumerate(acts):
-            ax.axvspan(a0, a1, color="tab:orange", alpha=0.18, zorder=0, label="f_v acts" if i == 0 else None)
-
-    for i, (unit, name) in enumerate((("cm/s", "forward speed"), ("deg/s", "turn speed"))):
-        a = axes[i]
-        if len(cmd):
-            a.plot(_rel(run.cmd_t, t0), cmd[:, i], color="C1", label="command (sent)")
-        if len(eta):
-            a.plot(_rel(run.fb_t, t0), eta[:, i], color="C0", lw=0.8, label="NAO (measured)")
-        if len(ze):
-            a.plot(_rel(run.ze_t, t0), ze[:, i], color="C2", lw=1.0, ls="--", label="z_e (felt, eq. 29)")
-        a.set_ylabel(f"{name} [{unit}]")
-        shade(a)
-        shade_fv(a)
-        a.legend(loc="upper right", fontsize=8)
-    a = axes[2]
-    if len(fva):
-        a.plot(_rel(fv_t, t0), fva[:, 0], color="C3", label="f_v tangential")
-        a.plot(_rel(fv_t, t0), fva[:, 1], color="C7", lw=0.8, label="f_v normal")
-    a.set_ylabel("fictitious force f_v")
-    shade(a)
-    shade_fv(a)
-    a.legend(loc="upper right", fontsize=8)
-    a = axes[3]
-    force_t, force = (run.force_t, run.force) if run.force else (run.state_force_t, run.state_force)
-    if force:
-        f = np.asarray(force)
-        a.plot(_rel(force_t, t0), f[:, 0], color="C4", label="f_m forward axis")
-        a.plot(_rel(force_t, t0), f[:, 1], color="C5", label="f_m turn axis")
-    a.set_ylabel("handle force [N]")
-    a.set_xlabel("time [s]")
-    shade(a)
-    shade_fv(a)
-    a.legend(loc="upper right", fontsize=8)
-    axes[0].set_title("Coordination: (a) forward, (b) turn, (c) fictitious force, (d) handle force")
-    figs["fig11_coordination"] = fig
-
-    # Fig. 12: applied reference vs robot, forward speed and turn angle.
-    fig = Figure(figsize=(8, 5.5), layout="constrained")
-    axes = fig.subplots(2, 1, sharex=True)
-    if run.fb_t:
-        tr = _rel(run.fb_t, t0)
-        ref = np.asarray(run.fb_ref)
-        axes[0].plot(tr, ref[:, 0], color="C1", label="reference (on the robot)")
-        axes[0].plot(tr, eta[:, 0], color="C0", lw=0.8, label="NAO")
-        dt = np.diff(tr, prepend=tr[0])
-        ref_angle = np.cumsum(ref[:, 1] * dt)
-        axes[1].plot(tr, ref_angle, color="C1", label="reference angle (integral)")
-        yaw = np.asarray(run.fb_yaw, dtype=float)
-        ok = np.isfinite(yaw)
-        if ok.any():
-            yaw_deg = np.degrees(np.unwrap(yaw[ok]))
-            axes[1].plot(tr[ok], yaw_deg - yaw_deg[0], color="C0", lw=0.8, label="NAO yaw")
-        for a in axes:
-            a.legend(loc="upper right", fontsize=8)
-    axes[0].set_ylabel("forward speed [cm/s]")
-    axes[1].set_ylabel("turn angle [deg]")
-    axes[1].set_xlabel("time [s]")
-    for a in axes:
-        shade(a)
-    axes[0].set_title("Tracking: (a) forward speed, (b) turn angle")
-    figs["fig12_tracking"] = fig
-    return figs
 
 
 # ---------------------------------------------------------------------- command
