@@ -33,15 +33,14 @@ import json
 import logging
 import math
 import os
-import secrets
 import shlex
 import signal
-import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -58,15 +57,14 @@ from bipedtele.delaymodels import (
 )
 from bipedtele.impairments import parse_loss, parse_outage, parse_rate
 from bipedtele.shutdown import shutdown_on_signals
+from bipedtele.tools.demoplan import DemoPlan
 from bipedtele.tools.demostatus import StatusPrinter
 from bipedtele.tools.netem import netem_available
-from bipedtele.tools.netem_trace import NetemReplayer, impairment_args, schedule
+from bipedtele.tools.netem_trace import NetemReplayer, impairment_args
 from bipedtele.tools.netns import (
     FOLLOWER,
     LEADER,
-    MIDDLE,
     SIDE_A,
-    SIDE_B,
     CockpitRelay,
     EmulatedLink,
     NetnsError,
@@ -87,181 +85,6 @@ def _say(line: str) -> None:
     """CLI output (not logging: this is what the user asked the command for)."""
     sys.stdout.write(line + "\n")
     sys.stdout.flush()
-
-
-def free_port() -> int:
-    """Return a TCP port on 127.0.0.1 that is free right now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@dataclass
-class DemoPlan:
-    """Everything the demo starts; built from the arguments, inspectable by tests."""
-
-    run_dir: Path
-    profile: str
-    overrides: list[str]
-    forward: str
-    backward: str
-    operator: str
-    duration_s: float | None
-    headless: bool
-    record: Path
-    router_port: int = field(default_factory=free_port)
-    proxy_port: int = field(default_factory=free_port)
-    cockpit_port: int = field(default_factory=free_port)
-    follower_args: list[str] = field(default_factory=list)
-    leader_args: list[str] = field(default_factory=list)
-    t0: float = field(default_factory=time.time)
-    backend: str = "proxy"
-    #: The cockpit's per-run access token (given to the leader in its environment).
-    cockpit_token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
-    link: VethLink | EmulatedLink | None = None
-    #: Impairment arguments of ``link-emu`` besides the delays (packet backend).
-    impairments: list[str] = field(default_factory=list)
-    #: netem options per end besides the delays (netem backend: loss, rate, limit).
-    netem_extra: dict[str, list[str]] = field(default_factory=dict)
-
-    def emulator_args(self) -> list[str]:
-        """Return the ``link-emu`` arguments of the packet backend (forward = leader -> follower)."""
-        return [
-            "--forward", self.forward, "--backward", self.backward, "--t0", f"{self.t0:.6f}",
-            "--stats-json", str(self.run_dir / "linkemu.json"), *self.impairments,
-        ]  # fmt: skip
-
-    def commands(self) -> dict[str, list[str]]:
-        """Return the command lines of the processes, in start order.
-
-        Four with the proxy; three with netem, each prefixed by ``ip netns exec NS``.
-        """
-        exe = [sys.executable, "-m", "bipedtele.cli"]
-        common = ["--config", self.profile]
-        if self.backend in ("netem", "packet"):
-            # a per-packet path carries UDP: control on its own best-effort link (docs/links.md)
-            common += ["--set", 'network.links="split"']
-        for item in self.overrides:
-            common += ["--set", item]
-        if self.backend == "netem":
-            if not isinstance(self.link, VethLink):
-                raise ValueError("the netem backend needs a VethLink")
-            router_ep = f"tcp/{self.link.follower_ip}:{self.router_port}"
-            leader_ep = router_ep  # across the veth pair
-            in_l, in_f = self.link.exec_prefix(LEADER), self.link.exec_prefix(FOLLOWER)
-        elif self.backend == "packet":
-            if not isinstance(self.link, EmulatedLink):
-                raise ValueError("the packet backend needs an EmulatedLink")
-            router_ep = f"tcp/{self.link.b_ip}:{self.router_port}"
-            leader_ep = router_ep  # across the emulated wire
-            in_l, in_f = self.link.exec_prefix(SIDE_A), self.link.exec_prefix(SIDE_B)
-        else:
-            router_ep = f"tcp/127.0.0.1:{self.router_port}"
-            leader_ep = f"tcp/127.0.0.1:{self.proxy_port}"
-            in_l = in_f = []
-        leader = [
-            *in_l,
-            *exe,
-            "leader",
-            *common,
-            "--set",
-            'network.mode="client"',
-            "--set",
-            f'network.connect=["{leader_ep}"]',
-            "--set",
-            "network.listen=[]",
-            "--set",
-            f"leader.cockpit_port={0 if self.headless else self.cockpit_port}",
-            "--operator",
-            self.operator,
-            "--record",
-            str(self.record),
-            *self.leader_args,
-        ]
-        if self.duration_s is not None:
-            leader += ["--duration", f"{self.duration_s:g}"]
-        out = {"router": [*in_f, *exe, "router", *common, "--listen", router_ep]}
-        if self.backend == "proxy":
-            out["proxy"] = [
-                *exe,
-                "delay-proxy",
-                "--listen",
-                f"127.0.0.1:{self.proxy_port}",
-                "--target",
-                f"127.0.0.1:{self.router_port}",
-                "--forward",
-                self.forward,
-                "--backward",
-                self.backward,
-                "--t0",
-                f"{self.t0:.6f}",
-            ]
-        return {
-            **out,
-            "follower": [
-                *in_f,
-                *exe,
-                "follower",
-                *common,
-                "--set",
-                'network.mode="client"',
-                "--set",
-                f'network.connect=["{router_ep}"]',
-                "--set",
-                "network.listen=[]",
-                "--record",
-                str(self.run_dir / "follower.mcap"),
-                *self.follower_args,
-            ],
-            "leader": leader,
-        }
-
-    def netem_plan(self, t_end: float) -> list[str]:
-        """Return the netem backend's commands as text lines: setup, ``tc`` over time, teardown.
-
-        Parameters
-        ----------
-        t_end : float
-            How far to list the trace replay [s].
-        """
-        if not isinstance(self.link, VethLink):
-            raise ValueError("the netem backend needs a VethLink")
-        link = self.link
-        lines = [
-            f"# netem backend: leader in {link.ns[LEADER]} ({link.dev[LEADER]} {link.leader_ip}), "
-            f"follower and router in {link.ns[FOLLOWER]} ({link.dev[FOLLOWER]} {link.follower_ip})",
-            "# setup",
-            *(" ".join(c) for c in link.setup_commands()),
-            f"# qdiscs: h1 {self.forward} on {link.dev[LEADER]}, h2 {self.backward} on "
-            f"{link.dev[FOLLOWER]}; seconds after the start, then the command",
-        ]
-        forward, backward = parse_delay_model(self.forward), parse_delay_model(self.backward)
-        lines += [
-            f"{s.t:.3f} {' '.join(s.command)}" for s in schedule(link, forward, backward, t_end, self.netem_extra)
-        ]
-        lines += [
-            "# teardown (after stopping the processes inside the namespaces)",
-            *(" ".join(c) for c in link.teardown_commands()),
-        ]
-        return lines
-
-    def packet_plan(self) -> list[str]:
-        """Return the packet backend's setup, emulator and teardown commands as text lines."""
-        if not isinstance(self.link, EmulatedLink):
-            raise ValueError("the packet backend needs an EmulatedLink")
-        link = self.link
-        emu = [*link.exec_prefix(MIDDLE), sys.executable, "-m", "bipedtele.tools.linkemu",
-               "--a", link.dev["ma"], "--b", link.dev["mb"], *self.emulator_args()]  # fmt: skip
-        return [
-            f"# packet backend: leader in {link.ns[SIDE_A]} ({link.a_ip}), follower and router in "
-            f"{link.ns[SIDE_B]} ({link.b_ip}), link-emu in {link.ns[MIDDLE]}",
-            "# setup (the ethtool steps run as ioctls)",
-            *(" ".join(c) for c in link.setup_commands()),
-            "# emulator (forward = leader -> follower = h1, backward = h2)",
-            shlex.join(emu),
-            "# teardown (after stopping the processes inside the namespaces)",
-            *(" ".join(c) for c in link.teardown_commands()),
-        ]
 
 
 @dataclass
@@ -315,12 +138,37 @@ def run_demo(
     ``passes_total``, elapsed, h1 + h2, falls, contacts, running speed errors) is written
     about once a second while the leader runs.
     """
-    from bipedtele.recording import read_records
+    from bipedtele.recordformat import read_records
     from bipedtele.tools.report import compute_report, format_report
 
     plan.run_dir.mkdir(parents=True, exist_ok=True)
     plan.run_dir.chmod(0o700)  # its leader.log holds the cockpit token
     plan.t0 = time.time()  # origin of trace delay models (recorded for later checks)
+    _write_plan(plan)
+    with shutdown_on_signals() as stop, contextlib.ExitStack() as network:
+        failed = _enter_network(plan, network)
+        if failed is not None:
+            return failed
+        procs = network.enter_context(_processes(plan))
+        if not plan.headless:
+            _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/?token={plan.cockpit_token}")
+        _say(f"run folder: {plan.run_dir}  (logs and recordings)")
+        leader = procs["leader"].popen
+        _watch(plan, procs, stop, None if quiet else StatusPrinter(plan.record, passes_total))
+        leader_rc = leader.poll()
+    if not plan.record.exists():
+        sys.stderr.write(f"bipedtele demo: no recording at {plan.record}; see the logs in {plan.run_dir}\n")
+        return 1
+    f_rec = plan.run_dir / "follower.mcap"  # its footfalls give the per-step speed errors
+    report = compute_report(read_records(plan.record), follower=read_records(f_rec) if f_rec.exists() else None)
+    _say(format_report(report))
+    if json_path is not None:
+        json_path.write_text(json.dumps(report, indent=2) + "\n")
+    return 0 if leader_rc in (0, None) else 1
+
+
+def _write_plan(plan: DemoPlan) -> None:
+    """Write ``plan.json`` into the run folder: the delays, the backend and the command lines."""
     (plan.run_dir / "plan.json").write_text(
         json.dumps(
             {
@@ -334,60 +182,59 @@ def run_demo(
         )
         + "\n"
     )
-    with shutdown_on_signals() as stop, contextlib.ExitStack() as network:
-        if plan.backend == "netem" and isinstance(plan.link, VethLink):
-            # Exits in reverse: processes stop, the replay stops, the namespaces go.
-            try:
-                network.enter_context(plan.link)
-                network.enter_context(NetemReplayer(
-                    plan.link, parse_delay_model(plan.forward), parse_delay_model(plan.backward), plan.t0,
-                    extra=plan.netem_extra,
-                ))  # fmt: skip
-            except (NetnsError, RuntimeError) as exc:
-                sys.stderr.write(f"bipedtele demo: netem backend: {exc}\n")
-                return 1
-            if not plan.headless:
-                network.enter_context(CockpitRelay(plan.link, plan.cockpit_port))
-        elif plan.backend == "packet" and isinstance(plan.link, EmulatedLink):
-            plan.link.emulator_args = plan.emulator_args()
-            plan.link.log_path = plan.run_dir / "linkemu.log"
-            try:
-                network.enter_context(plan.link)
-            except NetnsError as exc:
-                sys.stderr.write(f"bipedtele demo: packet backend: {exc}\n")
-                return 1
-            if not plan.headless:
-                network.enter_context(CockpitRelay(plan.link, plan.cockpit_port, side=SIDE_A))
-        procs = network.enter_context(_processes(plan))
-        if not plan.headless:
-            _say(f"cockpit: http://127.0.0.1:{plan.cockpit_port}/?token={plan.cockpit_token}")
-        _say(f"run folder: {plan.run_dir}  (logs and recordings)")
-        leader = procs["leader"].popen
-        status = None if quiet else StatusPrinter(plan.record, passes_total)
+
+
+def _enter_network(plan: DemoPlan, network: contextlib.ExitStack) -> int | None:
+    """Set up the netem or packet backend's namespaces (and the cockpit relay) on ``network``.
+
+    Returns
+    -------
+    int or None
+        1 when the backend cannot be set up (said on stderr), else None.
+    """
+    if plan.backend == "netem" and isinstance(plan.link, VethLink):
+        # Exits in reverse: processes stop, the replay stops, the namespaces go.
         try:
-            while not stop.is_set():
-                if leader.poll() is not None:
-                    break
-                dead = [n for n, p in procs.items() if n != "leader" and p.popen.poll() is not None]
-                if dead:
-                    LOG.error("%s exited early; see %s", dead[0], plan.run_dir / f"{dead[0]}.log")
-                    break
-                if status is not None:
-                    status.update()
-                time.sleep(0.2)
-        finally:
+            network.enter_context(plan.link)
+            network.enter_context(NetemReplayer(
+                plan.link, parse_delay_model(plan.forward), parse_delay_model(plan.backward), plan.t0,
+                extra=plan.netem_extra,
+            ))  # fmt: skip
+        except (NetnsError, RuntimeError) as exc:
+            sys.stderr.write(f"bipedtele demo: netem backend: {exc}\n")
+            return 1
+        if not plan.headless:
+            network.enter_context(CockpitRelay(plan.link, plan.cockpit_port))
+    elif plan.backend == "packet" and isinstance(plan.link, EmulatedLink):
+        plan.link.emulator_args = plan.emulator_args()
+        plan.link.log_path = plan.run_dir / "linkemu.log"
+        try:
+            network.enter_context(plan.link)
+        except NetnsError as exc:
+            sys.stderr.write(f"bipedtele demo: packet backend: {exc}\n")
+            return 1
+        if not plan.headless:
+            network.enter_context(CockpitRelay(plan.link, plan.cockpit_port, side=SIDE_A))
+    return None
+
+
+def _watch(plan: DemoPlan, procs: dict[str, _Proc], stop: threading.Event, status: StatusPrinter | None) -> None:
+    """Wait until the leader exits, another process dies or a signal stops the demo; show the status line."""
+    leader = procs["leader"].popen
+    try:
+        while not stop.is_set():
+            if leader.poll() is not None:
+                break
+            dead = [n for n, p in procs.items() if n != "leader" and p.popen.poll() is not None]
+            if dead:
+                LOG.error("%s exited early; see %s", dead[0], plan.run_dir / f"{dead[0]}.log")
+                break
             if status is not None:
-                status.finish()
-        leader_rc = leader.poll()
-    if not plan.record.exists():
-        sys.stderr.write(f"bipedtele demo: no recording at {plan.record}; see the logs in {plan.run_dir}\n")
-        return 1
-    f_rec = plan.run_dir / "follower.mcap"  # its footfalls give the per-step speed errors
-    report = compute_report(read_records(plan.record), follower=read_records(f_rec) if f_rec.exists() else None)
-    _say(format_report(report))
-    if json_path is not None:
-        json_path.write_text(json.dumps(report, indent=2) + "\n")
-    return 0 if leader_rc in (0, None) else 1
+                status.update()
+            time.sleep(0.2)
+    finally:
+        if status is not None:
+            status.finish()
 
 
 def parse_delay_scale(text: str) -> float:
