@@ -64,6 +64,8 @@ MAX_SPEED: Final = 1000.0  # cm/s or deg/s
 MAX_POS: Final = 1.0e6  # m
 MAX_FORCE: Final = 1.0e3  # N
 MAX_PARAM: Final = 1.0e6
+MAX_WAVE: Final = 1.0e5  # wave variable, sqrt(N cm/s)
+MAX_ENERGY: Final = 1.0e12  # N cm (N deg)
 MAX_DELAY_S: Final = 60.0
 MIN_TIME: Final = 0.0
 MAX_TIME: Final = 1.0e11  # s (about year 5138)
@@ -119,6 +121,10 @@ Positions: TypeAlias = Annotated[list[Position], PAIR]
 Dampings: TypeAlias = Annotated[list[Damping], PAIR]
 Forces: TypeAlias = Annotated[list[Force], PAIR]
 Ranges: TypeAlias = Annotated[list[Range], PAIR]
+Wave: TypeAlias = Annotated[float, Meta(ge=-MAX_WAVE, le=MAX_WAVE)]
+Energy: TypeAlias = Annotated[float, Meta(ge=0.0, le=MAX_ENERGY)]
+Waves: TypeAlias = Annotated[list[Wave], PAIR]
+Energies: TypeAlias = Annotated[list[Energy], PAIR]
 Pose: TypeAlias = Annotated[list[Position], Meta(min_length=3, max_length=3)]
 Text: TypeAlias = Annotated[str, Meta(max_length=MAX_TEXT)]
 NONCE_BYTES: Final = 32
@@ -175,6 +181,11 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
         Leader damping in force [N s/m] (eq. 31, 40).
     enable : bool
         False asks the follower to stop and stand (operator released the device).
+    wave : [float, float]
+        Wave variable ``u_m`` (scheme ``wave``; zeros otherwise), sqrt(N cm/s).
+    energy : [float, float]
+        Energy that entered the link at the leader's port so far [N cm, N deg] (the
+        follower's passivity observer, scheme ``tdpa``).
     """
 
     KIND: ClassVar[str] = "cmd"
@@ -184,6 +195,8 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
     h2_s: Delay = 0.0
     alpha_m: Dampings = field(default_factory=_zeros2)
     enable: bool = True
+    wave: Waves = field(default_factory=_zeros2)
+    energy: Energies = field(default_factory=_zeros2)
 
 
 class Feedback(Message, frozen=True, gc=False, tag="fb"):
@@ -217,6 +230,11 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
         One of ``FOLLOWER_STATES``.
     cmd_seq : int
         Sequence number of the last command applied.
+    wave : [float, float]
+        Wave variable ``v_s`` (scheme ``wave``; zeros otherwise), sqrt(N cm/s).
+    energy : [float, float]
+        Energy that entered the link at the follower's port so far [N cm, N deg] (the
+        leader's passivity observer, scheme ``tdpa``).
     """
 
     KIND: ClassVar[str] = "fb"
@@ -234,6 +252,8 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
     eps: Gain = 0.0
     state: Annotated[str, _choice(*FOLLOWER_STATES)] = "starting"
     cmd_seq: Seq = 0
+    wave: Waves = field(default_factory=_zeros2)
+    energy: Energies = field(default_factory=_zeros2)
 
 
 class VideoFrame(Message, frozen=True, gc=False, tag="video"):

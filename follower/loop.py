@@ -69,13 +69,14 @@ from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.control.schemes import make_scheme
+from bipedtele.control.schemes.runtime import FollowerPort
 from bipedtele.drops import DropCounter
 from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
-from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
+from bipedtele.messages import MAX_ENERGY, MAX_SPEED, Command, Feedback, Status, new_session_id
 
 __all__ = ["DEFAULT_MAX_FUTURE_S", "FollowerLoop", "FollowerTelemetry"]
 
@@ -221,6 +222,7 @@ class FollowerLoop:
         self.chooser = OnlineChooser(control)
         #: The control scheme (``[control] scheme``): the damping sigma_e that (29) and (30) use.
         self.scheme = make_scheme(control)
+        self.port = FollowerPort(self.scheme, np.asarray(control.k_m, dtype=float))
         self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
         self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt, k_z=control.k_z)
         self.fictitious = _fictitious_force(cfg)
@@ -486,7 +488,7 @@ class FollowerLoop:
             self.reference.reset()
             sent = None
         elif fresh:
-            sent, state = self._walk(ref, eta_meas, f_v, now)
+            sent, state = self._walk(self._scheme_command(ref, eta_meas), eta_meas, f_v, now)
             if sent is not None:
                 f_hold = np.array([f_v[0], 0.0])
         else:
@@ -524,6 +526,20 @@ class FollowerLoop:
             self._T_sent, self._eps_sent = sent.cycle_s, sent.eps_s
         tel.T, tel.eps, tel.sent, tel.obs = self._T_sent, self._eps_sent, sent, obs
         return tel
+
+    def _scheme_command(self, ref: np.ndarray, eta_meas: np.ndarray) -> np.ndarray:
+        """Return the speed command the scheme gives the reference model (28) [cm/s, deg/s].
+
+        The received ``ref`` for the paper and P+d; the wave transform's or the passivity
+        controller's command otherwise (:class:`~bipedtele.control.schemes.runtime.FollowerPort`).
+        """
+        cmd = self._cmd
+        if cmd is None:  # not reached: called with a fresh command only
+            return ref
+        c = self.port.command(
+            ref, eta_meas, np.asarray(cmd.wave), np.asarray(cmd.energy), cmd.t, self._cmd_recv, self.dt
+        )
+        return np.clip(c, -self.eta_max, self.eta_max)
 
     def _odometry(self, obs: RobotObservation, now: float, ref: np.ndarray) -> None:
         """Emit a ``footfall`` event for a new touchdown; sum the reference applied."""
@@ -591,6 +607,7 @@ class FollowerLoop:
         tel = self.telemetry
         self._fb_seq += 1
         lim = MAX_SPEED
+        wave, energy = self.port.outgoing(tel.eta_meas)
         return Feedback(
             sid=self.sid,
             seq=self._fb_seq,
@@ -609,6 +626,8 @@ class FollowerLoop:
             eps=float(tel.eps),
             state=tel.state,
             cmd_seq=self._cmd.seq if self._cmd is not None else 0,
+            wave=wave,
+            energy=[min(e, MAX_ENERGY) for e in energy],
         )
 
     def status(self, now: float) -> Status:
