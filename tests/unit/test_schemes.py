@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from bipedtele.control.config import ControlConfig
@@ -99,3 +101,47 @@ def test_the_energy_counter_tracks_the_observers_least_value() -> None:
     port.add(np.array([-3.0]), 1.0, np.array([1.0]))  # 3 out, the other side put in 1: observer -2
     assert port.e_in[0] == 2.0 and port.e_out[0] == 3.0
     assert port.min_observer[0] == -2.0
+
+
+def test_the_running_wave_gain_is_one_at_a_steady_delay_and_falls_while_the_delay_grows() -> None:
+    from bipedtele.control.schemes.runtime import WaveGain
+
+    steady = WaveGain(0.5)
+    for k in range(100):
+        g = steady.update(k * 0.01, k * 0.01 + 0.3)
+    assert g == pytest.approx(1.0)
+    growing = WaveGain(0.5)
+    for k in range(100):  # the delay grows 0.5 s per second: arrivals spread by 1.5
+        g = growing.update(k * 0.01, k * 0.01 * 1.5 + 0.3)
+    assert g == pytest.approx(math.sqrt(1 / 1.5), rel=1e-6)
+    assert growing.update(0.5, 5.0) == g  # an older message says nothing about the rate
+
+
+def test_the_follower_port_of_tdpa_gives_the_robot_no_energy_the_leader_did_not_put_in() -> None:
+    from bipedtele.control.schemes.runtime import FollowerPort
+
+    port = FollowerPort(scheme_class("tdpa")(CFG), np.asarray(CFG.k_m))
+    eta = np.zeros(2)
+    c = port.command(np.array([5.0, 3.0]), eta, np.zeros(2), np.zeros(2), 1.0, 1.2, 0.01)
+    assert np.allclose(c, 0.0)  # nothing came in: the robot is not pushed
+    c = port.command(np.array([5.0, 3.0]), eta, np.zeros(2), np.array([100.0, 100.0]), 1.01, 1.21, 0.01)
+    assert np.allclose(c, [5.0, 3.0])  # plenty came in: the command passes
+    paper = FollowerPort(scheme_class("paper")(CFG), np.asarray(CFG.k_m))
+    c = paper.command(np.array([5.0, 3.0]), eta, np.zeros(2), np.zeros(2), 1.0, 1.2, 0.01)
+    assert np.allclose(c, [5.0, 3.0])
+
+
+def test_the_wave_ports_close_the_loop_on_a_steady_speed() -> None:
+    from bipedtele.control.schemes.runtime import FollowerPort, LeaderPort
+
+    k_m = np.asarray(CFG.k_m)
+    lead = LeaderPort(scheme_class("wave")(CFG), k_m)
+    foll = FollowerPort(scheme_class("wave")(CFG), k_m)
+    r = np.array([4.0, -2.0])
+    eta = r.copy()
+    fb_wave, _ = foll.outgoing(eta)
+    z = lead.felt_speed(r, np.zeros(2), np.zeros(2), np.asarray(fb_wave), np.zeros(2), 1.0, 1.1, 0.001)
+    assert np.allclose(z, r)  # no force while the robot keeps up
+    u, _ = lead.outgoing(r)
+    c = foll.command(np.zeros(2), eta, np.asarray(u), np.zeros(2), 1.0, 1.1, 0.01)
+    assert np.allclose(c, r)
