@@ -47,11 +47,12 @@ import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.leader_law import leader_force
 from bipedtele.control.schemes import make_scheme
+from bipedtele.control.schemes.runtime import LeaderPort
 from bipedtele.delayestimate import DelayEstimator, conservative_delays
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operators import Operator
-from bipedtele.messages import Command, Feedback, new_session_id
+from bipedtele.messages import MAX_ENERGY, Command, Feedback, new_session_id
 from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.telemetry import LeaderSample
 
@@ -155,6 +156,7 @@ class LeaderLoop:
         self._damp_at: tuple[float, float] | None = None
         #: The control scheme (``[control] scheme``): the damping and what the force follows.
         self.scheme = make_scheme(control)
+        self.port = LeaderPort(self.scheme, np.asarray(control.k_m, dtype=float))
         self.alpha_m = self._scheme_damping(0.0, 0.0)
         self.force = np.zeros(2)
         self.force_cmd = np.zeros(2)
@@ -214,11 +216,26 @@ class LeaderLoop:
         return np.asarray(alpha_m[0], dtype=float)
 
     def _felt_speed(self) -> np.ndarray:
-        """Return what the force (31) follows: ``z_e`` (the paper) or the robot's measured speed (P+d) [cm/s, deg/s]."""
+        """Return what the force (31) follows [cm/s, deg/s].
+
+        ``z_e`` (the paper), the robot's measured speed (P+d), the speed the wave transform
+        gives, each through the scheme's passivity controller if it has one
+        (:class:`~bipedtele.control.schemes.runtime.LeaderPort`).
+        """
+        r_m = np.asarray(self._k_g * self.x_m, dtype=float)
         fb = self._fb
         if fb is None:
-            return np.asarray(self._k_g * self.x_m, dtype=float)
-        return np.asarray(fb.eta if self.scheme.feedback == "measured" else fb.z_e, dtype=float)
+            return r_m
+        return self.port.felt_speed(
+            r_m,
+            np.asarray(fb.z_e),
+            np.asarray(fb.eta),
+            np.asarray(fb.wave),
+            np.asarray(fb.energy),
+            fb.t,
+            self._fb_recv,
+            self.dt,
+        )
 
     def _update_gain(self, now: float) -> None:
         fresh = self._fb is not None and now - self._fb_recv <= self.cfg.feedback_timeout_s
@@ -285,6 +302,7 @@ class LeaderLoop:
         released = bool(buttons) and not buttons[0]
         self.enable = not released and not (op is not None and op.done)
         ref = self._k_g * self.x_m if self.enable else np.zeros(2)
+        wave, energy = self.port.outgoing(ref)
         self.seq += 1
         cmd = Command(
             sid=self.sid,
@@ -296,6 +314,8 @@ class LeaderLoop:
             h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
             alpha_m=[float(self.alpha_m[0]), float(self.alpha_m[1])],
             enable=self.enable,
+            wave=wave,
+            energy=[min(e, MAX_ENERGY) for e in energy],
         )
         try:
             self._send(cmd)
