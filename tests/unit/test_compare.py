@@ -21,10 +21,8 @@ CFG = ControlConfig()
 def test_compare_writes_every_cell_with_paired_differences(tmp_path: Path) -> None:
     out = tmp_path / "c.json"
     md = tmp_path / "c.md"
-    rc = main(
-        ["compare", "--runs", "3", "--duration", "4", "--regimes", "trace", "step", "--json", str(out)]
-        + ["--markdown", str(md)]
-    )
+    argv = ["compare", "--runs", "3", "--duration", "4", "--regimes", "trace", "step"]
+    rc = main([*argv, "--json", str(out), "--markdown", str(md)])
     assert rc == 0
     result = json.loads(out.read_text())
     assert result["plant"] == "reduced" and result["runs"] == 3
