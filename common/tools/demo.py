@@ -380,6 +380,13 @@ def _run(args: argparse.Namespace) -> int:
     else:
         forward, backward = DEFAULT_DELAY
     scale = parse_delay_scale(args.delay_scale)
+    if args.scheme is not None:
+        from bipedtele.control.schemes import scheme_names
+
+        if args.scheme not in scheme_names():
+            raise ConfigError(f"--scheme {args.scheme}: allowed: {', '.join(scheme_names())}")
+        # leader and follower read the same profile: they run the same scheme
+        args.overrides = [*args.overrides, f'control.scheme="{args.scheme}"']
     cfg = load_config(args.config, args.overrides)  # fail early, before any process starts
     if args.duration is not None and args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
@@ -477,6 +484,10 @@ def add_demo_parser(sub: Any) -> None:
     p.add_argument(
         "--delay-scale", default="1", metavar="K",
         help="multiply every delay of the chosen models by K (0 to 10; e.g. 2: the trace with its delays doubled)",
+    )  # fmt: skip
+    p.add_argument(
+        "--scheme", default=None, metavar="NAME",
+        help="control scheme of both sides (default: the profile's, the paper's; docs/schemes.md lists them)",
     )  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
     p.add_argument(
