@@ -389,6 +389,7 @@ class LeaderLoop:
                 sid=self.sid, seq=self.seq, t=self._clock(),
                 x_m=[float(v) for v in self.x_m], h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
                 alpha_m=[float(v) for v in self.alpha_m], enable=False,
+                energy=[min(e, MAX_ENERGY) for e in self.port.outgoing(np.zeros(2))[1]],
             )  # fmt: skip
             try:
                 self._send(cmd)

@@ -122,3 +122,16 @@ def test_printer_rewrites_one_line_on_a_terminal_and_writes_plain_lines_otherwis
     assert "\r" not in tty.getvalue().split("\x1b[K")[-1].strip()
     lines = plain.getvalue().splitlines()
     assert len(lines) == 2 and lines[0].startswith("passes 0/10 | 5 s |") and "\r" not in plain.getvalue()
+
+
+def test_the_demo_scheme_goes_to_both_sides_and_a_bad_one_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["demo", "--dry-run", "--scheme", "nope", "--run-dir", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--scheme nope: allowed: paper, " in err
+    assert main(["demo", "--dry-run", "--scheme", "tdpa", "--run-dir", str(tmp_path / "r")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    for role in ("follower", "leader"):
+        line = next(x for x in out if x.startswith(f"# process {role}"))
+        assert 'control.scheme="tdpa"' in line
