@@ -68,6 +68,7 @@ __all__ = [
     "RegimeInputs",
     "compare_markdown",
     "compare_steps",
+    "paired_cell",
     "regime_inputs",
     "run_compare",
     "simulate",
@@ -335,11 +336,18 @@ def simulate(
     return out
 
 
-def _cell(runs: dict[str, np.ndarray], base: dict[str, np.ndarray] | None) -> dict[str, Any]:
+def paired_cell(
+    runs: dict[str, np.ndarray], base: dict[str, np.ndarray] | None, metrics: tuple[str, ...] = METRICS
+) -> dict[str, Any]:
+    """Summarise one scheme's runs of one regime: mean and 95 % interval per metric, paired against ``base``.
+
+    ``runs[m]`` holds metric ``m`` per run, ``runs["unstable"]`` the runs left out (diverged,
+    fell); run ``i`` of ``runs`` and of ``base`` share their operator and delays.
+    """
     ok = ~runs["unstable"]
     cell: dict[str, Any] = {"n": int(ok.sum()), "unstable": int(runs["unstable"].sum())}
     both = ok if base is None else ok & ~base["unstable"]
-    for m in METRICS:
+    for m in metrics:
         mean, ci = ci95(runs[m][ok])
         cell[m] = {"mean": mean, "ci95": ci}
         if base is not None:
@@ -420,7 +428,9 @@ def run_compare(
                 unstable[n][regime.scale] = float(r["oscillating"].mean())
                 motion[n][regime.scale] = float(np.median(r["released_motion"]))
             continue
-        cells[regime.name] = {n: _cell(r, None if n == "paper" else per_scheme["paper"]) for n, r in per_scheme.items()}
+        cells[regime.name] = {
+            n: paired_cell(r, None if n == "paper" else per_scheme["paper"]) for n, r in per_scheme.items()
+        }
         LOG.info("compare: %s done (%.0f s)", regime.name, time.monotonic() - started)
     return {
         "plant": "reduced",
@@ -450,6 +460,30 @@ def _fmt(v: dict[str, Any], key: str = "") -> str:
         return "-"
     lo, hi = d["ci95"]
     return f"{d['mean']:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def _walker_lines(walker: dict[str, Any]) -> list[str]:
+    """Return the walker cells as markdown: errors, paired differences against the paper, falls."""
+    lines = [
+        f"The pybullet walker (the real follower loop), {walker['runs']} paired runs per cell, "
+        f"{walker['duration_s']:g} s each, {walker['wall_s']:.0f} s wall. Coordination error per follower tick "
+        "|ref - eta| and intent error [cm/s, deg/s], mean [95 % CI] and paired difference against `paper`; "
+        "fallen runs are left out and counted.",
+        "",
+        "| regime | scheme | forward | - paper | turn | - paper | intent fwd - paper | intent turn - paper | falls |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for regime, per in walker["cells"].items():
+        for name, c in per.items():
+            diffs = [
+                _fmt(c[m], "diff") if "diff" in c[m] else ""
+                for m in ("forward_error", "turn_error", "forward_intent_error", "turn_intent_error")
+            ]
+            lines.append(
+                f"| {regime} | {name} | {_fmt(c['forward_error'])} | {diffs[0]} | {_fmt(c['turn_error'])} | "
+                f"{diffs[1]} | {diffs[2]} | {diffs[3]} | {c['unstable']} |"
+            )
+    return lines
 
 
 _WINNER_METRICS = (
@@ -508,6 +542,8 @@ def compare_markdown(result: dict[str, Any]) -> str:
                 f"{_fmt(c['forward_force_error'])} | {po} | {c['unstable']} |"
             )
     lines += ["", *_winners(result)]
+    if result.get("walker"):
+        lines += ["", *_walker_lines(result["walker"])]
     if result.get("margin"):
         lines += [
             "",

@@ -42,6 +42,12 @@ def _run_compare(args: argparse.Namespace) -> int:
 
     if args.runs < 2:
         raise ConfigError(f"--runs {args.runs}: allowed: >= 2")
+    if args.walker_runs != 0 and args.walker_runs < 2:
+        raise ConfigError(f"--walker-runs {args.walker_runs}: allowed: 0 (none) or >= 2")
+    if not args.walker_duration >= 2.0:
+        raise ConfigError(f"--walker-duration {args.walker_duration}: allowed: >= 2 s")
+    if args.jobs < 1:
+        raise ConfigError(f"--jobs {args.jobs}: allowed: >= 1")
     if not args.duration >= 1.0:
         raise ConfigError(f"--duration {args.duration}: allowed: >= 1 s")
     schemes = _names(args.schemes, scheme_names(), "--schemes")
@@ -60,6 +66,8 @@ def _run_compare(args: argparse.Namespace) -> int:
         result = run_compare(
             args.runs, args.seed, control, cp, schemes=schemes, regimes=regimes, margin_scales=margin, progress=update
         )
+    if args.walker_runs > 0:
+        result["walker"] = _walker_cells(args, config_from_args(args), schemes, regimes)
     if args.json:
         write_json(args.json, result)
     table = compare_markdown(result)
@@ -75,6 +83,32 @@ def _run_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _walker_cells(args: argparse.Namespace, cfg: Any, schemes: tuple[str, ...] | None, regimes: Any) -> Any:
+    """Run the walker cells through the backend the follower package registers (the core never imports it)."""
+    from importlib import metadata
+
+    backend = next(
+        (ep for ep in metadata.entry_points(group="bipedtele.compare_backends") if ep.name == "walker"), None
+    )
+    if backend is None:
+        raise ConfigError("--walker-runs: no walker backend installed; allowed: 0, or with the follower package")
+    from bipedtele.control.schemes import scheme_names
+
+    names = set(schemes) | {"paper"} if schemes else set(scheme_names())
+    total = args.walker_runs * len(regimes) * len(names)
+    with progress_bar(total, "walker") as update:
+        return backend.load()(
+            cfg,
+            runs=args.walker_runs,
+            seed=args.seed,
+            duration_s=args.walker_duration,
+            schemes=schemes,
+            regimes=regimes,
+            jobs=args.jobs,
+            progress=update,
+        )
+
+
 def add_compare_parser(sub: Any) -> None:
     """Add ``bipedtele compare [--runs N] [--schemes ...] [--regimes ...] [--json F] [--markdown F] [--plot F]``."""
     p = sub.add_parser("compare", help="every control scheme side by side, paired, over delay regimes")
@@ -84,6 +118,11 @@ def add_compare_parser(sub: Any) -> None:
     p.add_argument("--schemes", nargs="+", metavar="NAME", help="schemes to run (default: every registered one)")
     p.add_argument("--regimes", nargs="+", metavar="NAME", help="delay regimes (default: all)")
     p.add_argument("--no-margin", action="store_true", help="skip the stability-margin runs")
+    p.add_argument(
+        "--walker-runs", type=int, default=10, help="paired runs per cell on the pybullet walker (default 10; 0: none)"
+    )
+    p.add_argument("--walker-duration", type=float, default=12.0, help="simulated seconds per walker run (default 12)")
+    p.add_argument("--jobs", type=int, default=2, help="processes for the walker runs (default 2)")
     p.add_argument("--json", metavar="FILE", help="write the result as JSON ('-' for stdout)")
     p.add_argument("--markdown", metavar="FILE", help="write the table as markdown ('-' for stdout)")
     p.add_argument("--plot", metavar="FILE.png", help="write the paired differences as a figure")

@@ -41,8 +41,9 @@ from typing import Any
 import numpy as np
 from bipedtele.config import Config
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.damping import schedule_damping_array
 from bipedtele.control.reduced import SimulatedLeader, StudyParams
+from bipedtele.control.schemes import scheme_class
+from bipedtele.control.schemes.runtime import LeaderPort
 from bipedtele.control.study import CASES, DelayCase, case_inputs
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.config import FollowerConfig
@@ -50,7 +51,7 @@ from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.robot import SimNao
 from bipedtele.follower.sim.world import WorldConfig
-from bipedtele.messages import Command, Feedback, new_session_id
+from bipedtele.messages import MAX_ENERGY, Command, Feedback, new_session_id
 from scipy import stats
 
 __all__ = ["WalkerRun", "run_walker_cli", "run_walker_study", "walker_run"]
@@ -82,10 +83,80 @@ class WalkerRun:
     mean_s_r: list[float]
     ticks: int
     wall_s: float
+    forward_intent_error: float = math.nan
+    turn_intent_error: float = math.nan
 
 
 def _arrivals(delays: np.ndarray, dt: float) -> np.ndarray:
     return np.arange(delays.size) + np.ceil(delays / dt - 1e-9).astype(int)
+
+
+class _SchemeLeader:
+    """The simulated operator and leader of one run, acting as the configured scheme does.
+
+    The hand and handle are the reduced study's :class:`SimulatedLeader`; the damping and what
+    the force follows come from the scheme (``control.scheme``) through the same
+    :class:`~bipedtele.control.schemes.runtime.LeaderPort` the leader program uses, and each
+    step it makes the command the leader would send.
+    """
+
+    def __init__(
+        self,
+        switch: np.ndarray,
+        intent: np.ndarray,
+        control: ControlConfig,
+        params: StudyParams,
+        worst: tuple[float, float],
+    ) -> None:
+        self.sim = SimulatedLeader(switch, intent, control, params)
+        self.scheme = scheme_class(control.scheme)(control, worst)
+        self.port = LeaderPort(self.scheme, np.asarray(control.k_m, dtype=float))
+        self.h2 = DelayEstimator(params.window_s)
+        self.k_g = np.asarray(control.k_g, dtype=float)
+        self.dt = params.dt
+        self.sid = new_session_id()
+
+    def intent_now(self) -> np.ndarray:
+        """Return the operator's intended speeds now [cm/s, deg/s]."""
+        return np.asarray(self.sim.intent[0, self.sim.seg[0]], dtype=float)
+
+    def step(self, k: int, fb: tuple[Feedback, float] | None) -> Command:
+        """Feel the newest feedback ``(message, arrival time)``, move the handle, return the command."""
+        t = k * self.dt
+        h1 = fb[0].h1_s if fb is not None else 0.0
+        h2 = self.h2.value(t) or 0.0
+        alpha_m, _ = self.scheme.damping(np.array([h1]), np.array([h2]))
+        alpha = alpha_m[0]
+        r_now = self.k_g * self.sim.x[0]
+        if fb is None:
+            z = np.zeros(2)
+        else:
+            m, t_recv = fb
+            z = self.port.felt_speed(
+                r_now,
+                np.asarray(m.z_e),
+                np.asarray(m.eta),
+                np.asarray(m.wave),
+                np.asarray(m.energy),
+                m.t,
+                t_recv,
+                self.dt,
+            )
+        x = self.sim.step(t, z[None, :], alpha)[0]
+        r_m = self.k_g * x
+        wave, energy = self.port.outgoing(r_m)
+        return Command(
+            sid=self.sid,
+            seq=k + 1,
+            t=t,
+            ref=[float(v) for v in r_m],
+            x_m=[float(v) for v in x],
+            h2_s=float(h2),
+            alpha_m=[float(v) for v in alpha],
+            enable=True,
+            wave=wave,
+            energy=[min(e, MAX_ENERGY) for e in energy],
+        )
 
 
 def walker_run(
@@ -99,11 +170,14 @@ def walker_run(
     sim: SimConfig,
     params: StudyParams,
     cp: tuple[np.ndarray, float, float] | None,
+    lost: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> WalkerRun:
     """Simulate one run (CP when ``cp = (sigma_r, T, eps)`` is given, VP otherwise).
 
     ``switch``/``intent`` are one run's operator intentions (shapes (1, n), (1, n, 2));
-    ``h1``/``h2`` the one-way delay of a message sent at each leader step [s].
+    ``h1``/``h2`` the one-way delay of a message sent at each leader step [s]; ``lost``
+    marks the commands and the feedback messages lost on the way (none by default). Both
+    sides run ``control.scheme`` (pd-worst-case sized for this run's largest delays).
     """
     t_wall = time.perf_counter()
     dt = params.dt
@@ -112,21 +186,21 @@ def walker_run(
     fcfg = dataclasses.replace(
         follower, realtime=False, max_cmd_age_s=max(follower.max_cmd_age_s, float(h1.max()) + 0.5)
     )
+    worst = (float(h1.max()), float(h2.max()))
+    control = dataclasses.replace(control, worst_delays_s=list(worst))
+    lost1, lost2 = lost if lost is not None else (np.zeros(k_steps, bool), np.zeros(k_steps, bool))
     clock = [0.0]
     arr1 = _arrivals(h1, dt)
     pending_cmd: list[tuple[int, int, Command]] = []
     pending_fb: list[tuple[int, int, Feedback]] = []
     latest_cmd: list[tuple[Command, float] | None] = [None]
-    newest_fb: list[tuple[int, Feedback] | None] = [None]
-    h2_est = DelayEstimator(params.window_s)
-    leader = SimulatedLeader(switch, intent, control, params)
-    k_g = np.asarray(control.k_g, dtype=float)
-    sid = new_session_id()
+    newest_fb: list[tuple[int, Feedback, float] | None] = [None]
+    leader = _SchemeLeader(switch, intent, control, params, worst)
     step_now = [0]
 
     def publish(msg: Any) -> None:
-        if isinstance(msg, Feedback):
-            k = step_now[0]
+        k = step_now[0]
+        if isinstance(msg, Feedback) and not lost2[k]:
             heapq.heappush(pending_fb, (k + math.ceil(h2[k] / dt - 1e-9), k, msg))
 
     robot = SimNao(sim, world=WorldConfig())
@@ -138,12 +212,7 @@ def walker_run(
             loop = FollowerLoop(robot, control, fcfg, lambda: latest_cmd[0], publish, **kwargs)
         else:
             loop = _ConstantParameterLoop(robot, control, fcfg, lambda: latest_cmd[0], publish, cp=cp, **kwargs)
-        err = np.zeros(2)
-        ticks = 0
-        fell = False
-        sum_T = 0.0
-        n_walk = 0
-        sum_sr = np.zeros(2)
+        acc = _Accumulator()
         newest_cmd_seq = -1
         for k in range(k_steps):
             t = k * dt
@@ -151,27 +220,14 @@ def walker_run(
             step_now[0] = k
             # feedback arrived at the leader by now (newest wins)
             while pending_fb and pending_fb[0][0] <= k:
-                _, ks, fb = heapq.heappop(pending_fb)
-                h2_est.update(ks * dt, t)
+                ka, ks, fb = heapq.heappop(pending_fb)
+                leader.h2.update(ks * dt, t)
                 if newest_fb[0] is None or ks > newest_fb[0][0]:
-                    newest_fb[0] = (ks, fb)
-            fb_now = newest_fb[0][1] if newest_fb[0] is not None else None
-            z_rx = np.asarray(fb_now.z_e, dtype=float) if fb_now is not None else np.zeros(2)
-            h1_l = fb_now.h1_s if fb_now is not None else 0.0
-            h2_l = h2_est.value(t) or 0.0
-            alpha, _, _, _ = schedule_damping_array(np.asarray(h1_l), np.asarray(h2_l), control)
-            x = leader.step(t, z_rx[None, :], alpha)[0]
-            cmd = Command(
-                sid=sid,
-                seq=k + 1,
-                t=t,
-                ref=[float(v) for v in k_g * x],
-                x_m=[float(v) for v in x],
-                h2_s=float(h2_l),
-                alpha_m=[float(v) for v in alpha],
-                enable=True,
-            )
-            heapq.heappush(pending_cmd, (int(arr1[k]), k, cmd))
+                    newest_fb[0] = (ks, fb, ka * dt)
+            got = newest_fb[0]
+            cmd = leader.step(k, (got[1], got[2]) if got is not None else None)
+            if not lost1[k]:
+                heapq.heappush(pending_cmd, (int(arr1[k]), k, cmd))
             while pending_cmd and pending_cmd[0][0] <= k:
                 ka, ks, c = heapq.heappop(pending_cmd)
                 if ks > newest_cmd_seq:
@@ -180,20 +236,49 @@ def walker_run(
             if k % every == 0:
                 tel = loop.tick()
                 robot.advance(loop.dt)
-                ticks += 1
-                err += np.abs(np.asarray(tel.ref) - np.asarray(tel.eta_meas))
-                if tel.sent is not None:  # the cycle the robot applied while walking
-                    sum_T += tel.T
-                    n_walk += 1
-                sum_sr += np.asarray(tel.s_r, dtype=float)
-                fell = fell or tel.state == "fallen"
+                acc.add(tel, leader.intent_now())
     finally:
         robot.disconnect()
-    n = max(ticks, 1)
-    mean_T = sum_T / n_walk if n_walk else math.nan
-    return WalkerRun(
-        float(err[0] / n), float(err[1] / n), fell, mean_T, (sum_sr / n).tolist(), ticks, time.perf_counter() - t_wall
-    )
+    return acc.result(time.perf_counter() - t_wall)
+
+
+class _Accumulator:
+    """Per-tick sums of one walker run."""
+
+    def __init__(self) -> None:
+        self.err = np.zeros(2)
+        self.intent_err = np.zeros(2)
+        self.ticks = 0
+        self.fell = False
+        self.sum_T = 0.0
+        self.n_walk = 0
+        self.sum_sr = np.zeros(2)
+
+    def add(self, tel: Any, intent: np.ndarray) -> None:
+        eta = np.asarray(tel.eta_meas)
+        self.ticks += 1
+        self.err += np.abs(np.asarray(tel.ref) - eta)
+        self.intent_err += np.abs(intent - eta)
+        if tel.sent is not None:  # the cycle the robot applied while walking
+            self.sum_T += tel.T
+            self.n_walk += 1
+        self.sum_sr += np.asarray(tel.s_r, dtype=float)
+        self.fell = self.fell or tel.state == "fallen"
+
+    def result(self, wall_s: float) -> WalkerRun:
+        n = max(self.ticks, 1)
+        mean_T = self.sum_T / self.n_walk if self.n_walk else math.nan
+        return WalkerRun(
+            float(self.err[0] / n),
+            float(self.err[1] / n),
+            self.fell,
+            mean_T,
+            (self.sum_sr / n).tolist(),
+            self.ticks,
+            wall_s,
+            float(self.intent_err[0] / n),
+            float(self.intent_err[1] / n),
+        )
 
 
 def _ci95(x: np.ndarray) -> tuple[float, list[float]]:

@@ -21,7 +21,7 @@ CFG = ControlConfig()
 def test_compare_writes_every_cell_with_paired_differences(tmp_path: Path) -> None:
     out = tmp_path / "c.json"
     md = tmp_path / "c.md"
-    argv = ["compare", "--runs", "3", "--duration", "4", "--regimes", "trace", "step"]
+    argv = ["compare", "--runs", "3", "--duration", "4", "--regimes", "trace", "step", "--walker-runs", "0"]
     rc = main([*argv, "--json", str(out), "--markdown", str(md)])
     assert rc == 0
     result = json.loads(out.read_text())
@@ -101,6 +101,9 @@ def test_tdpa_keeps_both_passivity_observers_non_negative_where_the_paper_does_n
         (["--schemes", "nope"], "--schemes nope: allowed: paper"),
         (["--regimes", "moon"], "--regimes moon: allowed: trace"),
         (["--duration", "0.5"], "--duration 0.5: allowed: >= 1 s"),
+        (["--walker-runs", "1"], "--walker-runs 1: allowed: 0 (none) or >= 2"),
+        (["--walker-duration", "1"], "--walker-duration 1.0: allowed: >= 2 s"),
+        (["--jobs", "0"], "--jobs 0: allowed: >= 1"),
     ],
 )
 def test_bad_compare_arguments_exit_2_with_one_line(
@@ -109,3 +112,20 @@ def test_bad_compare_arguments_exit_2_with_one_line(
     assert main(["compare", *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expected in err[0]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_the_walker_cells_run_every_scheme_paired_on_the_pybullet_follower(tmp_path: Path) -> None:
+    out = tmp_path / "w.json"
+    argv = ["compare", "--runs", "2", "--duration", "2", "--regimes", "trace-loss", "--no-margin"]
+    argv += ["--schemes", "paper", "wave", "tdpa", "--walker-runs", "2", "--walker-duration", "4", "--json", str(out)]
+    assert main(argv) == 0
+    walker = json.loads(out.read_text())["walker"]
+    assert walker["plant"] == "walker" and walker["runs"] == 2
+    cells = walker["cells"]["trace-loss"]
+    assert set(cells) == {"paper", "wave", "tdpa"}
+    for name, cell in cells.items():
+        assert cell["n"] + cell["unstable"] == 2
+        assert cell["forward_error"]["mean"] > 0.0  # the robot was commanded and measured
+        assert ("diff" in cell["turn_intent_error"]) == (name != "paper")
