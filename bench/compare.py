@@ -30,7 +30,7 @@ SETTINGS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("defaults", {}),
     ("k_wt = 0.01", {"k_wt": 0.01}),
     ("dp_turn = 0.7", {"dp_turn": 0.7}),
-    ("walker-calibrated model", {"hybrid_model": "calibrated"}),
+    ("speed-loop model", {"hybrid_model": "speed-loop"}),
 )
 
 

@@ -124,7 +124,7 @@ def main() -> None:
         "reduced model in (30) | delays | sigma_r [fwd, turn] | T [s] | passes | completion [s] | "
         "forward err per step [cm/s] | turn err per step [deg/s] | clearance [m] | wall [s]"
     )
-    for model in ("paper", "calibrated"):
+    for model in ("paper", "speed-loop"):
         for scale in (1.0, 2.0):
             t0 = time.perf_counter()
             r = run(model, scale)

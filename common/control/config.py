@@ -79,9 +79,11 @@ class ControlConfig:
         unit="s",
         doc="the fixed period of (29) in (30) when equivalent_period = 'fixed' (0.01 s: the follower's control period)",
     )
-    hybrid_model: Literal["paper", "calibrated"] = param(
+    hybrid_model: Literal["paper", "speed-loop", "walker"] = param(
         "paper",
-        doc="reduced model in the online choice (30): the paper's dp and k_v, or calibrated_dp and calibrated_k_v",
+        doc="model on the hybrid side of the online choice (30): the reduced model with the paper's dp and k_v; "
+        "with calibrated_dp and calibrated_k_v (bipedtele calibrate: the follower's own speed loop); or the "
+        "tabulated Poincare map of the simulated walker (docs/walker_map.md)",
     )
     calibrated_dp: float = param(
         1.0,
@@ -140,10 +142,12 @@ class ControlConfig:
     def hybrid(self) -> ControlConfig:
         """Return the parameters of the reduced model (20)-(23) that the online choice (30) uses.
 
-        ``hybrid_model = "paper"``: this config. ``"calibrated"``: ``dp`` and the forward
+        ``hybrid_model = "paper"``: this config. ``"speed-loop"``: ``dp`` and the forward
         gain ``k_s[0]`` replaced by ``calibrated_dp`` and ``calibrated_k_v`` (the
-        equivalent follower (29) and the servo keep ``k_s``).
+        equivalent follower (29) and the servo keep ``k_s``). ``"walker"``: this config
+        (the online choice uses the walker table, not the reduced model; code that still
+        evaluates the reduced model gets the paper's values).
         """
-        if self.hybrid_model == "paper":
+        if self.hybrid_model in ("paper", "walker"):
             return self
         return replace(self, dp=self.calibrated_dp, k_s=[self.calibrated_k_v, self.k_s[1]], hybrid_model="paper")

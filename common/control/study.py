@@ -435,7 +435,7 @@ SENSITIVITY: tuple[tuple[str, dict[str, Any]], ...] = (
     ("(29) over 1 s in (30)", {"equivalent_period": "fixed", "equivalent_period_s": 1.0}),
     ("beta_e = 1.5 s", {"beta_e": [1.5, 1.5]}),
     ("margin of (40) = 1", {"margin": 1.0}),
-    ("walker-calibrated model", {"hybrid_model": "calibrated"}),
+    ("speed-loop model", {"hybrid_model": "speed-loop"}),
 )
 
 

@@ -27,9 +27,16 @@ the model then gets ``dp = 1`` (:func:`model_dp`), and the measured median is re
 next to it.
 
 Then the walker's spectral radius (:mod:`.poincare`) at a few ``(sigma_r, T)`` is set next
-to the reduced model's with the paper's values and with the calibrated ones. The config
-switch ``control.hybrid_model = "calibrated"`` (with ``control.calibrated_dp`` and
-``control.calibrated_k_v``) makes the online choice (30) use the calibrated model.
+to the reduced model's with the paper's values and with the identified ones. The config
+switch ``control.hybrid_model = "speed-loop"`` (with ``control.calibrated_dp`` and
+``control.calibrated_k_v``) makes the online choice (30) use that model.
+
+What the identification measures is the follower's own speed loop, the reference model (28)
+with the observer (12) at the control rate, not the walker: the review of issue 21 found
+that a robot applying every commanded speed exactly gives the same ``k_v`` (1.2) and dead
+time (0.20 s). Hence the
+model's name, ``"speed-loop"`` (it was ``"calibrated"``). The walker's own map is
+``hybrid_model = "walker"`` (``bipedtele poincare --table``, docs/walker_map.md).
 """
 
 from __future__ import annotations
@@ -221,8 +228,8 @@ def calibrate(
     reset = identify_dp(T, control=control, sim=sim, settings=st)
     resp = identify_speed_response(T, control=control, sim=sim, settings=st)
     dp = model_dp(reset["dp"])
-    calibrated = dataclasses.replace(
-        control, hybrid_model="calibrated", calibrated_dp=dp, calibrated_k_v=resp["k_v"]
+    loop = dataclasses.replace(
+        control, hybrid_model="speed-loop", calibrated_dp=dp, calibrated_k_v=resp["k_v"]
     ).hybrid()
     if points is None:
         op = operating_point(control, sim)
@@ -241,23 +248,23 @@ def calibrate(
                 "rho_walker": r.rho_walker,
                 "contraction": r.contraction,
                 "rho_reduced": rho_hybrid(s_r, t, eps, control.dp, control),
-                "rho_reduced_calibrated": rho_hybrid(s_r, t, eps, calibrated.dp, calibrated),
+                "rho_reduced_speed_loop": rho_hybrid(s_r, t, eps, loop.dp, loop),
                 "fixed_point_speed": r.fixed_point_speed,
             }
         )
     err_paper = [abs(r["rho_reduced"] - r["rho_walker"]) for r in rows]
-    err_cal = [abs(r["rho_reduced_calibrated"] - r["rho_walker"]) for r in rows]
+    err_loop = [abs(r["rho_reduced_speed_loop"] - r["rho_walker"]) for r in rows]
     return {
         "dp": reset,
         "speed_response": resp,
-        "calibrated": {"dp": dp, "k_v": resp["k_v"]},
+        "speed_loop": {"dp": dp, "k_v": resp["k_v"]},
         "set": [
-            'control.hybrid_model="calibrated"',
+            'control.hybrid_model="speed-loop"',
             f"control.calibrated_dp={dp:.4f}",
             f"control.calibrated_k_v={resp['k_v']:.4f}",
         ],
         "points": rows,
-        "max_abs_error": {"paper": max(err_paper), "calibrated": max(err_cal)},
+        "max_abs_error": {"paper": max(err_paper), "speed_loop": max(err_loop)},
     }
 
 
@@ -277,7 +284,7 @@ def _run(args: argparse.Namespace) -> int:
     r, s = out["dp"], out["speed_response"]
     sys.stdout.write(
         f"dp = {r['dp']:.3f} (IQR {r['dp_iqr'][0]:.3f}-{r['dp_iqr'][1]:.3f}, {r['touchdowns']} touchdowns; "
-        f"half-step ratio {r['dp_step']:.3f}); the model's dp {out['calibrated']['dp']:.3f} (reset (22) in (0, 1])\n"
+        f"half-step ratio {r['dp_step']:.3f}); the model's dp {out['speed_loop']['dp']:.3f} (reset (22) in (0, 1])\n"
         f"speed response: tau = {s['tau_s']:.2f} s, dead time {s['dead_time_s']:.2f} s, k_v = M/tau = {s['k_v']:.3f}, "
         f"v_hip gain {s['gain']:.3f}, ground-speed gain {s['ground_gain']:.3f}, fit rms {s['rms']:.3f} cm/s\n"
     )
@@ -285,7 +292,7 @@ def _run(args: argparse.Namespace) -> int:
         sys.stdout.write(
             f"  sigma_r={p['sigma_r']} T={p['T']:g}: rho_walker {p['rho_walker']:.3f} (contraction "
             f"{p['contraction']:.3f})  reduced (paper) "
-            f"{p['rho_reduced']:.3f}  reduced (calibrated) {p['rho_reduced_calibrated']:.3f}\n"
+            f"{p['rho_reduced']:.3f}  reduced (speed loop) {p['rho_reduced_speed_loop']:.3f}\n"
         )
     sys.stdout.write("use it: " + " ".join(f"--set {x}" for x in out["set"]) + "\n")
     return 0

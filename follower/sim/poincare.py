@@ -27,8 +27,20 @@ Jacobian
     whole simulation (pybullet ``saveState``/``restoreState`` plus the Python state of
     the robot, its gait and the servo) and applies one perturbation.
 Fixed point
-    Found by walking until steady (``warmup_s``) from standing; its residual
-    ``|P(x*) - x*|`` (scaled by the perturbation sizes) is reported.
+    Found by walking until steady (``warmup_s``) from standing and averaging the section
+    states of ``average_cycles`` cycles; its residual ``|P(x*) - x*|`` (scaled by the
+    perturbation sizes) is reported. That average is not a fixed point of the map: with
+    ``newton_iterations`` (``--newton N``) damped Newton steps on ``P(x) - x = 0`` refine
+    it (:meth:`WalkerMap.newton`), and the radius of (26) is measured there at 0.3, 1 and
+    3 times the perturbation sizes.
+Limit cycle
+    The per-tick speeds over the averaging cycles give an oscillation marker
+    (:meth:`WalkerMap.steady`): the turn loop's limit cycle at high turn damping is
+    periodic in ``T``, so the section sees a fixed point there.
+Table
+    ``--table FILE`` tabulates the map over forward damping x turn damping x ``T``
+    (:func:`walker_table`): the surrogate of ``control.hybrid_model = "walker"``
+    (:mod:`bipedtele.control.walker_map`, docs/walker_map.md).
 
 Perturbation sizes are small and physical (1 mm-scale, 1 mrad-scale, :data:`DELTAS`),
 not the paper's ``dq = 1`` (rad), ``dqdot = 0.375``: the reduced model is affine, so any
@@ -40,6 +52,7 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
+import itertools
 import logging
 import math
 from collections.abc import Sequence
@@ -51,6 +64,7 @@ import pybullet as pb
 from bipedtele.config import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.reference import RealFollowerReference
+from bipedtele.control.walker_map import TABLE_FORMAT
 from bipedtele.follower.robot import WalkCommand
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.model import LEG_JOINTS
@@ -59,12 +73,15 @@ from bipedtele.follower.sim.world import WorldConfig
 
 __all__ = [
     "DELTAS",
+    "TABLE_FORMAT",
     "MapSettings",
+    "NewtonResult",
     "WalkerMap",
     "WalkerServo",
     "check_alignment",
     "state_names",
     "walker_rho",
+    "walker_table",
 ]
 
 LOG = logging.getLogger(__name__)
@@ -155,6 +172,15 @@ class MapSettings:
         Factor on :data:`DELTAS`.
     contraction : bool
         Also measure the contraction per cycle by iterating the map (:meth:`WalkerMap.contraction`).
+    newton_iterations : int
+        When > 0, :meth:`WalkerMap.analyse` also solves ``P(x) = x`` by Newton from the
+        averaged state (:meth:`WalkerMap.newton`), at most this many Jacobians.
+    newton_scales : tuple of float
+        Factors on :data:`DELTAS` at which the radius of (26) is measured at the Newton
+        fixed point.
+    newton_max_step : float
+        Largest Newton step per state value, in perturbation sizes (a trust region: the map
+        is non-smooth beyond a few sizes).
     """
 
     v_ref: float = 5.0
@@ -166,6 +192,9 @@ class MapSettings:
     lead_s: float = 0.1
     delta_scale: float = 1.0
     contraction: bool = True
+    newton_iterations: int = 0
+    newton_scales: tuple[float, ...] = (0.3, 1.0, 3.0)
+    newton_max_step: float = 10.0
 
 
 class WalkerServo:
@@ -206,6 +235,8 @@ class WalkerServo:
         self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
         self.eta_meas = np.zeros(2)
         self.fallen = False
+        #: When a list, every tick appends the measured speeds ``[cm/s, deg/s]`` to it.
+        self.trace: list[np.ndarray] | None = None
 
     # ------------------------------------------------------------------ running
 
@@ -214,6 +245,8 @@ class WalkerServo:
         obs = self.robot.observe()
         self.fallen = self.fallen or obs.fallen
         self.eta_meas = np.array([obs.v_hip_m_s * CM, math.degrees(obs.turn_rate_rad_s)])
+        if self.trace is not None:
+            self.trace.append(self.eta_meas)
         self.reference.step(self.ref, self.eta_meas, self.s_r, np.zeros(2), eta_max=self.eta_max)
         self.send()
 
@@ -367,6 +400,55 @@ class WalkerMapResult:
     fallen: bool
     evaluations: int
     sim_seconds: float
+    forward_std: float = math.nan
+    turn_std: float = math.nan
+    limit_cycle: bool = False
+    newton: dict[str, Any] | None = None
+
+
+@dataclass
+class NewtonResult:
+    """A Newton solve of ``P(x) = x`` (:meth:`WalkerMap.newton`).
+
+    Attributes
+    ----------
+    x : numpy.ndarray
+        The last iterate (state units, :func:`state_names`).
+    residual_max, residual_rms : list of float
+        ``|P(x) - x|`` in perturbation sizes, largest and RMS over the state, at the
+        start and after every accepted step.
+    steps : list of float
+        Largest component of every accepted step [perturbation sizes].
+    damping : list of float
+        The step factor accepted at every iteration (1, 1/2, ... 1/16).
+    rho_by_scale : dict
+        Radius of (26) at ``x`` per factor on :data:`DELTAS` (keys ``"0.3"``, ``"1"``, ...).
+    fallen : bool
+        The walker fell in some evaluation.
+    """
+
+    x: np.ndarray
+    residual_max: list[float]
+    residual_rms: list[float]
+    steps: list[float]
+    rho_by_scale: dict[str, float]
+    fallen: bool
+    damping: list[float] = dataclasses.field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (without ``x``)."""
+        return {
+            "residual_max": self.residual_max,
+            "residual_rms": self.residual_rms,
+            "steps": self.steps,
+            "damping": self.damping,
+            "rho_by_scale": self.rho_by_scale,
+            "fallen": self.fallen,
+        }
+
+
+def _rms(v: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(v * v)))
 
 
 class WalkerMap:
@@ -426,7 +508,15 @@ class WalkerMap:
         Returns the fixed-point estimate: the mean of the section states of those cycles
         (for a walker that settles, the fixed point itself; for one whose touchdown state
         keeps wandering, e.g. between contact modes of the landing foot, the centre of the
-        wandering, whose size :attr:`spread` reports).
+        wandering, whose size :attr:`spread` reports; :meth:`newton` refines it).
+
+        Over those cycles the measured speeds of every control tick give
+        :attr:`forward_std` [cm/s] and :attr:`turn_std` [deg/s], their standard deviations
+        within the cycle; :attr:`limit_cycle` is set when either exceeds its reference
+        (``v_ref``, ``turn_ref``): the walker then oscillates by more than it is asked to
+        walk. The turn loop's limit cycle at high turn damping (the servo saturating at
+        +-25 deg/s within every cycle) is periodic in ``T``, so the section alone sees a
+        fixed point there; this marker is what tells it apart.
         """
         sv, st = self.servo, self.settings
         sv.tick()
@@ -436,6 +526,7 @@ class WalkerMap:
         path = 0.0
         turned = 0.0
         elapsed = 0.0
+        sv.trace = []
         for _ in range(st.average_cycles):
             p0 = self.robot._base()
             n = sv.run_to_section(st.foot, st.lead_s)
@@ -446,6 +537,10 @@ class WalkerMap:
             elapsed += n * sv.dt
             states.append(sv.state())
         self.sim_seconds += st.warmup_s + elapsed + sv.T
+        speeds = np.array(sv.trace)
+        sv.trace = None
+        self.forward_std, self.turn_std = (float(v) for v in speeds.std(axis=0))
+        self.limit_cycle = self.forward_std > st.v_ref or self.turn_std > st.turn_ref
         arr = np.array(states)
         x0 = arr.mean(axis=0)
         d = perturbation_sizes(st.delta_scale)
@@ -466,13 +561,14 @@ class WalkerMap:
         self.sim_seconds += n * sv.dt
         return sv.state()
 
-    def jacobian(self, x0: np.ndarray) -> tuple[np.ndarray, bool]:
+    def jacobian(self, x0: np.ndarray, scale: float | None = None) -> tuple[np.ndarray, bool]:
         """Central differences (26) around ``x0``: ``2 n`` evaluations of :meth:`apply`.
 
+        ``scale`` is the factor on :data:`DELTAS` (default ``settings.delta_scale``).
         Returns the Jacobian and whether the walker fell in any evaluation.
         """
         sv = self.servo
-        d = perturbation_sizes(self.settings.delta_scale)
+        d = perturbation_sizes(self.settings.delta_scale if scale is None else scale)
         jac = np.empty((d.size, d.size))
         fallen = False
         for i in range(d.size):
@@ -484,6 +580,63 @@ class WalkerMap:
             fallen |= sv.fallen
             jac[:, i] = (plus - minus) / (2.0 * d[i])
         return jac, fallen
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        """``(P(x) - x) / delta``: the fixed-point residual in perturbation sizes (one evaluation)."""
+        return (self.apply(x) - x) / perturbation_sizes(self.settings.delta_scale)
+
+    def newton(self, x0: np.ndarray, *, jac: np.ndarray | None = None) -> NewtonResult:
+        """Solve ``P(x) = x`` by damped Newton steps from ``x0``.
+
+        In perturbation-size units ``y = x / delta`` the step solves ``(J_y - I) s = -r``
+        (least squares, so a direction the map leaves alone costs nothing), ``J_y`` the
+        central-difference Jacobian (26) at the current point. A step is capped at
+        ``newton_max_step`` sizes per value, then halved up to 4 times until the RMS
+        residual falls; with no fall the solve stops. At most ``newton_iterations``
+        Jacobians (``jac``, the Jacobian at ``x0`` if already computed, counts as the
+        first). At the last point the radius of (26) is measured for every factor of
+        ``newton_scales``.
+        """
+        st = self.settings
+        d = perturbation_sizes(st.delta_scale)
+        x = np.asarray(x0, dtype=float).copy()
+        r = self.residual(x)
+        res_max, res_rms, steps, damping = [float(np.max(np.abs(r)))], [_rms(r)], [], []
+        fallen = self.servo.fallen
+        for k in range(st.newton_iterations):
+            if k > 0 or jac is None:
+                jac, f = self.jacobian(x)
+                fallen |= f
+            jy = jac * d[None, :] / d[:, None]
+            step = np.linalg.lstsq(jy - np.eye(d.size), -r, rcond=1e-6)[0]
+            big = float(np.max(np.abs(step)))
+            if big > st.newton_max_step:
+                step *= st.newton_max_step / big
+            alpha = 1.0
+            for _ in range(5):
+                trial = x + alpha * step * d
+                r_new = self.residual(trial)
+                fallen |= self.servo.fallen
+                if _rms(r_new) < res_rms[-1]:
+                    break
+                alpha *= 0.5
+            else:
+                LOG.info("newton: no step lowers the residual after %d iterations", k)
+                break
+            x, r = trial, r_new
+            res_max.append(float(np.max(np.abs(r))))
+            res_rms.append(_rms(r))
+            steps.append(alpha * float(np.max(np.abs(step))))
+            damping.append(alpha)
+            LOG.info(
+                "newton %d: step %.2f sizes, residual rms %.3g max %.3g", k + 1, steps[-1], res_rms[-1], res_max[-1]
+            )
+        rho: dict[str, float] = {}
+        for sc in st.newton_scales:
+            jk, f = self.jacobian(x, sc)
+            fallen |= f
+            rho[f"{sc:g}"] = float(np.max(np.abs(np.linalg.eigvals(jk))))
+        return NewtonResult(x, res_max, res_rms, steps, rho, bool(fallen), damping)
 
     def contraction(
         self, x0: np.ndarray, *, directions: int = 2, cycles: int = 20, size: float = 30.0, seed: int = 0
@@ -540,6 +693,15 @@ class WalkerMap:
         jac, fallen = self.jacobian(x0)
         eig = np.linalg.eigvals(jac)
         contraction = self.contraction(x0) if self.settings.contraction else math.nan
+        newton = None
+        if self.settings.newton_iterations > 0:
+            newton = self.newton(x0, jac=jac).as_dict()
+            LOG.info(
+                "newton: residual %.3g -> %.3g (max, perturbation sizes); radius at the fixed point %s",
+                newton["residual_max"][0],
+                newton["residual_max"][-1],
+                newton["rho_by_scale"],
+            )
         return WalkerMapResult(
             sigma_r=sv.s_r.tolist(),
             T=sv.T,
@@ -556,6 +718,10 @@ class WalkerMap:
             fallen=bool(fallen),
             evaluations=self.evaluations,
             sim_seconds=self.sim_seconds,
+            forward_std=self.forward_std,
+            turn_std=self.turn_std,
+            limit_cycle=self.limit_cycle,
+            newton=newton,
         )
 
 
@@ -619,14 +785,14 @@ def _point(args: tuple[list[float], float, float, ControlConfig, SimConfig, MapS
 
     s_r, T, eps, control, sim, settings = args
     r = walker_rho(s_r, T, eps, control=control, sim=sim, settings=settings)
-    cal = dataclasses.replace(control, hybrid_model="calibrated").hybrid()
-    return {
+    loop = dataclasses.replace(control, hybrid_model="speed-loop").hybrid()
+    row = {
         "sigma_r": [float(v) for v in s_r],
         "T": float(T),
         "eps": float(eps),
         "rho_walker": r.rho_walker,
         "rho_reduced": rho_hybrid(s_r, T, eps, control.dp, control),
-        "rho_reduced_calibrated": rho_hybrid(s_r, T, eps, cal.dp, cal),
+        "rho_reduced_speed_loop": rho_hybrid(s_r, T, eps, loop.dp, loop),
         "fixed_point_speed": r.fixed_point_speed,
         "fixed_point_v_hip": r.fixed_point_v_hip,
         "fixed_point_turn": r.fixed_point_turn,
@@ -638,7 +804,13 @@ def _point(args: tuple[list[float], float, float, ControlConfig, SimConfig, MapS
         "eigenvalues": [[float(z.real), float(z.imag)] for z in r.eigenvalues[:6]],
         "evaluations": r.evaluations,
         "sim_seconds": r.sim_seconds,
+        "forward_std": r.forward_std,
+        "turn_std": r.turn_std,
+        "limit_cycle": r.limit_cycle,
     }
+    if r.newton is not None:
+        row["newton"] = r.newton
+    return row
 
 
 def poincare_grid(
@@ -658,10 +830,12 @@ def poincare_grid(
     -------
     dict
         ``{"points": [...], "operating_point": {...}, "v_ref", "turn_ref", "foot",
-        "control_rate_hz", "lead_s", "warmup_s", "calibrated": {"dp", "k_v"}}``; each point
-        has ``sigma_r``, ``T``, ``rho_walker``, ``rho_reduced``, ``rho_reduced_calibrated``,
+        "control_rate_hz", "lead_s", "warmup_s", "speed_loop": {"dp", "k_v"}}``; each point
+        has ``sigma_r``, ``T``, ``rho_walker``, ``rho_reduced``, ``rho_reduced_speed_loop``,
         ``fixed_point_speed`` [cm/s] and diagnostics (``residual``, ``spread`` in
-        perturbation sizes, ``fallen``, the largest ``eigenvalues``).
+        perturbation sizes, ``fallen``, ``forward_std`` [cm/s], ``turn_std`` [deg/s],
+        ``limit_cycle``, the largest ``eigenvalues``). With ``settings.newton_iterations``
+        the operating point (only) also gets ``newton`` (:meth:`NewtonResult.as_dict`).
     """
     control = control or ControlConfig()
     sim = sim or SimConfig()
@@ -670,7 +844,8 @@ def poincare_grid(
     eps = op["eps"]
     for T in Ts:
         check_alignment(T, sim.physics_hz, st.control_rate_hz)
-    tasks = [([s, s], T, eps, control, sim, st) for s, T in grid(sigmas, Ts)]
+    grid_st = dataclasses.replace(st, newton_iterations=0)
+    tasks = [([s, s], T, eps, control, sim, grid_st) for s, T in grid(sigmas, Ts)]
     tasks.append((op["sigma_r"], op["T"], eps, control, sim, st))
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
@@ -694,7 +869,127 @@ def poincare_grid(
         "lead_s": st.lead_s,
         "warmup_s": st.warmup_s,
         "delta_scale": st.delta_scale,
-        "calibrated": {"dp": control.calibrated_dp, "k_v": control.calibrated_k_v},
+        "speed_loop": {"dp": control.calibrated_dp, "k_v": control.calibrated_k_v},
+    }
+
+
+# ----------------------------------------------------------------------------- the surrogate table
+
+
+def _table_point(args: tuple[float, float, float, float, ControlConfig, SimConfig, MapSettings]) -> dict[str, Any]:
+    sigma, tau, T, eps, control, sim, settings = args
+    r = walker_rho([sigma, tau], T, eps, control=control, sim=sim, settings=settings)
+    return {
+        "rho": r.rho_walker,
+        "limit_cycle": r.limit_cycle,
+        "fallen": r.fallen,
+        "forward_std": r.forward_std,
+        "turn_std": r.turn_std,
+        "speed": r.fixed_point_speed,
+        "turn_rate": r.fixed_point_turn,
+        "residual": r.residual,
+        "spread": r.spread,
+        "contraction": r.contraction,
+    }
+
+
+def walker_table(
+    sigmas: Sequence[float],
+    taus: Sequence[float],
+    Ts: Sequence[float],
+    *,
+    eps: float | None = None,
+    control: ControlConfig | None = None,
+    sim: SimConfig | None = None,
+    settings: MapSettings | None = None,
+    jobs: int = 1,
+) -> dict[str, Any]:
+    """Tabulate the walker's map over ``sigma`` (forward) x ``tau`` (turn) x ``T``.
+
+    The surrogate that ``control.hybrid_model = "walker"`` interpolates in (30)
+    (:mod:`bipedtele.control.walker_map`, docs/walker_map.md). Every grid point is one
+    :func:`walker_rho` (warm-up, the averaged fixed point, the central-difference radius of
+    (26); the contraction only when ``settings.contraction``).
+
+    Parameters
+    ----------
+    sigmas, taus : sequence of float
+        Forward and turn real damping (cm/s and deg/s channels, the units of ``D``).
+    Ts : sequence of float
+        Walking cycles [s], each aligned (:func:`check_alignment`).
+    eps : float, optional
+        Joint servo time constant [s]; default the follower's operating point's (what (30)
+        picks, ``eps_range[0]``).
+
+    Returns
+    -------
+    dict
+        ``format``, the axes ``sigma``, ``tau``, ``T``, ``eps``; per field (``rho``,
+        ``limit_cycle``, ``fallen``, ``forward_std`` [cm/s], ``turn_std`` [deg/s],
+        ``speed`` [cm/s], ``turn_rate`` [deg/s], ``residual``, ``spread``,
+        ``contraction``) a nested list indexed ``[sigma][tau][T]``; ``settings`` (the
+        operating conditions) and ``wall_s``.
+    """
+    import time
+
+    control = control or ControlConfig()
+    sim = sim or SimConfig()
+    st = settings or MapSettings(contraction=False)
+    if eps is None:
+        eps = operating_point(control, sim, st.control_rate_hz)["eps"]
+    for T in Ts:
+        check_alignment(T, sim.physics_hz, st.control_rate_hz)
+    axes = ([float(v) for v in sigmas], [float(v) for v in taus], [float(v) for v in Ts])
+    for name, ax in zip(("sigma", "tau", "T"), axes, strict=True):
+        if any(b <= a for a, b in itertools.pairwise(ax)):
+            raise ConfigError(f"--{name} {ax}: allowed: strictly increasing values")
+    # T-major last, largest T first in the queue: the slow points start early
+    tasks = [(s, t, T, eps, control, sim, st) for s in axes[0] for t in axes[1] for T in axes[2]]
+    order = sorted(range(len(tasks)), key=lambda i: -tasks[i][2])
+    t0 = time.perf_counter()
+    rows: list[dict[str, Any]] = [{} for _ in tasks]
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for k, row in zip(order, pool.map(_table_point, [tasks[i] for i in order]), strict=True):
+                rows[k] = row
+                LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f%s", *tasks[k][:3], row["rho"],
+                         " limit cycle" if row["limit_cycle"] else "")  # fmt: skip
+    else:
+        for k in order:
+            rows[k] = _table_point(tasks[k])
+            LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f", *tasks[k][:3], rows[k]["rho"])
+    ns, nt, n_t = (len(a) for a in axes)
+
+    def field(key: str) -> list[list[list[Any]]]:
+        return [[[rows[(i * nt + j) * n_t + k][key] for k in range(n_t)] for j in range(nt)] for i in range(ns)]
+
+    keys = ("rho", "limit_cycle", "fallen", "forward_std", "turn_std", "speed", "turn_rate", "residual", "spread",
+            "contraction")  # fmt: skip
+    return {
+        "format": TABLE_FORMAT,
+        "sigma": axes[0],
+        "tau": axes[1],
+        "T": axes[2],
+        "eps": float(eps),
+        **{k: field(k) for k in keys},
+        "settings": {
+            "v_ref": st.v_ref,
+            "turn_ref": st.turn_ref,
+            "foot": st.foot,
+            "control_rate_hz": st.control_rate_hz,
+            "lead_s": st.lead_s,
+            "warmup_s": st.warmup_s,
+            "average_cycles": st.average_cycles,
+            "delta_scale": st.delta_scale,
+            "physics_hz": sim.physics_hz,
+            "D": list(control.D),
+            "k_s": list(control.k_s),
+            "k_z": list(control.k_z),
+            "beta_r": list(control.beta_r),
+        },
+        "wall_s": time.perf_counter() - t0,
     }
 
 
@@ -702,7 +997,7 @@ def plot_poincare(data: dict[str, Any]) -> Any:
     """Draw the Fig. 6 counterpart.
 
     ``rho_walker``, the walker's measured contraction and the reduced model's
-    ``max|l_hybrid|`` (paper and calibrated) over ``sigma_r`` x ``T``; the plane at 1 marks
+    ``max|l_hybrid|`` (paper and speed loop) over ``sigma_r`` x ``T``; the plane at 1 marks
     the stability limit; the red dot is the follower's operating point (its ``sigma_r`` axis
     value is the forward channel's).
     """
@@ -720,7 +1015,7 @@ def plot_poincare(data: dict[str, Any]) -> Any:
         ("rho_walker", "3-D walker: radius of (26)"),
         ("contraction", "3-D walker: measured contraction"),
         ("rho_reduced", "reduced model, paper dp, k_v"),
-        ("rho_reduced_calibrated", "reduced model, calibrated"),
+        ("rho_reduced_speed_loop", "reduced model, speed loop"),
     )
     fig = Figure(figsize=(17.0, 4.4), layout="constrained")
     for i, (key, title) in enumerate(keys):
@@ -758,6 +1053,8 @@ def _run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     sigmas, Ts = _floats(args.sigma), _floats(args.T)
+    if args.newton < 0:
+        raise ConfigError(f"--newton {args.newton}: allowed: >= 0")
     if not sigmas or not Ts or min(sigmas) < 0:
         raise ConfigError("--sigma/--T: allowed: non-empty lists, sigma >= 0")
     if args.jobs < 1:
@@ -769,6 +1066,8 @@ def _run(args: argparse.Namespace) -> int:
         warmup_s=args.warmup,
         delta_scale=args.delta_scale,
         control_rate_hz=cfg.section("follower").control_rate_hz,
+        contraction=not args.table,
+        newton_iterations=args.newton,
     )
     sim = cfg.section("sim")
     for T in Ts:
@@ -776,6 +1075,31 @@ def _run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--T {T:g}: allowed: the simulated NAO's cycle range [{sim.cycle_min_s:g}, {sim.cycle_max_s:g}] s"
             )
+    if args.table:
+        taus = _floats(args.tau)
+        if not taus or min(taus) < 0:
+            raise ConfigError("--tau: allowed: a non-empty list, tau >= 0")
+        table = walker_table(sigmas, taus, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
+        table["command"] = (
+            f"bipedtele poincare --table {args.table} --sigma {args.sigma} --tau {args.tau} --T {args.T} "
+            f"--warmup {args.warmup:g} --delta-scale {args.delta_scale:g} --foot {args.foot} --jobs {args.jobs}"
+        )
+        try:
+            Path(args.table).write_text(json.dumps(table, indent=1) + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"--table {args.table}: cannot write ({exc.strerror})") from None
+        sys.stdout.write("sigma  tau    T [s]  rho_walker  turn_std  forward_std  speed  turn_rate  limit_cycle\n")
+        for i, sg in enumerate(table["sigma"]):
+            for j, ta in enumerate(table["tau"]):
+                for k, T in enumerate(table["T"]):
+                    f = {key: table[key][i][j][k] for key in ("rho", "turn_std", "forward_std", "speed", "turn_rate")}
+                    lc = "yes" if table["limit_cycle"][i][j][k] else "no"
+                    sys.stdout.write(
+                        f"{sg:5.2f}  {ta:5.2f}  {T:5.2f}  {f['rho']:10.3f}  {f['turn_std']:8.2f}  "
+                        f"{f['forward_std']:11.2f}  {f['speed']:5.2f}  {f['turn_rate']:9.2f}  {lc}\n"
+                    )
+        sys.stdout.write(f"({table['wall_s']:.0f} s wall)\n")
+        return 0
     data = poincare_grid(sigmas, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
     if args.json:
         try:
@@ -789,15 +1113,25 @@ def _run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--plot {args.plot}: cannot write ({exc.strerror})") from None
     out = sys.stdout
     out.write(
-        "sigma_r      T [s]  rho_walker  contraction  transient  rho_reduced  rho_calibrated  speed [cm/s]  spread\n"
+        "sigma_r      T [s]  rho_walker  contraction  transient  rho_reduced  rho_speed_loop  speed [cm/s]  spread  "
+        "turn_std  limit_cycle\n"
     )
     for p in [*data["points"], data["operating_point"]]:
         s = "/".join(f"{v:.2f}" for v in p["sigma_r"])
         out.write(
             f"{s:<12} {p['T']:5.2f}  {p['rho_walker']:10.3f}  {p['contraction']:11.3f}  {p['transient']:9.2f}  {p['rho_reduced']:11.3f}  "
-            f"{p['rho_reduced_calibrated']:14.3f}  {p['fixed_point_speed']:12.2f}  {p['spread']:6.1f}\n"
+            f"{p['rho_reduced_speed_loop']:14.3f}  {p['fixed_point_speed']:12.2f}  {p['spread']:6.1f}  "
+            f"{p['turn_std']:8.2f}  {'yes' if p['limit_cycle'] else 'no'}\n"
         )
     out.write("(last row: the follower's operating point at zero delay)\n")
+    nw = data["operating_point"].get("newton")
+    if nw is not None:
+        rho = ", ".join(f"{k}x: {v:.3f}" for k, v in nw["rho_by_scale"].items())
+        out.write(
+            f"operating point, Newton on P(x) = x: residual max {nw['residual_max'][0]:.3g} -> {nw['residual_max'][-1]:.3g}, "
+            f"rms {nw['residual_rms'][0]:.3g} -> {nw['residual_rms'][-1]:.3g} (perturbation sizes, "
+            f"{len(nw['steps'])} steps); radius of (26) at the fixed point by perturbation size {rho}\n"
+        )
     return 0
 
 
@@ -818,6 +1152,25 @@ def add_poincare_parser(sub: Any) -> None:
         "--delta-scale", type=float, default=1.0, help="factor on the perturbation sizes of (26) (default 1)"
     )
     p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument(
+        "--tau",
+        default="0,1.5,2.5,3,3.5,5",
+        help="turn damping values of --table (default 0,1.5,2.5,3,3.5,5)",
+    )
+    p.add_argument(
+        "--table",
+        metavar="FILE",
+        help="tabulate the walker's map over --sigma (forward) x --tau (turn) x --T into FILE, the surrogate of "
+        'hybrid_model = "walker" (shipped: common/data/walker_map.json; docs/walker_map.md); no contraction runs',
+    )
+    p.add_argument(
+        "--newton",
+        type=int,
+        default=0,
+        metavar="N",
+        help="at the operating point, solve P(x) = x by Newton (at most N Jacobians) and measure the radius there "
+        "at 0.3/1/3x the perturbation sizes (default 0: off)",
+    )
     p.add_argument("--json", metavar="FILE", help="write the points as JSON")
     p.add_argument("--plot", metavar="FILE.png", help="write the surfaces (Fig. 6 counterpart)")
     add_config_args(p)

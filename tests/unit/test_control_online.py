@@ -112,20 +112,29 @@ def test_fixed_discretisation_period_lets_T_follow_the_delay() -> None:
     assert Ts_fixed[0] < Ts_fixed[1] < Ts_fixed[2]  # over a fixed period it grows with the delay
 
 
-def test_calibrated_model_switch(caplog: pytest.LogCaptureFixture) -> None:
-    cal = ControlConfig(hybrid_model="calibrated", calibrated_dp=0.95, calibrated_k_v=2.0)
+def test_speed_loop_model_switch(caplog: pytest.LogCaptureFixture) -> None:
+    cal = ControlConfig(hybrid_model="speed-loop", calibrated_dp=0.95, calibrated_k_v=2.0)
     hm = cal.hybrid()
     assert hm.dp == 0.95 and hm.k_s == [2.0, CFG.k_s[1]] and cal.k_s == CFG.k_s
     assert CFG.hybrid() is CFG
     with caplog.at_level("INFO", logger="bipedtele.control.online"):
         chooser = OnlineChooser(cal)
-    assert chooser.model == "calibrated"
-    assert any("calibrated reduced model" in r.getMessage() and "dp 0.950" in r.getMessage() for r in caplog.records)
+    assert chooser.model == "speed-loop"
+    assert any("speed-loop reduced model" in r.getMessage() and "dp 0.950" in r.getMessage() for r in caplog.records)
     c = chooser.choose([0.05, 0.05])
     ex = solve_exact([0.05, 0.05], cal)
-    # both sides of (30) are evaluated with the calibrated model
+    # both sides of (30) are evaluated with the speed-loop model
     assert c.rho_hybrid == pytest.approx(float(np.max(np.stack(rho_blocks(*c.s_r, c.T, c.eps, 0.95, hm)))))
     assert abs(c.residual) <= cal.tolerance and abs(ex.residual) <= cal.tolerance
     paper = OnlineChooser(CFG)
-    assert not np.allclose(chooser._tab[0], paper._tab[0])  # the forward block is the calibrated one
-    np.testing.assert_allclose(chooser._tab[1], paper._tab[1])  # the turn block is not calibrated
+    assert not np.allclose(chooser._tab[0], paper._tab[0])  # the forward block is the identified one
+    np.testing.assert_allclose(chooser._tab[1], paper._tab[1])  # the turn block is the paper's
+
+
+def test_old_model_name_fails_with_the_allowed_values() -> None:
+    from bipedtele.config import ConfigError, load_config
+
+    with pytest.raises(ConfigError) as err:
+        load_config("default", ['control.hybrid_model="calibrated"'])
+    msg = str(err.value)
+    assert "\n" not in msg and all(v in msg for v in ("paper", "speed-loop", "walker"))

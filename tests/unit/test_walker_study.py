@@ -85,5 +85,5 @@ def test_calibration_identifies_dp_and_k_v() -> None:
     assert 0.5 < resp["tau_s"] < 20.0 and resp["rms"] < 0.3  # a first-order response fits the walker
     assert 0.9 < resp["gain"] < 1.1  # the servo's integral action: v_hip reaches the reference
     p = out["points"][0]
-    assert math.isfinite(p["rho_walker"]) and p["rho_reduced_calibrated"] != p["rho_reduced"]
-    assert out["set"][0] == 'control.hybrid_model="calibrated"'
+    assert math.isfinite(p["rho_walker"]) and p["rho_reduced_speed_loop"] != p["rho_reduced"]
+    assert out["set"][0] == 'control.hybrid_model="speed-loop"'
