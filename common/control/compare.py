@@ -398,8 +398,9 @@ def run_compare(
     dict
         ``{"plant": "reduced", "seed", "runs", "duration_s", "elapsed_s", "schemes": {name:
         title}, "regimes": [...], "cells": {regime: {scheme: cell}}, "margin": {scheme:
-        {"scale", "oscillating_by_scale", "released_motion_median_m_s"}}}``; a cell holds ``n``, ``unstable`` and, per metric,
-        ``mean``, ``ci95`` and (except for ``paper``) the paired ``diff`` against ``paper``.
+        {"scale", "oscillating_by_scale", "released_motion_median_m_s"}}}``; a cell holds ``n``,
+        ``unstable`` and, per metric, ``mean``, ``ci95`` and (except for ``paper``) the paired
+        ``diff`` against ``paper``.
     """
     if runs < 2:
         raise ValueError(f"runs = {runs}: allowed: >= 2 (a 95 % interval needs two)")
@@ -441,16 +442,19 @@ def run_compare(
         "schemes": {n: classes[n].title for n in names},
         "regimes": [{"name": r.name, "description": r.description} for r in regimes],
         "cells": cells,
-        "margin": {
-            n: {
-                "scale": _margin(u),
-                "oscillating_by_scale": {f"{s:g}": v for s, v in u.items()},
-                "released_motion_median_m_s": {f"{s:g}": v for s, v in motion[n].items()},
-            }
-            for n, u in unstable.items()
+        "margin": _margins(unstable, motion) if margin_scales else {},
+    }
+
+
+def _margins(oscillating: dict[str, dict[float, float]], motion: dict[str, dict[float, float]]) -> dict[str, Any]:
+    """Per scheme: the margin, the share of oscillating runs and the median released-handle speed per scale."""
+    return {
+        n: {
+            "scale": _margin(u),
+            "oscillating_by_scale": {f"{s:g}": v for s, v in u.items()},
+            "released_motion_median_m_s": {f"{s:g}": v for s, v in motion[n].items()},
         }
-        if margin_scales
-        else {},
+        for n, u in oscillating.items()
     }
 
 
