@@ -115,14 +115,24 @@ class _SchemeLeader:
         self.k_g = np.asarray(control.k_g, dtype=float)
         self.dt = params.dt
         self.sid = new_session_id()
+        self.newest: tuple[int, Feedback, float] | None = None  # (sent at step, message, arrival [s])
 
     def intent_now(self) -> np.ndarray:
         """Return the operator's intended speeds now [cm/s, deg/s]."""
         return np.asarray(self.sim.intent[0, self.sim.seg[0]], dtype=float)
 
-    def step(self, k: int, fb: tuple[Feedback, float] | None) -> Command:
-        """Feel the newest feedback ``(message, arrival time)``, move the handle, return the command."""
+    def step(self, k: int, pending: list[tuple[int, int, Feedback]]) -> Command:
+        """Take the feedback arrived by step ``k``, feel the newest, move the handle, return the command.
+
+        ``pending`` is the heap of feedback in flight, ``(arrival step, sent step, message)``.
+        """
         t = k * self.dt
+        while pending and pending[0][0] <= k:
+            ka, ks, msg = heapq.heappop(pending)
+            self.h2.update(ks * self.dt, t)
+            if self.newest is None or ks > self.newest[0]:
+                self.newest = (ks, msg, ka * self.dt)
+        fb = (self.newest[1], self.newest[2]) if self.newest is not None else None
         h1 = fb[0].h1_s if fb is not None else 0.0
         h2 = self.h2.value(t) or 0.0
         alpha_m, _ = self.scheme.damping(np.array([h1]), np.array([h2]))
@@ -194,7 +204,6 @@ def walker_run(
     pending_cmd: list[tuple[int, int, Command]] = []
     pending_fb: list[tuple[int, int, Feedback]] = []
     latest_cmd: list[tuple[Command, float] | None] = [None]
-    newest_fb: list[tuple[int, Feedback, float] | None] = [None]
     leader = _SchemeLeader(switch, intent, control, params, worst)
     step_now = [0]
 
@@ -218,14 +227,7 @@ def walker_run(
             t = k * dt
             clock[0] = t
             step_now[0] = k
-            # feedback arrived at the leader by now (newest wins)
-            while pending_fb and pending_fb[0][0] <= k:
-                ka, ks, fb = heapq.heappop(pending_fb)
-                leader.h2.update(ks * dt, t)
-                if newest_fb[0] is None or ks > newest_fb[0][0]:
-                    newest_fb[0] = (ks, fb, ka * dt)
-            got = newest_fb[0]
-            cmd = leader.step(k, (got[1], got[2]) if got is not None else None)
+            cmd = leader.step(k, pending_fb)
             if not lost1[k]:
                 heapq.heappush(pending_cmd, (int(arr1[k]), k, cmd))
             while pending_cmd and pending_cmd[0][0] <= k:

@@ -34,7 +34,6 @@ KNOWN: dict[str, str] = {
     "common/control/study.py:run_case": _NOT_YET,
     "follower/sim/gait.py:Gait._plan_step": _NOT_YET,
     "follower/sim/model.py:nao_urdf": _NOT_YET,
-    "follower/sim/walker_study.py:walker_run": _NOT_YET,
 }
 
 
