@@ -947,19 +947,7 @@ def walker_table(
     tasks = [(s, t, T, eps, control, sim, st) for s in axes[0] for t in axes[1] for T in axes[2]]
     order = sorted(range(len(tasks)), key=lambda i: -tasks[i][2])
     t0 = time.perf_counter()
-    rows: list[dict[str, Any]] = [{} for _ in tasks]
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for k, row in zip(order, pool.map(_table_point, [tasks[i] for i in order]), strict=True):
-                rows[k] = row
-                LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f%s", *tasks[k][:3], row["rho"],
-                         " limit cycle" if row["limit_cycle"] else "")  # fmt: skip
-    else:
-        for k in order:
-            rows[k] = _table_point(tasks[k])
-            LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f", *tasks[k][:3], rows[k]["rho"])
+    rows = _table_rows(tasks, order, jobs)
     ns, nt, n_t = (len(a) for a in axes)
 
     def field(key: str) -> list[list[list[Any]]]:
@@ -974,22 +962,45 @@ def walker_table(
         "T": axes[2],
         "eps": float(eps),
         **{k: field(k) for k in keys},
-        "settings": {
-            "v_ref": st.v_ref,
-            "turn_ref": st.turn_ref,
-            "foot": st.foot,
-            "control_rate_hz": st.control_rate_hz,
-            "lead_s": st.lead_s,
-            "warmup_s": st.warmup_s,
-            "average_cycles": st.average_cycles,
-            "delta_scale": st.delta_scale,
-            "physics_hz": sim.physics_hz,
-            "D": list(control.D),
-            "k_s": list(control.k_s),
-            "k_z": list(control.k_z),
-            "beta_r": list(control.beta_r),
-        },
+        "settings": _table_settings(st, sim, control),
         "wall_s": time.perf_counter() - t0,
+    }
+
+
+def _table_rows(tasks: list[Any], order: list[int], jobs: int) -> list[dict[str, Any]]:
+    """Run the table's points (in ``order``, on ``jobs`` processes); rows in the tasks' order."""
+    rows: list[dict[str, Any]] = [{} for _ in tasks]
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for k, row in zip(order, pool.map(_table_point, [tasks[i] for i in order]), strict=True):
+                rows[k] = row
+                LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f%s", *tasks[k][:3], row["rho"],
+                         " limit cycle" if row["limit_cycle"] else "")  # fmt: skip
+    else:
+        for k in order:
+            rows[k] = _table_point(tasks[k])
+            LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f", *tasks[k][:3], rows[k]["rho"])
+    return rows
+
+
+def _table_settings(st: MapSettings, sim: SimConfig, control: ControlConfig) -> dict[str, Any]:
+    """Return the operating conditions a table was made under (stored with it)."""
+    return {
+        "v_ref": st.v_ref,
+        "turn_ref": st.turn_ref,
+        "foot": st.foot,
+        "control_rate_hz": st.control_rate_hz,
+        "lead_s": st.lead_s,
+        "warmup_s": st.warmup_s,
+        "average_cycles": st.average_cycles,
+        "delta_scale": st.delta_scale,
+        "physics_hz": sim.physics_hz,
+        "D": list(control.D),
+        "k_s": list(control.k_s),
+        "k_z": list(control.k_z),
+        "beta_r": list(control.beta_r),
     }
 
 
@@ -1044,6 +1055,39 @@ def _floats(text: str) -> list[float]:
         raise ConfigError(f"{text!r}: allowed: comma-separated numbers") from None
 
 
+def _run_table(args: argparse.Namespace, cfg: Any, sigmas: list[float], Ts: list[float], st: MapSettings) -> int:
+    """``bipedtele poincare --table F``: tabulate the walker's map, write it, print its rows."""
+    import json
+    import sys
+    from pathlib import Path
+
+    taus = _floats(args.tau)
+    if not taus or min(taus) < 0:
+        raise ConfigError("--tau: allowed: a non-empty list, tau >= 0")
+    sim = cfg.section("sim")
+    table = walker_table(sigmas, taus, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
+    table["command"] = (
+        f"bipedtele poincare --table {args.table} --sigma {args.sigma} --tau {args.tau} --T {args.T} "
+        f"--warmup {args.warmup:g} --delta-scale {args.delta_scale:g} --foot {args.foot} --jobs {args.jobs}"
+    )
+    try:
+        Path(args.table).write_text(json.dumps(table, indent=1) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"--table {args.table}: cannot write ({exc.strerror})") from None
+    sys.stdout.write("sigma  tau    T [s]  rho_walker  turn_std  forward_std  speed  turn_rate  limit_cycle\n")
+    for i, sg in enumerate(table["sigma"]):
+        for j, ta in enumerate(table["tau"]):
+            for k, T in enumerate(table["T"]):
+                f = {key: table[key][i][j][k] for key in ("rho", "turn_std", "forward_std", "speed", "turn_rate")}
+                lc = "yes" if table["limit_cycle"][i][j][k] else "no"
+                sys.stdout.write(
+                    f"{sg:5.2f}  {ta:5.2f}  {T:5.2f}  {f['rho']:10.3f}  {f['turn_std']:8.2f}  "
+                    f"{f['forward_std']:11.2f}  {f['speed']:5.2f}  {f['turn_rate']:9.2f}  {lc}\n"
+                )
+    sys.stdout.write(f"({table['wall_s']:.0f} s wall)\n")
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
     import json
     import sys
@@ -1076,30 +1120,7 @@ def _run(args: argparse.Namespace) -> int:
                 f"--T {T:g}: allowed: the simulated NAO's cycle range [{sim.cycle_min_s:g}, {sim.cycle_max_s:g}] s"
             )
     if args.table:
-        taus = _floats(args.tau)
-        if not taus or min(taus) < 0:
-            raise ConfigError("--tau: allowed: a non-empty list, tau >= 0")
-        table = walker_table(sigmas, taus, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
-        table["command"] = (
-            f"bipedtele poincare --table {args.table} --sigma {args.sigma} --tau {args.tau} --T {args.T} "
-            f"--warmup {args.warmup:g} --delta-scale {args.delta_scale:g} --foot {args.foot} --jobs {args.jobs}"
-        )
-        try:
-            Path(args.table).write_text(json.dumps(table, indent=1) + "\n", encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"--table {args.table}: cannot write ({exc.strerror})") from None
-        sys.stdout.write("sigma  tau    T [s]  rho_walker  turn_std  forward_std  speed  turn_rate  limit_cycle\n")
-        for i, sg in enumerate(table["sigma"]):
-            for j, ta in enumerate(table["tau"]):
-                for k, T in enumerate(table["T"]):
-                    f = {key: table[key][i][j][k] for key in ("rho", "turn_std", "forward_std", "speed", "turn_rate")}
-                    lc = "yes" if table["limit_cycle"][i][j][k] else "no"
-                    sys.stdout.write(
-                        f"{sg:5.2f}  {ta:5.2f}  {T:5.2f}  {f['rho']:10.3f}  {f['turn_std']:8.2f}  "
-                        f"{f['forward_std']:11.2f}  {f['speed']:5.2f}  {f['turn_rate']:9.2f}  {lc}\n"
-                    )
-        sys.stdout.write(f"({table['wall_s']:.0f} s wall)\n")
-        return 0
+        return _run_table(args, cfg, sigmas, Ts, st)
     data = poincare_grid(sigmas, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
     if args.json:
         try:
