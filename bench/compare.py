@@ -1,8 +1,9 @@
 """Benchmark and study of the scheme comparison (``bipedtele compare``) on the reduced model.
 
-Prints: the wall time of the default comparison (every scheme x every regime x 200 paired
-runs x 60 s, plus the released-handle margin runs) and its simulated periods per wall
-second; with ``--adapt``, what adapting to the delay buys: ``paper`` against
+Prints: the wall time of the default comparison's two parts, the reduced model (every scheme
+x every regime x 200 paired runs x 60 s, plus the released-handle margin runs; its simulated
+periods per wall second) and the walker cells (10 paired runs x 12 s per cell, 2 processes;
+``--walker-runs 0`` skips them), and their sum against the 15-minute goal; with ``--adapt``, what adapting to the delay buys: ``paper`` against
 ``paper-constant`` (paired) over every regime, for the default settings and for the settings
 the paper leaves open where adapting could matter (``k_wt = 0.01``: (30) may choose longer
 cycles; ``dp_turn = 0.7``: the impact also costs turn speed; the walker-calibrated reduced
@@ -72,6 +73,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--adapt", action="store_true", help="also run the paper vs paper-constant sweep")
     ap.add_argument("--json", metavar="FILE", help="write the default comparison's result")
+    ap.add_argument("--walker-runs", type=int, default=10, help="walker runs per cell (0: none)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     result = run_compare(args.runs, args.seed)
@@ -83,6 +85,17 @@ def main() -> None:
         f"default compare: {len(scheme_names())} schemes x {len(REGIMES)} regimes + margin, {args.runs} runs x "
         f"{cp.study.duration_s:g} s: {wall:.0f} s wall ({periods * cells / wall:.0f} periods/s of {args.runs} runs)"
     )
+    if args.walker_runs > 0:
+        from bipedtele.config import load_config
+        from bipedtele.follower.sim.walker_compare import run_walker_compare
+
+        t1 = time.perf_counter()
+        result["walker"] = run_walker_compare(load_config("default"), runs=args.walker_runs, seed=args.seed)
+        walker_s = time.perf_counter() - t1
+        print(
+            f"walker cells: {len(REGIMES) * len(scheme_names())} cells x {args.walker_runs} runs x 12 s: {walker_s:.0f} s"
+        )
+        print(f"default set: {wall + walker_s:.0f} s (goal: under 900 s)")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(result, f, indent=1)
