@@ -233,6 +233,143 @@ def case_inputs(
     return CaseInputs(h[0], h[1], cp_sr, cp_T, switch, np.stack([fwd_t, turn_t], -1))
 
 
+class _CaseRun:
+    """``runs`` CP and ``runs`` VP closed loops of one delay case, stepped together."""
+
+    def __init__(
+        self, case: DelayCase, runs: int, seed: int, cfg: ControlConfig, params: StudyParams, chooser: OnlineChooser
+    ) -> None:
+        self.cfg, self.params, self.chooser, self.runs = cfg, params, chooser, runs
+        dt = self.dt = params.dt
+        self.k_steps = round(params.duration_s / dt)
+        inp = self.inp = case_inputs(case, runs, seed, cfg, params)
+        self.ch1 = channel(inp.h1, dt, params.window_s)
+        self.ch2 = channel(inp.h2, dt, params.window_s)
+        self.alpha_k, self.s_e_k, _, _ = schedule_damping_array(self.ch1.estimate, self.ch2.estimate, cfg)
+        # VP: the online choice for every distinct s_e met along the case (shared by all runs)
+        # VP runs start together and share the choice, so they take it at the same steps:
+        # the choice is computed (memoised) only where it is used.
+        self.used: list[Choice] = []
+        first = self.choice_at(0)
+        # (29) discretised once per distinct sigma_e of the case (closed-form 2x2 ZOH)
+        uniq, inverse = np.unique(self.s_e_k, axis=0, return_inverse=True)
+        a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
+        self.phi_eq, self.gam_eq = zoh2(a_eq, b_eq, dt)
+        self.inverse = inverse.reshape(-1)
+        n_all = self.n_all = 2 * runs
+        self.vp = np.zeros(n_all, dtype=bool)
+        self.vp[runs:] = True
+        # CP parameters, drawn per run, fixed
+        self.s_r = np.concatenate([inp.cp_s_r, np.repeat(first.s_r[None, :], runs, axis=0)])
+        self.T_run = np.concatenate([inp.cp_T, np.full(runs, first.T)])
+        self.eps_used = np.concatenate([np.full(runs, cfg.eps), np.full(runs, first.eps)])
+        self.deficit = orbit_deficit(self.s_r, self.T_run, cfg)
+        # operator intentions: the same for CP run i and VP run i
+        self.leader = SimulatedLeader(
+            np.concatenate([inp.switch, inp.switch]), np.concatenate([inp.intent, inp.intent]), cfg, params
+        )
+        self.k_g = np.asarray(cfg.k_g, dtype=float)
+        self.dp = np.array([cfg.dp, cfg.dp_turn])
+        self.eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
+        self.hy = np.zeros((n_all, 2, 2))  # [eta, z_r] per channel
+        self.phase = np.zeros(n_all)
+        self.phi_h, self.gam_h = hybrid_zoh(self.s_r, cfg, dt)
+        self.cmd_buf = np.zeros((self.ch1.ring, n_all, 2))
+        self.fb_buf = np.zeros((self.ch2.ring, n_all, 2))
+        self.err_sum = np.zeros((n_all, 2))
+        self.offset_sum = np.zeros((n_all, 2))
+        self.peak = np.zeros(n_all)
+        self.sum_T = np.zeros(n_all)
+        self.sum_sr = np.zeros((n_all, 2))
+        self.n_cycles = np.zeros(n_all)
+
+    def choice_at(self, k: int) -> Choice:
+        """Return the online choice (30) for step ``k``'s sigma_e, remembered for the report."""
+        c = self.chooser.choose(self.s_e_k[k])
+        self.used.append(c)
+        return c
+
+    def step(self, k: int) -> None:
+        """Advance every run one control period."""
+        dt, ch1, ch2, n_all = self.dt, self.ch1, self.ch2, self.n_all
+        t = k * dt
+        # operator and leader (31)-(32) with the feedback received
+        i2 = ch2.idx[k]
+        z_rx = self.fb_buf[i2 % ch2.ring] if i2 >= 0 else np.zeros((n_all, 2))
+        x = self.leader.step(t, z_rx, self.alpha_k[k])
+        self.cmd_buf[k % ch1.ring] = self.k_g * x
+        # follower: newest command received
+        i1 = ch1.idx[k]
+        ref = self.cmd_buf[i1 % ch1.ring] if i1 >= 0 else np.zeros((n_all, 2))
+        # equivalent follower (29), shared discretisation for this step's sigma_e
+        phi_e, gam_e = self.phi_eq[self.inverse[k]], self.gam_eq[self.inverse[k]]
+        self.eq = np.einsum("cij,ncj->nci", phi_e, self.eq) + gam_e[None, :, :, 0] * ref[:, :, None]
+        self.fb_buf[k % ch2.ring] = self.eq[:, :, 1]
+        # real follower: hybrid speed dynamics between impacts, per-run matrices
+        phi_h, gam_h, hy = self.phi_h, self.gam_h, self.hy
+        h0 = phi_h[..., 0, 0] * hy[..., 0] + phi_h[..., 0, 1] * hy[..., 1] + gam_h[..., 0] * ref
+        h1_ = phi_h[..., 1, 0] * hy[..., 0] + phi_h[..., 1, 1] * hy[..., 1] + gam_h[..., 1] * ref
+        self.hy = hy = np.stack([h0, h1_], -1)
+        self.phase += dt
+        hit = self.phase >= self.T_run - 1e-9
+        if hit.any():
+            self._impact(k, hit)
+        self.err_sum += np.abs(ref - hy[..., 0])
+        self.offset_sum += self.deficit * np.abs(ref)
+        self.peak = np.maximum(self.peak, np.abs(hy[..., 0]).max(axis=1))
+
+    def _impact(self, k: int, hit: np.ndarray) -> None:
+        """Reset the runs whose cycle ends; VP runs take the next cycle's parameters (30)."""
+        cfg, dt = self.cfg, self.dt
+        self.hy[hit, :, 0] *= self.dp
+        self.phase[hit] -= self.T_run[hit]
+        self.sum_T[hit] += self.T_run[hit]
+        self.sum_sr[hit] += self.s_r[hit]
+        self.n_cycles[hit] += 1
+        upd = hit & self.vp
+        if upd.any():
+            ck = self.choice_at(k)
+            self.T_run[upd] = ck.T
+            self.s_r[upd] = ck.s_r
+            self.eps_used[upd] = ck.eps
+            p, g = hybrid_zoh(self.s_r[upd], cfg, dt)
+            self.phi_h[upd] = p
+            self.gam_h[upd] = g
+            self.deficit[upd] = orbit_deficit(self.s_r[upd], self.T_run[upd], cfg)
+
+    def summary(self, case: DelayCase) -> dict[str, Any]:
+        """Return the case's report (see :func:`run_case`)."""
+        k_steps, runs, n_all, s_e_k = self.k_steps, self.runs, self.n_all, self.s_e_k
+        mean_err = self.err_sum / k_steps
+        mean_offset = self.offset_sum / k_steps
+        peak = self.peak
+        diverged = ~np.isfinite(mean_err).all(axis=1) | ~np.isfinite(peak) | (peak > self.params.diverge_limit)
+        cp_sl, vp_sl = slice(0, runs), slice(runs, n_all)
+        out: dict[str, Any] = {
+            "name": case.name,
+            "h1_ms": 1e3 * self.ch1.mean_s,
+            "h2_ms": 1e3 * self.ch2.mean_s,
+            "description": case.description,
+            "s_e": {
+                "mean": s_e_k.mean(axis=0).tolist(),
+                "max": s_e_k.max(axis=0).tolist(),
+                "floor_left": [bool(v) for v in np.asarray((s_e_k > self.cfg.s_e_min + 1e-12).any(axis=0)).tolist()],
+            },
+            "cp": _summary(mean_err[cp_sl], mean_offset[cp_sl], diverged[cp_sl]),
+            "vp": _summary(mean_err[vp_sl], mean_offset[vp_sl], diverged[vp_sl]),
+        }
+        cyc = np.maximum(self.n_cycles[vp_sl], 1)
+        out["vp"]["mean_T_s"] = float(np.mean(self.sum_T[vp_sl] / cyc))
+        out["vp"]["mean_s_r"] = (self.sum_sr[vp_sl] / cyc[:, None]).mean(axis=0).tolist()
+        out["vp"]["eps"] = float(np.mean(self.eps_used[vp_sl]))
+        used_T = np.array([c.T for c in self.used])
+        used_sr = np.array([c.s_r for c in self.used])
+        out["vp"]["T_span_s"] = [float(used_T.min()), float(used_T.max())]
+        out["vp"]["s_r_span"] = [used_sr.min(axis=0).tolist(), used_sr.max(axis=0).tolist()]
+        out["_runs"] = {"mean_error": mean_err, "diverged": diverged, "cp_T": self.inp.cp_T, "cp_s_r": self.inp.cp_s_r}
+        return out
+
+
 def run_case(
     case: DelayCase,
     runs: int,
@@ -252,129 +389,13 @@ def run_case(
         summaries described in the module docstring (plus per-run arrays under ``"_runs"``
         for callers that want them; not JSON-serialised by :func:`run_study`).
     """
-    dt = params.dt
-    k_steps = round(params.duration_s / dt)
-    inp = case_inputs(case, runs, seed, cfg, params)
-    ch1 = channel(inp.h1, dt, params.window_s)
-    ch2 = channel(inp.h2, dt, params.window_s)
-    alpha_k, s_e_k, _, _ = schedule_damping_array(ch1.estimate, ch2.estimate, cfg)
-
-    # VP: the online choice for every distinct s_e met along the case (shared by all runs)
-    # VP runs start together and share the choice, so they take it at the same steps:
-    # the choice is computed (memoised) only where it is used.
-    used: list[Choice] = []
-
-    def choice_at(k: int) -> Choice:
-        c = chooser.choose(s_e_k[k])
-        used.append(c)
-        return c
-
-    first = choice_at(0)
-    # (29) discretised once per distinct sigma_e of the case (closed-form 2x2 ZOH)
-    uniq, inverse = np.unique(s_e_k, axis=0, return_inverse=True)
-    a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
-    phi_eq, gam_eq = zoh2(a_eq, b_eq, dt)
-    inverse = inverse.reshape(-1)
-
-    n_all = 2 * runs
-    vp = np.zeros(n_all, dtype=bool)
-    vp[runs:] = True
-    # CP parameters, drawn per run, fixed
-    cp_sr, cp_T = inp.cp_s_r, inp.cp_T
-    s_r = np.concatenate([cp_sr, np.repeat(first.s_r[None, :], runs, axis=0)])
-    T_run = np.concatenate([cp_T, np.full(runs, first.T)])
-    eps_used = np.concatenate([np.full(runs, cfg.eps), np.full(runs, first.eps)])
-    deficit = orbit_deficit(s_r, T_run, cfg)
-
-    # operator intentions: the same for CP run i and VP run i
-    leader = SimulatedLeader(
-        np.concatenate([inp.switch, inp.switch]), np.concatenate([inp.intent, inp.intent]), cfg, params
-    )
-    k_g = np.asarray(cfg.k_g, dtype=float)
-    dp = np.array([cfg.dp, cfg.dp_turn])
-    eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
-    hy = np.zeros((n_all, 2, 2))  # [eta, z_r] per channel
-    phase = np.zeros(n_all)
-    phi_h, gam_h = hybrid_zoh(s_r, cfg, dt)
-    cmd_buf = np.zeros((ch1.ring, n_all, 2))
-    fb_buf = np.zeros((ch2.ring, n_all, 2))
-    err_sum = np.zeros((n_all, 2))
-    offset_sum = np.zeros((n_all, 2))
-    peak = np.zeros(n_all)
-    sum_T = np.zeros(n_all)
-    sum_sr = np.zeros((n_all, 2))
-    n_cycles = np.zeros(n_all)
-    report_every = max(1, k_steps // 50)
-
-    for k in range(k_steps):
-        t = k * dt
-        # operator and leader (31)-(32) with the feedback received
-        i2 = ch2.idx[k]
-        z_rx = fb_buf[i2 % ch2.ring] if i2 >= 0 else np.zeros((n_all, 2))
-        x = leader.step(t, z_rx, alpha_k[k])
-        cmd_buf[k % ch1.ring] = k_g * x
-        # follower: newest command received
-        i1 = ch1.idx[k]
-        ref = cmd_buf[i1 % ch1.ring] if i1 >= 0 else np.zeros((n_all, 2))
-        # equivalent follower (29), shared discretisation for this step's sigma_e
-        phi_e, gam_e = phi_eq[inverse[k]], gam_eq[inverse[k]]
-        eq = np.einsum("cij,ncj->nci", phi_e, eq) + gam_e[None, :, :, 0] * ref[:, :, None]
-        fb_buf[k % ch2.ring] = eq[:, :, 1]
-        # real follower: hybrid speed dynamics between impacts, per-run matrices
-        h0 = phi_h[..., 0, 0] * hy[..., 0] + phi_h[..., 0, 1] * hy[..., 1] + gam_h[..., 0] * ref
-        h1_ = phi_h[..., 1, 0] * hy[..., 0] + phi_h[..., 1, 1] * hy[..., 1] + gam_h[..., 1] * ref
-        hy = np.stack([h0, h1_], -1)
-        phase += dt
-        hit = phase >= T_run - 1e-9
-        if hit.any():
-            hy[hit, :, 0] *= dp
-            phase[hit] -= T_run[hit]
-            sum_T[hit] += T_run[hit]
-            sum_sr[hit] += s_r[hit]
-            n_cycles[hit] += 1
-            upd = hit & vp
-            if upd.any():
-                ck = choice_at(k)
-                T_run[upd] = ck.T
-                s_r[upd] = ck.s_r
-                eps_used[upd] = ck.eps
-                p, g = hybrid_zoh(s_r[upd], cfg, dt)
-                phi_h[upd] = p
-                gam_h[upd] = g
-                deficit[upd] = orbit_deficit(s_r[upd], T_run[upd], cfg)
-        err_sum += np.abs(ref - hy[..., 0])
-        offset_sum += deficit * np.abs(ref)
-        peak = np.maximum(peak, np.abs(hy[..., 0]).max(axis=1))
+    run = _CaseRun(case, runs, seed, cfg, params, chooser)
+    report_every = max(1, run.k_steps // 50)
+    for k in range(run.k_steps):
+        run.step(k)
         if progress is not None and (k + 1) % report_every == 0:
             progress(report_every)
-
-    mean_err = err_sum / k_steps
-    mean_offset = offset_sum / k_steps
-    diverged = ~np.isfinite(mean_err).all(axis=1) | ~np.isfinite(peak) | (peak > params.diverge_limit)
-    cp_sl, vp_sl = slice(0, runs), slice(runs, n_all)
-    out: dict[str, Any] = {
-        "name": case.name,
-        "h1_ms": 1e3 * ch1.mean_s,
-        "h2_ms": 1e3 * ch2.mean_s,
-        "description": case.description,
-        "s_e": {
-            "mean": s_e_k.mean(axis=0).tolist(),
-            "max": s_e_k.max(axis=0).tolist(),
-            "floor_left": [bool(v) for v in np.asarray((s_e_k > cfg.s_e_min + 1e-12).any(axis=0)).tolist()],
-        },
-        "cp": _summary(mean_err[cp_sl], mean_offset[cp_sl], diverged[cp_sl]),
-        "vp": _summary(mean_err[vp_sl], mean_offset[vp_sl], diverged[vp_sl]),
-    }
-    cyc = np.maximum(n_cycles[vp_sl], 1)
-    out["vp"]["mean_T_s"] = float(np.mean(sum_T[vp_sl] / cyc))
-    out["vp"]["mean_s_r"] = (sum_sr[vp_sl] / cyc[:, None]).mean(axis=0).tolist()
-    out["vp"]["eps"] = float(np.mean(eps_used[vp_sl]))
-    used_T = np.array([c.T for c in used])
-    used_sr = np.array([c.s_r for c in used])
-    out["vp"]["T_span_s"] = [float(used_T.min()), float(used_T.max())]
-    out["vp"]["s_r_span"] = [used_sr.min(axis=0).tolist(), used_sr.max(axis=0).tolist()]
-    out["_runs"] = {"mean_error": mean_err, "diverged": diverged, "cp_T": cp_T, "cp_s_r": cp_sr}
-    return out
+    return run.summary(case)
 
 
 # ----------------------------------------------------------------------------- study

@@ -31,7 +31,6 @@ KNOWN: dict[str, str] = {
     "bench/adversary.py:main": _NOT_YET,
     "bench/flood.py:main": _NOT_YET,
     "common/config.py": _NOT_YET,
-    "common/control/study.py:run_case": _NOT_YET,
     "follower/sim/gait.py:Gait._plan_step": _NOT_YET,
     "follower/sim/model.py:nao_urdf": _NOT_YET,
 }
