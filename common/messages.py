@@ -181,11 +181,11 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
         Leader damping in force [N s/m] (eq. 31, 40).
     enable : bool
         False asks the follower to stop and stand (operator released the device).
-    wave : [float, float]
-        Wave variable ``u_m`` (scheme ``wave``; zeros otherwise), sqrt(N cm/s).
-    energy : [float, float]
+    wave : [float, float] or None
+        Wave variable ``u_m`` (scheme ``wave``; None otherwise: a byte on the wire), sqrt(N cm/s).
+    energy : [float, float] or None
         Energy that entered the link at the leader's port so far [N cm, N deg] (the
-        follower's passivity observer, scheme ``tdpa``).
+        follower's passivity observer, scheme ``tdpa``; None otherwise).
     """
 
     KIND: ClassVar[str] = "cmd"
@@ -195,8 +195,8 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
     h2_s: Delay = 0.0
     alpha_m: Dampings = field(default_factory=_zeros2)
     enable: bool = True
-    wave: Waves = field(default_factory=_zeros2)
-    energy: Energies = field(default_factory=_zeros2)
+    wave: Waves | None = None
+    energy: Energies | None = None
 
 
 class Feedback(Message, frozen=True, gc=False, tag="fb"):
@@ -230,11 +230,11 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
         One of ``FOLLOWER_STATES``.
     cmd_seq : int
         Sequence number of the last command applied.
-    wave : [float, float]
-        Wave variable ``v_s`` (scheme ``wave``; zeros otherwise), sqrt(N cm/s).
-    energy : [float, float]
+    wave : [float, float] or None
+        Wave variable ``v_s`` (scheme ``wave``; None otherwise: a byte on the wire), sqrt(N cm/s).
+    energy : [float, float] or None
         Energy that entered the link at the follower's port so far [N cm, N deg] (the
-        leader's passivity observer, scheme ``tdpa``).
+        leader's passivity observer, scheme ``tdpa``; None otherwise).
     """
 
     KIND: ClassVar[str] = "fb"
@@ -252,8 +252,8 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
     eps: Gain = 0.0
     state: Annotated[str, _choice(*FOLLOWER_STATES)] = "starting"
     cmd_seq: Seq = 0
-    wave: Waves = field(default_factory=_zeros2)
-    energy: Energies = field(default_factory=_zeros2)
+    wave: Waves | None = None
+    energy: Energies | None = None
 
 
 class VideoFrame(Message, frozen=True, gc=False, tag="video"):

@@ -69,14 +69,14 @@ from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.control.schemes import make_scheme
-from bipedtele.control.schemes.runtime import FollowerPort
+from bipedtele.control.schemes.runtime import FollowerPort, received
 from bipedtele.drops import DropCounter
 from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
-from bipedtele.messages import MAX_ENERGY, MAX_SPEED, Command, Feedback, Status, new_session_id
+from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
 
 __all__ = ["DEFAULT_MAX_FUTURE_S", "FollowerLoop", "FollowerTelemetry"]
 
@@ -536,9 +536,7 @@ class FollowerLoop:
         cmd = self._cmd
         if cmd is None:  # not reached: called with a fresh command only
             return ref
-        c = self.port.command(
-            ref, eta_meas, np.asarray(cmd.wave), np.asarray(cmd.energy), cmd.t, self._cmd_recv, self.dt
-        )
+        c = self.port.command(ref, eta_meas, received(cmd.wave), received(cmd.energy), cmd.t, self._cmd_recv, self.dt)
         return np.clip(c, -self.eta_max, self.eta_max)
 
     def _odometry(self, obs: RobotObservation, now: float, ref: np.ndarray) -> None:
@@ -627,7 +625,7 @@ class FollowerLoop:
             state=tel.state,
             cmd_seq=self._cmd.seq if self._cmd is not None else 0,
             wave=wave,
-            energy=[min(e, MAX_ENERGY) for e in energy],
+            energy=energy,
         )
 
     def status(self, now: float) -> Status:

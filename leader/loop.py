@@ -47,12 +47,12 @@ import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.leader_law import leader_force
 from bipedtele.control.schemes import make_scheme
-from bipedtele.control.schemes.runtime import LeaderPort
+from bipedtele.control.schemes.runtime import LeaderPort, received
 from bipedtele.delayestimate import DelayEstimator, conservative_delays
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operators import Operator
-from bipedtele.messages import MAX_ENERGY, Command, Feedback, new_session_id
+from bipedtele.messages import Command, Feedback, new_session_id
 from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.telemetry import LeaderSample
 
@@ -230,8 +230,8 @@ class LeaderLoop:
             r_m,
             np.asarray(fb.z_e),
             np.asarray(fb.eta),
-            np.asarray(fb.wave),
-            np.asarray(fb.energy),
+            received(fb.wave),
+            received(fb.energy),
             fb.t,
             self._fb_recv,
             self.dt,
@@ -315,7 +315,7 @@ class LeaderLoop:
             alpha_m=[float(self.alpha_m[0]), float(self.alpha_m[1])],
             enable=self.enable,
             wave=wave,
-            energy=[min(e, MAX_ENERGY) for e in energy],
+            energy=energy,
         )
         try:
             self._send(cmd)
@@ -389,7 +389,7 @@ class LeaderLoop:
                 sid=self.sid, seq=self.seq, t=self._clock(),
                 x_m=[float(v) for v in self.x_m], h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
                 alpha_m=[float(v) for v in self.alpha_m], enable=False,
-                energy=[min(e, MAX_ENERGY) for e in self.port.outgoing(np.zeros(2))[1]],
+                energy=self.port.outgoing(np.zeros(2))[1],
             )  # fmt: skip
             try:
                 self._send(cmd)

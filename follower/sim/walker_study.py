@@ -43,7 +43,7 @@ from bipedtele.config import Config
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.reduced import SimulatedLeader, StudyParams
 from bipedtele.control.schemes import scheme_class
-from bipedtele.control.schemes.runtime import LeaderPort
+from bipedtele.control.schemes.runtime import LeaderPort, received
 from bipedtele.control.study import CASES, DelayCase, case_inputs
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.config import FollowerConfig
@@ -51,7 +51,7 @@ from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.robot import SimNao
 from bipedtele.follower.sim.world import WorldConfig
-from bipedtele.messages import MAX_ENERGY, Command, Feedback, new_session_id
+from bipedtele.messages import Command, Feedback, new_session_id
 from scipy import stats
 
 __all__ = ["WalkerRun", "run_walker_cli", "run_walker_study", "walker_run"]
@@ -146,8 +146,8 @@ class _SchemeLeader:
                 r_now,
                 np.asarray(m.z_e),
                 np.asarray(m.eta),
-                np.asarray(m.wave),
-                np.asarray(m.energy),
+                received(m.wave),
+                received(m.energy),
                 m.t,
                 t_recv,
                 self.dt,
@@ -165,7 +165,7 @@ class _SchemeLeader:
             alpha_m=[float(v) for v in alpha],
             enable=True,
             wave=wave,
-            energy=[min(e, MAX_ENERGY) for e in energy],
+            energy=energy,
         )
 
 

@@ -52,6 +52,10 @@ def _field_strategy(t: mi.Type) -> st.SearchStrategy:
         return st.booleans()
     if isinstance(t, mi.LiteralType):
         return st.sampled_from(t.values)
+    if isinstance(t, mi.UnionType):
+        return st.one_of(*[_field_strategy(u) for u in t.types])
+    if isinstance(t, mi.NoneType):
+        return st.none()
     raise AssertionError(t)
 
 
@@ -193,10 +197,12 @@ def _float_paths(cls: type[Message]) -> list[tuple[str, int | None]]:
     assert isinstance(info, mi.StructType)
     out: list[tuple[str, int | None]] = []
     for f in info.fields:
-        if isinstance(f.type, mi.FloatType):
-            out.append((f.name, None))
-        elif isinstance(f.type, mi.ListType) and isinstance(f.type.item_type, mi.FloatType):
-            out.extend((f.name, i) for i in range(f.type.min_length or 0))
+        ts = f.type.types if isinstance(f.type, mi.UnionType) else (f.type,)  # an optional field: its value type
+        for t in ts:
+            if isinstance(t, mi.FloatType):
+                out.append((f.name, None))
+            elif isinstance(t, mi.ListType) and isinstance(t.item_type, mi.FloatType):
+                out.extend((f.name, i) for i in range(t.min_length or 0))
     return out
 
 
@@ -218,6 +224,8 @@ def test_non_finite_refused_in_every_float(cls: type[Message], name: str, index:
     if index is None:
         data[name] = bad
     else:
+        if data[name] is None:  # an optional pair sent as none: send one
+            data[name] = [0.0, 0.0]
         data[name][index] = bad
     with pytest.raises(MessageError) as exc:
         decode(msgpack.packb(data, use_bin_type=True))
@@ -235,6 +243,8 @@ def test_every_float_field_is_bounded_both_sides() -> None:
             return [t]
         if isinstance(t, mi.ListType):
             return floats(t.item_type)
+        if isinstance(t, mi.UnionType):
+            return [ft for u in t.types for ft in floats(u)]
         return []
 
     for cls in MESSAGE_TYPES.values():

@@ -20,8 +20,9 @@ from bipedtele.control.schemes.ports import (
     wave_follower,
     wave_leader,
 )
+from bipedtele.messages import MAX_ENERGY
 
-__all__ = ["FollowerPort", "LeaderPort", "WaveGain"]
+__all__ = ["FollowerPort", "LeaderPort", "WaveGain", "received"]
 
 
 class WaveGain:
@@ -116,10 +117,10 @@ class LeaderPort:
         self.port.add(f_m * r_m, dt, other_in)
         return np.asarray(r_m - f_m / self.k_m)
 
-    def outgoing(self, r_m: np.ndarray) -> tuple[list[float], list[float]]:
-        """Return the command's ``wave`` (``u_m``, zeros unless the scheme is wave) and ``energy``."""
-        wave = wave_leader(r_m, self._v_rx, self.k_m)[1] if self.scheme.feedback == "wave" else np.zeros(2)
-        return [float(v) for v in wave], [float(v) for v in self.port.e_in]
+    def outgoing(self, r_m: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
+        """Return the command's ``wave`` (``u_m``) and ``energy``, each None where the scheme has no use for it."""
+        wave = _pair(wave_leader(r_m, self._v_rx, self.k_m)[1]) if self.scheme.feedback == "wave" else None
+        return wave, (_energy(self.port.e_in) if self.scheme.passivity else None)
 
 
 class FollowerPort:
@@ -169,9 +170,23 @@ class FollowerPort:
         self.port.add(-self.k_m * (c - eta) * c, dt, other_in)
         return np.asarray(c)
 
-    def outgoing(self, eta: np.ndarray) -> tuple[list[float], list[float]]:
-        """Return the feedback's ``wave`` (``v_s``, zeros unless the scheme is wave) and ``energy``."""
-        wave = wave_follower(np.zeros(2), np.asarray(eta, dtype=float), self.k_m)[1]
-        if self.scheme.feedback != "wave":
-            wave = np.zeros(2)
-        return [float(v) for v in wave], [float(v) for v in self.port.e_in]
+    def outgoing(self, eta: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
+        """Return the feedback's ``wave`` (``v_s``) and ``energy``, each None where the scheme has no use for it."""
+        wave = None
+        if self.scheme.feedback == "wave":
+            wave = _pair(wave_follower(np.zeros(2), np.asarray(eta, dtype=float), self.k_m)[1])
+        return wave, (_energy(self.port.e_in) if self.scheme.passivity else None)
+
+
+def _pair(v: np.ndarray) -> list[float]:
+    return [float(v[0]), float(v[1])]
+
+
+def _energy(e: np.ndarray) -> list[float]:
+    """Return the energy counters as sent: bounded by what a message may carry."""
+    return [min(float(x), MAX_ENERGY) for x in e]
+
+
+def received(value: list[float] | None) -> np.ndarray:
+    """Return a ``wave`` or ``energy`` field as received: zeros when the sender sent none."""
+    return np.zeros(2) if value is None else np.asarray(value, dtype=float)
