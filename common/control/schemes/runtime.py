@@ -110,11 +110,10 @@ class LeaderPort:
             follow = np.asarray(z_e if self.scheme.feedback == "equivalent" else eta, dtype=float)
             f_m = self.k_m * (r_m - follow)
             if not self.scheme.passivity:
-                self.port.add(f_m * r_m, dt, other_in)
-                return follow  # exactly what arrived: (31) as written
+                return follow  # exactly what arrived: (31) as written; no energy to count (none is sent)
         if self.scheme.passivity:
             f_m = leader_passivity(f_m, r_m, self.port.observer(other_in), dt)
-        self.port.add(f_m * r_m, dt, other_in)
+            self.port.add(f_m * r_m, dt, other_in)
         return np.asarray(r_m - f_m / self.k_m)
 
     def outgoing(self, r_m: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
@@ -165,9 +164,9 @@ class FollowerPort:
         else:
             c = np.asarray(ref, dtype=float)
         other_in = np.asarray(energy, dtype=float)
-        if self.scheme.passivity:
+        if self.scheme.passivity:  # the counters are sent only by a passivity scheme
             c = follower_passivity(c, eta, self.port.observer(other_in), self.k_m, dt)
-        self.port.add(-self.k_m * (c - eta) * c, dt, other_in)
+            self.port.add(-self.k_m * (c - eta) * c, dt, other_in)
         return np.asarray(c)
 
     def outgoing(self, eta: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
