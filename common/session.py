@@ -313,7 +313,8 @@ class Handshake:
         MacError
             ``no_session`` (framed with the master key, not a session key), ``no_mac``
             (not signed), ``bad_mac`` (no key verifies it but it names the bound
-            session: altered) or ``old_session`` (an earlier session's or another pair's).
+            session, or its body is no message: altered) or ``old_session`` (a whole
+            message of an earlier session's or another pair's).
         """
         if payload[:4] != SESSION_MAGIC or len(payload) < MAC_OVERHEAD:
             if payload[:4] == MAC_MAGIC:
@@ -330,12 +331,13 @@ class Handshake:
                 return s.auth.verify(payload, topic), s
             except MacError:
                 continue
-        # Error path only, to name the drop: a payload that claims the bound session was altered (bad_mac, as before the handshake); any other is an earlier
-        # session's or another pair's (old_session). The body is not trusted beyond this.
+        # Error path only, to name the drop: a payload that claims the bound session, or whose body is no message at
+        # all, was altered (bad_mac, as before the handshake); a whole message of another sid is an earlier session's
+        # or another pair's (old_session). The body is not trusted beyond this.
         try:
             sid = decode(payload[MAC_OVERHEAD:]).sid
         except MessageError:
-            sid = -1
+            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, body not a message)") from None
         if keys and keys[0] is self._current and keys[0].peer_sid == sid:
             raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, sid={sid})")
         raise MacError("old_session", f"{OLD_SESSION_LINE} ({topic})")

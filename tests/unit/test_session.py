@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import struct
+
 import pytest
 from bipedtele.auth import SESSION_MAGIC, MacError, MessageAuth, hkdf_sha256
 from bipedtele.gate import SequenceGate
-from bipedtele.messages import ZERO_NONCE, Command, Hello, decode, encode
+from bipedtele.messages import ZERO_NONCE, Command, Feedback, Hello, decode, encode
 from bipedtele.session import Handshake, session_info
 
 MASTER = MessageAuth(bytes(range(32)))
@@ -170,7 +172,12 @@ def test_master_signed_or_unsigned_commands_are_refused() -> None:
     assert _deliver(follower, SequenceGate(), leader.sign(_command(11, 1), CMD) or b"") is None  # bound
     good = leader.sign(_command(11, 2), CMD) or b""
     altered = good[:-1] + bytes([good[-1] ^ 1])
-    with pytest.raises(MacError) as exc:  # the bound session's, altered on the way
+    with pytest.raises(MacError) as exc:  # the bound session's, altered on the way (its body no longer a message)
+        follower.open(altered, CMD)
+    assert exc.value.reason == "bad_mac"
+    stamp = good.index(struct.pack(">d", 1e9))  # a value altered, the body still a message naming the bound sid
+    altered = good[:stamp] + bytes([good[stamp] ^ 1]) + good[stamp + 1 :]
+    with pytest.raises(MacError) as exc:
         follower.open(altered, CMD)
     assert exc.value.reason == "bad_mac"
 
@@ -179,6 +186,9 @@ def test_leader_binds_one_follower_and_rebinds_after_its_silence_with_a_new_nonc
     clock = Clock()
     leader, f1 = _pair(clock, takeover=0.5)
     _exchange(leader, f1)
+    assert _deliver(f1, SequenceGate(), leader.sign(_command(11, 1), CMD) or b"") is None  # f1 bound
+    old = f1.sign(encode(Feedback(sid=22, seq=5, t=1e9)), FB)  # f1's traffic in this pairing
+    assert old is not None
     n1 = leader.nonce
     assert leader.peer_sid == 22
     f2 = Handshake("follower", 44, MASTER, clock=clock)
@@ -193,7 +203,7 @@ def test_leader_binds_one_follower_and_rebinds_after_its_silence_with_a_new_nonc
         _exchange(leader, f2)
     assert leader.peer_sid == 44 and leader.nonce != n1
     with pytest.raises(MacError) as exc:  # the old pairing's traffic
-        leader.open(b"\xc1BT\x02" + bytes(32) + b"\x80", FB)
+        leader.open(old, FB)
     assert exc.value.reason == "old_session"
 
 
