@@ -59,6 +59,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import re
 import secrets
@@ -85,6 +86,9 @@ ROUTER_NAME = "router.bt.test"
 PORT = 7447
 HOSTS = ("router", "robot", "operator")
 LINK_STATES = ("capacity-limited", "lossy", "lost")
+# After the uplink budget's first estimate, the queue its start's overshoot built drains in
+# about the budget's drain_s (1 s); the steady state is counted from twice that [s]
+ESTIMATE_SETTLE_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -307,6 +311,13 @@ def analyse(
     res["h2_ms"] = _ms([d for _, d in h2])
     res["h1_ms_after_startup"] = _ms([d for t, d in h1 if t >= t_begin + startup_s])
     res["h2_ms_after_startup"] = _ms([d for t, d in h2 if t >= t_begin + startup_s])
+    # the follower's uplink budget: its first estimate of the path ends its start (a cut, or
+    # start_s of clear path); the start's growth overshoots a cap once before it
+    est = [r.t_recv for r in st if int(r.data.get("counters", {}).get("uplink_capacity_bps", 0) or 0) > 0]
+    settled = est[0] + ESTIMATE_SETTLE_S if est else math.inf
+    res["first_estimate_s"] = round(est[0] - t_begin, 1) if est else None
+    res["h2_ms_start"] = _ms([d for t, d in h2 if t_begin + startup_s <= t < settled])
+    res["h2_ms_after_estimate"] = _ms([d for t, d in h2 if t >= settled])
     if emulated is not None:
         m1, m2 = parse_delay_model(emulated[0]), parse_delay_model(emulated[1])
         t0 = emulated[2]

@@ -11,8 +11,9 @@ one host and the other two (``bench/internet.py``'s machinery, which prints the 
     the emulator applied stays small (see ``EXCESS_P99_MS``);
 (b) a LAN robot with a 300 kbit/s uplink (64 kB queue) and video on (robot | emulator |
     router + operator), 30 s: no fresh command dropped as too old, feedback h2 p99 under
-    300 ms after a start-up allowance, video at >= 1 frame/s, and the leader's samples say
-    ``capacity-limited``;
+    300 ms once the uplink budget has estimated the path (its first cut, + 2 s to drain), h2
+    under 1 s in the start before it (its one overshoot), video at >= 1 frame/s, and the
+    leader's samples say ``capacity-limited``;
 (c) a 3 s outage both ways on the intercontinental path: the robot stops within 0.6 s of the
     last command it received (it cannot know of the cut earlier: h1 after the cut), walks
     again within 1 s of the path's return, and no command sent before the return is applied
@@ -48,7 +49,12 @@ from e2e_support import HERE
 REPO = HERE.parent.parent
 LINKS = os.environ.get("BIPEDTELE_TEST_LINKS", "split")
 SECONDS = 30.0
-STARTUP_S = 8.0  # (b): the uplink budget's first estimate; (a): excess counted after it too
+STARTUP_S = 8.0  # (a): the excess is counted after it; (b): the start's h2 too
+# (b) The uplink budget's start grows video x1.3 a second until the path queues; the leader's
+# 1 s mean of h2 shows the queue about 0.75 s late, so the one overshoot before its first
+# estimate of the path queued the feedback 150-350 ms in the runs so far (146-346 ms peaks).
+# The defect this guards: seconds of lag (p99 1.69 s after 8 s before the budget existed).
+START_MAX_MS = 1000.0
 
 # (a) Bound on the p99 of each message's delay beyond the emulator's own (trace) delay at
 # its send time. Without loss that excess is this machine's scheduling: the emulator
@@ -131,9 +137,15 @@ def test_capped_robot_uplink_with_video(bench: Any, tmp_path: Path) -> None:
     r = _run(bench, cond, tmp_path / "run")
     assert r["linkemu"]["forward"]["queue_bytes_max"] > 0, "the 300 kbit/s cap never queued: not exercised"
     assert r["cmd_too_old"] == 0, r["follower_counters"]
-    h2 = r["h2_ms_after_startup"]
-    assert h2["n"] > 200, h2
-    assert h2["p99"] < 300.0, f"feedback h2 p50/p99/max after {STARTUP_S:g} s: {h2}"
+    # the steady state: from the budget's first estimate of the path (+ its drain)
+    h2 = r["h2_ms_after_estimate"]
+    assert r["first_estimate_s"] is not None, "the uplink budget never estimated the capped path"
+    assert h2["n"] > 200, (r["first_estimate_s"], h2)
+    assert h2["p99"] < 300.0, f"feedback h2 p50/p99/max after the first estimate ({r['first_estimate_s']} s): {h2}"
+    # the start: its growth overshoots the cap once before that estimate (a fifth, about a
+    # second: 150-350 ms), never seconds
+    start = r["h2_ms_start"]
+    assert start["max"] is None or start["max"] < START_MAX_MS, f"feedback h2 in the start: {start}"
     assert r["video_fps"] >= 1.0, r["video_fps"]
     assert r["link_fraction"]["capacity-limited"], f"the leader never said capacity-limited: {r['link_states_seen']}"
 
