@@ -35,9 +35,9 @@ import numpy as np
 from bipedtele.config import load_config
 from bipedtele.leader.app import COCKPIT_TOKEN_ENV
 from bipedtele.leader.app import main as leader_main
-from bipedtele.leader.devices import SimFalcon
+from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
-from bipedtele.leader.operators import make_operator
+from bipedtele.leader.operator import make_operator
 from bipedtele.messages import Feedback
 
 PEER = textwrap.dedent(

@@ -1,6 +1,6 @@
 """The pilot on a model of the follower: how the reduced model in (30) sets the turn error.
 
-Runs the demo's pilot (``leader/operators.py``, default settings of the ``localhost-delay``
+Runs the demo's pilot (``leader/operators/pilot.py``, default settings of the ``localhost-delay``
 profile) against a kinematic robot that walks the follower's reference model, eq. (28)
 closed through the observer (12), with the damping ``sigma_r`` that the online choice (30)
 picks for the standing delays (``solve_exact``, T clipped to the walker's 0.8-2.0 s), under
@@ -24,7 +24,8 @@ import numpy as np
 from bipedtele.config import load_config
 from bipedtele.control.online import solve_exact
 from bipedtele.delaymodels import parse_delay_model
-from bipedtele.leader.operators import course_from_config, make_operator
+from bipedtele.leader.operator import make_operator
+from bipedtele.leader.operators.pilot import course_from_config
 from bipedtele.messages import Feedback
 from bipedtele.telemetry import LeaderSample
 

@@ -10,7 +10,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-from bipedtele.config import param
+from bipedtele.configfields import param
 from bipedtele.control.config import ControlConfig
 
 __all__ = ["CORE_SECTIONS", "ClockConfig", "NetworkConfig", "RecordConfig", "RobotConfig"]

@@ -30,8 +30,7 @@ from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.realtime import RealtimeStepper
-from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot
-from bipedtele.follower.robots import robot_names, robot_spec
+from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot, robot_names, robot_part
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
@@ -83,16 +82,16 @@ class FollowerApp:
         self.fcfg = cfg.section("follower")
         self.robot_name = robot_name or self.fcfg.robot
         try:
-            self.spec = robot_spec(self.robot_name)
+            self.part = robot_part(self.robot_name)
         except ValueError as exc:
             raise ConfigError(f"--robot: {exc}") from None
         self.realtime = self.fcfg.realtime if realtime is None else realtime
-        simulated = "robot " + " or ".join(repr(n) for n in robot_names() if robot_spec(n).simulated)
-        if not self.realtime and not self.spec.simulated:
+        simulated = "robot " + " or ".join(repr(n) for n in robot_names() if robot_part(n).simulated)
+        if not self.realtime and not self.part.simulated:
             raise ConfigError(
                 f"--realtime off with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})"
             )
-        if reset_on_leader and not self.spec.simulated:
+        if reset_on_leader and not self.part.simulated:
             raise ConfigError(
                 f"--reset-on-leader with robot {self.robot_name!r}: allowed: only with the simulator ({simulated})"
             )
@@ -280,7 +279,7 @@ class FollowerApp:
         Between ticks the robot's time moves on one step at a time on the wall clock, and
         a command that arrives is applied before the next step (:meth:`FollowerLoop.pickup`).
         """
-        step_s = self.spec.step_s(self.cfg)
+        step_s = self.part.step_s(self.cfg)
         n_sub = max(1, math.ceil(self.dt / step_s - 1e-9)) if step_s else 1
         sub_dt = self.dt / n_sub
         self.pacer = pacer = Pacer(sub_dt, clock=time.monotonic)

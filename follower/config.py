@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bipedtele.config import param
-from bipedtele.follower.robots import robot_names
+from bipedtele.follower.robot import robot_names
 
 __all__ = ["FollowerConfig"]
 
@@ -15,7 +15,7 @@ class FollowerConfig:
     """Follower loop settings (see follower/loop.py)."""
 
     robot: str = param(
-        "sim", doc="which robot: 'sim' (the pybullet NAO) or 'naoqi' (a real NAO); see follower/robots.py"
+        "sim", doc="which robot: 'sim' (the pybullet NAO) or 'naoqi' (a real NAO); the bipedtele.robots entry points"
     )
     realtime: bool = param(True, doc="pace the loop in real time (off: as fast as possible, sim only)")
     control_rate_hz: float = param(50.0, lo=5.0, hi=1000.0, unit="Hz", doc="control loop rate")

@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import abc
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import ClassVar, Literal, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 import numpy as np
-from bipedtele.registry import Registry
+from bipedtele.parts import PART_GROUPS, Part, Parts
 
 __all__ = [
     "ROBOTS",
@@ -35,11 +36,13 @@ __all__ = [
     "RobotError",
     "RobotNotConnectedError",
     "RobotObservation",
+    "RobotPart",
     "WalkCommand",
     "WalkLimits",
     "WalkRefusedError",
     "make_robot",
-    "register_robot",
+    "robot_names",
+    "robot_part",
 ]
 
 Camera = Literal["head", "scene"]
@@ -243,10 +246,48 @@ class FollowerRobot(abc.ABC):
 
 R = TypeVar("R", bound=FollowerRobot)
 
-ROBOTS: Registry[FollowerRobot] = Registry("robot", "bipedtele.follower.builtin_robots")
 
-#: Class decorator: make a robot available as ``--robot NAME``.
-register_robot = ROBOTS.register
+def _no_step(cfg: Any) -> float | None:
+    return None
 
-#: Instantiate a registered robot by name (``sim``, ``naoqi``, ...).
-make_robot = ROBOTS.make
+
+@dataclass(frozen=True)
+class RobotPart(Part):
+    """A robot the follower offers (``--robot``, ``[follower] robot``).
+
+    One entry point of ``bipedtele.robots``. ``build(config=cfg)`` returns a
+    :class:`FollowerRobot` whose ``name`` is the part's.
+
+    Attributes
+    ----------
+    simulated : bool
+        Its time passes only in ``advance()``: it may run faster than real time
+        (``--realtime off``) and be put back on its start pose (``--reset-on-leader``).
+    step_s : callable
+        ``step_s(cfg) -> float | None``: its time advances in steps of this [s] (a
+        simulator's physics step); the real-time loop advances it one step at a time so a
+        fresh command reaches the next step. None: its time passes by itself.
+    """
+
+    simulated: bool = False
+    step_s: Callable[[Any], float | None] = _no_step
+
+
+#: The robots: the entry points of ``bipedtele.robots`` (the recipe: docs/architecture.md).
+ROBOTS: Parts[RobotPart] = Parts("robot", PART_GROUPS["robot"], RobotPart)
+
+
+def robot_names() -> list[str]:
+    """Return the names of the robots offered, sorted (nothing is imported)."""
+    return ROBOTS.names()
+
+
+def robot_part(name: str) -> RobotPart:
+    """Return the robot registered as ``name`` (ValueError naming the allowed ones)."""
+    return ROBOTS.get(name)
+
+
+def make_robot(name: str, **kwargs: Any) -> FollowerRobot:
+    """Build the robot registered as ``name`` (``config=cfg``)."""
+    robot: FollowerRobot = ROBOTS.build(name, **kwargs)
+    return robot

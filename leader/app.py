@@ -45,11 +45,11 @@ from bipedtele.config import Config, ConfigError
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
-from bipedtele.leader.device import DeviceError, LeaderDevice, make_device
-from bipedtele.leader.device_specs import device_names, device_spec
+from bipedtele.leader.device import DeviceError, LeaderDevice, device_names, make_device
 from bipedtele.leader.linkquality import LinkQuality, LinkReport
 from bipedtele.leader.loop import LeaderLoop
-from bipedtele.leader.operators import OPERATORS, Operator, course_from_config, make_operator
+from bipedtele.leader.operator import Operator, make_operator, operator_names
+from bipedtele.leader.operators.pilot import course_from_config
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor
 from bipedtele.leader.reach import KEY_MISMATCH, CommandReach
 from bipedtele.leader.videoparts import FrameAssembler
@@ -66,8 +66,8 @@ LOG = logging.getLogger(__name__)
 
 def _make_device(cfg: Config, name: str) -> LeaderDevice:
     try:
-        device_spec(name)  # a name that is not offered fails before any driver loads
-        # Every device reads its own settings ([leader], [falcon], [joystick]) from the profile.
+        # A name not offered fails before any driver is built; every device reads its own
+        # settings ([leader], [falcon], [joystick]) from the profile.
         return make_device(name, config=cfg)
     except ValueError as exc:
         raise ConfigError(f"--device {name!r}: {exc}") from None
@@ -269,8 +269,8 @@ class LeaderApp:
         self.dev_name = device_name or lc.device
         self.realtime = lc.realtime if realtime is None else realtime
         self.duration = lc.duration_s if duration_s is None else duration_s
-        if self.op_name not in OPERATORS:
-            raise ConfigError(f"--operator {self.op_name!r}: allowed: {', '.join(OPERATORS)}")
+        if self.op_name not in operator_names():
+            raise ConfigError(f"--operator {self.op_name!r}: allowed: {', '.join(operator_names())}")
         if self.op_name == "browser" and not lc.cockpit:
             raise ConfigError("--operator browser: allowed only with the cockpit (leader.cockpit = true)")
         self.device = _make_device(cfg, self.dev_name)  # a bad name fails here, before any I/O
@@ -610,7 +610,7 @@ def add_leader_parser(sub: Any) -> None:
     """``bipedtele leader``: run the operator's side."""
     p = sub.add_parser("leader", help="run the operator's side (haptic device, operator model, cockpit)")
     add_config_args(p)
-    p.add_argument("--operator", choices=OPERATORS, help="operator model (default: [leader] operator)")
+    p.add_argument("--operator", choices=operator_names(), help="operator model (default: [leader] operator)")
     p.add_argument("--device", choices=device_names(), help="leader device (default: [leader] device)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (0: no limit)")
     p.add_argument("--realtime", choices=["on", "off"], help="pace in real time (default: [leader] realtime)")

@@ -4,7 +4,7 @@ The pilot's course (``pilot_obstacles``) is plain data in world coordinates (the
 ``Feedback.pose``, the robot starting at the origin facing +x). When it is empty (the
 default) the pilot reads the ``obstacles`` of the profile's ``[world]`` section, the same
 obstacles the simulated robot meets, as plain data; see
-:func:`bipedtele.leader.operators.course_from_config`.
+:func:`bipedtele.leader.operators.pilot.course_from_config`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 from bipedtele.config import param
-from bipedtele.leader.device_specs import device_names
+from bipedtele.leader.device import device_names
+from bipedtele.leader.operator import operator_names
 
 __all__ = ["LeaderConfig"]
 
@@ -37,9 +38,12 @@ def _default_script() -> list[list[float]]:
 class LeaderConfig:
     """Leader program settings (see leader/loop.py and leader/app.py)."""
 
-    device: str = param("sim-falcon", doc="leader device: sim-falcon, falcon or joystick; see leader/device_specs.py")
-    operator: Literal["scripted", "pilot", "browser"] = param(
-        "scripted", doc="who moves a simulated device: scripted profile, obstacle pilot, browser joystick"
+    device: str = param(
+        "sim-falcon", doc="leader device: sim-falcon, falcon, joystick (the bipedtele.devices entry points)"
+    )
+    operator: str = param(
+        "scripted",
+        doc="who moves a simulated device: scripted profile, obstacle pilot, browser joystick (the bipedtele.operators entry points)",
     )
     realtime: bool = param(True, doc="pace the haptic loop in real time (off: as fast as possible)")
     haptic_rate_hz: float = param(1000.0, lo=50.0, hi=5000.0, unit="Hz", doc="haptic loop rate")
@@ -118,6 +122,8 @@ class LeaderConfig:
     def __post_init__(self) -> None:
         if self.device not in device_names():
             raise ValueError(f"device: {self.device!r}: allowed: {', '.join(repr(n) for n in device_names())}")
+        if self.operator not in operator_names():
+            raise ValueError(f"operator: {self.operator!r}: allowed: {', '.join(repr(n) for n in operator_names())}")
         for name in ("g_m", "gravity_n"):
             if len(getattr(self, name)) != 2:
                 raise ValueError(f"{name} = {getattr(self, name)!r}: allowed: a list of exactly 2 numbers [N]")

@@ -25,21 +25,23 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import ClassVar, Protocol, TypeVar
+from typing import Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
-from bipedtele.registry import Registry
+from bipedtele.parts import PART_GROUPS, Part, Parts
 
 __all__ = [
     "DEVICES",
     "DeviceError",
     "DeviceLimits",
     "DeviceNotConnectedError",
+    "DevicePart",
     "HandleState",
     "LeaderDevice",
     "OperatorHand",
+    "device_names",
+    "device_part",
     "make_device",
-    "register_device",
 ]
 
 
@@ -161,10 +163,39 @@ class LeaderDevice(abc.ABC):
 
 D = TypeVar("D", bound=LeaderDevice)
 
-DEVICES: Registry[LeaderDevice] = Registry("device", "bipedtele.leader.devices")
 
-#: Class decorator: make a device available as ``--device NAME``.
-register_device = DEVICES.register
+@dataclass(frozen=True)
+class DevicePart(Part):
+    """A leader device the leader offers (``--device``, ``[leader] device``).
 
-#: Instantiate a registered device by name (``sim-falcon``, ``falcon``, ``joystick``).
-make_device = DEVICES.make
+    One entry point of ``bipedtele.devices``. ``build(config=cfg)`` returns a
+    :class:`LeaderDevice` whose ``name`` is the part's.
+
+    Attributes
+    ----------
+    simulated : bool
+        A simulated operator's hand moves it (operator models drive it); False when a
+        person holds it. Equal to the device's :attr:`LeaderDevice.simulated`.
+    """
+
+    simulated: bool = False
+
+
+#: The leader devices: the entry points of ``bipedtele.devices`` (the recipe: docs/architecture.md).
+DEVICES: Parts[DevicePart] = Parts("device", PART_GROUPS["device"], DevicePart)
+
+
+def device_names() -> list[str]:
+    """Return the names of the devices offered, sorted (nothing is imported)."""
+    return DEVICES.names()
+
+
+def device_part(name: str) -> DevicePart:
+    """Return the device registered as ``name`` (ValueError naming the allowed ones)."""
+    return DEVICES.get(name)
+
+
+def make_device(name: str, **kwargs: Any) -> LeaderDevice:
+    """Build the device registered as ``name`` (``config=cfg`` and the device's keywords)."""
+    device: LeaderDevice = DEVICES.build(name, **kwargs)
+    return device

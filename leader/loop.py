@@ -51,7 +51,7 @@ from bipedtele.control.schemes.runtime import LeaderPort, received
 from bipedtele.delayestimate import DelayEstimator, conservative_delays
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
-from bipedtele.leader.operators import Operator
+from bipedtele.leader.operator import Operator
 from bipedtele.messages import Command, Feedback, new_session_id
 from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.telemetry import LeaderSample

@@ -1,4 +1,4 @@
-"""Contract checker for :class:`~bipedtele.leader.operators.Operator` implementations.
+"""Contract checker for :class:`~bipedtele.leader.operator.Operator` implementations.
 
 ``check_operator(factory)`` drives a *fresh* operator the way the leader loop and the
 simulated device use it (``update`` at the command rate, ``hand_force`` at every
@@ -13,7 +13,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from bipedtele.leader.operators import Operator
+from bipedtele.leader.operator import Operator
 from bipedtele.messages import Feedback
 from bipedtele.telemetry import LeaderSample
 

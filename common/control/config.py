@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any, Literal
 
-from bipedtele.config import param
+from bipedtele.configfields import param
+from bipedtele.control.schemenames import scheme_names
 
 __all__ = ["ControlConfig"]
 
@@ -113,9 +114,6 @@ class ControlConfig:
     )
 
     def __post_init__(self) -> None:
-        # the registry imports this module: looked up here, at validation
-        from bipedtele.control.schemes import scheme_names
-
         if self.scheme not in scheme_names():
             raise ValueError(f"scheme = {self.scheme!r}: allowed: {', '.join(scheme_names())}")
         for name in (

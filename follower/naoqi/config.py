@@ -1,15 +1,20 @@
-"""The ``[naoqi]`` section: how to reach a real NAO and the walk/sensor settings it uses."""
+"""A real NAO as a part (``--robot naoqi``) and its ``[naoqi]`` section: how to reach it, walk and sensor settings.
+
+The driver (:class:`bipedtele.follower.naoqi.robot.NaoqiRobot`) is loaded only when
+:data:`PART` builds one (``qi`` itself only when it connects).
+"""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from bipedtele.config import ConfigError, param
+from bipedtele.follower.robot import FollowerRobot, RobotPart
 
-__all__ = ["SONAR_RANGES_M", "NaoqiConfig"]
+__all__ = ["PART", "SONAR_RANGES_M", "NaoqiConfig"]
 
 #: Reliable sonar range [m] per NAO head/body version (docs/hardware.md).
 SONAR_RANGES_M: dict[str, tuple[float, float]] = {
@@ -122,3 +127,13 @@ class NaoqiConfig:
         except OSError as exc:
             raise ConfigError(f"naoqi.password_file = {self.password_file!r}: cannot read ({exc.strerror})") from None
         return text.splitlines()[0].strip() if text.strip() else ""
+
+
+def _build(**kwargs: Any) -> FollowerRobot:
+    from bipedtele.follower.naoqi.robot import NaoqiRobot
+
+    return NaoqiRobot(**kwargs)
+
+
+#: ``--robot naoqi`` (entry point ``bipedtele.robots``).
+PART = RobotPart(name="naoqi", doc="a real NAO through NAOqi", build=_build, section="naoqi", config=NaoqiConfig)

@@ -37,7 +37,7 @@ import os
 import socket
 import threading
 import time
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from bipedtele.config import Config, resolve_section
@@ -56,7 +56,6 @@ from bipedtele.follower.robot import (
     RobotObservation,
     WalkCommand,
     WalkRefusedError,
-    register_robot,
 )
 
 __all__ = ["MEMORY_KEYS", "NaoqiRobot"]
@@ -76,9 +75,8 @@ _OPTIONAL = ("ALSonar", "ALVideoDevice")
 _TOP_CAMERA, _K_QVGA, _K_RGB = 0, 1, 11
 
 
-@register_robot("naoqi")
 class NaoqiRobot(FollowerRobot):
-    """A real NAO through NAOqi.
+    """A real NAO through NAOqi (``--robot naoqi``: its part is in :mod:`bipedtele.follower.naoqi.config`).
 
     Parameters
     ----------
@@ -92,6 +90,8 @@ class NaoqiRobot(FollowerRobot):
     ConfigError
         An override is not a field or not allowed.
     """
+
+    name: ClassVar[str] = "naoqi"
 
     def __init__(self, config: NaoqiConfig | Config | None = None, **overrides: Any) -> None:
         cfg = resolve_section(config, NaoqiConfig, "naoqi", overrides)

@@ -1,13 +1,18 @@
-"""The ``[sim]`` section: physics, servo, sensors and gait of the pybullet NAO."""
+"""The pybullet NAO as a part (``--robot sim``) and its ``[sim]`` section: physics, servo, sensors and gait.
+
+The driver (:class:`bipedtele.follower.sim.robot.SimNao`) imports pybullet: :data:`PART`
+loads it only when it builds one.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from bipedtele.config import param
+from bipedtele.follower.robot import FollowerRobot, RobotPart
 
-__all__ = ["SONAR_RANGE_M", "SimConfig"]
+__all__ = ["PART", "SONAR_RANGE_M", "SimConfig"]
 
 #: Reliable sonar range [m] per NAO version (docs/hardware.md): (min, max).
 SONAR_RANGE_M = {"V3": (0.25, 2.55), "V4": (0.25, 2.55), "V5": (0.20, 0.80), "V6": (0.20, 0.80)}
@@ -40,3 +45,21 @@ class SimConfig:
     def __post_init__(self) -> None:
         if not self.cycle_min_s < self.cycle_max_s:
             raise ValueError("cycle_min_s, cycle_max_s: allowed: cycle_min_s < cycle_max_s")
+
+
+def _build(**kwargs: Any) -> FollowerRobot:
+    from bipedtele.follower.sim.robot import SimNao  # pybullet
+
+    return SimNao(**kwargs)
+
+
+#: ``--robot sim`` (entry point ``bipedtele.robots``).
+PART = RobotPart(
+    name="sim",
+    doc="the pybullet NAO",
+    build=_build,
+    section="sim",
+    config=SimConfig,
+    simulated=True,
+    step_s=lambda cfg: 1.0 / float(cfg.section("sim").physics_hz),
+)

@@ -26,7 +26,7 @@ import logging
 import math
 import os
 import tempfile
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pybullet as pb
@@ -40,7 +40,6 @@ from bipedtele.follower.robot import (
     RobotObservation,
     WalkCommand,
     WalkLimits,
-    register_robot,
 )
 from bipedtele.follower.sim.config import SONAR_RANGE_M, SimConfig
 from bipedtele.follower.sim.gait import HIP, KNEE, YAW, Gait, GaitConfig, hip_speed
@@ -58,9 +57,8 @@ _SONAR_XYZ = (0.056, 0.042, 0.05)  # left sonar in the torso frame [m] (right: y
 _SETTLE_S = 0.4
 
 
-@register_robot("sim")
 class SimNao(FollowerRobot):
-    """The simulated NAO.
+    """The simulated NAO (``--robot sim``: its part is in :mod:`bipedtele.follower.sim.config`).
 
     Parameters
     ----------
@@ -76,6 +74,8 @@ class SimNao(FollowerRobot):
     ConfigError
         An override is not a field of :class:`SimConfig` or out of range.
     """
+
+    name: ClassVar[str] = "sim"
 
     def __init__(
         self, config: SimConfig | Config | None = None, world: WorldConfig | None = None, **overrides: Any

@@ -19,7 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from bipedtele.config import Config, resolve_section
@@ -28,18 +28,16 @@ from bipedtele.leader.device import (
     DeviceNotConnectedError,
     HandleState,
     LeaderDevice,
-    register_device,
 )
-from bipedtele.leader.device_specs import FalconConfig
 from bipedtele.leader.devices import falcon_protocol as fp
 from bipedtele.leader.devices.falcon_usb import FalconUsb, load_libftdi
+from bipedtele.leader.parts import FalconConfig
 
 __all__ = ["FalconConfig", "FalconDevice"]
 
 LOG = logging.getLogger(__name__)
 
 
-@register_device("falcon")
 class FalconDevice(LeaderDevice):
     """A Novint Falcon.
 
@@ -52,6 +50,8 @@ class FalconDevice(LeaderDevice):
     **overrides
         Fields of :class:`FalconConfig`.
     """
+
+    name: ClassVar[str] = "falcon"
 
     def __init__(
         self,

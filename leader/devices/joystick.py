@@ -20,7 +20,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from bipedtele.config import Config, resolve_section
@@ -29,9 +29,8 @@ from bipedtele.leader.device import (
     DeviceNotConnectedError,
     HandleState,
     LeaderDevice,
-    register_device,
 )
-from bipedtele.leader.device_specs import JoystickConfig
+from bipedtele.leader.parts import JoystickConfig
 
 __all__ = ["JoystickConfig", "JoystickDevice", "ff_direction"]
 
@@ -60,7 +59,6 @@ def _import_evdev() -> Any:
     return evdev
 
 
-@register_device("joystick")
 class JoystickDevice(LeaderDevice):
     """A Linux evdev joystick as a two-axis leader device.
 
@@ -75,6 +73,8 @@ class JoystickDevice(LeaderDevice):
     **overrides
         Fields of :class:`JoystickConfig`, e.g. ``device="/dev/input/event5"``.
     """
+
+    name: ClassVar[str] = "joystick"
 
     def __init__(
         self,

@@ -36,7 +36,6 @@ from bipedtele.leader.device import (
     HandleState,
     LeaderDevice,
     OperatorHand,
-    register_device,
 )
 
 __all__ = ["SimFalcon", "SimFalconParams"]
@@ -83,7 +82,6 @@ class SimFalconParams:
             raise ValueError("viscous_n_s_m * step_s / mass_kg: allowed: < 1 (explicit friction stability)")
 
 
-@register_device("sim-falcon")
 class SimFalcon(LeaderDevice):
     """Simulated 2-axis Falcon handle (see the module docstring for the model).
 
@@ -99,6 +97,8 @@ class SimFalcon(LeaderDevice):
         A loaded profile: ``params`` from its ``[leader]`` section (mass_kg,
         viscous_n_s_m, coulomb_n, gravity_n) when ``params`` is not given.
     """
+
+    name: ClassVar[str] = "sim-falcon"
 
     #: Moved by a simulated operator's hand (operator models drive it).
     simulated: ClassVar[bool] = True

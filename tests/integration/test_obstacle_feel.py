@@ -29,7 +29,7 @@ from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.robot import make_robot
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
-from bipedtele.leader.operators import ScriptedOperator
+from bipedtele.leader.operators.scripted import ScriptedOperator
 from bipedtele.messages import Command, Feedback
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]

@@ -11,9 +11,11 @@ The sub-commands each role registers run the same way (``bipedtele follower``,
 
 from __future__ import annotations
 
+import ast
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -89,3 +91,105 @@ def test_the_leader_never_loads_the_follower() -> None:
     got = _probe("bipedtele.leader")
     assert "bipedtele.leader.app" in got["imported"]
     assert _under(got["loaded"], "bipedtele.follower") == []
+
+
+def _module_imports(repo: Path, *, deep: bool = False) -> dict[str, set[str]]:
+    """Module -> the bipedtele modules it imports (module level, not TYPE_CHECKING; ``deep``: in functions too)."""
+    roots = {"common": "bipedtele", "leader": "bipedtele.leader", "follower": "bipedtele.follower"}
+    files: dict[str, Path] = {}
+    for folder, pkg in roots.items():
+        for path in (repo / folder).rglob("*.py"):
+            rel = path.relative_to(repo / folder).with_suffix("").parts
+            name = ".".join((pkg, *rel[:-1])) if rel[-1] == "__init__" else ".".join((pkg, *rel))
+            files[name] = path
+    known = set(files)
+
+    def closest(name: str) -> str | None:
+        while name and name not in known:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        deps: set[str] = set()
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree) if deep else tree.body:
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                continue
+            targets: list[str] = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    base = ".".join(
+                        [*package.split(".")[: len(package.split(".")) - node.level + 1], *([base] if base else [])]
+                    )
+                targets = [f"{base}.{a.name}" for a in node.names] + [base]
+            for t in targets:
+                hit = closest(t)
+                while hit and hit.startswith("bipedtele"):
+                    deps.add(hit)  # importing a.b.c runs a and a.b first
+                    hit = closest(hit.rpartition(".")[0])
+        deps.discard(name)
+        graph[name] = {d for d in deps if not name.startswith(d + ".")}  # a module's own parents are loading it
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+@pytest.mark.timeout(60)
+def test_no_import_circle() -> None:
+    """Issue 22: ``config -> sections -> control.config -> config`` was a circle, hidden by an
+    import inside a function. No module-level circle anywhere; in the core none at all,
+    imports inside functions included (the roles' lazy imports of their drivers are theirs)."""
+    repo = Path(__file__).resolve().parents[2]
+    graph = _module_imports(repo)
+    assert len(graph) > 100
+    assert _cycles(graph) == []
+    deep = _module_imports(repo, deep=True)
+    core = {m: {d for d in deps if not d.startswith(_ROLES)} for m, deps in deep.items() if not m.startswith(_ROLES)}
+    assert "bipedtele.sections" in core["bipedtele.config"]
+    assert _cycles(core) == []
+
+
+_ROLES = ("bipedtele.leader", "bipedtele.follower")
+
+
+def test_the_circle_check_finds_a_circle() -> None:
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from bipedtele.leader.check import DeviceContractError, check_device
 from bipedtele.leader.device import DeviceError, DeviceNotConnectedError, make_device
-from bipedtele.leader.devices import SimFalcon, SimFalconParams
-from bipedtele.leader.operators import Hand
+from bipedtele.leader.devices.sim_falcon import SimFalcon, SimFalconParams
+from bipedtele.leader.operator import Hand
 
 
 def test_sim_falcon_passes_the_contract_checker():

@@ -9,18 +9,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from bipedtele.config import ConfigError, load_config
-from bipedtele.leader.devices import SimFalcon
+from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
-from bipedtele.leader.operators import (
-    DEFAULT_COURSE,
-    BrowserOperator,
-    Hand,
-    Obstacle,
-    PilotOperator,
-    ScriptedOperator,
-    course_from_config,
-    make_operator,
-)
+from bipedtele.leader.operator import Hand, make_operator
+from bipedtele.leader.operators.browser import BrowserOperator
+from bipedtele.leader.operators.pilot import DEFAULT_COURSE, Obstacle, PilotOperator, course_from_config
+from bipedtele.leader.operators.scripted import ScriptedOperator
 from bipedtele.messages import Command, Feedback
 from bipedtele.telemetry import LeaderSample
 

@@ -4,33 +4,28 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config import ConfigError, load_config
+from bipedtele.leader.operator import Operator, make_operator, operator_names
 from bipedtele.leader.operator_check import OperatorContractError, check_operator
-from bipedtele.leader.operators import (
-    OPERATOR_REGISTRY,
-    OPERATORS,
-    Operator,
-    make_operator,
-    register_operator,
-)
 from bipedtele.messages import Feedback
 
 pytestmark = pytest.mark.timeout(60)
 
 
-@pytest.mark.parametrize("name", sorted(OPERATOR_REGISTRY))
+@pytest.mark.parametrize("name", operator_names())
 def test_every_registered_operator_meets_the_contract(name: str) -> None:
     cfg = load_config("localhost-delay")
     check_operator(lambda: make_operator(name, cfg, joystick=lambda: None))
+    assert make_operator(name, cfg, joystick=lambda: None).name == name
 
 
-def test_cli_choices_are_the_registry() -> None:
-    assert set(OPERATORS) == set(OPERATOR_REGISTRY) >= {"scripted", "pilot", "browser"}
+def test_the_built_in_operators_are_registered() -> None:
+    assert set(operator_names()) >= {"scripted", "pilot", "browser"}
 
 
-def test_registering_twice_is_refused() -> None:
-    with pytest.raises(ValueError, match="already registered"):
-        register_operator("pilot")(lambda ctx: make_operator("pilot", ctx.cfg))
+def test_an_unknown_operator_in_the_profile_names_the_allowed_ones() -> None:
+    with pytest.raises(ConfigError, match=r"operator.*'nope'.*allowed: 'browser', 'pilot', 'scripted'"):
+        load_config("default", ['leader.operator="nope"'])
 
 
 class _Runaway(Operator):

@@ -30,7 +30,6 @@ _NOT_YET = "issue 22: not yet split"
 KNOWN: dict[str, str] = {
     "bench/adversary.py:main": _NOT_YET,
     "bench/flood.py:main": _NOT_YET,
-    "common/config.py": _NOT_YET,
     "follower/sim/gait.py:Gait._plan_step": _NOT_YET,
     "follower/sim/model.py:nao_urdf": _NOT_YET,
 }

@@ -110,9 +110,9 @@ def test_cockpit_json_keeps_the_page_keys_and_nulls_non_finite_numbers() -> None
 
 def test_the_leader_loop_makes_one_sample_per_command() -> None:
     from bipedtele.config import load_config
-    from bipedtele.leader.devices import SimFalcon
+    from bipedtele.leader.devices.sim_falcon import SimFalcon
     from bipedtele.leader.loop import LeaderLoop
-    from bipedtele.leader.operators import ScriptedOperator
+    from bipedtele.leader.operators.scripted import ScriptedOperator
     from bipedtele.messages import Command
 
     cfg = load_config("default", [])

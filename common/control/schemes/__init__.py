@@ -9,28 +9,15 @@ one entry in its package's ``pyproject.toml``.
 
 from __future__ import annotations
 
-from importlib import metadata
 from typing import TYPE_CHECKING
 
+from bipedtele.control.schemenames import ENTRY_POINT_GROUP, registered, scheme_names
 from bipedtele.control.schemes.base import Scheme
 
 if TYPE_CHECKING:
     from bipedtele.control.config import ControlConfig
 
 __all__ = ["ENTRY_POINT_GROUP", "Scheme", "make_scheme", "scheme_class", "scheme_names"]
-
-#: Entry-point group that registers schemes (name -> Scheme subclass).
-ENTRY_POINT_GROUP = "bipedtele.schemes"
-
-
-def _registered() -> dict[str, metadata.EntryPoint]:
-    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
-
-
-def scheme_names() -> list[str]:
-    """Return the registered schemes' names, the paper's first, then sorted."""
-    names = sorted(_registered())
-    return (["paper"] if "paper" in names else []) + [n for n in names if n != "paper"]
 
 
 def scheme_class(name: str) -> type[Scheme]:
@@ -42,7 +29,7 @@ def scheme_class(name: str) -> type[Scheme]:
         No such scheme, or its entry point is not a :class:`Scheme`; the message names
         the allowed ones.
     """
-    ep = _registered().get(name)
+    ep = registered().get(name)
     if ep is None:
         raise ValueError(f"scheme {name!r}: allowed: {', '.join(scheme_names())}")
     cls = ep.load()

@@ -1,5 +1,5 @@
-"""Leader devices: the driver-free spec table, the ``--device`` choices built from it, and
-the follower and router processes kept free of leader device drivers."""
+"""Leader devices: the ``--device`` choices and the profile's check come from the entry points,
+and the follower and router processes stay free of leader device drivers."""
 
 from __future__ import annotations
 
@@ -8,8 +8,7 @@ import sys
 
 import pytest
 from bipedtele.config import ConfigError, load_config
-from bipedtele.leader.device import DEVICES, make_device
-from bipedtele.leader.device_specs import DEVICE_SPECS, device_names, device_spec
+from bipedtele.leader.device import device_names, device_part
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -31,22 +30,12 @@ def test_follower_and_router_load_no_leader_device_driver() -> None:
     assert "bipedtele.leader.app" not in loaded
 
 
-def test_every_spec_has_its_driver_and_every_driver_its_spec() -> None:
-    make_device("sim-falcon", config=load_config("default"))  # loads the built-in drivers
-    assert set(DEVICES) == set(DEVICE_SPECS)
-    cfg = load_config("default")
-    for name in device_names():
-        spec = device_spec(name)
-        assert spec.name == name and spec.section in cfg.sections
-        assert DEVICES[name].simulated is spec.simulated  # type: ignore[attr-defined]
-
-
 def test_unknown_device_names_the_allowed_ones() -> None:
     with pytest.raises(ValueError, match="allowed: falcon, joystick, sim-falcon"):
-        device_spec("nope")
+        device_part("nope")
 
 
-def test_leader_device_choices_come_from_the_specs() -> None:
+def test_leader_device_choices_come_from_the_entry_points() -> None:
     out = subprocess.run(
         [sys.executable, "-m", "bipedtele.cli", "leader", "--device", "nope", "--help"],
         capture_output=True,

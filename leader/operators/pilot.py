@@ -1,272 +1,31 @@
-"""Operator models: the human force f_h of eq. (1) for a simulated leader device.
+"""``pilot``: the paper's task (Sec. 5, Fig. 10), steered from the delayed feedback.
 
-Every model decides an *intended* speed pair [forward cm/s, turn deg/s], turns it into an
-intended handle position ``x_d = ref / k_g`` (inside the workspace) and moves the handle
-with a :class:`Hand`: a PD "hand" of limited stiffness, damping and strength pulling the
-handle toward a smoothed ``x_d``. The device's force feedback therefore pushes the hand
-off its target, as it does a human's: the operator feels the coordination error and
-yields to it partly.
-
-Models
-------
-``scripted``
-    A profile of intended speeds over time (``(t, v, w)`` points, linear or step).
-``pilot``
-    The paper's task (Sec. 5, Fig. 10): walk toward an obstacle and evade it by the left
-    and the right side alternately, N passes, steering only from the delayed feedback
-    (pose and sonar) with a pure-pursuit law through waypoints beside each obstacle.
-``browser``
-    The intended handle position comes from the cockpit's virtual joystick.
-
-The loop calls :meth:`Operator.update` (at its command rate) with the device time and the
-latest feedback; the device calls :meth:`Operator.hand_force` at every integration step.
+Walk toward an obstacle and evade it by the left and the right side alternately, N passes,
+steering only from the delayed feedback (pose and sonar) with a pure-pursuit law through
+waypoints beside each obstacle.
 """
 
 from __future__ import annotations
 
-import abc
 import logging
 import math
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
+from bipedtele.leader.operator import Hand, Operator, OperatorContext
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, PredictedPose
 from bipedtele.messages import Feedback
 from bipedtele.telemetry import LeaderSample
 
-__all__ = [
-    "DEFAULT_COURSE",
-    "OPERATORS",
-    "OPERATOR_REGISTRY",
-    "PREDICT_MODES",
-    "BrowserOperator",
-    "Hand",
-    "Obstacle",
-    "Operator",
-    "OperatorContext",
-    "PilotOperator",
-    "ScriptedOperator",
-    "course_from_config",
-    "make_operator",
-    "register_operator",
-]
+__all__ = ["DEFAULT_COURSE", "PREDICT_MODES", "Obstacle", "PilotOperator", "course_from_config"]
 
 LOG = logging.getLogger(__name__)
 
-
-class Hand:
-    """A human hand holding the handle: f_h = k_h (x_d - x) - b_h dx, |f_h| <= f_max.
-
-    The target ``x_d`` follows the commanded target through a first-order lag of time
-    constant ``tau_s`` (reaction and arm dynamics).
-
-    Parameters
-    ----------
-    stiffness_n_m : float
-        Hand stiffness k_h [N/m].
-    damping_n_s_m : float
-        Hand damping b_h [N s/m].
-    force_max_n : float
-        Largest force per axis the hand exerts [N].
-    tau_s : float
-        Time constant of the target smoothing [s] (0: none).
-    """
-
-    def __init__(
-        self,
-        stiffness_n_m: float = 300.0,
-        damping_n_s_m: float = 8.0,
-        force_max_n: float = 15.0,
-        tau_s: float = 0.15,
-    ) -> None:
-        self.k = float(stiffness_n_m)
-        self.b = float(damping_n_s_m)
-        self.f_max = float(force_max_n)
-        self.tau = float(tau_s)
-        self.target = np.zeros(2)
-        self.x_d = np.zeros(2)
-        self._t_last: float | None = None
-
-    def set_target(self, x_target_m: np.ndarray) -> None:
-        """Where the hand wants the handle [m] per axis."""
-        self.target = np.asarray(x_target_m, dtype=float).reshape(2).copy()
-
-    def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
-        """Force [N] on the handle at device time ``t`` [s] (see the class docstring)."""
-        dt = 0.0 if self._t_last is None else max(0.0, t - self._t_last)
-        self._t_last = t
-        if self.tau > 0.0:
-            self.x_d += (self.target - self.x_d) * (1.0 - math.exp(-dt / self.tau))
-        else:
-            self.x_d = self.target.copy()
-        f = self.k * (self.x_d - x_m) - self.b * dx_m
-        return np.clip(f, -self.f_max, self.f_max)
-
-
-class Operator(abc.ABC):
-    """Base of the operator models (see the module docstring).
-
-    Parameters
-    ----------
-    k_g : sequence of float
-        Handle position -> [forward cm/s, turn deg/s] per metre (eq. 7, 11).
-    workspace_m : float
-        Half-width of the handle workspace [m]; targets stay 2 % inside it.
-    hand : Hand, optional
-        The hand that moves the handle.
-    """
-
-    name: ClassVar[str] = ""
-
-    def __init__(self, k_g: Sequence[float], workspace_m: float = 0.05, hand: Hand | None = None) -> None:
-        self.k_g = np.asarray(k_g, dtype=float).reshape(2)
-        self.workspace_m = float(workspace_m)
-        self.hand = hand or Hand()
-        self.intended = np.zeros(2)
-
-    def update(self, t: float, feedback: Feedback | None) -> None:
-        """Decide the intended speeds at device time ``t`` [s] from the latest feedback."""
-        self.intended = np.asarray(self.intended_speed(t, feedback), dtype=float).reshape(2)
-        lim = 0.98 * self.workspace_m
-        self.hand.set_target(np.clip(self.intended / self.k_g, -lim, lim))
-
-    @abc.abstractmethod
-    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
-        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s]."""
-
-    def hand_force(self, t: float, x_m: np.ndarray, dx_m: np.ndarray) -> np.ndarray:
-        """f_h [N] (the :class:`bipedtele.leader.device.OperatorHand` protocol)."""
-        return self.hand.hand_force(t, x_m, dx_m)
-
-    def observe_sample(self, sample: LeaderSample) -> None:  # noqa: B027 - optional hook
-        """Observe the loop's telemetry sample made right after each command.
-
-        The sample (:class:`~bipedtele.telemetry.LeaderSample`) holds what was sent, the
-        delay estimates, the clocks; models that use it override this.
-        """
-
-    @property
-    def done(self) -> bool:
-        """True when the operator has finished its task (never, for open-ended ones)."""
-        return False
-
-    def progress(self) -> dict[str, Any]:
-        """Plain-data progress for telemetry."""
-        return {"operator": self.name, "done": self.done, "intended": self.intended.tolist()}
-
-
-# --------------------------------------------------------------------------- scripted
-
-
-class ScriptedOperator(Operator):
-    """Intended speeds from a profile of ``(t [s], forward [cm/s], turn [deg/s])`` points.
-
-    ``interp="linear"`` interpolates between points, ``"step"`` holds each point's value
-    until the next. Before the first point and after the last, the end values hold; the
-    operator is done once ``t`` passes the last point, unless ``hold_last``: then it is
-    never done and keeps the last point's speed (the program's ``--duration`` ends the
-    run). With ``wait_for_feedback`` (the default) the profile's time starts at the first
-    update with feedback, as an operator waits for the robot to appear before driving it;
-    before that the intent is zero.
-    """
-
-    name = "scripted"
-
-    def __init__(
-        self,
-        points: Sequence[Sequence[float]],
-        k_g: Sequence[float],
-        interp: str = "linear",
-        workspace_m: float = 0.05,
-        hand: Hand | None = None,
-        wait_for_feedback: bool = True,
-        hold_last: bool = False,
-    ) -> None:
-        super().__init__(k_g, workspace_m, hand)
-        self.wait_for_feedback = wait_for_feedback
-        self.hold_last = hold_last
-        self.t_start: float | None = None
-        pts = np.asarray(points, dtype=float).reshape(-1, 3)
-        if len(pts) == 0 or np.any(np.diff(pts[:, 0]) < 0) or not np.all(np.isfinite(pts)):
-            raise ValueError("points: allowed: finite [t, forward, turn] rows with non-decreasing t")
-        if interp not in ("linear", "step"):
-            raise ValueError(f"interp = {interp!r}: allowed: 'linear', 'step'")
-        self.points = pts
-        self.interp = interp
-        self._t = 0.0
-
-    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
-        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s] (see the class docstring)."""
-        if self.t_start is None:
-            if self.wait_for_feedback and feedback is None:
-                return np.zeros(2)
-            self.t_start = t
-        t = t - self.t_start
-        self._t = t
-        ts = self.points[:, 0]
-        if self.interp == "step":
-            i = max(0, int(np.searchsorted(ts, t, side="right")) - 1)
-            return self.points[i, 1:].copy()
-        return np.array([np.interp(t, ts, self.points[:, 1]), np.interp(t, ts, self.points[:, 2])])
-
-    @property
-    def done(self) -> bool:
-        """True once the task is finished (see the class docstring)."""
-        return bool(not self.hold_last and self._t > self.points[-1, 0])
-
-
-# --------------------------------------------------------------------------- browser
-
-
-class BrowserOperator(Operator):
-    """Intended handle position from the cockpit's virtual joystick.
-
-    ``joystick()`` returns ``(x, y, t)`` with x, y in [-1, 1] (x right, y up) and ``t`` the
-    time of the last browser input (``time.time()``), or ``None``. Joystick up moves the
-    handle forward (forward speed), joystick right turns right (negative turn speed,
-    yaw counter-clockwise positive). With no input, or input older than ``timeout_s``
-    (the page went away), the hand holds the handle at zero.
-    """
-
-    name = "browser"
-
-    def __init__(
-        self,
-        joystick: Callable[[], tuple[float, float, float] | None],
-        k_g: Sequence[float],
-        workspace_m: float = 0.05,
-        hand: Hand | None = None,
-        timeout_s: float = 1.0,
-        clock: Callable[[], float] = time.time,
-    ) -> None:
-        super().__init__(k_g, workspace_m, hand)
-        self.joystick = joystick
-        self.timeout_s = timeout_s
-        self.clock = clock
-        self.active = False
-
-    def intended_speed(self, t: float, feedback: Feedback | None) -> np.ndarray:
-        """Intended [forward cm/s, turn deg/s] at device time ``t`` [s] (see the class docstring)."""
-        js = self.joystick()
-        self.active = False
-        if js is None:
-            return np.zeros(2)
-        x, y, t_js = js
-        if not (math.isfinite(x) and math.isfinite(y)) or self.clock() - t_js > self.timeout_s:
-            return np.zeros(2)
-        self.active = True
-        pos = np.array([np.clip(y, -1, 1), -np.clip(x, -1, 1)]) * 0.98 * self.workspace_m
-        return pos * self.k_g
-
-    def progress(self) -> dict[str, Any]:
-        """Plain-data progress for telemetry."""
-        return {**super().progress(), "joystick_active": self.active}
-
-
-# --------------------------------------------------------------------------- pilot
+#: What the pilot steers on: the reported pose, the predicted present pose, or the pose
+#: predicted h1 ahead (see :class:`PilotOperator`).
+PREDICT_MODES: tuple[str, ...] = ("off", "now", "h1")
 
 
 @dataclass(frozen=True)
@@ -579,9 +338,6 @@ class PilotOperator(Operator):
         }
 
 
-# --------------------------------------------------------------------------- factory
-
-
 #: The course used when neither ``[leader] pilot_obstacles`` nor ``[world] obstacles`` give
 #: one: the simulated lab's task course (a box, a cylinder, a box in a row along +x,
 #: offset left/right; boxes as their circumscribed circles).
@@ -633,77 +389,7 @@ def course_from_config(cfg: Any) -> list[Obstacle]:
     return list(DEFAULT_COURSE)
 
 
-@dataclass(frozen=True)
-class OperatorContext:
-    """What an operator factory may use to build its operator.
-
-    Attributes
-    ----------
-    cfg : bipedtele.config.Config
-        Loaded profile (``[leader]`` and ``[control]`` are used).
-    workspace_m : float
-        The device's workspace half-width [m].
-    joystick : callable or None
-        The cockpit's joystick reader (``None`` without a cockpit).
-    hold_script : bool
-        ``scripted``: hold the last point's speed instead of finishing.
-    """
-
-    cfg: Any
-    workspace_m: float = 0.05
-    joystick: Callable[[], tuple[float, float, float] | None] | None = None
-    hold_script: bool = False
-
-    @property
-    def leader(self) -> Any:
-        """The ``[leader]`` section."""
-        return self.cfg.sections["leader"]
-
-    @property
-    def k_g(self) -> list[float]:
-        """Handle position -> speed gains of ``[control]`` (eq. 7, 11)."""
-        return list(self.cfg.sections["control"].k_g)
-
-    @property
-    def hand(self) -> Hand:
-        """A hand built from the ``[leader] hand_*`` settings."""
-        lc = self.leader
-        return Hand(lc.hand_stiffness_n_m, lc.hand_damping_n_s_m, lc.hand_force_max_n, lc.hand_tau_s)
-
-
-OperatorFactory = Callable[[OperatorContext], Operator]
-
-#: The operator registry: name -> factory. Register a new model with
-#: :func:`register_operator`; the leader's ``--operator`` choices come from here.
-OPERATOR_REGISTRY: dict[str, OperatorFactory] = {}
-
-
-def register_operator(name: str) -> Callable[[OperatorFactory], OperatorFactory]:
-    """Register an operator factory under ``name`` (a decorator).
-
-    Parameters
-    ----------
-    name : str
-        The name chosen by ``[leader] operator`` or ``--operator``.
-    """
-
-    def deco(factory: OperatorFactory) -> OperatorFactory:
-        if name in OPERATOR_REGISTRY:
-            raise ValueError(f"operator {name!r} is already registered")
-        OPERATOR_REGISTRY[name] = factory
-        return factory
-
-    return deco
-
-
-@register_operator("scripted")
-def _scripted(ctx: OperatorContext) -> Operator:
-    lc = ctx.leader
-    return ScriptedOperator(lc.script, ctx.k_g, lc.script_interp, ctx.workspace_m, ctx.hand, hold_last=ctx.hold_script)
-
-
-@register_operator("pilot")
-def _pilot(ctx: OperatorContext) -> Operator:
+def build(ctx: OperatorContext) -> Operator:
     lc = ctx.leader
     return PilotOperator(
         course_from_config(ctx.cfg),
@@ -720,52 +406,3 @@ def _pilot(ctx: OperatorContext) -> Operator:
         predict=lc.pilot_predict,
         predictor=DelayPredictor(tau_s=lc.pilot_predict_tau_s),
     )
-
-
-@register_operator("browser")
-def _browser(ctx: OperatorContext) -> Operator:
-    if ctx.joystick is None:
-        raise ValueError("operator 'browser' needs the cockpit (set leader.cockpit = true)")
-    return BrowserOperator(ctx.joystick, ctx.k_g, ctx.workspace_m, ctx.hand)
-
-
-def make_operator(
-    name: str,
-    cfg: Any,
-    *,
-    workspace_m: float = 0.05,
-    joystick: Callable[[], tuple[float, float, float] | None] | None = None,
-    hold_script: bool = False,
-) -> Operator:
-    """Build the registered operator ``name`` from a config.
-
-    Parameters
-    ----------
-    name : str
-        Operator model (a key of :data:`OPERATOR_REGISTRY`).
-    cfg : bipedtele.config.Config
-        Loaded profile (``[leader]`` and ``[control]`` are used).
-    workspace_m : float
-        The device's workspace half-width [m].
-    joystick : callable, optional
-        The cockpit's joystick reader (required for ``browser``).
-    hold_script : bool
-        ``scripted``: hold the last point's speed instead of finishing (the run has a
-        duration that ends it).
-
-    Returns
-    -------
-    Operator
-        The operator, ready for :meth:`Operator.update`.
-    """
-    factory = OPERATOR_REGISTRY.get(name)
-    if factory is None:
-        raise ValueError(f"operator {name!r}: allowed: {', '.join(OPERATOR_REGISTRY)}")
-    return factory(OperatorContext(cfg, workspace_m, joystick, hold_script))
-
-
-#: The registered operator names (CLI choices).
-OPERATORS: tuple[str, ...] = tuple(OPERATOR_REGISTRY)
-#: What the pilot steers on: the reported pose, the predicted present pose, or the pose
-#: predicted h1 ahead (see :class:`PilotOperator`).
-PREDICT_MODES: tuple[str, ...] = ("off", "now", "h1")

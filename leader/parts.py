@@ -1,0 +1,140 @@
+"""The leader's built-in parts: three devices and three operator models, with the device settings sections.
+
+Each ``PART`` here is one entry point (``bipedtele.devices``, ``bipedtele.operators`` in
+pyproject.toml). Every program that loads a profile loads this module for the
+``[joystick]`` and ``[falcon]`` sections the devices bring, so it holds no driver and no
+model: each part imports its own module (``bipedtele.leader.devices.*``,
+``bipedtele.leader.operators.*``) only when it builds one (the follower and the router never
+load a leader device driver: tests/unit/test_device_parts.py). A new part needs none of this:
+one module with its class, its settings and its part, and one entry point
+(docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from bipedtele.config import param
+from bipedtele.leader.device import DevicePart, LeaderDevice
+from bipedtele.leader.operator import Operator, OperatorContext, OperatorPart
+
+__all__ = [
+    "BROWSER",
+    "FALCON",
+    "JOYSTICK",
+    "PILOT",
+    "SCRIPTED",
+    "SIM_FALCON",
+    "FFMode",
+    "FalconConfig",
+    "JoystickConfig",
+]
+
+FFMode = Literal["auto", "constant", "rumble", "none"]
+
+
+@dataclass(frozen=True)
+class JoystickConfig:
+    """The ``[joystick]`` section: which evdev device and how its axes map."""
+
+    device: str = param(
+        "", doc="/dev/input/eventN, or part of the device name; empty: the first device with the two axes"
+    )
+    axis_forward: str = param("ABS_Y", doc="evdev axis giving handle axis 0 (forward speed)")
+    axis_turn: str = param("ABS_X", doc="evdev axis giving handle axis 1 (turn)")
+    invert_forward: bool = param(True, doc="stick forward reads negative on most pads: invert so forward is +")
+    invert_turn: bool = param(True, doc="stick left reads negative: invert so left (counter-clockwise) is +")
+    deadzone: float = param(0.05, lo=0.0, hi=0.5, doc="central dead zone, fraction of the half range")
+    force_feedback: FFMode = param("auto", doc="auto: constant force if supported, else rumble, else none")
+    ff_rate_hz: float = param(100.0, lo=1.0, hi=1000.0, unit="Hz", doc="largest effect update rate")
+    enable_button: str = param(
+        "",
+        doc="dead-man button, reported as button 0 (e.g. BTN_SOUTH, BTN_TRIGGER): walking only while held; empty: none, and no buttons are reported",
+    )
+
+
+@dataclass(frozen=True)
+class FalconConfig:
+    """The ``[falcon]`` section."""
+
+    firmware_file: str = param(
+        "", doc="Novint firmware image (e.g. nvent_firmware.bin from libnifalcon); needed once per power-up"
+    )
+    homing_timeout_s: float = param(60.0, lo=1.0, hi=600.0, unit="s", doc="give up homing after this long")
+    io_rate_hz: float = param(1000.0, lo=100.0, hi=2000.0, unit="Hz", doc="I/O loop rate")
+    force_gain: float = param(
+        1.0, lo=0.0, hi=10.0, doc="scale of motor efforts (libnifalcon's units: effort = -(dtheta/dp) F)"
+    )
+    hold_stiffness_n_m: float = param(
+        150.0, lo=0.0, hi=2000.0, unit="N/m", doc="spring holding the unused vertical axis at the centre"
+    )
+    hold_damping_n_s_m: float = param(3.0, lo=0.0, hi=100.0, unit="N s/m", doc="damper on the vertical axis")
+    center_z_m: float = param(0.11, lo=0.05, hi=0.2, unit="m", doc="z of the workspace centre (grip rest point)")
+    enable_button: int = param(
+        -1,
+        lo=-1,
+        hi=3,
+        doc="grip button (bit 0-3) used as the dead-man switch, reported as button 0; -1: none, and no buttons are reported",
+    )
+    io_timeout_s: float = param(
+        0.5, lo=0.01, hi=10.0, unit="s", doc="no status packet for this long: the Falcon is gone"
+    )
+
+
+def _sim_falcon(**kwargs: Any) -> LeaderDevice:
+    from bipedtele.leader.devices.sim_falcon import SimFalcon
+
+    return SimFalcon(**kwargs)
+
+
+def _falcon(**kwargs: Any) -> LeaderDevice:
+    from bipedtele.leader.devices.falcon import FalconDevice
+
+    return FalconDevice(**kwargs)
+
+
+def _joystick(**kwargs: Any) -> LeaderDevice:
+    from bipedtele.leader.devices.joystick import JoystickDevice
+
+    return JoystickDevice(**kwargs)
+
+
+def _scripted(ctx: OperatorContext) -> Operator:
+    from bipedtele.leader.operators import scripted
+
+    return scripted.build(ctx)
+
+
+def _pilot(ctx: OperatorContext) -> Operator:
+    from bipedtele.leader.operators import pilot
+
+    return pilot.build(ctx)
+
+
+def _browser(ctx: OperatorContext) -> Operator:
+    from bipedtele.leader.operators import browser
+
+    return browser.build(ctx)
+
+
+#: ``--device sim-falcon`` (its settings are in ``[leader]``).
+SIM_FALCON = DevicePart(
+    name="sim-falcon", doc="a simulated Novint Falcon (eq. 1)", build=_sim_falcon, section="leader", simulated=True
+)
+#: ``--device falcon``.
+FALCON = DevicePart(
+    name="falcon", doc="a Novint Falcon through libftdi1", build=_falcon, section="falcon", config=FalconConfig
+)
+#: ``--device joystick``.
+JOYSTICK = DevicePart(
+    name="joystick", doc="a Linux evdev joystick or gamepad", build=_joystick, section="joystick", config=JoystickConfig
+)
+#: ``--operator scripted``.
+SCRIPTED = OperatorPart(
+    name="scripted", doc="a profile of intended speeds over time ([leader] script)", build=_scripted
+)
+#: ``--operator pilot``.
+PILOT = OperatorPart(name="pilot", doc="the paper's task: evade obstacles left and right, N passes", build=_pilot)
+#: ``--operator browser``.
+BROWSER = OperatorPart(name="browser", doc="the cockpit's virtual joystick (leader.cockpit = true)", build=_browser)
