@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -122,7 +123,7 @@ def _periods(ts: list[float], t0: float, t1: float) -> np.ndarray:
     return np.diff(t) * 1000.0 if len(t) > 2 else np.array([])
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--baseline-s", type=float, default=10.0)
     ap.add_argument("--flood-rate", type=float, default=10_000.0)
@@ -131,14 +132,23 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if not (1 <= a.baseline_s <= 60 and 1 <= a.flood_s <= 10 and 1 <= a.flood_rate <= 20_000):
         ap.error("--baseline-s 1-60, --flood-s 1-10, --flood-rate 1-20000")
-    folder = Path(tempfile.mkdtemp(prefix="bench-adversary-"))
+    return a
+
+
+def _attack_run(
+    a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path
+) -> tuple[dict[str, float], dict[str, Any], dict[str, bool]]:
+    """Router, delay proxy, follower and a walking leader; then the flood, future-stamped messages and forged clock answers.
+
+    Returns the phases' wall-clock marks, the attackers' reports and who survived.
+    """
     run = Run(folder)
-    f_rec, l_rec = folder / "follower.mcap", folder / "leader.mcap"
     r_port, p_port = free_port(), free_port()
     r_ep = f"tcp/127.0.0.1:{r_port}"
     client = ["--set", 'network.mode="client"', "--set", "network.listen=[]"]
     marks: dict[str, float] = {}
     reports: dict[str, dict[str, Any]] = {}
+    survived: dict[str, bool] = {}
     try:
         run.start("router", [*CLI, "router", "--listen", r_ep])
         run.wait_log("router", "listening on", 30)
@@ -183,9 +193,11 @@ def main(argv: list[str] | None = None) -> int:
         survived = {n: run.alive(n) for n in ("follower", "leader")}
     finally:
         run.close()
+    return marks, reports, survived
 
-    f_recs, l_recs = _records(f_rec), _records(l_rec)
-    fb_t = [r.data["t"] for r in f_recs if r.topic == "feedback/sent"]
+
+def _print_periods(a: argparse.Namespace, folder: Path, marks: dict[str, float], fb_t: list[float]) -> None:
+    """The follower loop's period per phase, against the baseline's p99."""
     phases = {
         "baseline": (marks["baseline"], marks["flood"]),
         f"ping flood {a.flood_rate:g}/s": (marks["flood"], marks["flood_end"]),
@@ -203,6 +215,10 @@ def main(argv: list[str] | None = None) -> int:
         p50, p99, mx = np.percentile(p, 50), np.percentile(p, 99), p.max()
         base_p99 = base_p99 or p99
         print(f"{name:24s} {len(p):6d} {p50:7.2f} {p99:7.2f} {mx:7.2f} {p99 / base_p99:9.2f}")
+
+
+def _print_effects(marks: dict[str, float], reports: dict[str, Any], f_recs: list[Any], l_recs: list[Any]) -> None:
+    """Who answered the pings, what the forged clock answers did to alpha_m, the follower's counters."""
     fl = reports.get("flood", {})
     print(f"flood: {fl.get('sent', 0)} pings in {fl.get('elapsed_s', 0):.2f} s; answers by sid {fl.get('answered')}")
     sids = {"leader": next((r.data["sid"] for r in l_recs if r.topic == "cmd/sent"), None),
@@ -227,10 +243,18 @@ def main(argv: list[str] | None = None) -> int:
     last = [r.data["counters"] for r in f_recs if r.topic == "status/sent"]
     if last:
         print(f"follower drops: { {k: v for k, v in last[-1].items() if k.startswith('drop_')} }")
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = _parse(argv)
+    folder = Path(tempfile.mkdtemp(prefix="bench-adversary-"))
+    f_rec, l_rec = folder / "follower.mcap", folder / "leader.mcap"
+    marks, reports, survived = _attack_run(a, folder, f_rec, l_rec)
+    f_recs, l_recs = _records(f_rec), _records(l_rec)
+    _print_periods(a, folder, marks, [r.data["t"] for r in f_recs if r.topic == "feedback/sent"])
+    _print_effects(marks, reports, f_recs, l_recs)
     print(f"survived the run: {survived}")
     if not a.keep:
-        import shutil
-
         shutil.rmtree(folder, ignore_errors=True)
     return 0
 

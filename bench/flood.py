@@ -168,7 +168,7 @@ def sample(run: Run, until: float, peak: dict[str, float]) -> None:
         time.sleep(min(0.5, max(0.0, until - time.monotonic())))
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--size", type=int, default=16 * 1024 * 1024, help="payload size [bytes]")
     ap.add_argument("--flood-rate", type=float, default=4.0, help="payloads per second on each key")
@@ -180,20 +180,21 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if not (64 <= a.size <= 64 << 20 and 0 < a.flood_rate <= 50 and 1 <= a.flood_s <= 30 and 1 <= a.baseline_s <= 60):
         ap.error("--size 64 B-64 MiB, --flood-rate 0-50, --flood-s 1-30, --baseline-s 1-60")
-    if a.attack:
-        print(json.dumps(attack(a.attack, a.size, a.flood_rate, a.flood_s)), flush=True)
-        return 0
+    return a
 
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a kill tears the processes down too
-    folder = Path(tempfile.mkdtemp(prefix="bench-flood-"))
+
+def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) -> dict[str, Any]:
+    """Router, follower and a walking leader; the baseline sampled, then the attacker's flood.
+
+    Returns the attacker's report, the phases' wall-clock marks, the VmRSS peaks and who survived.
+    """
     run = Run(folder)
-    f_rec, l_rec, key = folder / "follower.mcap", folder / "leader.mcap", folder / "message.key"
+    key = folder / "message.key"
     ep = f"tcp/127.0.0.1:{free_port()}"
     common = ["--set", 'network.mode="client"', "--set", f'network.connect=["{ep}"]', "--set", "network.listen=[]",
               "--set", f'network.message_key_file="{key}"', "--set", 'clock.mode="synced"']  # fmt: skip
-    peaks: dict[str, dict[str, float]] = {}
-    marks: dict[str, float] = {}
-    report: dict[str, Any] = {}
+    names = ("follower", "leader", "router")
+    got: dict[str, Any] = {"report": {}, "marks": {}, "peaks": {}}
     try:
         subprocess.run([*CLI, "setup", "message-key", str(key)], check=True, capture_output=True, timeout=30)
         run.start("router", [*CLI, "router", "--listen", ep])
@@ -208,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"the robot did not walk:\n{run.log('follower')[-1500:]}\n{run.log('leader')[-1500:]}")
             time.sleep(0.5)
         time.sleep(1.0)
-        names = ("follower", "leader", "router")
+        marks, peaks = got["marks"], got["peaks"]
         marks["baseline"] = time.time()
         peaks["baseline"] = dict.fromkeys(names, 0.0)
         sample(run, time.monotonic() + a.baseline_s, peaks["baseline"])
@@ -220,16 +221,21 @@ def main(argv: list[str] | None = None) -> int:
         while attacker.poll() is None and time.monotonic() < end:
             sample(run, time.monotonic() + 0.5, peaks["flood"])
         lines = [x for x in run.log("attacker").splitlines() if x.startswith("{")]
-        report = json.loads(lines[-1]) if lines else {"error": run.log("attacker")[-500:]}
+        got["report"] = json.loads(lines[-1]) if lines else {"error": run.log("attacker")[-500:]}
         time.sleep(2.0)  # the last status records
-        survived = {n: run.procs[n].poll() is None for n in names}
+        got["survived"] = {n: run.procs[n].poll() is None for n in names}
     finally:
         run.close()
+    return got
 
+
+def _figures(a: argparse.Namespace, f_rec: Path, l_rec: Path, got: dict[str, Any]) -> dict[str, Any]:
+    """Command and feedback ages, accepted commands, VmRSS and drops of the baseline and the flood."""
+    report, marks, peaks = got["report"], got["marks"], got["peaks"]
     f_recs, l_recs = _records(f_rec), _records(l_rec)
     phases = {"baseline": (marks["baseline"], marks["baseline_end"]),
               "flood": (report.get("t_first", math.nan), report.get("t_last", math.nan))}  # fmt: skip
-    out: dict[str, Any] = {"size": a.size, "flood_rate": a.flood_rate, "attacker": report, "survived": survived}
+    out: dict[str, Any] = {"size": a.size, "flood_rate": a.flood_rate, "attacker": report, "survived": got["survived"]}
     for name, (t0, t1) in phases.items():
         cmd = _ages(f_recs, "cmd/recv", t0, t1)
         t_drops = t1 + (1.0 if name == "flood" else 0.0)  # status at 2 Hz: the last payloads' drops
@@ -238,7 +244,11 @@ def main(argv: list[str] | None = None) -> int:
             "cmd_accepted_per_s": cmd["n"] / (t1 - t0) if t1 > t0 else math.nan, "rss_max_mb": peaks[name],
             "drops": {"follower": _drops(f_recs, t0, t_drops), "leader": _drops(l_recs, t0, t_drops)},
         }  # fmt: skip
+    return out
 
+
+def _print_figures(a: argparse.Namespace, out: dict[str, Any], folder: Path) -> None:
+    report, phases = out["attacker"], ("baseline", "flood")
     sent_mb = report.get("bytes", 0) / 2**20
     print(f"flood: {report.get('sent', 0)} payloads of {a.size} bytes ({sent_mb:.0f} MiB) on cmd + feedback, "
           f"{a.flood_rate:g}/s per key; run folder {folder}")  # fmt: skip
@@ -255,7 +265,19 @@ def main(argv: list[str] | None = None) -> int:
     for who in ("follower", "leader"):
         for p in phases:
             print(f"{who} drops during {p}: {out[p]['drops'][who] or 'none'}")
-    print(f"survived the run: {survived}")
+    print(f"survived the run: {out['survived']}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = _parse(argv)
+    if a.attack:
+        print(json.dumps(attack(a.attack, a.size, a.flood_rate, a.flood_s)), flush=True)
+        return 0
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a kill tears the processes down too
+    folder = Path(tempfile.mkdtemp(prefix="bench-flood-"))
+    f_rec, l_rec = folder / "follower.mcap", folder / "leader.mcap"
+    out = _figures(a, f_rec, l_rec, _flood_run(a, folder, f_rec, l_rec))
+    _print_figures(a, out, folder)
     if a.json:
         a.json.write_text(json.dumps(out, indent=2) + "\n")
     if not a.keep:

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -55,6 +56,20 @@ _LIFT_DONE = 0.85
 
 # Index of each joint inside a leg's 6-vector.
 YAW, ROLL, HIP, KNEE, ANKLE, AROLL = range(6)
+
+
+def _leg_angles(
+    leg_height_m: float, l1: float, l2: float, x: np.ndarray, lift: np.ndarray, y: np.ndarray, yaw: np.ndarray
+) -> np.ndarray:
+    """Return one leg's joint angles (yaw, roll, pitch, knee, ankle pitch, ankle roll) [rad] for its hip over its ankle.
+
+    ``x``, ``y``: hip over ankle in the foot frame [m]; ``lift``: the foot above the floor [m].
+    """
+    hv = leg_height_m - lift
+    roll = np.arctan2(-y, hv)
+    hs = np.sqrt(y * y + hv * hv)
+    th1, th2 = ik_sagittal(x, hs, l1, l2)
+    return np.stack([yaw, roll, th1, th2 - th1, -th2, -roll], axis=1)
 
 
 @dataclass(frozen=True)
@@ -337,7 +352,6 @@ class Gait:
         cfg, g = self.cfg, self.geom
         l1, l2 = g.thigh, g.tibia
         v, omega, cycle = self._cmd
-        prev = self._step
         if kind == "shift" or kind == "settle":
             v, omega = 0.0, 0.0
         ts = cycle / 2.0
@@ -370,29 +384,13 @@ class Gait:
         dy_t = np.gradient(y_t, tau_f)
 
         def ground(o: int, leg: Leg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            """Hip over ankle in the foot frame (x, y) [m] and hip yaw [rad] on ``tau_f``."""
-            x0 = hip_x(q0[o + HIP], q0[o + KNEE], l1, l2)
-            y0 = -cfg.leg_height_m * math.tan(q0[o + ROLL])
-            yaw = q0[o + YAW] - omega * tau_f
-            if kind == "settle":  # cubic Hermite in x: speed prev -> 0, hip to mid-feet
-                v_prev = self._leg_speed(leg, prev.v, prev.omega) if prev is not None else 0.0
-                sn = tau_f / ts
-                vx = v_prev * (1 - 4 * sn + 3 * sn**2) + settle_d * (6 * sn - 6 * sn**2) / ts
-            else:
-                vx = np.full_like(tau_f, self._leg_speed(leg, v, omega))
-            c, sn_q = np.cos(yaw), np.sin(yaw)
-            vxf, vyf = vx * c + dy_t * sn_q, -vx * sn_q + dy_t * c
-            return x0 + _cumtrapz(vxf, tau_f), y0 + _cumtrapz(vyf, tau_f), yaw
+            return self._ground(o, leg, kind, (v, omega), tau_f, dy_t, settle_d)
 
         gx_st, gy_st, gyaw_st = ground(st, stance)
         gx_sw, gy_sw, gyaw_sw = ground(sw, swing)
 
         def leg_angles(x: np.ndarray, lift: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-            hv = cfg.leg_height_m - lift
-            roll = np.arctan2(-y, hv)
-            hs = np.sqrt(y * y + hv * hv)
-            th1, th2 = ik_sagittal(x, hs, l1, l2)
-            return np.stack([yaw, roll, th1, th2 - th1, -th2, -roll], axis=1)
+            return _leg_angles(cfg.leg_height_m, l1, l2, x, lift, y, yaw)
 
         def at(tau: np.ndarray, *series: np.ndarray) -> list[np.ndarray]:
             return [np.interp(tau, tau_f, f) for f in series]
@@ -408,28 +406,8 @@ class Gait:
             x, y, yaw = at(tau, gx_st, gy_st, gyaw_st)
             q_st = leg_angles(x, np.zeros_like(tau), y, yaw)
             if in_ss and kind == "walk":
-                # swing: hip-over-ankle x from lift-off to landing, Bezier in x, bump in z
-                v_sw = self._leg_speed(swing, v, omega)
-                d = ts - t_ds
-                u = (tau - t_ds) / d
-                x_lo, y_lo, yaw_lo = (float(f[0]) for f in at(np.array([t_ds]), gx_sw, gy_sw, gyaw_sw))
-                # the swing leg leads: it lands its foot turned ahead of the torso by half the
-                # turn of its coming contact, the hip at (x_td, sway) in the torso frame
-                yaw_td = omega * ts * (1.0 + phi) / 2.0
-                x_td_t, y_td_t = -v_sw * ts * (1.0 + phi) / 2.0, float(sway(np.array(ts)))
-                x_td = x_td_t * math.cos(yaw_td) + y_td_t * math.sin(yaw_td)
-                y_td = -x_td_t * math.sin(yaw_td) + y_td_t * math.cos(yaw_td)
-                # the foot moves (forward, sideways, turning) by quintic smoothsteps while it is
-                # up and is still over the floor before landing, so an early touchdown neither
-                # drags nor spins it; the hip keeps moving over it at v_sw
-                done = _smooth(u / _MOVE_DONE)
-                x = x_lo + v_sw * d * u - (x_lo + v_sw * d - x_td) * done
-                w = np.clip(u / _LIFT_DONE, 0.0, 1.0)
-                lift = cfg.step_height_m * 16.0 * w**2 * (1 - w) ** 2
-                y = sway(tau) + (y_lo - float(sway(np.array(t_ds)))) * (1.0 - done) + (y_td - y_td_t) * done
-                # the swing leg leads: the foot's own yaw (hip yaw + torso yaw) turns ahead
-                yaw = yaw_lo - omega * d * u + (yaw_td - yaw_lo + omega * d) * done
-                q_sw = leg_angles(x, lift, y, yaw)
+                lift_off = [float(f[0]) for f in at(np.array([t_ds]), gx_sw, gy_sw, gyaw_sw)]
+                q_sw = leg_angles(*self._swing(tau, swing, (v, omega), (ts, t_ds), lift_off, sway))
             else:
                 x, y, yaw = at(tau, gx_sw, gy_sw, gyaw_sw)
                 q_sw = leg_angles(x, np.zeros_like(tau), y, yaw)
@@ -444,6 +422,69 @@ class Gait:
             phases.append(_Phase(t0 + a, b - a, self._fit.fit(samples)))
         self._sway_end = float(sway(np.array(ts)))
         self._step, self._phases = step, phases
+
+    def _ground(
+        self, o: int, leg: Leg, kind: str, speed: tuple[float, float], tau_f: np.ndarray, dy_t: np.ndarray,
+        settle_d: float,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """Plan a foot on the ground: hip over ankle in its frame (x, y) [m] and hip yaw [rad] on ``tau_f`` [s].
+
+        ``o``: the leg's first joint; ``speed``: the step's (v [m/s], omega [rad/s]);
+        ``dy_t``: the torso's lateral speed on ``tau_f`` [m/s]; ``settle_d``: where a settle
+        step brings the hip [m].
+        """
+        cfg, g, q0, prev = self.cfg, self.geom, self._q, self._step
+        v, omega = speed
+        ts = float(tau_f[-1])
+        x0 = hip_x(q0[o + HIP], q0[o + KNEE], g.thigh, g.tibia)
+        y0 = -cfg.leg_height_m * math.tan(q0[o + ROLL])
+        yaw = q0[o + YAW] - omega * tau_f
+        if kind == "settle":  # cubic Hermite in x: speed prev -> 0, hip to mid-feet
+            v_prev = self._leg_speed(leg, prev.v, prev.omega) if prev is not None else 0.0
+            sn = tau_f / ts
+            vx = v_prev * (1 - 4 * sn + 3 * sn**2) + settle_d * (6 * sn - 6 * sn**2) / ts
+        else:
+            vx = np.full_like(tau_f, self._leg_speed(leg, v, omega))
+        c, sn_q = np.cos(yaw), np.sin(yaw)
+        vxf, vyf = vx * c + dy_t * sn_q, -vx * sn_q + dy_t * c
+        return x0 + _cumtrapz(vxf, tau_f), y0 + _cumtrapz(vyf, tau_f), yaw
+
+    def _swing(
+        self, tau: np.ndarray, swing: Leg, speed: tuple[float, float], times: tuple[float, float],
+        lift_off: list[float], sway: Callable[[np.ndarray], np.ndarray],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """Plan the swing foot from lift-off to landing: hip over ankle x, lift, y [m] and yaw [rad] on ``tau``.
+
+        ``speed``: (v [m/s], omega [rad/s]); ``times``: (half cycle ts, double support t_ds)
+        [s]; ``lift_off``: x, y [m] and yaw [rad] at lift-off; ``sway``: the torso's lateral
+        offset over the ankles [m].
+        """
+        cfg = self.cfg
+        v, omega = speed
+        ts, t_ds = times
+        phi = cfg.double_support
+        x_lo, y_lo, yaw_lo = lift_off
+        # swing: hip-over-ankle x from lift-off to landing, Bezier in x, bump in z
+        v_sw = self._leg_speed(swing, v, omega)
+        d = ts - t_ds
+        u = (tau - t_ds) / d
+        # the swing leg leads: it lands its foot turned ahead of the torso by half the
+        # turn of its coming contact, the hip at (x_td, sway) in the torso frame
+        yaw_td = omega * ts * (1.0 + phi) / 2.0
+        x_td_t, y_td_t = -v_sw * ts * (1.0 + phi) / 2.0, float(sway(np.array(ts)))
+        x_td = x_td_t * math.cos(yaw_td) + y_td_t * math.sin(yaw_td)
+        y_td = -x_td_t * math.sin(yaw_td) + y_td_t * math.cos(yaw_td)
+        # the foot moves (forward, sideways, turning) by quintic smoothsteps while it is
+        # up and is still over the floor before landing, so an early touchdown neither
+        # drags nor spins it; the hip keeps moving over it at v_sw
+        done = _smooth(u / _MOVE_DONE)
+        x = x_lo + v_sw * d * u - (x_lo + v_sw * d - x_td) * done
+        w = np.clip(u / _LIFT_DONE, 0.0, 1.0)
+        lift = cfg.step_height_m * 16.0 * w**2 * (1 - w) ** 2
+        y = sway(tau) + (y_lo - float(sway(np.array(t_ds)))) * (1.0 - done) + (y_td - y_td_t) * done
+        # the swing leg leads: the foot's own yaw (hip yaw + torso yaw) turns ahead
+        yaw = yaw_lo - omega * d * u + (yaw_td - yaw_lo + omega * d) * done
+        return x, lift, y, yaw
 
     def _leg_speed(self, leg: Leg, v: float, omega: float) -> float:
         """Speed [m/s] of a hip over its planted foot when the torso moves at ``v`` turning at ``omega``."""

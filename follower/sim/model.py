@@ -124,6 +124,80 @@ def _joint(
     )
 
 
+def _leg_urdf(g: NaoGeometry, side: str, s: float, effort_nm: float) -> list[str]:
+    """Return the URDF links and joints of one leg (``side`` ``L`` or ``R``; ``s`` +1 left, -1 right).
+
+    The chain hip yaw (z) - hip roll (x) - hip pitch (y) - knee pitch (y) - ankle pitch (y) -
+    ankle roll (x) - foot, from the torso; the right leg's roll and yaw limits are mirrored.
+    """
+    small = _box_inertia(g.m_small, 0.02, 0.02, 0.02)
+    parts: list[str] = []
+    lim = {k: (math.radians(a), math.radians(b)) for k, (a, b) in _LIMITS_DEG.items()}
+    if s < 0:  # the right leg's roll joints are mirrored
+        for k in ("HipRoll", "AnkleRoll"):
+            a, b = lim[k]
+            lim[k] = (-b, -a)
+        a, b = lim["HipYaw"]
+        lim["HipYaw"] = (-b, -a)
+    names = [f"{side}{j}" for j in LEG_JOINTS]
+    links = [
+        f"{side}_hipyaw",
+        f"{side}_hiproll",
+        f"{side}_thigh",
+        f"{side}_tibia",
+        f"{side}_anklepitch",
+        f"{side}_foot",
+    ]
+    parts.append(_link(links[0], g.m_small, (0, 0, 0), small, ""))
+    parts.append(_link(links[1], g.m_small, (0, 0, 0), small, ""))
+    thigh_geom = f'<cylinder radius="0.035" length="{g.thigh - 0.02:.4f}"/>'
+    parts.append(
+        _link(
+            links[2],
+            g.m_thigh,
+            (0, 0, -g.thigh / 2),
+            _box_inertia(g.m_thigh, 0.07, 0.07, g.thigh),
+            _shape(thigh_geom, (0, 0, -g.thigh / 2), "white"),
+        )
+    )
+    tibia_geom = f'<cylinder radius="0.03" length="{g.tibia - 0.02:.4f}"/>'
+    parts.append(
+        _link(
+            links[3],
+            g.m_tibia,
+            (0, 0, -g.tibia / 2),
+            _box_inertia(g.m_tibia, 0.06, 0.06, g.tibia),
+            _shape(tibia_geom, (0, 0, -g.tibia / 2), "white"),
+        )
+    )
+    parts.append(_link(links[4], g.m_small, (0, 0, 0), small, ""))
+    sole_t = 0.015
+    foot_c = (g.foot_x, s * g.foot_y_out, -g.foot_height + sole_t / 2)
+    foot_geom = f'<box size="{g.foot_length} {g.foot_width} {sole_t}"/>'
+    ankle_geom = '<box size="0.05 0.05 0.03"/>'
+    parts.append(
+        _link(
+            links[5],
+            g.m_foot,
+            (g.foot_x, 0, -g.foot_height + 0.015),
+            _box_inertia(g.m_foot, g.foot_length, g.foot_width, 0.03),
+            _shape(foot_geom, foot_c, "grey") + _shape(ankle_geom, (0, 0, -g.foot_height / 2), "white", collide=False),
+        )
+    )
+    chain = [
+        ("torso", (0.0, s * g.hip_offset_y, -g.hip_offset_z), "0 0 1"),
+        (links[0], (0, 0, 0), "1 0 0"),
+        (links[1], (0, 0, 0), "0 1 0"),
+        (links[2], (0, 0, -g.thigh), "0 1 0"),
+        (links[3], (0, 0, -g.tibia), "0 1 0"),
+        (links[4], (0, 0, 0), "1 0 0"),
+    ]
+    for i, (parent, xyz, axis) in enumerate(chain):
+        jn = LEG_JOINTS[i]
+        parts.append(_joint(names[i], "revolute", parent, links[i], xyz, axis, lim[jn], effort_nm))
+    return parts
+
+
 def nao_urdf(geom: NaoGeometry | None = None, effort_nm: float = 10.0) -> str:
     """Return the URDF text of the simulated NAO.
 
@@ -139,7 +213,6 @@ def nao_urdf(geom: NaoGeometry | None = None, effort_nm: float = 10.0) -> str:
         Joint torque limit written into the URDF [N m].
     """
     g = geom or NaoGeometry()
-    small = _box_inertia(g.m_small, 0.02, 0.02, 0.02)
     parts = [
         '<?xml version="1.0"?>\n<robot name="bipedtele_nao">\n',
         '<material name="white"><color rgba="0.92 0.92 0.92 1"/></material>\n',
@@ -158,69 +231,6 @@ def nao_urdf(geom: NaoGeometry | None = None, effort_nm: float = 10.0) -> str:
     parts.append(_link("torso", g.m_torso, (0.0, 0.0, g.torso_com_z), torso_inertia, torso_shapes))
 
     for side, s in (("L", 1.0), ("R", -1.0)):
-        lim = {k: (math.radians(a), math.radians(b)) for k, (a, b) in _LIMITS_DEG.items()}
-        if s < 0:  # the right leg's roll joints are mirrored
-            for k in ("HipRoll", "AnkleRoll"):
-                a, b = lim[k]
-                lim[k] = (-b, -a)
-            a, b = lim["HipYaw"]
-            lim["HipYaw"] = (-b, -a)
-        names = [f"{side}{j}" for j in LEG_JOINTS]
-        links = [
-            f"{side}_hipyaw",
-            f"{side}_hiproll",
-            f"{side}_thigh",
-            f"{side}_tibia",
-            f"{side}_anklepitch",
-            f"{side}_foot",
-        ]
-        parts.append(_link(links[0], g.m_small, (0, 0, 0), small, ""))
-        parts.append(_link(links[1], g.m_small, (0, 0, 0), small, ""))
-        thigh_geom = f'<cylinder radius="0.035" length="{g.thigh - 0.02:.4f}"/>'
-        parts.append(
-            _link(
-                links[2],
-                g.m_thigh,
-                (0, 0, -g.thigh / 2),
-                _box_inertia(g.m_thigh, 0.07, 0.07, g.thigh),
-                _shape(thigh_geom, (0, 0, -g.thigh / 2), "white"),
-            )
-        )
-        tibia_geom = f'<cylinder radius="0.03" length="{g.tibia - 0.02:.4f}"/>'
-        parts.append(
-            _link(
-                links[3],
-                g.m_tibia,
-                (0, 0, -g.tibia / 2),
-                _box_inertia(g.m_tibia, 0.06, 0.06, g.tibia),
-                _shape(tibia_geom, (0, 0, -g.tibia / 2), "white"),
-            )
-        )
-        parts.append(_link(links[4], g.m_small, (0, 0, 0), small, ""))
-        sole_t = 0.015
-        foot_c = (g.foot_x, s * g.foot_y_out, -g.foot_height + sole_t / 2)
-        foot_geom = f'<box size="{g.foot_length} {g.foot_width} {sole_t}"/>'
-        ankle_geom = '<box size="0.05 0.05 0.03"/>'
-        parts.append(
-            _link(
-                links[5],
-                g.m_foot,
-                (g.foot_x, 0, -g.foot_height + 0.015),
-                _box_inertia(g.m_foot, g.foot_length, g.foot_width, 0.03),
-                _shape(foot_geom, foot_c, "grey")
-                + _shape(ankle_geom, (0, 0, -g.foot_height / 2), "white", collide=False),
-            )
-        )
-        chain = [
-            ("torso", (0.0, s * g.hip_offset_y, -g.hip_offset_z), "0 0 1"),
-            (links[0], (0, 0, 0), "1 0 0"),
-            (links[1], (0, 0, 0), "0 1 0"),
-            (links[2], (0, 0, -g.thigh), "0 1 0"),
-            (links[3], (0, 0, -g.tibia), "0 1 0"),
-            (links[4], (0, 0, 0), "1 0 0"),
-        ]
-        for i, (parent, xyz, axis) in enumerate(chain):
-            jn = LEG_JOINTS[i]
-            parts.append(_joint(names[i], "revolute", parent, links[i], xyz, axis, lim[jn], effort_nm))
+        parts.extend(_leg_urdf(g, side, s, effort_nm))
     parts.append("</robot>\n")
     return "".join(parts)
