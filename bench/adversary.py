@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 from bipedtele.config import load_config
+from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping
 from bipedtele.recordformat import RecordingError, read_records
 
@@ -225,7 +226,7 @@ def _print_effects(marks: dict[str, float], reports: dict[str, Any], f_recs: lis
             "follower": next((r.data["sid"] for r in f_recs if r.topic == "feedback/sent"), None)}  # fmt: skip
     for who, sid in sids.items():
         print(f"  answered by the {who}: {fl.get('answered', {}).get(str(sid), 0)}")
-    need = schedule_damping(FWD_S, BWD_S, load_config().section("control")).alpha_m
+    need = schedule_damping(FWD_S, BWD_S, load_config().get(ControlConfig)).alpha_m
     sent = [r.data for r in l_recs if r.topic == "cmd/sent" and r.data["enable"]]
     before = [d["alpha_m"] for d in sent if marks["baseline"] <= d["t"] < marks["forged"]]
     during = [d["alpha_m"] for d in sent if marks["forged"] <= d["t"] <= marks["end"]]

@@ -15,7 +15,10 @@ import os
 import time
 
 from bipedtele.config import load_config
+from bipedtele.control.config import ControlConfig
 from bipedtele.control.study import CASES
+from bipedtele.follower.config import FollowerConfig
+from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.walker_study import run_walker_study
 
 
@@ -24,7 +27,7 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="time the default study --walker")
     args = ap.parse_args()
     cfg = load_config("default", [])
-    control, follower, sim = cfg.section("control"), cfg.section("follower"), cfg.section("sim")
+    control, follower, sim = cfg.get(ControlConfig), cfg.get(FollowerConfig), cfg.get(SimConfig)
     if args.full:
         runs, duration, cases = 3, 30.0, CASES
     else:

@@ -259,8 +259,27 @@ class Config:
     source: str
     sections: Mapping[str, Any]
 
+    def get(self, cls: type[T]) -> T:
+        """Return the section whose class is ``cls``, typed as it (``cfg.get(LeaderConfig).operator``).
+
+        The typed way in: each part reads the sections whose classes it owns or imports.
+        :meth:`section` (by name, untyped) is for what cannot import the class: a generic
+        tool, or one role reading a section another owns.
+
+        Raises
+        ------
+        ConfigError
+            No section of that class is registered (its part is not installed).
+        """
+        for value in self.sections.values():
+            if type(value) is cls:
+                return value
+        raise ConfigError(
+            f"{self.source}: no section of class {cls.__name__}; known: {', '.join(sorted(self.sections))}"
+        )
+
     def section(self, name: str) -> Any:
-        """Return the section ``name`` (a dataclass instance)."""
+        """Return the section ``name`` (a dataclass instance; untyped: prefer :meth:`get`)."""
         try:
             return self.sections[name]
         except KeyError:

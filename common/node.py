@@ -47,6 +47,7 @@ from bipedtele.gate import SequenceGate
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
 from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.recording import Recorder, recording_for_run
+from bipedtele.sections import ClockConfig, NetworkConfig, RecordConfig, RobotConfig
 from bipedtele.session import Handshake
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import Keys, MessagePublisher, PresenceWatcher, Publishers, declare_presence
@@ -102,6 +103,9 @@ class Node:
         in ``[record] dir`` when ``[record] enabled``, else no recording.
     sid : int, optional
         This node's session id (default: a new random one).
+    takeover_after_s : float
+        The peer's silence [s] after which the session handshake binds another peer (the
+        leader's feedback timeout, the follower's watchdog: each role passes its own).
 
     Raises
     ------
@@ -109,27 +113,26 @@ class Node:
         ``record`` exists, or the message-key file is bad (checked before any I/O).
     """
 
-    def __init__(self, cfg: Config, role: str, *, record: Path | None = None, sid: int | None = None) -> None:
+    def __init__(
+        self, cfg: Config, role: str, *, takeover_after_s: float, record: Path | None = None, sid: int | None = None
+    ) -> None:
         if record is not None and record.exists():
             raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)")
         self.cfg = cfg
         self.role = role
-        self.keys = Keys(cfg.section("robot").id)
+        self.keys = Keys(cfg.get(RobotConfig).id)
         self.sid = new_session_id() if sid is None else int(sid)
-        ck = cfg.section("clock")
+        ck = cfg.get(ClockConfig)
         self.ntp: bool = ck.mode == "ntp"
         self.sync: ClockSync | None = ClockSync(ck.ping_window) if self.ntp else None
         self.max_future_s = float(ck.max_future_s)
-        self.auth: MessageAuth | None = load_message_auth(cfg.section("network"))
+        self.auth: MessageAuth | None = load_message_auth(cfg.get(NetworkConfig))
         # With the key: the session handshake (commands and feedback under a per-session key).
         # The leader leaves a silent follower session after its feedback timeout; the
         # follower's takeover rule is its command gate's (watchdog).
         self.handshake: Handshake | None = None
         if self.auth is not None:
-            takeover = (
-                cfg.section("leader").feedback_timeout_s if role == "leader" else cfg.section("follower").watchdog_s
-            )
-            self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover)
+            self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover_after_s)
         self.drops = DropCounter(role)
         self.recorder: Recorder | None = None
         self._record_path = record
@@ -144,7 +147,7 @@ class Node:
         """Install the signal handlers, open the session and the publishers."""
         with contextlib.ExitStack() as stack:
             self._stop = stack.enter_context(shutdown_on_signals())
-            self._session = stack.enter_context(open_session(self.cfg.section("network")))
+            self._session = stack.enter_context(open_session(self.cfg.get(NetworkConfig)))
             self._pubs = stack.enter_context(
                 Publishers(self._session, self.keys, auth=self.auth, handshake=self.handshake)
             )
@@ -198,7 +201,7 @@ class Node:
 
         ``kwargs`` go to :class:`~bipedtele.recording.Recorder` (e.g. ``jpeg_every``).
         """
-        rc = self.cfg.section("record")
+        rc = self.cfg.get(RecordConfig)
         if self._record_path is None and not rc.enabled:
             return None
         self.recorder = self.enter(recording_for_run(
@@ -289,7 +292,7 @@ class Node:
 
     def link_clocks(self, peer_sid: Callable[[], int | None]) -> ClockLink:
         """Start the clock link (answers pings; pings in ntp mode) bound to ``peer_sid()``."""
-        ck = self.cfg.section("clock")
+        ck = self.cfg.get(ClockConfig)
         link = self.enter(ClockLink(
             self.pubs.clock.put, self.sid, sync=self.sync, drops=self.drops, ping_rate_hz=ck.ping_rate_hz,
             answer_rate_hz=ck.answer_rate_hz, peer_sid=peer_sid,
@@ -353,7 +356,7 @@ class Node:
         ntp mode with ``[clock] conservative_split``: across two clocks the round trip is
         exact but its split is not, so the control laws take ``h1 = h2 = rtt``.
         """
-        if self.sync is None or not self.cfg.section("clock").conservative_split:
+        if self.sync is None or not self.cfg.get(ClockConfig).conservative_split:
             return None
         rtt = self.sync.rtt
         return None if rtt is None else float(rtt)

@@ -26,8 +26,10 @@ from typing import Any
 from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import Config, ConfigError
+from bipedtele.control.config import ControlConfig
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.capacity import UplinkBudget
+from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.realtime import RealtimeStepper
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot, robot_names, robot_part
@@ -38,6 +40,7 @@ from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, e
 from bipedtele.node import Node, StepClock
 from bipedtele.pacer import Pacer
 from bipedtele.receivers import LatestReceiver, Received
+from bipedtele.sections import ClockConfig
 from bipedtele.transport import MessagePublisher
 
 __all__ = ["FollowerApp", "add_follower_parser", "main"]
@@ -79,7 +82,7 @@ class FollowerApp:
         reset_on_leader: bool = False,
     ) -> None:
         self.cfg = cfg
-        self.fcfg = cfg.section("follower")
+        self.fcfg = cfg.get(FollowerConfig)
         self.robot_name = robot_name or self.fcfg.robot
         try:
             self.part = robot_part(self.robot_name)
@@ -102,13 +105,15 @@ class FollowerApp:
         except ValueError as exc:
             raise ConfigError(f"--robot: {exc}") from None
         self.duration_s = duration_s
-        self.node = Node(cfg, "follower", record=record)  # a bad key file or --record fails here
+        self.node = Node(
+            cfg, "follower", takeover_after_s=self.fcfg.watchdog_s, record=record
+        )  # a bad key file or --record fails here
         # The command gate follows one leader session (another takes over only after the
         # watchdog's silence): the only de-duplication of commands. Its live sid binds
         # the clock link.
         # Without the message key a forged high seq is rolled back after 3 real commands.
         self.gate = SequenceGate(takeover_after_s=self.fcfg.watchdog_s, rollback_after=0 if self.node.auth else 3)
-        self.h1 = DelayEstimator(cfg.section("clock").delay_window_s)
+        self.h1 = DelayEstimator(cfg.get(ClockConfig).delay_window_s)
         self.dt = 1.0 / self.fcfg.control_rate_hz
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(self.dt)
         # Woken by the command receiver: a fresh command is applied at once (pickup).
@@ -195,7 +200,7 @@ class FollowerApp:
     def _make_loop(self, robot: FollowerRobot) -> FollowerLoop:
         node = self.node
         return FollowerLoop(
-            robot, self.cfg.section("control"), self.fcfg, self._take_command, self._publish,
+            robot, self.cfg.get(ControlConfig), self.fcfg, self._take_command, self._publish,
             now=self.clock, to_local=node.to_local, estimator=self.h1, drops=node.drops, sid=node.sid,
             on_event=node.event, conservative_rtt=node.round_trip, max_future_s=node.max_future_s,
             on_new_leader=self._reset_robot if self.reset_on_leader else None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bipedtele.config import param
-from bipedtele.follower.robot import robot_names
+from bipedtele.follower.robot import Camera, robot_names
 
 __all__ = ["FollowerConfig"]
 
@@ -39,7 +39,7 @@ class FollowerConfig:
         0.005, lo=0.0, hi=1.0, unit="s", doc="recompute (40) and (30) when h1 or h2 moved by more than this"
     )
     camera_fps: float = param(10.0, lo=0.0, hi=30.0, unit="Hz", doc="video rate per camera (0: no video)")
-    cameras: list[str] = param(default_factory=lambda: ["scene", "head"], doc="cameras to stream: head, scene")
+    cameras: list[Camera] = param(default_factory=lambda: ["scene", "head"], doc="cameras to stream: head, scene")
     jpeg_quality: int = param(80, lo=10, hi=100, doc="JPEG quality of video frames")
     sonar_d_safe_m: float = param(0.50, lo=0.05, hi=5.0, unit="m", doc="fictitious force starts at this range")
     sonar_d_stop_m: float = param(0.20, lo=0.01, hi=5.0, unit="m", doc="fictitious force saturates at this range")
@@ -49,8 +49,5 @@ class FollowerConfig:
     def __post_init__(self) -> None:
         if self.robot not in robot_names():
             raise ValueError(f"robot: {self.robot!r}: allowed: {', '.join(repr(n) for n in robot_names())}")
-        for cam in self.cameras:
-            if cam not in ("head", "scene"):
-                raise ValueError(f"cameras: {cam!r}: allowed: 'head', 'scene'")
         if not self.sonar_d_stop_m < self.sonar_d_safe_m:
             raise ValueError("sonar_d_stop_m, sonar_d_safe_m: allowed: sonar_d_stop_m < sonar_d_safe_m")

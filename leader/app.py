@@ -42,9 +42,11 @@ import numpy as np
 from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import Config, ConfigError
+from bipedtele.control.config import ControlConfig
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
+from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import DeviceError, LeaderDevice, device_names, make_device
 from bipedtele.leader.linkquality import LinkQuality, LinkReport
 from bipedtele.leader.loop import LeaderLoop
@@ -56,6 +58,7 @@ from bipedtele.leader.videoparts import FrameAssembler
 from bipedtele.messages import MAX_SEQ, Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.receivers import LatestReceiver, Received
+from bipedtele.sections import ClockConfig, RobotConfig
 from bipedtele.telemetry import LeaderSample
 from bipedtele.transport import PresenceWatcher, Publishers
 
@@ -87,7 +90,7 @@ class _Aux:
         reach: CommandReach | None = None, link: LinkQuality | None = None,
     ) -> None:  # fmt: skip
         self.reach = reach
-        self.link = link or LinkQuality(feedback_timeout_s=cfg.section("leader").feedback_timeout_s)
+        self.link = link or LinkQuality(feedback_timeout_s=cfg.get(LeaderConfig).feedback_timeout_s)
         self._not_synced = 0  # drops counted as clock_not_synced so far
         self.loop, self.pubs, self.cfg = loop, pubs, cfg
         self.status_rx, self.presence = status_rx, presence
@@ -141,7 +144,7 @@ class _Aux:
         fill_link(sample, self.report(), counters)
 
     def _run(self) -> None:
-        lc, ck = self.cfg.section("leader"), self.cfg.section("clock")
+        lc, ck = self.cfg.get(LeaderConfig), self.cfg.get(ClockConfig)
         next_status = time.monotonic()
         text = "clock: synced" if ck.mode == "synced" else "clock: ntp (h1+h2 exact, split estimated)"
         while not self._stop.wait(0.05):
@@ -264,7 +267,7 @@ class LeaderApp:
         record: Path | None = None,
     ) -> None:
         self.cfg = cfg
-        self.lc = lc = cfg.section("leader")
+        self.lc = lc = cfg.get(LeaderConfig)
         self.op_name = operator_name or lc.operator
         self.dev_name = device_name or lc.device
         self.realtime = lc.realtime if realtime is None else realtime
@@ -289,8 +292,10 @@ class LeaderApp:
             operator = None  # a person holds a physical device
             LOG.info("device %s is held by a person: operator model %s not used", self.dev_name, self.op_name)
         self.operator = operator
-        self.node = Node(cfg, "leader", record=record)  # a bad key file or --record fails here
-        self.estimator = DelayEstimator(cfg.section("clock").delay_window_s)
+        self.node = Node(
+            cfg, "leader", takeover_after_s=cfg.get(LeaderConfig).feedback_timeout_s, record=record
+        )  # a bad key file or --record fails here
+        self.estimator = DelayEstimator(cfg.get(ClockConfig).delay_window_s)
         # The feedback gate follows one follower session; its live sid binds the clock link.
         # Without the message key a forged high seq is rolled back after 3 real feedbacks.
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
@@ -437,14 +442,14 @@ class LeaderApp:
                                      on_message=self._on_status)  # fmt: skip
             node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
             self.loop = loop = LeaderLoop(
-                self.device, self.operator, self.cfg.section("control"), self._send_command, self._latest_feedback,
+                self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, self._latest_feedback,
                 cfg=lc, clock=self.clock, estimator=self.estimator, conservative_rtt=node.round_trip,
                 on_sample=self._on_sample, sid=node.sid,
             )  # fmt: skip
             self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
                                              node.record, self.reach, self.link))  # fmt: skip
             LOG.info(
-                "leader ready: robot %s, device %s, operator %s, %s%s", self.cfg.section("robot").id, self.dev_name,
+                "leader ready: robot %s, device %s, operator %s, %s%s", self.cfg.get(RobotConfig).id, self.dev_name,
                 self.op_name if self.operator is not None else "(person)",
                 "real time" if self.realtime else "as fast as possible",
                 f", cockpit {self.cockpit.url}" if self.cockpit is not None else "",
@@ -542,7 +547,7 @@ def _map_course(cfg: Config) -> list[tuple[float, float, float]]:
     The pilot's course (``[leader] pilot_obstacles``), else the ``[world]`` obstacles;
     empty when neither is set.
     """
-    lc, world = cfg.section("leader"), cfg.sections.get("world")
+    lc, world = cfg.get(LeaderConfig), cfg.sections.get("world")  # [world]: the follower's, by name
     if not lc.pilot_obstacles and not getattr(world, "obstacles", None):
         return []
     try:

@@ -13,6 +13,7 @@ from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
+from bipedtele.control.config import ControlConfig
 from bipedtele.tools.control_commands import progress_bar, save_figure, write_json, write_text
 from bipedtele.tools.plots import require_matplotlib
 
@@ -57,7 +58,7 @@ def _run_compare(args: argparse.Namespace) -> int:
     margin = () if args.no_margin else MARGIN_SCALES
     if args.plot:
         require_matplotlib("--plot")
-    control = config_from_args(args).section("control")
+    control = config_from_args(args).get(ControlConfig)
     cp = CompareParams(study=StudyParams(duration_s=args.duration))
     n_schemes = len(set(schemes or scheme_names()) | {"paper"})
     total = compare_steps(round(args.duration / cp.study.dt), n_schemes, len(regimes), len(margin))

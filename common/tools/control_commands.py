@@ -17,6 +17,7 @@ from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
+from bipedtele.control.config import ControlConfig
 from bipedtele.tools.plots import require_matplotlib
 
 __all__ = ["add_study_parser", "add_surfaces_parser", "progress_bar", "save_figure", "write_json", "write_text"]
@@ -50,7 +51,7 @@ def _run_surfaces(args: argparse.Namespace) -> int:
             raise ConfigError(f"--dp {dp}: allowed: 0 < dp <= 1")
     if args.plot:
         require_matplotlib("--plot")
-    cfg = config_from_args(args).section("control")
+    cfg = config_from_args(args).get(ControlConfig)
     data = compute_surfaces(args.dp, cfg, n_sigma=args.n_sigma, n_T=args.n_T)
     if args.json:
         write_json(args.json, data)
@@ -124,7 +125,7 @@ def _run_study(args: argparse.Namespace) -> int:
     if args.plot:
         require_matplotlib("--plot")
     cfg = config_from_args(args)
-    control = cfg.section("control")
+    control = cfg.get(ControlConfig)
     params = StudyParams(duration_s=duration)
     if args.walker:
         result = _walker_backend()(cfg, runs=runs, seed=args.seed, duration_s=duration)

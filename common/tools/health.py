@@ -22,6 +22,7 @@ from typing import Any
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
 from bipedtele.linkcheck import LinkError
+from bipedtele.sections import NetworkConfig, RobotConfig
 from bipedtele.transport import Keys, PresenceWatcher
 from bipedtele.zenohsession import open_session
 
@@ -36,9 +37,9 @@ def check_health(cfg: Any, role: str, timeout_s: float) -> tuple[bool, str]:
     ConfigError
         The profile's files or settings are bad (not a health verdict).
     """
-    net = cfg.section("network")
+    net = cfg.get(NetworkConfig)
     mode = "client" if net.connect else "peer"
-    keys = Keys(cfg.section("robot").id)
+    keys = Keys(cfg.get(RobotConfig).id)
     try:
         with open_session(net, mode=mode, listen=[]) as session:
             if role == "router":

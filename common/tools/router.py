@@ -77,7 +77,7 @@ def exposure_warnings(net: NetworkConfig, listen: list[str]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Run the router until SIGINT/SIGTERM."""
     cfg = config_from_args(args)
-    net: NetworkConfig = cfg.section("network")
+    net: NetworkConfig = cfg.get(NetworkConfig)
     listen = router_endpoints(net, args.listen)
     connect = list(args.connect) if args.connect else list(net.connect)
     for text in exposure_warnings(net, listen):

@@ -14,6 +14,7 @@ from typing import Any
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
 from bipedtele.follower.naoqi import nao_guard
+from bipedtele.follower.naoqi.config import NaoqiConfig
 
 __all__ = ["add_nao_guard_parser"]
 
@@ -22,7 +23,7 @@ LOG = logging.getLogger(__name__)
 
 def _run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
-    ncfg = cfg.section("naoqi")
+    ncfg = cfg.get(NaoqiConfig)
     if args.url is None and args.pip is None and args.pport is None:
         args.url = ncfg.url
     try:

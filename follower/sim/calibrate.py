@@ -272,8 +272,8 @@ def _run(args: argparse.Namespace) -> int:
     from bipedtele.cli import config_from_args
 
     cfg = config_from_args(args)
-    control = cfg.section("control")
-    sim = cfg.section("sim")
+    control = cfg.get(ControlConfig)
+    sim = cfg.get(SimConfig)
     out = calibrate(control=control, sim=sim, T=args.T)
     text = json.dumps(out, indent=1)
     if args.json:

@@ -61,5 +61,5 @@ PART = RobotPart(
     section="sim",
     config=SimConfig,
     simulated=True,
-    step_s=lambda cfg: 1.0 / float(cfg.section("sim").physics_hz),
+    step_s=lambda cfg: 1.0 / float(cfg.get(SimConfig).physics_hz),
 )

@@ -65,6 +65,7 @@ from bipedtele.config import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.control.walker_map import TABLE_FORMAT
+from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.robot import WalkCommand
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.model import LEG_JOINTS
@@ -1064,8 +1065,8 @@ def _run_table(args: argparse.Namespace, cfg: Any, sigmas: list[float], Ts: list
     taus = _floats(args.tau)
     if not taus or min(taus) < 0:
         raise ConfigError("--tau: allowed: a non-empty list, tau >= 0")
-    sim = cfg.section("sim")
-    table = walker_table(sigmas, taus, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
+    sim = cfg.get(SimConfig)
+    table = walker_table(sigmas, taus, Ts, control=cfg.get(ControlConfig), sim=sim, settings=st, jobs=args.jobs)
     table["command"] = (
         f"bipedtele poincare --table {args.table} --sigma {args.sigma} --tau {args.tau} --T {args.T} "
         f"--warmup {args.warmup:g} --delta-scale {args.delta_scale:g} --foot {args.foot} --jobs {args.jobs}"
@@ -1109,11 +1110,11 @@ def _run(args: argparse.Namespace) -> int:
         foot=args.foot,
         warmup_s=args.warmup,
         delta_scale=args.delta_scale,
-        control_rate_hz=cfg.section("follower").control_rate_hz,
+        control_rate_hz=cfg.get(FollowerConfig).control_rate_hz,
         contraction=not args.table,
         newton_iterations=args.newton,
     )
-    sim = cfg.section("sim")
+    sim = cfg.get(SimConfig)
     for T in Ts:
         if not sim.cycle_min_s - 1e-9 <= T <= sim.cycle_max_s + 1e-9:
             raise ConfigError(
@@ -1121,7 +1122,7 @@ def _run(args: argparse.Namespace) -> int:
             )
     if args.table:
         return _run_table(args, cfg, sigmas, Ts, st)
-    data = poincare_grid(sigmas, Ts, control=cfg.section("control"), sim=sim, settings=st, jobs=args.jobs)
+    data = poincare_grid(sigmas, Ts, control=cfg.get(ControlConfig), sim=sim, settings=st, jobs=args.jobs)
     if args.json:
         try:
             Path(args.json).write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")

@@ -24,8 +24,11 @@ from typing import Any
 import numpy as np
 from bipedtele.config import Config
 from bipedtele.control.compare import REGIMES, Regime, paired_cell, regime_inputs
+from bipedtele.control.config import ControlConfig
 from bipedtele.control.reduced import StudyParams
 from bipedtele.control.schemes import scheme_names
+from bipedtele.follower.config import FollowerConfig
+from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.walker_study import WalkerRun, walker_run
 
 __all__ = ["WALKER_METRICS", "run_walker_compare"]
@@ -75,7 +78,7 @@ def run_walker_compare(
         with cells as :func:`~bipedtele.control.compare.paired_cell` makes them (``unstable``:
         the falls).
     """
-    control = cfg.section("control")
+    control = cfg.get(ControlConfig)
     params = StudyParams(duration_s=duration_s)
     names = list(schemes) if schemes else scheme_names()
     if "paper" not in names:
@@ -92,8 +95,8 @@ def run_walker_compare(
                     "h2": inp.h2,
                     "lost": (inp.lost1, inp.lost2),
                     "control": control,
-                    "follower": cfg.section("follower"),
-                    "sim": cfg.section("sim"),
+                    "follower": cfg.get(FollowerConfig),
+                    "sim": cfg.get(SimConfig),
                     "params": params,
                 }
                 tasks.append((regime.name, scheme, i, kwargs))

@@ -386,5 +386,5 @@ def run_walker_study(
 def run_walker_cli(cfg: Config, *, runs: int, seed: int, duration_s: float) -> dict[str, Any]:
     """Entry point of ``bipedtele study --walker`` (group ``bipedtele.study_backends``)."""
     return run_walker_study(
-        cfg.section("control"), cfg.section("follower"), cfg.section("sim"), runs=runs, seed=seed, duration_s=duration_s
+        cfg.get(ControlConfig), cfg.get(FollowerConfig), cfg.get(SimConfig), runs=runs, seed=seed, duration_s=duration_s
     )

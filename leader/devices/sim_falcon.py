@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import (
     DeviceLimits,
     DeviceNotConnectedError,
@@ -112,7 +113,7 @@ class SimFalcon(LeaderDevice):
         config: Any = None,
     ) -> None:
         if params is None and config is not None:
-            lc = config.section("leader")
+            lc = config.get(LeaderConfig)
             params = SimFalconParams(
                 mass_kg=lc.mass_kg, viscous_n_s_m=lc.viscous_n_s_m, coulomb_n=lc.coulomb_n,
                 gravity_n=(lc.gravity_n[0], lc.gravity_n[1]),
