@@ -202,7 +202,7 @@ class FollowerApp:
         return FollowerLoop(
             robot, self.cfg.get(ControlConfig), self.fcfg, self._take_command, self._publish,
             now=self.clock, to_local=node.to_local, estimator=self.h1, drops=node.drops, sid=node.sid,
-            on_event=node.event, conservative_rtt=node.round_trip, max_future_s=node.max_future_s,
+            on_event=node.event, conservative_rtt=node.round_trip,
             on_new_leader=self._reset_robot if self.reset_on_leader else None,
         )  # fmt: skip
 

@@ -31,10 +31,10 @@ the path's baseline delay (the minimum h1 of the commands applied over the last
 (``cmd_backlog``), and one sent before the command applied last (same leader session) is
 dropped too (``cmd_reordered``): after an outage walking resumes on fresh commands only. A fall (torso tilt) stops it, is counted (every fall) and
 **latches**: the robot walks again only after the operator re-arms (a command with
-``enable`` false, then true) once it stands again. A command stamped ahead of the local
-clock by more than ``max_future_s`` is ignored and counted (``cmd_future``); every delay
-is clamped at >= 0 before the estimators and control laws see it, so no timestamp can
-make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a tick or a
+``enable`` false, then true) once it stands again. A command stamped too far ahead of the
+local clock never reaches the loop (the node's receiver drops it as ``future``: the one
+check); a small lead (clock jitter) is a zero delay, and every delay is clamped at >= 0
+before the estimators and control laws see it, so no timestamp can make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a tick or a
 robot call failed: the robot is stopped if it can be reached and the walk state is
 forgotten, so walking resumes smoothly once the robot answers again. What the walk is
 (standing, walking, a stop pending, a refusal reported, the fall latch's steps) is one
@@ -78,21 +78,17 @@ from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkComman
 from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
 from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
 
-__all__ = ["DEFAULT_MAX_FUTURE_S", "FollowerLoop", "FollowerTelemetry"]
+__all__ = ["FollowerLoop", "FollowerTelemetry"]
 
 LOG = logging.getLogger(__name__)
 
 CM = 100.0  # cm per m
-#: Commands stamped further ahead of the local clock than this are ignored [s]
-#: (the ``[clock] max_future_s`` default).
-DEFAULT_MAX_FUTURE_S = 0.25
 #: Largest delay the loop passes on to (40) and (30) [s] (as the messages allow).
 _MAX_DELAY_S = 60.0
 #: The loop's counters, in every Status (``FollowerLoop.counters``).
 _COUNTERS = (
     "cmd_accepted",
     "cmd_too_old",
-    "cmd_future",
     "watchdog_stops",
     "falls",
     "collisions",
@@ -167,9 +163,6 @@ class FollowerLoop:
     conservative_rtt : callable, optional
         ntp clock mode: ``() -> rtt [s] | None``. When it gives a value, (40) and (30) use
         ``h1 = h2 = rtt``: across two clocks the round trip is exact but its split is not.
-    max_future_s : float
-        A command stamped more than this ahead of the local clock [s] (after
-        ``to_local``) is ignored and counted as ``cmd_future``.
     on_new_leader : callable, optional
         ``on_new_leader(sid) -> bool``, called when a command of a new leader session is
         accepted (before the robot is observed in that tick). It returns True when it put
@@ -197,7 +190,6 @@ class FollowerLoop:
         delay_window_s: float = 1.0,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
         conservative_rtt: Callable[[], float | None] | None = None,
-        max_future_s: float = DEFAULT_MAX_FUTURE_S,
         on_new_leader: Callable[[int], bool] | None = None,
         estimator: DelayEstimator | None = None,
         drops: DropCounter | None = None,
@@ -213,7 +205,6 @@ class FollowerLoop:
         self._to_local = to_local
         self._on_event = on_event or (lambda name, detail: None)
         self._conservative_rtt = conservative_rtt
-        self.max_future_s = float(max_future_s)
         self._on_new_leader = on_new_leader
         self.sid = new_session_id() if sid is None else int(sid)
         self._feed_h1 = estimator is None
@@ -255,7 +246,6 @@ class FollowerLoop:
         #: The walk's state (:mod:`bipedtele.follower.walkstate`): motion, fall latch, refusal.
         self.walk_state = WalkState.STANDING
         self._leader_sid: int | None = None
-        self._next_future_log = -math.inf
         self._in_contact = False
         self._fb_seq = self._st_seq = 0
         self._next_fb = self._next_status = -math.inf
@@ -288,18 +278,7 @@ class FollowerLoop:
         if rec is None:
             return False
         msg, t_recv = rec
-        t_sent = self._to_local(msg.t)
-        if not (math.isfinite(t_sent) and math.isfinite(t_recv)) or t_sent - now > self.max_future_s:
-            self.counters["cmd_future"] += 1
-            if now >= self._next_future_log:
-                self._next_future_log = now + 5.0
-                LOG.warning(
-                    "ignoring a command stamped %.3f s ahead of this clock (tolerance %.3f s; %d so far): clocks not in sync, or a forged time",
-                    t_sent - now,
-                    self.max_future_s,
-                    self.counters["cmd_future"],
-                )
-            return False
+        t_sent = self._to_local(msg.t)  # within [clock] max_future_s of the receive time: the receiver checked
         if self._feed_h1:
             # A send time a little after the receive time (clock jitter within the
             # tolerance) is a zero delay, never a negative one.
