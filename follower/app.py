@@ -27,7 +27,6 @@ from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import Config, ConfigError
 from bipedtele.control.config import ControlConfig
-from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.loop import FollowerLoop
@@ -113,7 +112,6 @@ class FollowerApp:
         # the clock link.
         # Without the message key a forged high seq is rolled back after 3 real commands.
         self.gate = SequenceGate(takeover_after_s=self.fcfg.watchdog_s, rollback_after=0 if self.node.auth else 3)
-        self.h1 = DelayEstimator(cfg.get(ClockConfig).delay_window_s)
         self.dt = 1.0 / self.fcfg.control_rate_hz
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(self.dt)
         # Woken by the command receiver: a fresh command is applied at once (pickup).
@@ -201,8 +199,8 @@ class FollowerApp:
         node = self.node
         return FollowerLoop(
             robot, self.cfg.get(ControlConfig), self.fcfg, self._take_command, self._publish,
-            now=self.clock, to_local=node.to_local, estimator=self.h1, drops=node.drops, sid=node.sid,
-            on_event=node.event, conservative_rtt=node.round_trip,
+            now=self.clock, to_local=node.to_local, drops=node.drops, sid=node.sid,
+            delay_window_s=self.cfg.get(ClockConfig).delay_window_s, on_event=node.event, conservative_rtt=node.round_trip,
             on_new_leader=self._reset_robot if self.reset_on_leader else None,
         )  # fmt: skip
 
@@ -230,13 +228,12 @@ class FollowerApp:
             self._status_rx = node.receive(
                 node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid
             )
-            # Every accepted command: recorded and fed to h1 once, in the receiver.
+            # Every accepted command: recorded once here; h1 is fed once, by the loop that takes it.
             self._cmd_rx = node.receive(
                 node.keys.cmd,
                 Command,
                 self.gate,
                 topic="cmd/recv",
-                estimator=self.h1,
                 on_message=self._on_command,
                 max_age_s=self.fcfg.max_cmd_age_s,  # before the gate: an old replay never binds it
             )

@@ -168,9 +168,6 @@ class FollowerLoop:
         accepted (before the robot is observed in that tick). It returns True when it put
         the robot back on its start pose (``--reset-on-leader``, simulator only): the
         loop then forgets its walk state and any fall latch.
-    estimator : DelayEstimator, optional
-        The forward-delay (h1) estimator, fed by the command receiver with every accepted
-        message. None: the loop makes one and feeds it with the commands it takes.
     drops : DropCounter, optional
         The node's drop counter; its counts go into every Status as ``drop_<reason>``.
     sid : int, optional
@@ -191,7 +188,6 @@ class FollowerLoop:
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
         conservative_rtt: Callable[[], float | None] | None = None,
         on_new_leader: Callable[[int], bool] | None = None,
-        estimator: DelayEstimator | None = None,
         drops: DropCounter | None = None,
         sid: int | None = None,
     ) -> None:
@@ -207,8 +203,8 @@ class FollowerLoop:
         self._conservative_rtt = conservative_rtt
         self._on_new_leader = on_new_leader
         self.sid = new_session_id() if sid is None else int(sid)
-        self._feed_h1 = estimator is None
-        self.h1 = DelayEstimator(delay_window_s) if estimator is None else estimator
+        #: The forward-delay (h1) estimator: fed here, once, with every command taken.
+        self.h1 = DelayEstimator(delay_window_s)
         self._drops = drops
         self.chooser = OnlineChooser(control)
         #: The control scheme (``[control] scheme``): the damping sigma_e that (29) and (30) use.
@@ -279,10 +275,9 @@ class FollowerLoop:
             return False
         msg, t_recv = rec
         t_sent = self._to_local(msg.t)  # within [clock] max_future_s of the receive time: the receiver checked
-        if self._feed_h1:
-            # A send time a little after the receive time (clock jitter within the
-            # tolerance) is a zero delay, never a negative one.
-            self.h1.update(min(t_sent, t_recv), t_recv)
+        # A send time a little after the receive time (clock jitter within the tolerance)
+        # is a zero delay, never a negative one.
+        self.h1.update(min(t_sent, t_recv), t_recv)
         if now - t_sent > self.cfg.max_cmd_age_s:
             self.counters["cmd_too_old"] += 1
             return False

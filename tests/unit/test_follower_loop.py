@@ -408,20 +408,19 @@ def test_a_command_given_again_is_taken_again_the_gate_is_the_only_dedupe() -> N
     assert loop.counters["cmd_accepted"] == 2
 
 
-def test_a_given_estimator_is_fed_by_the_receiver_not_the_loop() -> None:
-    from bipedtele.delayestimate import DelayEstimator
-
+def test_h1_is_fed_once_by_the_loop_with_every_command_it_takes() -> None:
+    """Issue 22: h1 was fed by the receiver or by the loop depending on whether an estimator
+    was passed in. Now the loop owns it and feeds it with each command it takes, whoever
+    delivers them (the follower's receiver feeds none)."""
     robot = KinematicRobot()
     robot.connect()
     cfg = load_config("default")
-    est = DelayEstimator(1.0)
-    est.update(99.7, 100.0)  # what the receiver saw: 0.3 s
-    cmd = Command(sid=1, seq=1, t=99.9, ref=[5.0, 0.0])
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmd, 100.0),
-                        lambda m: None, now=lambda: 100.0, estimator=est)  # fmt: skip
+    cmds = iter([(Command(sid=1, seq=1, t=99.7, ref=[5.0, 0.0]), 100.0), None])
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: next(cmds, None),
+                        lambda m: None, now=lambda: 100.0)  # fmt: skip
     tel = loop.tick()
-    assert loop.h1 is est
-    assert tel.h1_s == pytest.approx(0.3)  # the taken command (0.1 s) did not feed it
+    assert tel.h1_s == pytest.approx(0.3)
+    assert "estimator" not in inspect.signature(FollowerLoop).parameters
 
 
 def test_status_carries_the_drop_counts_passed_in() -> None:
