@@ -180,6 +180,32 @@ class Node:
         """True once a stop was asked for."""
         return self._stop is not None and self._stop.is_set()
 
+    def run_stepped(self, clock: StepClock, step: Callable[[float], bool]) -> int:
+        """Run a loop faster than real time: ``step(t)`` at ``clock``'s time, then the clock moves on.
+
+        The one fast-mode loop of both programs (``--realtime off``): it stops when ``step``
+        returns False or a stop is asked for (SIGINT/SIGTERM).
+
+        Parameters
+        ----------
+        clock : StepClock
+            The loop's clock (message times follow it).
+        step : callable
+            ``step(t) -> bool``: one period at loop time ``t`` [s]; False ends the run.
+
+        Returns
+        -------
+        int
+            Periods run.
+        """
+        n = 0
+        while not self.stopping:
+            n += 1
+            if not step(clock()):
+                break
+            clock.advance()
+        return n
+
     @property
     def session(self) -> zenoh.Session:
         """The open Zenoh session."""

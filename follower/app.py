@@ -263,15 +263,16 @@ class FollowerApp:
         clock = self.clock
         assert isinstance(clock, StepClock)
         start_t = clock()
-        while not self.node.stopping:
+
+        def step(t: float) -> bool:
             self._adapt(supervisor.loop)
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)
             supervisor.advance(self.dt)
-            if self._over(start_t):
-                break
-            clock.advance()
+            return not self._over(start_t)
+
+        self.node.run_stepped(clock, step)
 
     def _run_realtime(
         self, robot: FollowerRobot, loop: FollowerLoop, supervisor: RobotSupervisor, video: VideoStreamer

@@ -494,9 +494,14 @@ class LeaderApp:
         clock = self.clock
         assert isinstance(clock, StepClock)
         limit = round(self.duration * self.lc.haptic_rate_hz) if self.duration else None
-        while not stop.is_set() and not loop.done and (limit is None or clock.ticks < limit):
-            loop.tick(now=clock())
-            clock.advance()
+
+        def step(t: float) -> bool:
+            if loop.done or (limit is not None and clock.ticks >= limit):
+                return False
+            loop.tick(now=t)
+            return True
+
+        self.node.run_stepped(clock, step)
 
 
 def main(
