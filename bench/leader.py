@@ -33,8 +33,7 @@ from pathlib import Path
 
 import numpy as np
 from bipedtele.config import load_config
-from bipedtele.leader.app import COCKPIT_TOKEN_ENV
-from bipedtele.leader.app import main as leader_main
+from bipedtele.leader.app import COCKPIT_TOKEN_ENV, LeaderApp
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import make_operator
@@ -150,8 +149,8 @@ def run_full(seconds: float, rt_priority: int) -> dict:
         browser = subprocess.Popen([sys.executable, "-c", BROWSER, str(cport), str(seconds + 2), token], env=env)
         stats: dict = {}
         try:
-            leader_main(cfg, operator_name="scripted", duration_s=seconds, realtime=True,
-                        record=Path(tmp) / "bench.mcap", stats=stats)  # fmt: skip
+            LeaderApp(cfg, operator_name="scripted", duration_s=seconds, realtime=True,
+                      record=Path(tmp) / "bench.mcap").run(stats)  # fmt: skip
         finally:
             for p in (peer, browser):
                 try:

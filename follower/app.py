@@ -42,7 +42,7 @@ from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.sections import ClockConfig
 from bipedtele.transport import MessagePublisher
 
-__all__ = ["FollowerApp", "add_follower_parser", "main"]
+__all__ = ["FollowerApp", "add_follower_parser"]
 
 LOG = logging.getLogger(__name__)
 
@@ -308,26 +308,6 @@ class FollowerApp:
                      stepper.caught_up_steps, stepper.dropped_steps, stepper.max_lag_steps * sub_dt)  # fmt: skip
 
 
-def main(
-    cfg: Config,
-    *,
-    robot_name: str | None = None,
-    realtime: bool | None = None,
-    duration_s: float | None = None,
-    record: Path | None = None,
-    reset_on_leader: bool = False,
-) -> int:
-    """Run the follower until a signal or ``duration_s`` of robot time; return the exit code.
-
-    Parameters are those of :class:`FollowerApp`.
-    """
-    app = FollowerApp(
-        cfg, robot_name=robot_name, realtime=realtime, duration_s=duration_s, record=record,
-        reset_on_leader=reset_on_leader,
-    )  # fmt: skip
-    return app.run()
-
-
 def _run(args: argparse.Namespace) -> int:
     if args.naoqi_url:
         args.overrides.append(f"naoqi.url={args.naoqi_url!r}".replace("'", '"'))
@@ -337,7 +317,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
     realtime = None if args.realtime is None else args.realtime == "on"
-    return main(
+    app = FollowerApp(
         cfg,
         robot_name=args.robot,
         realtime=realtime,
@@ -345,6 +325,7 @@ def _run(args: argparse.Namespace) -> int:
         record=Path(args.record) if args.record else None,
         reset_on_leader=args.reset_on_leader,
     )
+    return app.run()
 
 
 def add_follower_parser(sub: Any) -> None:

@@ -62,7 +62,7 @@ from bipedtele.sections import ClockConfig, RobotConfig
 from bipedtele.telemetry import LeaderSample
 from bipedtele.transport import PresenceWatcher, Publishers
 
-__all__ = ["LeaderApp", "add_leader_parser", "main"]
+__all__ = ["LeaderApp", "add_leader_parser"]
 
 LOG = logging.getLogger(__name__)
 
@@ -253,7 +253,24 @@ class LeaderApp:
     """The leader program on the node runtime (see the module docstring).
 
     Every argument and setting is checked when it is built (one line, exit 2); nothing
-    is opened, served or written before :meth:`run`. Parameters are those of :func:`main`.
+    is opened, served or written before :meth:`run`.
+
+    Parameters
+    ----------
+    cfg : Config
+        Loaded profile.
+    operator_name, device_name : str, optional
+        Override ``[leader] operator`` / ``device``.
+    duration_s : float, optional
+        Stop after this long [s] (``[leader] duration_s`` when omitted; 0 = no limit). With
+        a duration the scripted operator holds its last point's speed until the end
+        instead of ending the run.
+    realtime : bool, optional
+        Override ``[leader] realtime``. Off runs the loop as fast as possible with message
+        times on a virtual clock (tests and tools only: a real-time follower sees it as
+        time passing faster).
+    record : Path, optional
+        MCAP file (default: a new file in ``[record] dir`` when recording is enabled).
     """
 
     def __init__(
@@ -415,7 +432,13 @@ class LeaderApp:
     # ------------------------------------------------------------------ run
 
     def run(self, stats: dict[str, Any] | None = None) -> int:
-        """Run until done, ``duration_s`` or a signal; return the exit code (see :func:`main`)."""
+        """Run until done, ``duration_s`` or a signal; return the exit code.
+
+        0: clean end; 1: the device failed; :data:`EXIT_NOT_REACHED`: the follower was
+        there but none of our commands reached it. Nothing is served or recorded before the
+        Zenoh session is open. ``stats``, when given, is filled at the end with the loop's
+        figures (period statistics, counters, progress).
+        """
         lc, node = self.lc, self.node
         with node:
             # Python threads (Zenoh callbacks, cockpit, recorder) hand the GIL back to the
@@ -504,48 +527,6 @@ class LeaderApp:
         self.node.run_stepped(clock, step)
 
 
-def main(
-    cfg: Config,
-    *,
-    operator_name: str | None = None,
-    device_name: str | None = None,
-    duration_s: float | None = None,
-    realtime: bool | None = None,
-    record: Path | None = None,
-    stats: dict[str, Any] | None = None,
-) -> int:
-    """Run the leader program; return the exit code.
-
-    0: clean end; 1: the device failed; :data:`EXIT_NOT_REACHED`: the follower was there
-    but none of our commands reached it. Nothing is served or recorded before the
-    configuration is valid and the Zenoh session is open.
-
-    Parameters
-    ----------
-    cfg : Config
-        Loaded profile.
-    operator_name, device_name : str, optional
-        Override ``[leader] operator`` / ``device``.
-    duration_s : float, optional
-        Stop after this long [s] (``[leader] duration_s`` when omitted; 0 = no limit). With
-        a duration the scripted operator holds its last point's speed until the end
-        instead of ending the run.
-    realtime : bool, optional
-        Override ``[leader] realtime``. Off runs the loop as fast as possible with message
-        times on a virtual clock (tests and tools only: a real-time follower sees it as
-        time passing faster).
-    record : Path, optional
-        MCAP file (default: a new file in ``[record] dir`` when recording is enabled).
-    stats : dict, optional
-        Filled at the end with the loop's figures (period statistics, counters, progress).
-    """
-    app = LeaderApp(
-        cfg, operator_name=operator_name, device_name=device_name, duration_s=duration_s,
-        realtime=realtime, record=record,
-    )  # fmt: skip
-    return app.run(stats)
-
-
 def _map_course(cfg: Config) -> list[tuple[float, float, float]]:
     """Return the obstacles the cockpit's map draws.
 
@@ -610,10 +591,11 @@ def _run(args: argparse.Namespace) -> int:
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration >= 0):
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds >= 0")
     realtime = None if args.realtime is None else args.realtime == "on"
-    return main(
+    app = LeaderApp(
         cfg, operator_name=args.operator, device_name=args.device, duration_s=args.duration,
         realtime=realtime, record=Path(args.record) if args.record else None,
     )  # fmt: skip
+    return app.run()
 
 
 def add_leader_parser(sub: Any) -> None:
