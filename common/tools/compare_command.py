@@ -14,6 +14,7 @@ from typing import Any
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
 from bipedtele.control.config import ControlConfig
+from bipedtele.tools.backends import walker_backend
 from bipedtele.tools.control_commands import progress_bar, save_figure, write_json, write_text
 from bipedtele.tools.plots import require_matplotlib
 
@@ -86,19 +87,13 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 def _walker_cells(args: argparse.Namespace, cfg: Any, schemes: tuple[str, ...] | None, regimes: Any) -> Any:
     """Run the walker cells through the backend the follower package registers (the core never imports it)."""
-    from importlib import metadata
-
-    backend = next(
-        (ep for ep in metadata.entry_points(group="bipedtele.compare_backends") if ep.name == "walker"), None
-    )
-    if backend is None:
-        raise ConfigError("--walker-runs: no walker backend installed; allowed: 0, or with the follower package")
+    backend = walker_backend("bipedtele.compare_backends", "--walker-runs", "0, or with the follower package")
     from bipedtele.control.schemes import scheme_names
 
     names = set(schemes) | {"paper"} if schemes else set(scheme_names())
     total = args.walker_runs * len(regimes) * len(names)
     with progress_bar(total, "walker") as update:
-        return backend.load()(
+        return backend(
             cfg,
             runs=args.walker_runs,
             seed=args.seed,

@@ -18,6 +18,7 @@ from typing import Any
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
 from bipedtele.control.config import ControlConfig
+from bipedtele.tools.backends import walker_backend
 from bipedtele.tools.plots import require_matplotlib
 
 __all__ = ["add_study_parser", "add_surfaces_parser", "progress_bar", "save_figure", "write_json", "write_text"]
@@ -92,16 +93,6 @@ def progress_bar(total: int, desc: str = "study") -> Iterator[Callable[[int], No
         yield bar.update
 
 
-def _walker_backend() -> Any:
-    """Return the walker study, registered by the follower package (the core never imports it)."""
-    from importlib import metadata
-
-    for ep in metadata.entry_points(group="bipedtele.study_backends"):
-        if ep.name == "walker":
-            return ep.load()
-    raise ConfigError("--walker: no walker backend installed; allowed: with the follower package (bipedtele.follower)")
-
-
 def _run_study(args: argparse.Namespace) -> int:
     from bipedtele.control.study import (
         SENSITIVITY,
@@ -128,7 +119,10 @@ def _run_study(args: argparse.Namespace) -> int:
     control = cfg.get(ControlConfig)
     params = StudyParams(duration_s=duration)
     if args.walker:
-        result = _walker_backend()(cfg, runs=runs, seed=args.seed, duration_s=duration)
+        backend = walker_backend(
+            "bipedtele.study_backends", "--walker", "with the follower package (bipedtele.follower)"
+        )
+        result = backend(cfg, runs=runs, seed=args.seed, duration_s=duration)
     elif args.sensitivity:
         total = study_steps(params) * len(SENSITIVITY)
         with progress_bar(total) as update:
