@@ -23,7 +23,10 @@ declarations go *ingress* (client to router); what the router forwards to the us
 *egress*, filtered by the receiving user's rules. A subscriber's declaration is also
 forwarded (egress) to the publishers of its key, so the publishing role is allowed
 ``declare_subscriber`` egress on its own keys (that is what lets its publishers know that
-someone listens). ``<id>`` is ``*``: one router may serve several robots.
+someone listens). ``<id>`` is ``*`` for a user listed by name: one router may serve several
+robots. A user listed as ``user@robot_id`` (repeat the entry for several robots) gets the same
+rules on ``bipedtele/<robot_id>/...`` only: a leader bound to ``nao1`` cannot command ``nao2``
+nor see its presence, a follower bound to ``nao1`` cannot publish as ``nao2``.
 """
 
 from __future__ import annotations
@@ -70,15 +73,17 @@ def credential_users(path: str) -> list[str]:
     return users
 
 
-def _rules(role: str) -> list[dict[str, Any]]:
+def _rules(role: str, robots: tuple[str, ...], tag: str) -> list[dict[str, Any]]:
+    """Return the allow rules of ``role`` on the keys of ``robots`` (``("*",)``: every robot), ids prefixed ``tag``."""
     pub, sub = ROLE_KEYS[role]
-    pub_keys = [f"{_ROOT}/{k}" for k in pub]
-    sub_keys = [f"{_ROOT}/{k}" for k in sub]
-    presence_all = f"{_ROOT}/presence/*/*"
+    roots = [f"bipedtele/{r}" for r in robots]
+    pub_keys = [f"{root}/{k}" for root in roots for k in pub]
+    sub_keys = [f"{root}/{k}" for root in roots for k in sub]
+    presence_all = [f"{root}/presence/*/*" for root in roots]
 
     def rule(name: str, flows: list[str], messages: list[str], keys: list[str]) -> dict[str, Any]:
         return {
-            "id": f"{role}_{name}",
+            "id": f"{tag}_{name}",
             "permission": "allow",
             "flows": flows,
             "messages": messages,
@@ -90,10 +95,19 @@ def _rules(role: str) -> list[dict[str, Any]]:
         rule("matching", ["egress"], ["declare_subscriber"], pub_keys),
         rule("subscribe", ["ingress"], ["declare_subscriber"], sub_keys),
         rule("receive", ["egress"], ["put"], sub_keys),
-        rule("token", ["ingress"], ["liveliness_token"], [f"{_ROOT}/presence/{role}/*"]),
-        rule("watch", ["ingress"], ["declare_liveliness_subscriber", "liveliness_query"], [presence_all]),
-        rule("presence", ["egress"], ["liveliness_token"], [presence_all]),
+        rule("token", ["ingress"], ["liveliness_token"], [f"{root}/presence/{role}/*" for root in roots]),
+        rule("watch", ["ingress"], ["declare_liveliness_subscriber", "liveliness_query"], presence_all),
+        rule("presence", ["egress"], ["liveliness_token"], presence_all),
     ]
+
+
+def _bindings(entries: list[str]) -> dict[str, tuple[str, ...]]:
+    """User -> the robot ids it is bound to (``("*",)``: every robot), from ``user``/``user@robot`` entries."""
+    found: dict[str, set[str]] = {}
+    for entry in entries:
+        user, at, robot = entry.partition("@")
+        found.setdefault(user, set()).add(robot if at else "*")
+    return {u: ("*",) if "*" in rs else tuple(sorted(rs)) for u, rs in found.items()}
 
 
 def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
@@ -109,7 +123,7 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
     ConfigError
         No ``credentials_file``, an unreadable one, or a role user it does not name.
     """
-    roles = {"leader": list(net.publishers_allowed), "follower": list(net.followers_allowed)}
+    roles = {"leader": _bindings(list(net.publishers_allowed)), "follower": _bindings(list(net.followers_allowed))}
     if not any(roles.values()):
         return None
     if not net.credentials_file:
@@ -118,8 +132,8 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
             "authenticate); allowed: set credentials_file, or leave both lists empty"
         )
     users = credential_users(net.credentials_file)
-    for key, names in (("publishers_allowed", roles["leader"]), ("followers_allowed", roles["follower"])):
-        unknown = [u for u in names if u not in users]
+    for key, role in (("publishers_allowed", "leader"), ("followers_allowed", "follower")):
+        unknown = [u for u in roles[role] if u not in users]
         if unknown:
             raise ConfigError(
                 f"network.{key} = {unknown[0]!r}: not a user of {net.credentials_file}; allowed: {', '.join(users)}"
@@ -127,13 +141,16 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    for role, names in roles.items():
-        if not names:
-            continue
-        role_rules = _rules(role)
-        rules += role_rules
-        subjects.append({"id": f"{role}s", "usernames": names})
-        policies.append({"id": f"{role}_role", "rules": [r["id"] for r in role_rules], "subjects": [f"{role}s"]})
+    for role, bound in roles.items():
+        groups: dict[tuple[str, ...], list[str]] = {}
+        for user, robots in bound.items():
+            groups.setdefault(robots, []).append(user)
+        for i, (robots, names) in enumerate(sorted(groups.items())):
+            tag = role if robots == ("*",) and len(groups) == 1 else f"{role}{i}"
+            role_rules = _rules(role, robots, tag)
+            rules += role_rules
+            subjects.append({"id": f"{tag}s", "usernames": names})
+            policies.append({"id": f"{tag}_role", "rules": [r["id"] for r in role_rules], "subjects": [f"{tag}s"]})
     return {
         "enabled": True,
         "default_permission": "deny",

@@ -70,13 +70,13 @@ class NetworkConfig:
     )
     publishers_allowed: list[str] = param(
         default_factory=list,
-        doc="router only: users with the leader role (may publish commands); "
-        "with followers_allowed, turns on the deny-by-default ACL",
+        doc="router only: users with the leader role (may publish commands): 'user' (every robot) or "
+        "'user@robot_id' (that robot only; repeat for more); with followers_allowed, turns on the deny-by-default ACL",
     )
     followers_allowed: list[str] = param(
         default_factory=list,
-        doc="router only: users with the follower role (may publish feedback, video); "
-        "with publishers_allowed, turns on the deny-by-default ACL",
+        doc="router only: users with the follower role (may publish feedback, video): 'user' (as any robot) or "
+        "'user@robot_id' (as that robot only); with publishers_allowed, turns on the deny-by-default ACL",
     )
     timeout_s: float = param(10.0, lo=0.1, hi=600.0, unit="s", doc="session open timeout")
     links: Literal["single", "split", "split-tcp"] = param(
@@ -95,7 +95,17 @@ class NetworkConfig:
             raise ValueError("tls_cert and tls_key: allowed: both set or both empty")
         if self.password and self.password_file:
             raise ValueError("password and password_file: allowed: at most one of them")
-        both = sorted(set(self.publishers_allowed) & set(self.followers_allowed))
+        for key in ("publishers_allowed", "followers_allowed"):
+            for entry in getattr(self, key):
+                user, at, robot = entry.partition("@")
+                if not user or (at and not _ROBOT_ID.match(robot)):
+                    raise ValueError(
+                        f"{key}: {entry!r}: allowed: 'user' or 'user@robot_id' (robot id: 1-64 letters, digits, '_', '-')"
+                    )
+        both = sorted(
+            {e.partition("@")[0] for e in self.publishers_allowed}
+            & {e.partition("@")[0] for e in self.followers_allowed}
+        )
         if both:
             raise ValueError(
                 f"user {both[0]!r} is in publishers_allowed and followers_allowed: allowed: each user in at most one role"

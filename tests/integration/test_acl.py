@@ -47,14 +47,16 @@ def free_port() -> int:
 
 
 @contextmanager
-def acl_router(tmp_path: Path) -> Iterator[str]:
+def acl_router(
+    tmp_path: Path, users: dict[str, str] = USERS, leaders: str = '["leader"]', followers: str = '["follower"]'
+) -> Iterator[str]:
     """A `bipedtele router` with credentials and both roles; yields its endpoint."""
     creds = tmp_path / "creds.txt"
-    creds.write_text("".join(f"{u}:{p}\n" for u, p in USERS.items()))
+    creds.write_text("".join(f"{u}:{p}\n" for u, p in users.items()))
     profile = tmp_path / "router.toml"
     profile.write_text(
         f'[network]\nmode = "router"\ncredentials_file = "{creds}"\n'
-        'publishers_allowed = ["leader"]\nfollowers_allowed = ["follower"]\n'
+        f"publishers_allowed = {leaders}\nfollowers_allowed = {followers}\n"
     )
     ep = f"tcp/127.0.0.1:{free_port()}"
     router = subprocess.Popen(
@@ -190,3 +192,46 @@ def test_only_the_leader_reaches_the_command_key(tmp_path: Path) -> None:
     assert got["f_clock"] == {lead.sid} and got["f_status"] == {lead.sid}  # no rogue clock/status either
     assert ldrops.total == 0, ldrops.counts()  # no rogue command reached the leader's keys either
     assert len(spy) == 0, f"the viewer received {len(spy)} samples, e.g. on {spy.samples[0][0]}"
+
+
+BOUND = {"alice": "apw", "f1": "p1", "f2": "p2"}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_a_leader_bound_to_one_robot_commands_that_robot_only(tmp_path: Path) -> None:
+    """Issue 23 (per-robot authority), on a real router: ``publishers_allowed = ["alice@nao1"]``,
+    followers ``f1@nao1`` and ``f2@nao2``. alice's commands on nao1's key reach f1; the same
+    commands on nao2's key (and on every wildcard form) never reach f2; f1 cannot publish
+    feedback as nao2."""
+    k1, k2 = Keys("nao1"), Keys("nao2")
+    with acl_router(tmp_path, BOUND, '["alice@nao1"]', '["f1@nao1", "f2@nao2"]') as ep, ExitStack() as stack:
+
+        def login(user: str) -> zenoh.Session:
+            net = NetworkConfig(mode="client", connect=[ep], user=user, password=BOUND[user], timeout_s=5.0)
+            return stack.enter_context(open_session(net))
+
+        alice, f1, f2 = login("alice"), login("f1"), login("f2")
+        on1, on2 = Tap(), Tap()
+        stack.callback(f1.declare_subscriber(k1.cmd, on1).undeclare)
+        stack.callback(f2.declare_subscriber(k2.cmd, on2).undeclare)
+        fb2 = Tap()
+        # alice may not even listen there (a session of its own: a session gets its own puts locally)
+        stack.callback(login("alice").declare_subscriber(k2.feedback, fb2).undeclare)
+        st, sf = Stamper(), Stamper()
+
+        def send() -> None:
+            alice.put(k1.cmd, encode(st.make(Command, ref=[1.0, 0.0])))
+            alice.put(k2.cmd, encode(st.make(Command, ref=[6.0, 0.0])))
+            for form in ("**", "bipedtele/**", "bipedtele/*/*", "bipedtele/nao2/*", "bipedtele/*/cmd"):
+                alice.put(form, encode(st.make(Command, ref=[6.0, 0.0])))
+            f1.put(k2.feedback, encode(sf.make(Feedback)))
+
+        assert _until(lambda: len(on1) >= 5, send, 15.0), "alice's commands never reached her own robot"
+        for _ in range(10):
+            send()
+            time.sleep(0.05)
+        time.sleep(0.3)
+    assert {k for k, _ in on1.samples} == {k1.cmd}
+    assert len(on2) == 0, f"{len(on2)} of alice's commands reached nao2 (on {sorted({k for k, _ in on2.samples})})"
+    assert len(fb2) == 0, "f1 published feedback as nao2"

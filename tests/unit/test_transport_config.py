@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -131,6 +132,46 @@ def test_access_control_roles_deny_by_default(tmp_path: Path) -> None:
     # a leader-only ACL: the follower user has no role at all
     only = access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["leader"]))
     assert only is not None and not _allowed(only, "follower", "ingress", "put", f"{root}/feedback")
+
+
+def test_a_user_bound_to_a_robot_reaches_that_robot_only(tmp_path: Path) -> None:
+    """Issue 23 (per-robot authority): ``publishers_allowed = ["alice@nao1"]`` lets alice command
+    nao1 and nothing else; before, every leader of a router could command every robot on it."""
+    creds = tmp_path / "c.txt"
+    creds.write_text("alice:a\ncarol:c\ndave:d\nf1:x\nf2:y\n")
+    net = NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice@nao1", "carol@nao2", "carol@nao3", "dave"],
+                        followers_allowed=["f1@nao1", "f2@nao2"])  # fmt: skip
+    acl = access_control_json(net)
+    assert acl is not None
+    for r in acl["rules"]:
+        for k in r["key_exprs"]:
+            zenoh.KeyExpr(k)
+    reach = {"alice": {"nao1"}, "carol": {"nao2", "nao3"}, "dave": {"nao1", "nao2", "nao3"}}
+    for user, robots in reach.items():
+        for robot in ("nao1", "nao2", "nao3"):
+            mine = robot in robots
+            assert _allowed(acl, user, "ingress", "put", f"bipedtele/{robot}/cmd") == mine, (user, robot)
+            assert _allowed(acl, user, "egress", "put", f"bipedtele/{robot}/feedback") == mine, (user, robot)
+            assert _allowed(acl, user, "ingress", "liveliness_token", f"bipedtele/{robot}/presence/leader/z") == mine
+            assert _allowed(acl, user, "egress", "liveliness_token", f"bipedtele/{robot}/presence/follower/z") == mine
+        for key in WILDCARD_CMD[:-1]:  # a bound user: no wildcard put at all; an unbound one: on */cmd only
+            assert _allowed(acl, user, "ingress", "put", key) == (user == "dave" and key.endswith("/cmd")), (user, key)
+    for user, robot in (("f1", "nao1"), ("f2", "nao2")):
+        for other in ("nao1", "nao2", "nao3"):
+            assert _allowed(acl, user, "ingress", "put", f"bipedtele/{other}/feedback") == (other == robot)
+            assert _allowed(acl, user, "egress", "put", f"bipedtele/{other}/cmd") == (other == robot)
+            assert not _allowed(acl, user, "ingress", "put", f"bipedtele/{other}/cmd")
+
+
+@pytest.mark.parametrize(
+    ("entry", "why"),
+    [("@nao1", "'user' or 'user@robot_id'"), ("alice@", "'user' or 'user@robot_id'"), ("alice@na o1", "robot id")],
+)
+def test_a_bad_binding_is_one_line(entry: str, why: str) -> None:
+    with pytest.raises(ValueError, match=re.escape(why)):
+        NetworkConfig(publishers_allowed=[entry])
+    with pytest.raises(ValueError, match="each user in at most one role"):
+        NetworkConfig(publishers_allowed=["alice@nao1"], followers_allowed=["alice@nao2"])
 
 
 def test_access_control_errors(tmp_path: Path) -> None:
