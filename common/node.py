@@ -126,6 +126,7 @@ class Node:
         self.ntp: bool = ck.mode == "ntp"
         self.sync: ClockSync | None = ClockSync(ck.ping_window) if self.ntp else None
         self.max_future_s = float(ck.max_future_s)
+        self._conservative_split = bool(ck.conservative_split)  # read in round_trip, a tick's call
         self.auth: MessageAuth | None = load_message_auth(cfg.get(NetworkConfig))
         # With the key: the session handshake (commands and feedback under a per-session key).
         # The leader leaves a silent follower session after its feedback timeout; the
@@ -382,7 +383,7 @@ class Node:
         ntp mode with ``[clock] conservative_split``: across two clocks the round trip is
         exact but its split is not, so the control laws take ``h1 = h2 = rtt``.
         """
-        if self.sync is None or not self.cfg.get(ClockConfig).conservative_split:
+        if self.sync is None or not self._conservative_split:
             return None
         rtt = self.sync.rtt
         return None if rtt is None else float(rtt)

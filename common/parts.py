@@ -19,12 +19,13 @@ imports neither role. The recipe: ``docs/architecture.md``.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Generic, TypeVar
 
-__all__ = ["PART_GROUPS", "Part", "PartError", "Parts", "part_sections"]
+__all__ = ["PART_GROUPS", "Part", "PartError", "Parts", "lazy", "part_sections"]
 
 #: The entry-point groups of the parts, by kind (the profile's sections come from all three).
 PART_GROUPS: dict[str, str] = {
@@ -63,6 +64,21 @@ class Part:
     build: Callable[..., Any]
     section: str | None = None
     config: type | None = None
+
+
+def lazy(target: str) -> Callable[..., Any]:
+    """Return a builder that imports ``module:attr`` on its first call and calls it with the same arguments.
+
+    For a part whose driver must not load with every profile (pybullet, a device library):
+    ``build=lazy("bipedtele.follower.sim.robot:SimNao")``.
+    """
+    module, _, attr = target.partition(":")
+
+    def build(*args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(module), attr)(*args, **kwargs)
+
+    build.__qualname__ = build.__name__ = f"lazy({target})"
+    return build
 
 
 P = TypeVar("P", bound=Part)

@@ -13,11 +13,12 @@ one module with its class, its settings and its part, and one entry point
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 from bipedtele.config import param
-from bipedtele.leader.device import DevicePart, LeaderDevice
-from bipedtele.leader.operator import Operator, OperatorContext, OperatorPart
+from bipedtele.leader.device import DevicePart
+from bipedtele.leader.operator import OperatorPart
+from bipedtele.parts import lazy
 
 __all__ = [
     "BROWSER",
@@ -82,59 +83,45 @@ class FalconConfig:
     )
 
 
-def _sim_falcon(**kwargs: Any) -> LeaderDevice:
-    from bipedtele.leader.devices.sim_falcon import SimFalcon
-
-    return SimFalcon(**kwargs)
-
-
-def _falcon(**kwargs: Any) -> LeaderDevice:
-    from bipedtele.leader.devices.falcon import FalconDevice
-
-    return FalconDevice(**kwargs)
-
-
-def _joystick(**kwargs: Any) -> LeaderDevice:
-    from bipedtele.leader.devices.joystick import JoystickDevice
-
-    return JoystickDevice(**kwargs)
-
-
-def _scripted(ctx: OperatorContext) -> Operator:
-    from bipedtele.leader.operators import scripted
-
-    return scripted.build(ctx)
-
-
-def _pilot(ctx: OperatorContext) -> Operator:
-    from bipedtele.leader.operators import pilot
-
-    return pilot.build(ctx)
-
-
-def _browser(ctx: OperatorContext) -> Operator:
-    from bipedtele.leader.operators import browser
-
-    return browser.build(ctx)
-
-
 #: ``--device sim-falcon`` (its settings are in ``[leader]``).
 SIM_FALCON = DevicePart(
-    name="sim-falcon", doc="a simulated Novint Falcon (eq. 1)", build=_sim_falcon, section="leader", simulated=True
+    name="sim-falcon",
+    doc="a simulated Novint Falcon (eq. 1)",
+    build=lazy("bipedtele.leader.devices.sim_falcon:SimFalcon"),
+    section="leader",
+    simulated=True,
 )
 #: ``--device falcon``.
 FALCON = DevicePart(
-    name="falcon", doc="a Novint Falcon through libftdi1", build=_falcon, section="falcon", config=FalconConfig
+    name="falcon",
+    doc="a Novint Falcon through libftdi1",
+    build=lazy("bipedtele.leader.devices.falcon:FalconDevice"),
+    section="falcon",
+    config=FalconConfig,
 )
 #: ``--device joystick``.
 JOYSTICK = DevicePart(
-    name="joystick", doc="a Linux evdev joystick or gamepad", build=_joystick, section="joystick", config=JoystickConfig
+    name="joystick",
+    doc="a Linux evdev joystick or gamepad",
+    build=lazy("bipedtele.leader.devices.joystick:JoystickDevice"),
+    section="joystick",
+    config=JoystickConfig,
 )
 #: ``--operator scripted``.
 SCRIPTED = OperatorPart(
-    name="scripted", doc="a profile of intended speeds over time ([leader] script)", build=_scripted
+    name="scripted",
+    doc="a profile of intended speeds over time ([leader] script)",
+    build=lazy("bipedtele.leader.operators.scripted:build"),
 )
 #: ``--operator pilot``.
-PILOT = OperatorPart(name="pilot", doc="the paper's task: evade obstacles left and right, N passes", build=_pilot)
+PILOT = OperatorPart(
+    name="pilot",
+    doc="the paper's task: evade obstacles left and right, N passes",
+    build=lazy("bipedtele.leader.operators.pilot:build"),
+)
 #: ``--operator browser``.
-BROWSER = OperatorPart(name="browser", doc="the cockpit's virtual joystick (leader.cockpit = true)", build=_browser)
+BROWSER = OperatorPart(
+    name="browser",
+    doc="the cockpit's virtual joystick (leader.cockpit = true)",
+    build=lazy("bipedtele.leader.operators.browser:build"),
+)

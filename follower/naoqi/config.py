@@ -9,10 +9,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from bipedtele.config import ConfigError, param
-from bipedtele.follower.robot import FollowerRobot, RobotPart
+from bipedtele.follower.robot import RobotPart
+from bipedtele.parts import lazy
 
 __all__ = ["PART", "SONAR_RANGES_M", "NaoqiConfig"]
 
@@ -129,11 +130,11 @@ class NaoqiConfig:
         return text.splitlines()[0].strip() if text.strip() else ""
 
 
-def _build(**kwargs: Any) -> FollowerRobot:
-    from bipedtele.follower.naoqi.robot import NaoqiRobot
-
-    return NaoqiRobot(**kwargs)
-
-
 #: ``--robot naoqi`` (entry point ``bipedtele.robots``).
-PART = RobotPart(name="naoqi", doc="a real NAO through NAOqi", build=_build, section="naoqi", config=NaoqiConfig)
+PART = RobotPart(
+    name="naoqi",
+    doc="a real NAO through NAOqi",
+    build=lazy("bipedtele.follower.naoqi.robot:NaoqiRobot"),
+    section="naoqi",
+    config=NaoqiConfig,
+)

@@ -7,10 +7,11 @@ loads it only when it builds one.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 from bipedtele.config import param
-from bipedtele.follower.robot import FollowerRobot, RobotPart
+from bipedtele.follower.robot import RobotPart
+from bipedtele.parts import lazy
 
 __all__ = ["PART", "SONAR_RANGE_M", "SimConfig"]
 
@@ -47,17 +48,11 @@ class SimConfig:
             raise ValueError("cycle_min_s, cycle_max_s: allowed: cycle_min_s < cycle_max_s")
 
 
-def _build(**kwargs: Any) -> FollowerRobot:
-    from bipedtele.follower.sim.robot import SimNao  # pybullet
-
-    return SimNao(**kwargs)
-
-
 #: ``--robot sim`` (entry point ``bipedtele.robots``).
 PART = RobotPart(
     name="sim",
     doc="the pybullet NAO",
-    build=_build,
+    build=lazy("bipedtele.follower.sim.robot:SimNao"),
     section="sim",
     config=SimConfig,
     simulated=True,

@@ -192,32 +192,34 @@ READY = {
 
 
 def start_router(procs: Procs, endpoint: str, extra: list[str] | None = None, *, netns: str | None = None,
-                 name: str = "router") -> Proc:  # fmt: skip
-    """Start ``bipedtele router --listen ENDPOINT`` and wait until it listens."""
-    p = procs.start(name, ["router", *(extra or []), "--listen", endpoint], netns=netns)
+                 name: str = "router", env: dict[str, str] | None = None) -> Proc:  # fmt: skip
+    """Start ``bipedtele router --listen ENDPOINT`` and wait until it listens (``env``: added to its environment)."""
+    p = procs.start(name, ["router", *(extra or []), "--listen", endpoint], netns=netns, env=env)
     p.wait_log(READY["router"], 30.0)
     return p
 
 
 def start_follower(procs: Procs, endpoint: str, extra: list[str] | None = None, *, netns: str | None = None,
-                   name: str = "follower", record: Path | None = None, wait: bool = True) -> Proc:  # fmt: skip
-    """Start the sim follower as a client of ``endpoint`` (recording to ``record``)."""
+                   name: str = "follower", record: Path | None = None, wait: bool = True,
+                   env: dict[str, str] | None = None) -> Proc:  # fmt: skip
+    """Start the sim follower as a client of ``endpoint`` (recording to ``record``; ``env``: added to its environment)."""
     args = ["follower", *client_args(endpoint), *(extra or [])]
     if record is not None:
         args += ["--record", str(record)]
-    p = procs.start(name, args, netns=netns)
+    p = procs.start(name, args, netns=netns, env=env)
     if wait:
         p.wait_log(READY["follower"], 60.0)
     return p
 
 
 def start_leader(procs: Procs, endpoint: str, extra: list[str] | None = None, *, netns: str | None = None,
-                 name: str = "leader", record: Path | None = None, wait: bool = True) -> Proc:  # fmt: skip
-    """Start the leader (sim Falcon) as a client of ``endpoint`` (recording to ``record``)."""
+                 name: str = "leader", record: Path | None = None, wait: bool = True,
+                 env: dict[str, str] | None = None) -> Proc:  # fmt: skip
+    """Start the leader (sim Falcon) as a client of ``endpoint`` (recording to ``record``; ``env``: added to its environment)."""
     args = ["leader", *client_args(endpoint), *(extra or [])]
     if record is not None:
         args += ["--record", str(record)]
-    p = procs.start(name, args, netns=netns)
+    p = procs.start(name, args, netns=netns, env=env)
     if wait:
         p.wait_log(READY["leader"], 60.0)
     return p

@@ -24,7 +24,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import pytest
 from e2e_support import CLI, HERE, Procs, free_port, start_follower, start_leader, start_router, wait_until
@@ -92,13 +91,12 @@ def test_bipedtele_drives_the_toy_robot_from_the_toy_handle_and_operator(procs: 
     ep = f"tcp/127.0.0.1:{free_port()}"
     calls = tmp_path / "toy-walker.jsonl"
     start_router(procs, ep)
-    env_procs = _EnvProcs(procs)
     follower = start_follower(
-        env_procs, ep, ["--robot", "toy-walker", "--set", f'toy_walker.log_path="{calls}"',
-                        "--set", "follower.camera_fps=0"],
+        procs, ep, ["--robot", "toy-walker", "--set", f'toy_walker.log_path="{calls}"',
+                        "--set", "follower.camera_fps=0"], env=ENV,
     )  # fmt: skip
     leader = start_leader(
-        env_procs, ep, ["--device", "toy-handle", "--operator", "toy-cruise", "--set", "leader.pilot_speed_cm_s=5"],
+        procs, ep, ["--device", "toy-handle", "--operator", "toy-cruise", "--set", "leader.pilot_speed_cm_s=5"], env=ENV,
     )  # fmt: skip
 
     def walked() -> bool:
@@ -115,15 +113,3 @@ def test_bipedtele_drives_the_toy_robot_from_the_toy_handle_and_operator(procs: 
     log = [json.loads(line) for line in calls.read_text().splitlines()]
     assert log[0]["call"] == "connect" and log[-1]["call"] == "disconnect"
     assert any(c["call"] == "stop" for c in log[-5:])
-
-
-class _EnvProcs(Procs):
-    """The test's :class:`Procs` starting every program with the plugin on ``PYTHONPATH``."""
-
-    def __init__(self, inner: Procs) -> None:
-        super().__init__(inner.folder)
-        self.started = inner.started  # stopped by the fixture with the rest
-
-    def start(self, name: str, args: list[str], *, netns: str | None = None, raw: bool = False,
-              env: dict[str, str] | None = None) -> Any:  # fmt: skip
-        return super().start(name, args, netns=netns, raw=raw, env={**ENV, **(env or {})})
