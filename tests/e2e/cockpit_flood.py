@@ -7,7 +7,9 @@ Run as a program (every loop bounded in count and time)::
 
 ``idle``   opens ``--n`` connections that each send half a request head and nothing more,
            holds them ``--seconds`` and reports, once a second, how many the server has
-           closed (or refused) so far.
+           closed (or refused) so far; for each still open at the end, how long ago the
+           server's kernel acknowledged its half head (one never acknowledged never got
+           past the server's full accept queue: the server holds nothing for it).
 ``brute``  guesses tokens as fast as it can over keep-alive connections (``--workers`` at
            once, reconnecting when the server closes one) and counts the answers by status.
 
@@ -24,6 +26,7 @@ import resource
 import secrets
 import selectors
 import socket
+import struct
 import sys
 import time
 from collections import Counter
@@ -32,6 +35,7 @@ from typing import Any
 HOST = "127.0.0.1"
 MAX_N = 10_000
 MAX_SECONDS = 60.0
+CONNECT_S = 10.0  #: a connect not done by then (its SYN unanswered) is left out
 
 
 def _raise_nofile(need: int) -> None:
@@ -39,6 +43,20 @@ def _raise_nofile(need: int) -> None:
     want = need + 64 if hard == resource.RLIM_INFINITY else min(hard, need + 64)
     if soft < want:
         resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+
+
+def _unacked(s: socket.socket) -> bool:
+    """Whether what ``s`` sent is still unacknowledged (``tcpi_unacked`` of Linux's ``tcp_info``).
+
+    A half head the server's kernel never acknowledged: the connection never completed
+    there (its final ACK was dropped while the accept queue was full and it waits in
+    ``SYN_RECV``), so the server holds no descriptor for it and cannot close it.
+    """
+    try:
+        info = s.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 28)
+    except OSError:
+        return False
+    return len(info) >= 28 and struct.unpack_from("I", info, 24)[0] > 0
 
 
 def idle(port: int, n: int, seconds: float) -> dict[str, Any]:
@@ -61,40 +79,43 @@ def idle(port: int, n: int, seconds: float) -> dict[str, Any]:
             continue
         socks.append(s)
     open_s = time.monotonic() - t0
-    # Wait for the connects, then send half a head on each; then watch for closes.
+    # One loop: a socket that becomes writable sends half a head (once) and is then watched
+    # for the server's close; one that has not connected within CONNECT_S is left out.
     sel = selectors.DefaultSelector()  # epoll: thousands of descriptors
     for s in socks:
         sel.register(s, selectors.EVENT_WRITE)
     pending = set(socks)
+    alive = set(socks)
+    acked_at: dict[socket.socket, float] = {}  # when the server's kernel acknowledged the half head
     sent = 0
-    deadline = time.monotonic() + 10.0
-    while pending and time.monotonic() < deadline:
-        for key, _ in sel.select(0.2):
-            s = key.fileobj
-            assert isinstance(s, socket.socket)
-            pending.discard(s)
-            sel.modify(s, selectors.EVENT_READ)
-            try:
-                s.send(head)
-                sent += 1
-            except OSError as exc:  # refused at once (reset): counted as closed below
-                failed[type(exc).__name__] += 1
-    alive = {s for s in socks if s not in pending}
-    for s in pending:
-        sel.unregister(s)
     closed_at: list[float] = []
+    ack_to_close: list[float] = []
     timeline: list[tuple[float, int]] = []
     end = t0 + min(seconds, MAX_SECONDS)
     next_mark = time.monotonic()
-    while time.monotonic() < end:
-        if time.monotonic() >= next_mark:
-            timeline.append((round(time.monotonic() - t0), len(socks) - len(alive)))
+    while time.monotonic() < end and alive:
+        now = time.monotonic()
+        if pending and now - t0 > CONNECT_S:
+            for s in pending:
+                sel.unregister(s)
+                alive.discard(s)
+            pending.clear()
+        if now >= next_mark:
+            timeline.append((round(now - t0), len(socks) - len(alive)))
+            acked_at.update((s, now) for s in alive - pending if s not in acked_at and not _unacked(s))
             next_mark += 1.0
-        if not alive:
-            break
         for key, _ in sel.select(0.05):
             s = key.fileobj
             assert isinstance(s, socket.socket)
+            if s in pending:
+                pending.discard(s)
+                sel.modify(s, selectors.EVENT_READ)
+                try:
+                    s.send(head)
+                    sent += 1
+                except OSError as exc:  # refused at once (reset): seen as closed next
+                    failed[type(exc).__name__] += 1
+                continue
             try:
                 data = s.recv(4096)
             except OSError:
@@ -102,11 +123,20 @@ def idle(port: int, n: int, seconds: float) -> dict[str, Any]:
             if not data:  # closed (or reset) by the server
                 sel.unregister(s)
                 alive.discard(s)
-                closed_at.append(time.monotonic() - t0)
-    timeline.append((round(time.monotonic() - t0), len(socks) - len(alive)))
+                t = time.monotonic()
+                closed_at.append(t - t0)
+                if s in acked_at:
+                    ack_to_close.append(t - acked_at[s])
+    now = time.monotonic()
+    timeline.append((round(now - t0), len(socks) - len(alive)))
     sel.close()
+    acked_at.update((s, now) for s in alive if s not in acked_at and not _unacked(s))
+    held = sorted((round(now - acked_at[s], 1) for s in alive if s in acked_at), reverse=True)
     out = {"opened": len(socks), "sent": sent, "open_s": round(open_s, 2), "connect_failed": dict(failed),
-           "closed": len(socks) - len(alive), "still_open": len(alive), "timeline": timeline,
+           "closed": len(socks) - len(alive), "still_open": len(alive),
+           "still_open_unacked": len(alive) - len(held), "still_open_held_s": held[:50],
+           "ack_to_close_max_s": round(max(ack_to_close), 2) if ack_to_close else None,
+           "timeline": timeline,
            "closed_p50_s": sorted(closed_at)[len(closed_at) // 2] if closed_at else None}  # fmt: skip
     for s in socks:
         s.close()

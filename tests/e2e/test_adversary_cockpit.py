@@ -270,6 +270,9 @@ def _genuine(leader: Leader, timeout_s: float = 10.0) -> int:
             time.sleep(0.2)
 
 
+HELD_MAX_S = 11.0
+
+
 @pytest.mark.timeout(180)
 def test_idle_connections_are_closed_and_the_cockpit_still_answers(procs: Procs) -> None:
     leader = _start_leader(procs, [])
@@ -282,14 +285,21 @@ def test_idle_connections_are_closed_and_the_cockpit_still_answers(procs: Procs)
     assert flood.returncode == 0, err
     res = json.loads(out.strip().splitlines()[-1])
     print(f"idle flood: {res['opened']} opened, {res['closed']} closed or refused, {res['still_open']} open "
-          f"after 20 s; closed p50 {res['closed_p50_s']} s; descriptors {fds0} -> {fds_peak} (4 s in)")  # fmt: skip
+          f"after 20 s (held {res['still_open_held_s']} s since acknowledged, {res['still_open_unacked']} never "
+          f"acknowledged); closed p50 {res['closed_p50_s']} s, acknowledged-to-closed max "
+          f"{res['ack_to_close_max_s']} s; descriptors {fds0} -> {fds_peak} (4 s in)")  # fmt: skip
     assert res["opened"] == 3000, res
-    # Closed by the header timeout (5 s) or refused at once by the caps: none left.
-    assert res["still_open"] == 0, res
-    # Without the header timeout every accepted connection stays open the flood's 20 s (the
-    # assertion above). When each closes is not asserted: the 5 s run from the accept, and
-    # the niced cockpit accepts late under load (two clean-clone CI runs had 6 and 32 of
-    # 3,000 closed between 12 and 20 s; a bound at 12 s failed on each).
+    # Closed by the header timeout (5 s from the accept) or refused at once by the caps. A
+    # connection is judged from when the server's kernel acknowledged its half head: one
+    # whose final ACK the kernel dropped while the accept queue was full completes only
+    # when a SYN-ACK retransmission (1, 3, 7, 15 s) gets through, so on a loaded machine
+    # some complete at 15 s and are still within their 5 s at the flood's end (a CI run had
+    # 41 of 3,000 so). Without the header timeout every admitted connection is held the
+    # 20 s or, with aiohttp's keep-alive timer, until 15 s after its accept (measured: 13.9 s
+    # from the acknowledgement). HELD_MAX_S: the 5 s, a late accept of the niced cockpit
+    # (its accept queue drains at 2,000 refusals a second at least), the 1 s poll.
+    assert res["ack_to_close_max_s"] is not None and res["ack_to_close_max_s"] < HELD_MAX_S, res
+    assert not res["still_open_held_s"] or max(res["still_open_held_s"]) < HELD_MAX_S, res
     assert _genuine(leader) == 200
     wait_until(lambda: _descriptors(leader.proc.pid) <= fds0 + 20, 15.0, "the descriptors to come back",
                lambda: f"{fds0} -> {_descriptors(leader.proc.pid)}")  # fmt: skip
