@@ -21,7 +21,6 @@ copied anywhere and used from any working folder.
 
 from __future__ import annotations
 
-import argparse
 import ipaddress
 import json
 import os
@@ -41,13 +40,19 @@ from bipedtele.auth import write_message_key
 from bipedtele.config import ConfigError
 
 __all__ = [
+    "FOLLOWER_USER",
+    "LEADER_USER",
+    "ROBOT_ID",
     "CertFiles",
     "TwoHosts",
-    "add_setup_parser",
+    "check_router_name",
+    "client_profile",
     "make_certs",
     "make_message_key",
     "make_password",
+    "router_profile",
     "task_course",
+    "write_private",
     "write_two_hosts",
 ]
 
@@ -60,13 +65,13 @@ _CA_DAYS = 3650
 _CERT_DAYS = 825
 _DNS_LABEL = r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
 _DNS_NAME = re.compile(rf"^{_DNS_LABEL}(?:\.{_DNS_LABEL})*\.?$")
-_ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 
 # --------------------------------------------------------------------------- secrets
 
 
-def _write_private(path: Path, text: str) -> None:
+def write_private(path: Path, text: str) -> None:
     """Create ``path`` (never overwriting) readable by its owner only (mode 0600)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -306,50 +311,55 @@ _WORLD_NOTE = (
 )
 
 
-def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
-    cmd = {"router": "router", "robot": "follower", "operator": "leader"}[host]
-    head = (
-        f"# bipedtele profile for the {host} host, written by `bipedtele setup two-hosts`\n"
-        f"# for the router {router_name}:{port}. Relative paths are read relative to this\n"
-        f"# file's folder. Run:  bipedtele {cmd} --config {host}/bipedtele.toml\n\n"
-    )
-    parts = [head, _toml_table("robot", {"id": robot_id})]
-    if host == "router":
-        net = _toml_table("network", {
-            "mode": "router",
-            "listen": [f"tls/0.0.0.0:{port}"],
-            "multicast_scouting": False,
-            "tls_root_ca": "certs/ca.pem",
-            "tls_cert": "certs/router.pem",
-            "tls_key": "certs/router.key",
-            "tls_mutual": True,
-            "credentials_file": "secrets/router-credentials.txt",
-            "publishers_allowed": [LEADER_USER],
-            "followers_allowed": [FOLLOWER_USER],
-            "links": "split",
-            "timeout_s": 20.0,
-        }, {
-            "links": "also listens on UDP at the same port: the clients' control link",
-            "tls_mutual": "clients must show a certificate of this CA",
-            "credentials_file": "user:password lines (leader, follower)",
-            "publishers_allowed": "users with the leader's role (commands)",
-            "followers_allowed": "users with the follower's role (feedback, video)",
-        })  # fmt: skip
-        parts += ["\n", net]
-        return "".join(parts)
-    user = FOLLOWER_USER if host == "robot" else LEADER_USER
+def router_profile(head: str, router_name: str, port: int, robot_id: str,
+                   publishers: Sequence[str], followers: Sequence[str]) -> str:  # fmt: skip
+    """Return the router's profile: TLS listener, credentials and the ACL's two roles.
+
+    ``publishers`` and ``followers`` are ``publishers_allowed`` / ``followers_allowed``
+    entries (a user, or ``user@robot_id`` for one robot).
+    """
+    net = _toml_table("network", {
+        "mode": "router",
+        "listen": [f"tls/0.0.0.0:{port}"],
+        "multicast_scouting": False,
+        "tls_root_ca": "certs/ca.pem",
+        "tls_cert": "certs/router.pem",
+        "tls_key": "certs/router.key",
+        "tls_mutual": True,
+        "credentials_file": "secrets/router-credentials.txt",
+        "publishers_allowed": list(publishers),
+        "followers_allowed": list(followers),
+        "links": "split",
+        "timeout_s": 20.0,
+    }, {
+        "links": "also listens on UDP at the same port: the clients' control link",
+        "tls_mutual": "clients must show a certificate of this CA",
+        "credentials_file": "user:password lines (leaders, followers)",
+        "publishers_allowed": "users with the leader's role (commands); user@robot: that robot only",
+        "followers_allowed": "users with the follower's role (feedback, video); user@robot: as that robot only",
+    })  # fmt: skip
+    return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
+
+
+def client_profile(head: str, host: str, router_name: str, port: int, robot_id: str,
+                   user: str, cert: str, key_file: str) -> str:  # fmt: skip
+    """Return a robot's (``host="robot"``) or an operator's profile, a client of the router.
+
+    ``user`` logs in with ``secrets/<user>.pw``; ``cert`` names ``certs/<cert>.pem`` and
+    ``.key``; ``key_file`` is the message key shared with the other end.
+    """
     net = _toml_table("network", {
         "mode": "client",
         "connect": [_endpoint(router_name, port)],
         "listen": [],
         "multicast_scouting": False,
         "tls_root_ca": "certs/ca.pem",
-        "tls_cert": f"certs/{user}.pem",
-        "tls_key": f"certs/{user}.key",
+        "tls_cert": f"certs/{cert}.pem",
+        "tls_key": f"certs/{cert}.key",
         "tls_mutual": True,
         "user": user,
         "password_file": f"secrets/{user}.pw",
-        "message_key_file": "secrets/message.key",
+        "message_key_file": key_file,
         "links": "split",
         "timeout_s": 20.0,
     }, {
@@ -357,12 +367,25 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
         "connect": "the router's name, as in its certificate",
         "message_key_file": "the same key on robot and operator; never on the router",
     })  # fmt: skip
-    parts += ["\n", net, "\n", _CLOCK_NOTE, _toml_table("clock", _CLOCK)]
+    parts = [head, _toml_table("robot", {"id": robot_id}), "\n", net, "\n", _CLOCK_NOTE, _toml_table("clock", _CLOCK)]
     parts += ["\n", _CONTROL_NOTE, _toml_table("control", demo_control())]
     if host == "operator":
         parts += ["\n", _toml_table("leader", {"operator": "pilot"}, {"operator": "walks the course below"})]
     parts += ["\n", _WORLD_NOTE, _toml_table("world", task_course())]
     return "".join(parts)
+
+
+def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
+    cmd = {"router": "router", "robot": "follower", "operator": "leader"}[host]
+    head = (
+        f"# bipedtele profile for the {host} host, written by `bipedtele setup two-hosts`\n"
+        f"# for the router {router_name}:{port}. Relative paths are read relative to this\n"
+        f"# file's folder. Run:  bipedtele {cmd} --config {host}/bipedtele.toml\n\n"
+    )
+    if host == "router":
+        return router_profile(head, router_name, port, robot_id, [LEADER_USER], [FOLLOWER_USER])
+    user = FOLLOWER_USER if host == "robot" else LEADER_USER
+    return client_profile(head, host, router_name, port, robot_id, user, user, "secrets/message.key")
 
 
 @dataclass(frozen=True)
@@ -402,7 +425,7 @@ def write_two_hosts(out: str | Path, router_name: str, router_port: int = 7447, 
     router_name = check_router_name(router_name)
     if not 1 <= int(router_port) <= 65535:
         raise ConfigError(f"--router-port {router_port}: allowed: 1 to 65535")
-    if not _ROBOT_ID.match(robot_id):
+    if not ROBOT_ID.match(robot_id):
         raise ConfigError(f"--robot-id {robot_id!r}: allowed: 1-64 characters of letters, digits, '_' or '-'")
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -435,16 +458,16 @@ def _fill(root: Path, router_name: str, port: int, robot_id: str) -> None:
         shutil.copyfile(certs.ca_pem, folder / "certs" / "ca.pem")
         pem, key = certs.pairs[_CERT_OF_HOST[host]]
         shutil.copyfile(pem, folder / "certs" / pem.name)
-        _write_private(folder / "certs" / key.name, key.read_text(encoding="utf-8"))
+        write_private(folder / "certs" / key.name, key.read_text(encoding="utf-8"))
         for f in (folder / "certs" / "ca.pem", folder / "certs" / pem.name):
             os.chmod(f, 0o644)
         if host == "router":
             lines = "".join(f"{u}:{p}\n" for u, p in passwords.items())
-            _write_private(folder / "secrets" / "router-credentials.txt", lines)
+            write_private(folder / "secrets" / "router-credentials.txt", lines)
         else:
             user = FOLLOWER_USER if host == "robot" else LEADER_USER
-            _write_private(folder / "secrets" / f"{user}.pw", passwords[user] + "\n")
-            _write_private(folder / "secrets" / "message.key", key_hex)
+            write_private(folder / "secrets" / f"{user}.pw", passwords[user] + "\n")
+            write_private(folder / "secrets" / "message.key", key_hex)
         profile = folder / "bipedtele.toml"
         profile.write_text(_profile_text(host, router_name, port, robot_id), encoding="utf-8")
         os.chmod(profile, 0o644)
@@ -456,85 +479,3 @@ def _fill(root: Path, router_name: str, port: int, robot_id: str) -> None:
         "operator hosts (offline); it is needed only to issue new certificates.\n",
         encoding="utf-8",
     )
-
-
-# --------------------------------------------------------------------------- command line
-
-
-def _instructions(result: TwoHosts, router_name: str, port: int) -> str:
-    o = result.out
-    role = {
-        "router": f"the router host (reachable as {router_name}:{port} from both others)",
-        "robot": "the robot host (runs the follower; the NAO's network for a real robot)",
-        "operator": "the operator host (runs the leader and its cockpit)",
-    }
-    lines = [
-        f"setup: wrote {o}/ for the router {router_name}:{port}",
-        "",
-        "1. Copy each folder to its host (keep the modes: scp -rp, rsync -a):",
-    ]
-    width = max(len(f"{o / h}/") for h in HOSTS)
-    lines += [f"     {f'{o / h}/':<{width}}  ->  {role[h]}" for h in HOSTS]
-    lines += ["", "2. On each host, in the folder that holds the copied folder, run:"]
-    lines += [f"     {h + ':':<10} {result.commands[h]}" for h in HOSTS]
-    lines += [
-        "",
-        f"Keep {result.ca_key} off the hosts (it signs certificates).",
-        "Real NAO: add --robot naoqi --naoqi-url tcp://NAO:9559 to the robot's command.",
-        "Check the run: docs/two-continents.md.",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def _run_two_hosts(args: argparse.Namespace) -> int:
-    names: list[str] = args.router_name
-    if len(names) != 1:
-        raise ConfigError(f"--router-name given {len(names)} times; allowed: once")
-    result = write_two_hosts(args.out, names[0], args.router_port, args.robot_id)
-    os.write(1, _instructions(result, names[0], args.router_port).encode())
-    return 0
-
-
-def _run_certs(args: argparse.Namespace) -> int:
-    files = make_certs(args.out_dir, args.names)
-    os.write(1, (
-        f"setup: wrote CA, router, leader and follower certificates to {args.out_dir}\n"
-        f"  {files.ca_key}: the CA's key; keep it off the hosts\n"
-    ).encode())  # fmt: skip
-    return 0
-
-
-def _run_message_key(args: argparse.Namespace) -> int:
-    try:
-        path = make_message_key(args.file)
-    except FileExistsError:
-        raise ConfigError(f"{args.file}: exists; allowed: a new file (a key is never overwritten)") from None
-    except OSError as exc:
-        raise ConfigError(f"{args.file}: cannot create ({exc.strerror}); allowed: a writable folder") from None
-    os.write(
-        1, f"setup: wrote a message key to {path} (mode 0600); copy it to the robot and operator hosts only\n".encode()
-    )
-    return 0
-
-
-def add_setup_parser(sub: Any) -> None:
-    """``bipedtele setup two-hosts|certs|message-key``: files for a two-continent run."""
-    p = sub.add_parser("setup", help="make certificates, secrets and per-host profiles for a two-host run")
-    ss = p.add_subparsers(dest="setup_command", metavar="WHAT", parser_class=type(p))
-    ss.required = True
-    t = ss.add_parser("two-hosts", help="three folders (router, robot, operator) and the command for each")
-    t.add_argument("--router-name", action="append", required=True, metavar="NAME",
-                   help="the router's DNS name or IP address, as the robot and operator reach it")  # fmt: skip
-    t.add_argument("--router-port", type=int, default=7447, metavar="PORT", help="the router's TLS port (default 7447)")
-    t.add_argument(
-        "--out", default="two-hosts", metavar="DIR", help="new or empty folder to write (default: two-hosts)"
-    )
-    t.add_argument("--robot-id", default="nao1", metavar="ID", help="robot id (default nao1)")
-    t.set_defaults(func=_run_two_hosts)
-    c = ss.add_parser("certs", help="a CA and router/leader/follower certificates (as scripts/make-certs.sh)")
-    c.add_argument("out_dir", metavar="OUT_DIR", help="folder for the certificates (CA key in OUT_DIR/ca-private/)")
-    c.add_argument("names", nargs="+", metavar="NAME", help="the router's DNS names and/or IP addresses")
-    c.set_defaults(func=_run_certs)
-    m = ss.add_parser("message-key", help="a key for message authentication (mode 0600)")
-    m.add_argument("file", metavar="FILE", help="new file to write")
-    m.set_defaults(func=_run_message_key)

@@ -1,0 +1,225 @@
+"""``bipedtele setup fleet`` (issue 23): one router, robots and operators, each operator bound to its robots."""
+
+from __future__ import annotations
+
+import socket
+import stat
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from collections import Counter
+from contextlib import ExitStack
+from pathlib import Path
+
+import pytest
+import zenoh
+from bipedtele.acl import access_control_json
+from bipedtele.auth import load_message_auth
+from bipedtele.config import ConfigError, load_config
+from bipedtele.sections import NetworkConfig, RobotConfig
+from bipedtele.tools.setup_fleet import parse_operator, write_fleet
+from bipedtele.zenohsession import open_session
+
+pytestmark = pytest.mark.timeout(120)
+
+NAME = "router.example.org"
+ROBOTS = ["nao1", "nao2"]
+OPERATORS = {"alice": ("nao1",), "bob": ("nao2", "nao1")}
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("setup") / "fleet"
+    write_fleet(out, NAME, ROBOTS, OPERATORS, 7451)
+    return out
+
+
+def _files(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()}
+
+
+def _key(path: Path) -> str:
+    return path.read_text(encoding="utf-8").strip()
+
+
+def test_each_host_folder_holds_its_own_files_only(fleet: Path) -> None:
+    certs = {"certs/ca.pem"}
+    assert {p.name for p in fleet.iterdir()} == {
+        "router", "robot-nao1", "robot-nao2", "operator-alice", "operator-bob", "ca-private"
+    }  # fmt: skip
+    assert _files(fleet / "router") == certs | {
+        "certs/router.pem", "certs/router.key", "secrets/router-credentials.txt", "bipedtele.toml"
+    }  # fmt: skip
+    for r in ROBOTS:
+        assert _files(fleet / f"robot-{r}") == certs | {
+            "certs/follower.pem", "certs/follower.key", f"secrets/{r}.pw", "secrets/message.key", "bipedtele.toml"
+        }  # fmt: skip
+    assert _files(fleet / "operator-alice") == certs | {
+        "certs/leader.pem", "certs/leader.key", "secrets/alice.pw", "secrets/nao1.key", "nao1.toml"
+    }  # fmt: skip
+    assert _files(fleet / "operator-bob") == certs | {
+        "certs/leader.pem", "certs/leader.key", "secrets/bob.pw", "secrets/nao1.key", "secrets/nao2.key",
+        "nao1.toml", "nao2.toml",
+    }  # fmt: skip
+    assert _files(fleet / "ca-private") == {"ca.key", "ca.pem", "README.txt"}
+
+
+def test_one_message_key_per_robot_held_by_its_operators_only(fleet: Path) -> None:
+    k1, k2 = _key(fleet / "robot-nao1/secrets/message.key"), _key(fleet / "robot-nao2/secrets/message.key")
+    assert k1 != k2 and len(k1) == len(k2) == 64
+    assert _key(fleet / "operator-alice/secrets/nao1.key") == k1
+    assert _key(fleet / "operator-bob/secrets/nao1.key") == k1
+    assert _key(fleet / "operator-bob/secrets/nao2.key") == k2
+    for secret in fleet.rglob("secrets/*"):
+        assert stat.S_IMODE(secret.stat().st_mode) == 0o600, secret
+    creds = (fleet / "router/secrets/router-credentials.txt").read_text().splitlines()
+    users = dict(line.split(":", 1) for line in creds)
+    assert sorted(users) == ["alice", "bob", "nao1", "nao2"]
+    assert len(set(users.values())) == 4  # a password each
+    for user in users:
+        folder = next(fleet.glob(f"*-{user}"))
+        assert _key(folder / "secrets" / f"{user}.pw") == users[user]
+
+
+def test_router_acl_binds_each_operator_to_its_robots(fleet: Path) -> None:
+    net = load_config(fleet / "router" / "bipedtele.toml").get(NetworkConfig)
+    assert net.publishers_allowed == ["alice@nao1", "bob@nao2", "bob@nao1"]
+    assert net.followers_allowed == ["nao1@nao1", "nao2@nao2"]
+    acl = access_control_json(net)
+    assert acl is not None and acl["default_permission"] == "deny"
+    text = str(acl)
+    assert "bipedtele/*/" not in text  # no router-wide role left
+    subjects = {s["id"]: s for s in acl["subjects"]}
+    policies = acl["policies"]
+    rules = {r["id"]: r for r in acl["rules"]}
+
+    def keys_of(user: str) -> set[str]:
+        ids = {sid for sid, s in subjects.items() if user in s.get("usernames", [])}
+        rule_ids = {rid for p in policies if set(p["subjects"]) & ids for rid in p["rules"]}
+        return {k for rid in rule_ids for k in rules[rid]["key_exprs"]}
+
+    assert {k.split("/")[1] for k in keys_of("alice")} == {"nao1"}
+    assert {k.split("/")[1] for k in keys_of("bob")} == {"nao1", "nao2"}
+    assert {k.split("/")[1] for k in keys_of("nao2")} == {"nao2"}
+
+
+def test_each_profile_names_its_robot_user_and_key(fleet: Path, tmp_path: Path) -> None:
+    cases = [("robot-nao1/bipedtele.toml", "nao1", "nao1"), ("robot-nao2/bipedtele.toml", "nao2", "nao2"),
+             ("operator-alice/nao1.toml", "nao1", "alice"), ("operator-bob/nao1.toml", "nao1", "bob"),
+             ("operator-bob/nao2.toml", "nao2", "bob")]  # fmt: skip
+    robot_key = {r: _key(fleet / f"robot-{r}/secrets/message.key") for r in ROBOTS}
+    for profile, robot, user in cases:
+        cfg = load_config(fleet / profile)  # from another working folder: paths are the profile's
+        net = cfg.get(NetworkConfig)
+        assert cfg.get(RobotConfig).id == robot and net.user == user, profile
+        assert net.connect == [f"tls/{NAME}:7451"] and net.tls_mutual
+        assert Path(net.message_key_file).read_text().strip() == robot_key[robot], profile
+        assert load_message_auth(net) is not None
+        assert tomllib.loads((fleet / profile).read_text())["network"]["password_file"] == f"secrets/{user}.pw"
+
+
+def test_refuses_bad_assignments(tmp_path: Path) -> None:
+    bad = [
+        (["nao1"], {"alice": ("nao2",)}, r"\['nao2'\] not a --robot"),
+        (["nao1"], {"nao1": ("nao1",)}, "not a robot id"),
+        (["nao1"], {"leader": ("nao1",)}, "not a robot id nor one of"),
+        (["nao1", "nao1"], {"alice": ("nao1",)}, "given twice"),
+        (["nao 1"], {"alice": ("nao 1",)}, "--robot 'nao 1'"),
+        ([], {"alice": ("nao1",)}, "--robot: none given"),
+        (["nao1"], {}, "--operator: none given"),
+        (["nao1"], {"alice": ("nao1", "nao1")}, "a robot named twice"),
+    ]
+    for robots, operators, match in bad:
+        with pytest.raises(ConfigError, match=match):
+            write_fleet(tmp_path / "n", NAME, robots, operators)
+    assert not (tmp_path / "n").exists()
+    for spec in ("alice", "alice=", "=nao1", "alice=,"):
+        with pytest.raises(ConfigError, match="NAME=ROBOT"):
+            parse_operator(spec)
+    assert parse_operator("bob=nao2, nao1") == ("bob", ("nao2", "nao1"))
+
+
+def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=60, cwd=cwd,
+    )  # fmt: skip
+
+
+def test_command_prints_each_host_and_its_commands(tmp_path: Path) -> None:
+    res = _cli("setup", "fleet", "--router-name", NAME, "--robot", "nao1", "--robot", "nao2",
+               "--operator", "alice=nao1", "--operator", "bob=nao2,nao1", "--out", "f", cwd=tmp_path)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    for cmd in ("bipedtele router --config router/bipedtele.toml",
+                "bipedtele follower --config robot-nao2/bipedtele.toml",
+                "bipedtele leader --config operator-alice/nao1.toml",
+                "bipedtele leader --config operator-bob/nao2.toml",
+                "bipedtele leader --config operator-bob/nao1.toml"):  # fmt: skip
+        assert cmd in res.stdout, res.stdout
+    for args, match in ((["--operator", "alice=nao3"], "not a --robot"),
+                        (["--operator", "alice=nao1", "--operator", "alice=nao1"], "given twice"),
+                        (["--operator", "alice"], "NAME=ROBOT")):  # fmt: skip
+        bad = _cli("setup", "fleet", "--router-name", NAME, "--robot", "nao1", *args, "--out", "g", cwd=tmp_path)
+        assert bad.returncode == 2 and bad.stdout == "", bad.stdout
+        assert len(bad.stderr.strip().splitlines()) == 1 and match in bad.stderr, bad.stderr
+    assert not (tmp_path / "g").exists()
+
+
+class _Count:
+    """Payloads received, by payload."""
+
+    def __init__(self) -> None:
+        self.by: Counter[bytes] = Counter()
+        self._lock = threading.Lock()
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.by[sample.payload.to_bytes()] += 1
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+def test_written_fleet_on_a_real_router_each_operator_reaches_its_robots_only(tmp_path: Path) -> None:
+    """The router as printed (TLS, mutual certificates, the written ACL), robots and operators
+    logged in from their written profiles: alice's puts reach nao1 and never nao2; bob reaches both."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = write_fleet(tmp_path / "f", "127.0.0.1", ROBOTS, OPERATORS, port).out
+    router = subprocess.Popen(
+        [sys.executable, "-m", "bipedtele.cli", "router", "--config", "router/bipedtele.toml",
+         "--set", f'network.listen=["tls/127.0.0.1:{port}"]'],
+        cwd=out, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert router.stdout is not None
+        line = router.stdout.readline()
+        assert "listening" in line, router.stderr.read() if router.stderr else line
+        with ExitStack() as stack:
+
+            def login(profile: str) -> zenoh.Session:
+                net = load_config(out / profile).get(NetworkConfig)
+                return stack.enter_context(open_session(net))
+
+            robots = {r: login(f"robot-{r}/bipedtele.toml") for r in ROBOTS}
+            got = {r: _Count() for r in ROBOTS}
+            for r, session in robots.items():
+                stack.callback(session.declare_subscriber(f"bipedtele/{r}/cmd", got[r]).undeclare)
+            alice, bob = login("operator-alice/nao1.toml"), login("operator-bob/nao2.toml")
+            time.sleep(1.0)  # the subscriptions reach the router
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline and not (got["nao1"].by[b"a1"] >= 20 and got["nao2"].by[b"b2"] >= 20):
+                for _ in range(10):
+                    alice.put("bipedtele/nao1/cmd", b"a1")
+                    alice.put("bipedtele/nao2/cmd", b"a2")  # not hers: the router drops it
+                    bob.put("bipedtele/nao2/cmd", b"b2")
+                time.sleep(0.2)
+            time.sleep(0.5)
+            assert got["nao1"].by[b"a1"] >= 20, got["nao1"].by  # alice reaches nao1
+            assert got["nao2"].by[b"b2"] >= 20, got["nao2"].by  # bob reaches nao2
+            assert got["nao2"].by[b"a2"] == 0 and got["nao1"].by[b"a2"] == 0, (got["nao1"].by, got["nao2"].by)
+            assert got["nao1"].by[b"b2"] == 0  # bob's put on nao2's key is nao2's only
+    finally:
+        router.terminate()
+        router.wait(10)
