@@ -9,6 +9,8 @@ Roles (``[network]`` on the router; see docs/network.md):
 - users in ``followers_allowed`` are **followers**: they may put on
   ``bipedtele/<id>/{feedback,video,status,clock}`` and declare
   ``.../presence/follower/<zid>``, and receive cmd, clock, status and presence;
+- users in ``observers_allowed`` are **observers**: they receive video, status and
+  presence, declare ``.../presence/observer/<zid>``, and put nothing (``bipedtele status``);
 - every other session (another user of ``credentials_file``, or one matching no
   subject) may do nothing: Zenoh's ``default_permission`` is ``deny``.
 
@@ -45,7 +47,10 @@ _ROOT = "bipedtele/*"
 ROLE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "leader": (("cmd", "clock", "status"), ("feedback", "video", "status", "clock")),
     "follower": (("feedback", "video", "status", "clock"), ("cmd", "clock", "status")),
+    "observer": ((), ("video", "status")),
 }
+#: role -> its ``[network]`` list
+ROLE_LIST = {"leader": "publishers_allowed", "follower": "followers_allowed", "observer": "observers_allowed"}
 
 
 def credential_users(path: str) -> list[str]:
@@ -90,9 +95,12 @@ def _rules(role: str, robots: tuple[str, ...], tag: str) -> list[dict[str, Any]]
             "key_exprs": keys,
         }
 
-    return [
+    publishing = [
         rule("put", ["ingress"], ["put"], pub_keys),
         rule("matching", ["egress"], ["declare_subscriber"], pub_keys),
+    ]
+    return [
+        *(publishing if pub_keys else []),
         rule("subscribe", ["ingress"], ["declare_subscriber"], sub_keys),
         rule("receive", ["egress"], ["put"], sub_keys),
         rule("token", ["ingress"], ["liveliness_token"], [f"{root}/presence/{role}/*" for root in roots]),
@@ -123,8 +131,13 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
     ConfigError
         No ``credentials_file``, an unreadable one, or a role user it does not name.
     """
-    roles = {"leader": _bindings(list(net.publishers_allowed)), "follower": _bindings(list(net.followers_allowed))}
-    if not any(roles.values()):
+    roles = {role: _bindings(list(getattr(net, key))) for role, key in ROLE_LIST.items()}
+    if not (roles["leader"] or roles["follower"]):
+        if roles["observer"]:
+            raise ConfigError(
+                "network.observers_allowed: set without publishers_allowed/followers_allowed (nobody could "
+                "drive); allowed: observers with the other two roles, or all three empty"
+            )
         return None
     if not net.credentials_file:
         raise ConfigError(
@@ -132,7 +145,7 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
             "authenticate); allowed: set credentials_file, or leave both lists empty"
         )
     users = credential_users(net.credentials_file)
-    for key, role in (("publishers_allowed", "leader"), ("followers_allowed", "follower")):
+    for role, key in ROLE_LIST.items():
         unknown = [u for u in roles[role] if u not in users]
         if unknown:
             raise ConfigError(

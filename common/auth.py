@@ -53,6 +53,9 @@ __all__ = [
     "hkdf_sha256",
     "is_signed",
     "load_message_auth",
+    "load_watch_auths",
+    "read_key_file",
+    "watch_key",
     "write_message_key",
 ]
 
@@ -197,12 +200,54 @@ class MessageAuth:
             raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong tag on {topic})")
         return body
 
+    def watch(self) -> MessageAuth:
+        """Return the :class:`MessageAuth` of this key's watch key (:func:`watch_key`)."""
+        return MessageAuth(watch_key(self._key))
+
     def __repr__(self) -> str:
         return "MessageAuth(<key hidden>)" if self.magic == MAC_MAGIC else "MessageAuth(<session key hidden>)"
 
 
-def _key_error(path: str, why: str) -> ConfigError:
-    return ConfigError(f"network.message_key_file = {path!r}: {why}")
+def _key_error(field: str, path: str, why: str) -> ConfigError:
+    return ConfigError(f"network.{field} = {path!r}: {why}")
+
+
+def read_key_file(path: str, field: str = "message_key_file") -> bytes:
+    """Return the 32-byte key of a key file (64 hex characters, mode 0600).
+
+    Raises
+    ------
+    ConfigError
+        One line naming ``network.<field>`` if the file cannot be read, is readable or
+        writable by group or others (fix: ``chmod 600 FILE``), or does not hold exactly 64
+        hex characters.
+    """
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            raise _key_error(field, path, "not a regular file; allowed: a file of 64 hex characters")
+        if st.st_mode & 0o077:
+            raise _key_error(
+                field, path,
+                f"readable by group or others (mode {stat.S_IMODE(st.st_mode):04o}); fix: chmod 600 {path}",
+            )  # fmt: skip
+        text = Path(path).read_text(encoding="ascii").strip()
+    except OSError as exc:
+        raise _key_error(
+            field, path, f"cannot read ({exc.strerror}); allowed: a readable file of 64 hex characters"
+        ) from None
+    except UnicodeDecodeError:
+        text = ""
+    try:
+        if len(text) != 2 * KEY_BYTES:
+            raise ValueError
+        return bytes.fromhex(text)
+    except ValueError:
+        raise _key_error(
+            field, path,
+            f"not a key; allowed: exactly {2 * KEY_BYTES} hex characters (32 random bytes, e.g. "
+            f"python3 -c 'import secrets; print(secrets.token_hex(32))' > {path}; chmod 600 {path})",
+        ) from None  # fmt: skip
 
 
 def load_message_auth(net: NetworkConfig) -> MessageAuth | None:
@@ -211,37 +256,41 @@ def load_message_auth(net: NetworkConfig) -> MessageAuth | None:
     Raises
     ------
     ConfigError
-        One line if the file cannot be read, is readable or writable by group or others
-        (fix: ``chmod 600 FILE``), or does not hold exactly 64 hex characters.
+        As :func:`read_key_file`.
     """
-    path = net.message_key_file
-    if not path:
-        return None
-    try:
-        st = os.stat(path)
-        if not stat.S_ISREG(st.st_mode):
-            raise _key_error(path, "not a regular file; allowed: a file of 64 hex characters")
-        if st.st_mode & 0o077:
-            raise _key_error(
-                path,
-                f"readable by group or others (mode {stat.S_IMODE(st.st_mode):04o}); fix: chmod 600 {path}",
-            )
-        text = Path(path).read_text(encoding="ascii").strip()
-    except OSError as exc:
-        raise _key_error(path, f"cannot read ({exc.strerror}); allowed: a readable file of 64 hex characters") from None
-    except UnicodeDecodeError:
-        text = ""
-    try:
-        if len(text) != 2 * KEY_BYTES:
-            raise ValueError
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise _key_error(
-            path,
-            f"not a key; allowed: exactly {2 * KEY_BYTES} hex characters (32 random bytes, e.g. "
-            f"python3 -c 'import secrets; print(secrets.token_hex(32))' > {path}; chmod 600 {path})",
-        ) from None
-    return MessageAuth(key)
+    return MessageAuth(read_key_file(net.message_key_file)) if net.message_key_file else None
+
+
+def watch_key(master: bytes) -> bytes:
+    """Return a robot's watch key: HKDF-SHA256 of its message key (``info`` ``bipedtele watch v1``).
+
+    Video and status are signed with the watch key (leader and follower derive it from the
+    message key). An observer holds only the watch key: it verifies what it watches, and
+    since HKDF is one-way it can neither complete a session handshake nor sign a command,
+    feedback or clock message (the master key signs those, or session keys derived from
+    it). The router's ACL keeps it from putting anything at all.
+    """
+    return hkdf_sha256(bytes(master), b"bipedtele", b"bipedtele watch v1")
+
+
+def load_watch_auths(net: NetworkConfig, robots: list[str]) -> dict[str, MessageAuth]:
+    """Return each robot's watch :class:`MessageAuth`, for an observer (``bipedtele status``).
+
+    From ``[network] watch_key_dir`` (files ``<robot_id>.watch``, as ``setup fleet`` writes
+    them); a robot without a file there, or without ``watch_key_dir``, is left out.
+
+    Raises
+    ------
+    ConfigError
+        A watch key file that is not a key (as :func:`read_key_file`).
+    """
+    out: dict[str, MessageAuth] = {}
+    if net.watch_key_dir:
+        for robot in robots:
+            path = Path(net.watch_key_dir) / f"{robot}.watch"
+            if path.exists():
+                out[robot] = MessageAuth(read_key_file(str(path), "watch_key_dir"))
+    return out
 
 
 def write_message_key(path: Path) -> None:

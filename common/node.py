@@ -128,6 +128,8 @@ class Node:
         self.max_future_s = float(ck.max_future_s)
         self._conservative_split = bool(ck.conservative_split)  # read in round_trip, a tick's call
         self.auth: MessageAuth | None = load_message_auth(cfg.get(NetworkConfig))
+        # Video and status under the watch key (an observer holds only that one).
+        self.watch_auth: MessageAuth | None = self.auth.watch() if self.auth is not None else None
         # With the key: the session handshake (commands and feedback under a per-session key).
         # The leader leaves a silent follower session after its feedback timeout; the
         # follower's takeover rule is its command gate's (watchdog).
@@ -310,9 +312,10 @@ class Node:
         wants = (topic is not None and recorder is not None) or on_message is not None
         # commands and feedback: under the session key only (with the message key)
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
+        auth = self.watch_auth if key in (self.keys.video, self.keys.status) else self.auth
         rx: LatestReceiver[M] = LatestReceiver(
             self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
-            auth=self.auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
+            auth=auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
             on_message=accepted if wants else None, max_age_s=max_age_s, on_too_old=on_too_old, handshake=hs,
         )  # fmt: skip
         return self.enter(rx)

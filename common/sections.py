@@ -13,7 +13,7 @@ from typing import Literal
 from bipedtele.configfields import param
 from bipedtele.control.config import ControlConfig
 
-__all__ = ["CORE_SECTIONS", "ClockConfig", "NetworkConfig", "RecordConfig", "RobotConfig"]
+__all__ = ["CORE_SECTIONS", "ROLE_LISTS", "ClockConfig", "NetworkConfig", "RecordConfig", "RobotConfig"]
 
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
@@ -29,6 +29,10 @@ class RobotConfig:
             raise ValueError(f"id = {self.id!r}: allowed: 1-64 characters of letters, digits, '_' or '-'")
 
 
+#: The router's role lists (``[network]``), one role per user.
+ROLE_LISTS = ("publishers_allowed", "followers_allowed", "observers_allowed")
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Zenoh session settings (see docs/network.md).
@@ -41,7 +45,7 @@ class NetworkConfig:
     certificate, ``credentials_file`` and the ACL lists, and ignores the client login
     (``user``, ``password``, ``password_file``, ``message_key_file``); a client or peer
     reads ``connect``, its TLS certificate, ``user`` and ``password``/``password_file``
-    and ignores ``credentials_file``, ``publishers_allowed`` and ``followers_allowed``.
+    and ignores ``credentials_file`` and the role lists (``ROLE_LISTS``).
     """
 
     mode: Literal["peer", "client", "router"] = param("peer", doc="Zenoh session mode")
@@ -78,6 +82,17 @@ class NetworkConfig:
         doc="router only: users with the follower role (may publish feedback, video): 'user' (as any robot) or "
         "'user@robot_id' (as that robot only); with publishers_allowed, turns on the deny-by-default ACL",
     )
+    observers_allowed: list[str] = param(
+        default_factory=list,
+        doc="router only: users with the observer role (receive video and status, put nothing): 'user' "
+        "(every robot) or 'user@robot_id' (that robot only)",
+    )
+    watch_key_dir: str = param(
+        "",
+        path=True,
+        doc="observers: folder of watch keys '<robot_id>.watch' (setup fleet writes them): verify the robots' "
+        "video and status; leader and follower derive theirs from message_key_file",
+    )
     timeout_s: float = param(10.0, lo=0.1, hi=600.0, unit="s", doc="session open timeout")
     links: Literal["single", "split", "split-tcp"] = param(
         "single",
@@ -95,21 +110,21 @@ class NetworkConfig:
             raise ValueError("tls_cert and tls_key: allowed: both set or both empty")
         if self.password and self.password_file:
             raise ValueError("password and password_file: allowed: at most one of them")
-        for key in ("publishers_allowed", "followers_allowed"):
+        for key in ROLE_LISTS:
             for entry in getattr(self, key):
                 user, at, robot = entry.partition("@")
                 if not user or (at and not _ROBOT_ID.match(robot)):
                     raise ValueError(
                         f"{key}: {entry!r}: allowed: 'user' or 'user@robot_id' (robot id: 1-64 letters, digits, '_', '-')"
                     )
-        both = sorted(
-            {e.partition("@")[0] for e in self.publishers_allowed}
-            & {e.partition("@")[0] for e in self.followers_allowed}
-        )
-        if both:
-            raise ValueError(
-                f"user {both[0]!r} is in publishers_allowed and followers_allowed: allowed: each user in at most one role"
-            )
+        seen: dict[str, str] = {}
+        for key in ROLE_LISTS:
+            for user in dict.fromkeys(e.partition("@")[0] for e in getattr(self, key)):
+                if user in seen:
+                    raise ValueError(
+                        f"user {user!r} is in {seen[user]} and {key}: allowed: each user in at most one role"
+                    )
+                seen[user] = key
 
 
 @dataclass(frozen=True)

@@ -290,7 +290,8 @@ class Publishers:
     keys : Keys
     auth : MessageAuth, optional
         Signs every message (``[network] message_key_file``, see
-        :func:`bipedtele.auth.load_message_auth`).
+        :func:`bipedtele.auth.load_message_auth`); video and status with its watch key
+        (:func:`bipedtele.auth.watch_key`: an observer verifies them without the key).
     handshake : Handshake, optional
         Commands and feedback are MAC'd with its session key instead, and not sent while
         it has none (:mod:`bipedtele.session`).
@@ -305,6 +306,7 @@ class Publishers:
         self._session = session
         self.keys = keys
         self.auth = auth
+        self.watch_auth = auth.watch() if auth is not None else None
         self.handshake = handshake
         self._pubs: dict[str, MessagePublisher] = {}
         self._lock = threading.Lock()
@@ -318,9 +320,9 @@ class Publishers:
             if pub is None:
                 key = getattr(self.keys, name)
                 if name == "video":
-                    pub = declare_video_publisher(self._session, key, self.auth)
+                    pub = declare_video_publisher(self._session, key, self.watch_auth)
                 elif name == "status":
-                    pub = declare_status_publisher(self._session, key, self.auth)
+                    pub = declare_status_publisher(self._session, key, self.watch_auth)
                 else:
                     hs = self.handshake if name in self._SESSION else None
                     pub = declare_control_publisher(self._session, key, self.auth, hs)

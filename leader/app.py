@@ -58,7 +58,7 @@ from bipedtele.leader.videoparts import FrameAssembler
 from bipedtele.messages import MAX_SEQ, Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.receivers import LatestReceiver, Received
-from bipedtele.sections import ClockConfig, RobotConfig
+from bipedtele.sections import ClockConfig, NetworkConfig, RobotConfig
 from bipedtele.telemetry import LeaderSample
 from bipedtele.transport import PresenceWatcher, Publishers
 
@@ -147,6 +147,9 @@ class _Aux:
         lc, ck = self.cfg.get(LeaderConfig), self.cfg.get(ClockConfig)
         next_status = time.monotonic()
         text = "clock: synced" if ck.mode == "synced" else "clock: ntp (h1+h2 exact, split estimated)"
+        user = self.cfg.get(NetworkConfig).user
+        if user:  # who drives, for the fleet view (bipedtele status)
+            text += f"; operator={user}"
         while not self._stop.wait(0.05):
             now_m, now = time.monotonic(), time.time()
             try:

@@ -312,7 +312,7 @@ _WORLD_NOTE = (
 
 
 def router_profile(head: str, router_name: str, port: int, robot_id: str,
-                   publishers: Sequence[str], followers: Sequence[str]) -> str:  # fmt: skip
+                   publishers: Sequence[str], followers: Sequence[str], observers: Sequence[str] = ()) -> str:  # fmt: skip
     """Return the router's profile: TLS listener, credentials and the ACL's two roles.
 
     ``publishers`` and ``followers`` are ``publishers_allowed`` / ``followers_allowed``
@@ -329,6 +329,7 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
         "credentials_file": "secrets/router-credentials.txt",
         "publishers_allowed": list(publishers),
         "followers_allowed": list(followers),
+        **({"observers_allowed": list(observers)} if observers else {}),
         "links": "split",
         "timeout_s": 20.0,
     }, {
@@ -337,17 +338,20 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
         "credentials_file": "user:password lines (leaders, followers)",
         "publishers_allowed": "users with the leader's role (commands); user@robot: that robot only",
         "followers_allowed": "users with the follower's role (feedback, video); user@robot: as that robot only",
+        "observers_allowed": "users who receive video and status and put nothing",
     })  # fmt: skip
     return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
 
 
 def client_profile(head: str, host: str, router_name: str, port: int, robot_id: str,
                    user: str, cert: str, key_file: str) -> str:  # fmt: skip
-    """Return a robot's (``host="robot"``) or an operator's profile, a client of the router.
+    """Return a robot's (``host="robot"``), an operator's or an observer's profile, a client of the router.
 
     ``user`` logs in with ``secrets/<user>.pw``; ``cert`` names ``certs/<cert>.pem`` and
-    ``.key``; ``key_file`` is the message key shared with the other end.
+    ``.key``; ``key_file`` is the message key shared with the other end (an observer's:
+    the folder of its watch keys).
     """
+    keys: dict[str, Any] = {"message_key_file": key_file} if host != "observer" else {"watch_key_dir": key_file}
     net = _toml_table("network", {
         "mode": "client",
         "connect": [_endpoint(router_name, port)],
@@ -359,14 +363,17 @@ def client_profile(head: str, host: str, router_name: str, port: int, robot_id: 
         "tls_mutual": True,
         "user": user,
         "password_file": f"secrets/{user}.pw",
-        "message_key_file": key_file,
+        **keys,
         "links": "split",
         "timeout_s": 20.0,
     }, {
         "links": "control as UDP datagrams (HMAC, not encrypted); status and video on TLS links",
         "connect": "the router's name, as in its certificate",
         "message_key_file": "the same key on robot and operator; never on the router",
+        "watch_key_dir": "<robot>.watch files: verify video and status, sign nothing",
     })  # fmt: skip
+    if host == "observer":
+        return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
     parts = [head, _toml_table("robot", {"id": robot_id}), "\n", net, "\n", _CLOCK_NOTE, _toml_table("clock", _CLOCK)]
     parts += ["\n", _CONTROL_NOTE, _toml_table("control", demo_control())]
     if host == "operator":

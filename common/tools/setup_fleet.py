@@ -3,9 +3,11 @@ r"""``bipedtele setup fleet``: one router, several robots and operators, each bo
 ::
 
     bipedtele setup fleet --router-name NAME --robot nao1 --robot nao2 \
-        --operator alice=nao1 --operator bob=nao2,nao1 [--router-port 7447] [--out fleet]
+        --operator alice=nao1 --operator bob=nao2,nao1 [--observer carol=nao1,nao2]
+        [--router-port 7447] [--out fleet]
 
-writes one folder per host (``DIR/router/``, ``DIR/robot-<id>/``, ``DIR/operator-<name>/``)
+writes one folder per host (``DIR/router/``, ``DIR/robot-<id>/``, ``DIR/operator-<name>/``,
+``DIR/observer-<name>/``)
 and the CA in ``DIR/ca-private/`` (keep it off the hosts). What it sets up:
 
 - **Per-robot authority in the router's ACL** (:mod:`bipedtele.acl`): each operator is a
@@ -17,6 +19,11 @@ and the CA in ``DIR/ca-private/`` (keep it off the hosts). What it sets up:
   never by the router: a leader cannot sign (so not command) another robot even through
   a compromised router. (Operators of the same robot share its key: which of them drives
   is the session handshake's business, ``docs/network.md``.)
+- **Observers** (``observers_allowed = ["carol@nao1", ...]``): receive the video and
+  status of their robots and put nothing; they hold each robot's *watch key*
+  (``secrets/<id>.watch``, derived one-way from the robot's message key,
+  :func:`bipedtele.auth.watch_key`), which verifies video and status and signs nothing a
+  robot obeys. ``bipedtele status --config observer-carol/bipedtele.toml``: the fleet view.
 - One profile per operator and robot: ``operator-alice/nao1.toml``. Every user has its own
   password; the TLS certificates are per role (``leader``, ``follower``), as in
   ``setup two-hosts``.
@@ -37,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bipedtele.auth import watch_key
 from bipedtele.config import ConfigError
 from bipedtele.tools.setup import (
     FOLLOWER_USER,
@@ -80,7 +88,7 @@ class Fleet:
     ca_key: Path
 
 
-def parse_operator(spec: str) -> tuple[str, tuple[str, ...]]:
+def parse_operator(spec: str, option: str = "--operator") -> tuple[str, tuple[str, ...]]:
     """``"alice=nao1,nao2"`` -> ``("alice", ("nao1", "nao2"))``.
 
     Raises
@@ -91,17 +99,23 @@ def parse_operator(spec: str) -> tuple[str, tuple[str, ...]]:
     name, eq, robots = spec.partition("=")
     ids = tuple(r.strip() for r in robots.split(",") if r.strip())
     if not eq or not name or not ids:
-        raise ConfigError(f"--operator {spec!r}: allowed: NAME=ROBOT[,ROBOT...] (e.g. alice=nao1,nao2)")
+        raise ConfigError(f"{option} {spec!r}: allowed: NAME=ROBOT[,ROBOT...] (e.g. alice=nao1,nao2)")
     return name.strip(), ids
 
 
-def _check(robots: Sequence[str], operators: Mapping[str, Sequence[str]]) -> None:
+def _check(robots: Sequence[str], operators: Mapping[str, Sequence[str]],
+           observers: Mapping[str, Sequence[str]]) -> None:  # fmt: skip
     if not robots:
         raise ConfigError("--robot: none given; allowed: one or more robot ids (--robot nao1 --robot nao2)")
     if not operators:
         raise ConfigError("--operator: none given; allowed: one or more NAME=ROBOT[,ROBOT...]")
-    if len(robots) + len(operators) > MAX_MEMBERS:
-        raise ConfigError(f"{len(robots)} robots and {len(operators)} operators: allowed: {MAX_MEMBERS} in all")
+    if len(robots) + len(operators) + len(observers) > MAX_MEMBERS:
+        raise ConfigError(
+            f"{len(robots)} robots, {len(operators)} operators, {len(observers)} observers: allowed: {MAX_MEMBERS} in all"
+        )
+    both = sorted(set(operators) & set(observers))
+    if both:
+        raise ConfigError(f"{both[0]!r} is an --operator and an --observer: allowed: each user one role")
     for r in robots:
         if not ROBOT_ID.match(r):
             raise ConfigError(f"--robot {r!r}: allowed: 1-64 characters of letters, digits, '_' or '-'")
@@ -109,21 +123,23 @@ def _check(robots: Sequence[str], operators: Mapping[str, Sequence[str]]) -> Non
         raise ConfigError(
             f"--robot: {sorted(r for r in set(robots) if robots.count(r) > 1)} given twice; allowed: once each"
         )
-    for name, ids in operators.items():
+    for opt, name, ids in [*(("--operator", n, i) for n, i in operators.items()),
+                           *(("--observer", n, i) for n, i in observers.items())]:  # fmt: skip
         if not _NAME.match(name) or name in _RESERVED or name in robots:
             raise ConfigError(
-                f"--operator {name!r}: allowed: 1-64 characters of letters, digits, '_' or '-', "
+                f"{opt} {name!r}: allowed: 1-64 characters of letters, digits, '_' or '-', "
                 f"not a robot id nor one of {sorted(_RESERVED)} (each user one role)"
             )
         unknown = [r for r in ids if r not in robots]
         if unknown:
-            raise ConfigError(f"--operator {name}={','.join(ids)}: {unknown} not a --robot; allowed: {list(robots)}")
+            raise ConfigError(f"{opt} {name}={','.join(ids)}: {unknown} not a --robot; allowed: {list(robots)}")
         if len(set(ids)) != len(ids):
-            raise ConfigError(f"--operator {name}={','.join(ids)}: a robot named twice; allowed: once each")
+            raise ConfigError(f"{opt} {name}={','.join(ids)}: a robot named twice; allowed: once each")
 
 
 def write_fleet(out: str | Path, router_name: str, robots: Sequence[str],
-                operators: Mapping[str, Sequence[str]], router_port: int = 7447) -> Fleet:  # fmt: skip
+                operators: Mapping[str, Sequence[str]], router_port: int = 7447,
+                observers: Mapping[str, Sequence[str]] | None = None) -> Fleet:  # fmt: skip
     """Write the router's, each robot's and each operator's folder into ``out``.
 
     Parameters
@@ -139,6 +155,8 @@ def write_fleet(out: str | Path, router_name: str, robots: Sequence[str],
         Operator (user) name -> the robot ids it may drive.
     router_port : int
         The router's TLS port.
+    observers : mapping, optional
+        Observer (user) name -> the robot ids it may watch.
 
     Raises
     ------
@@ -150,14 +168,15 @@ def write_fleet(out: str | Path, router_name: str, robots: Sequence[str],
         raise ConfigError(f"--router-port {router_port}: allowed: 1 to 65535")
     robot_ids = list(robots)
     assigned = {k: tuple(v) for k, v in operators.items()}
-    _check(robot_ids, assigned)
+    watching = {k: tuple(v) for k, v in (observers or {}).items()}
+    _check(robot_ids, assigned, watching)
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ConfigError(f"--out {out}: not an empty folder; allowed: a new or empty folder (nothing is overwritten)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
     try:
-        commands = _fill(tmp, router_name, int(router_port), robot_ids, assigned)
+        commands = _fill(tmp, router_name, int(router_port), robot_ids, assigned, watching)
         os.chmod(tmp, 0o700)
         os.replace(tmp, out)
     except BaseException:
@@ -194,10 +213,10 @@ def _head(what: str, router_name: str, port: int, command: str) -> str:
     )
 
 
-def _fill(root: Path, router_name: str, port: int, robots: list[str],
-          operators: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:  # fmt: skip
+def _fill(root: Path, router_name: str, port: int, robots: list[str], operators: dict[str, tuple[str, ...]],
+          observers: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:  # fmt: skip
     certs = make_certs(root / "ca-private" / "issued", [router_name], ca_dir=root / "ca-private")
-    users = [*robots, *operators]
+    users = [*robots, *operators, *observers]
     passwords = {u: make_password() for u in users}
     keys = {r: secrets.token_hex(32) + "\n" for r in robots}
     commands: dict[str, tuple[str, ...]] = {}
@@ -208,7 +227,8 @@ def _fill(root: Path, router_name: str, port: int, robots: list[str],
     publishers = [f"{name}@{r}" for name, ids in operators.items() for r in ids]
     _write_profile(folder / "bipedtele.toml", router_profile(
         _head("the fleet's router", router_name, port, cmd), router_name, port, robots[0],
-        publishers, [f"{r}@{r}" for r in robots]))  # fmt: skip
+        publishers, [f"{r}@{r}" for r in robots],
+        [f"{name}@{r}" for name, ids in observers.items() for r in ids]))  # fmt: skip
     commands["router"] = (cmd,)
 
     for r in robots:
@@ -235,6 +255,18 @@ def _fill(root: Path, router_name: str, port: int, robots: list[str],
                 router_name, port, r, op, LEADER_USER, f"secrets/{r}.key"))  # fmt: skip
             cmds.append(cmd)
         commands[name] = tuple(cmds)
+
+    for obs, ids in observers.items():
+        name = f"observer-{obs}"
+        folder = _host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
+        write_private(folder / "secrets" / f"{obs}.pw", passwords[obs] + "\n")
+        for r in ids:
+            write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
+        cmd = f"bipedtele status --config {name}/bipedtele.toml"
+        _write_profile(folder / "bipedtele.toml", client_profile(
+            _head(f"observer {obs} watching {', '.join(ids)}", router_name, port, cmd), "observer",
+            router_name, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
+        commands[name] = (cmd,)
 
     os.replace(certs.ca_pem, root / "ca-private" / "ca.pem")
     shutil.rmtree(certs.ca_pem.parent)
@@ -263,13 +295,15 @@ def _run_fleet(args: argparse.Namespace) -> int:
     names: list[str] = args.router_name
     if len(names) != 1:
         raise ConfigError(f"--router-name given {len(names)} times; allowed: once")
-    operators: dict[str, tuple[str, ...]] = {}
-    for spec in args.operator or []:
-        name, ids = parse_operator(spec)
-        if name in operators:
-            raise ConfigError(f"--operator {name!r} given twice; allowed: once, with all its robots (NAME=R1,R2)")
-        operators[name] = ids
-    fleet = write_fleet(args.out, names[0], args.robot or [], operators, args.router_port)
+    members: dict[str, dict[str, tuple[str, ...]]] = {"--operator": {}, "--observer": {}}
+    for opt, specs in (("--operator", args.operator), ("--observer", args.observer)):
+        for spec in specs or []:
+            name, ids = parse_operator(spec, opt)
+            if name in members[opt]:
+                raise ConfigError(f"{opt} {name!r} given twice; allowed: once, with all its robots (NAME=R1,R2)")
+            members[opt][name] = ids
+    fleet = write_fleet(args.out, names[0], args.robot or [], members["--operator"], args.router_port,
+                        members["--observer"])  # fmt: skip
     os.write(1, _instructions(fleet, names[0], args.router_port).encode())
     return 0
 
@@ -283,5 +317,7 @@ def add_fleet_parser(ss: Any) -> None:
     f.add_argument("--robot", action="append", metavar="ID", help="a robot id (repeat for each robot)")
     f.add_argument("--operator", action="append", metavar="NAME=ROBOT[,ROBOT...]",
                    help="an operator and the robots it may drive (repeat for each operator)")  # fmt: skip
+    f.add_argument("--observer", action="append", metavar="NAME=ROBOT[,ROBOT...]",
+                   help="an observer and the robots it may watch (video, status; puts nothing)")  # fmt: skip
     f.add_argument("--out", default="fleet", metavar="DIR", help="new or empty folder to write (default: fleet)")
     f.set_defaults(func=_run_fleet)

@@ -139,3 +139,29 @@ def test_missing_or_unreadable_key_file_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as info:
         load_message_auth(_net(tmp_path))  # a folder
     assert "not a regular file" in _one_line(info)
+
+
+def test_the_watch_key_verifies_video_and_status_and_signs_nothing_the_robot_obeys(tmp_path: Path) -> None:
+    """An observer's key (issue 23): derived one-way from the message key, different from it;
+    what it signs fails the master key's check, and a leader's and a follower's derivations agree."""
+    from bipedtele.auth import load_watch_auths, read_key_file, watch_key
+
+    master = MessageAuth(KEY)
+    wk = watch_key(KEY)
+    assert len(wk) == 32 and wk != KEY and watch_key(wk) != KEY
+    assert watch_key(bytes(KEY)) == wk  # deterministic: both ends derive the same
+    body = encode(Command(sid=1, seq=1, t=1.0))
+    watch = master.watch()
+    assert MessageAuth(wk).verify(watch.sign(body, "bipedtele/nao1/status"), "bipedtele/nao1/status") == body
+    assert _reason(lambda: master.verify(MessageAuth(wk).sign(body, TOPIC), TOPIC)) == "bad_mac"
+    assert _reason(lambda: watch.verify(master.sign(body, TOPIC), TOPIC)) == "bad_mac"
+    assert "hidden" in repr(watch)
+    d = tmp_path / "w"
+    d.mkdir()
+    (d / "nao1.watch").write_text(wk.hex() + "\n")
+    os.chmod(d / "nao1.watch", 0o600)
+    auths = load_watch_auths(NetworkConfig(watch_key_dir=str(d)), ["nao1", "nao2"])
+    assert sorted(auths) == ["nao1"] and read_key_file(str(d / "nao1.watch"), "watch_key_dir") == wk
+    os.chmod(d / "nao1.watch", 0o644)
+    with pytest.raises(ConfigError, match=r"network\.watch_key_dir = .*nao1\.watch.*chmod 600"):
+        load_watch_auths(NetworkConfig(watch_key_dir=str(d)), ["nao1"])

@@ -223,3 +223,25 @@ def test_written_fleet_on_a_real_router_each_operator_reaches_its_robots_only(tm
     finally:
         router.terminate()
         router.wait(10)
+
+
+def test_observers_get_watch_keys_only(tmp_path: Path) -> None:
+    from bipedtele.auth import read_key_file, watch_key
+
+    out = write_fleet(tmp_path / "f", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"carol": ("nao1", "nao2")}).out
+    folder = out / "observer-carol"
+    assert _files(folder) == {
+        "certs/ca.pem", "certs/leader.pem", "certs/leader.key", "secrets/carol.pw",
+        "secrets/nao1.watch", "secrets/nao2.watch", "bipedtele.toml",
+    }  # fmt: skip
+    for r in ROBOTS:
+        master = read_key_file(str(out / f"robot-{r}/secrets/message.key"))
+        assert read_key_file(str(folder / f"secrets/{r}.watch"), "watch_key_dir") == watch_key(master)
+    net = load_config(folder / "bipedtele.toml").get(NetworkConfig)
+    assert net.user == "carol" and not net.message_key_file and Path(net.watch_key_dir) == folder / "secrets"
+    router = load_config(out / "router/bipedtele.toml").get(NetworkConfig)
+    assert router.observers_allowed == ["carol@nao1", "carol@nao2"]
+    with pytest.raises(ConfigError, match="'alice' is an --operator and an --observer"):
+        write_fleet(tmp_path / "g", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"alice": ("nao2",)})
+    with pytest.raises(ConfigError, match=r"--observer carol=nao9: \['nao9'\] not a --robot"):
+        write_fleet(tmp_path / "g", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"carol": ("nao9",)})

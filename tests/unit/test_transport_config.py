@@ -351,3 +351,36 @@ def test_zenoh_log_lines_become_refusal_records(caplog: pytest.LogCaptureFixture
     )
     assert got[5] == (logging.WARNING, "zenoh::net::runtime::orchestrator: Unable to connect to tcp/x:1")
     assert len(got) == 6 and bridge.refusals == 4
+
+
+def test_an_observer_receives_video_and_status_and_puts_nothing(tmp_path: Path) -> None:
+    """Issue 23's observer role, rule by rule: bound to nao1, 'carol' receives nao1's video and
+    status (and its presence), nothing of nao2, and may put or declare a subscriber on no
+    command, feedback or clock key at all."""
+    creds = tmp_path / "c.txt"
+    creds.write_text("alice:a\nnao1:b\ncarol:c\neve:d\n")
+    net = NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice@nao1"],
+                        followers_allowed=["nao1@nao1"], observers_allowed=["carol@nao1", "eve"])  # fmt: skip
+    acl = access_control_json(net)
+    assert acl is not None
+    for k in ("video", "status"):
+        assert _allowed(acl, "carol", "egress", "put", f"bipedtele/nao1/{k}")
+        assert _allowed(acl, "carol", "ingress", "declare_subscriber", f"bipedtele/nao1/{k}")
+        assert not _allowed(acl, "carol", "egress", "put", f"bipedtele/nao2/{k}")
+        assert _allowed(acl, "eve", "egress", "put", f"bipedtele/nao2/{k}")  # a plain name: every robot
+    for user in ("carol", "eve"):
+        for k in ("cmd", "feedback", "clock", "video", "status"):
+            for key in (f"bipedtele/nao1/{k}", "bipedtele/**", "**"):
+                assert not _allowed(acl, user, "ingress", "put", key), (user, key)
+        for k in ("cmd", "feedback", "clock"):
+            assert not _allowed(acl, user, "egress", "put", f"bipedtele/nao1/{k}")
+            assert not _allowed(acl, user, "ingress", "declare_subscriber", f"bipedtele/nao1/{k}")
+    assert _allowed(acl, "carol", "egress", "liveliness_token", "bipedtele/nao1/presence/follower/abc")
+    assert not _allowed(acl, "carol", "ingress", "liveliness_token", "bipedtele/nao1/presence/leader/abc")
+    with pytest.raises(ValueError, match="'carol' is in publishers_allowed and observers_allowed"):
+        NetworkConfig(publishers_allowed=["carol"], observers_allowed=["carol@nao1"])
+    with pytest.raises(ConfigError, match="observers_allowed: set without"):
+        access_control_json(NetworkConfig(credentials_file=str(creds), observers_allowed=["carol"]))
+    with pytest.raises(ConfigError, match="observers_allowed = 'mallory': not a user"):
+        access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice"],
+                                          observers_allowed=["mallory"]))  # fmt: skip
