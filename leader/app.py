@@ -319,7 +319,8 @@ class LeaderApp:
         # The feedback gate follows one follower session; its live sid binds the clock link.
         # Without the message key a forged high seq is rolled back after 3 real feedbacks.
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
-        self.reach = CommandReach(self._commands_sent, key_drops=self.node.drops.counts)
+        self.reach = CommandReach(self._commands_sent, key_drops=self.node.drops.counts,
+                                  robot_id=cfg.get(RobotConfig).id, user=cfg.get(NetworkConfig).user)  # fmt: skip
         self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
         self._frames = FrameAssembler(self.node.drops)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0

@@ -30,6 +30,12 @@ points to:
   ``commands not reaching the robot: message keys do not match: ...`` with the line that
   says which; the ACL is not named.
 
+- the follower is never present while this leader sends commands for ``absent_s`` (10 s):
+  ``no robot <id> on the router``: it is not running, or the router's ACL does not let this
+  login reach it (an operator bound to other robots, ``user@robot_id`` in
+  ``publishers_allowed``, sees neither the robot's presence nor anything of it, and the
+  robot nothing of the operator: docs/fleet.md).
+
 An acknowledgement after it gives one INFO line; a change of cause gives a new WARNING.
 At the end, :attr:`CommandReach.never_reached` tells whether a run that had the follower
 heard for a whole window got no command through at all (refused: the leader then exits
@@ -51,7 +57,7 @@ from collections.abc import Callable
 from bipedtele.auth import BAD_MAC_LINE, KEY_REASONS, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.messages import Feedback
 
-__all__ = ["KEY_MISMATCH", "LOST", "REFUSED", "CommandReach"]
+__all__ = ["ABSENT", "KEY_MISMATCH", "LOST", "REFUSED", "CommandReach"]
 
 LOG = logging.getLogger("bipedtele.leader")
 
@@ -63,6 +69,8 @@ KEY_MISMATCH = "commands not reaching the robot: message keys do not match:"
 _KEY_LINES: dict[str, str] = {"no_mac": NO_MAC_LINE, "bad_mac": BAD_MAC_LINE, "mac_unexpected": UNEXPECTED_MAC_LINE}
 #: The WARNING of the lost case starts with this.
 LOST = "link lost: no feedback for"
+#: The WARNING of a robot never present starts with this.
+ABSENT = "no robot"
 
 
 class CommandReach:
@@ -81,6 +89,10 @@ class CommandReach:
         ``() -> {reason: count}``: the node's drop counts. Messages refused for their MAC
         (``no_mac``, ``bad_mac``, ``mac_unexpected``) within the window make the verdict a
         key problem, named in one line (:data:`KEY_MISMATCH`), instead of the ACL.
+    robot_id, user : str
+        Named in the line of a robot never present (:data:`ABSENT`).
+    absent_s : float
+        How long commands go out with the follower never present before that line [s].
 
     Notes
     -----
@@ -94,6 +106,9 @@ class CommandReach:
         window_s: float = 1.5,
         clock: Callable[[], float] = time.monotonic,
         key_drops: Callable[[], dict[str, int]] | None = None,
+        robot_id: str = "",
+        user: str = "",
+        absent_s: float = 10.0,
     ) -> None:
         if not window_s > 0:
             raise ValueError(f"window_s must be > 0, got {window_s!r}")
@@ -118,6 +133,23 @@ class CommandReach:
         self.lost_warnings = 0
         self.exposed = False  # the follower was heard for a whole window of commands, none acknowledged
         self.present_window = False  # the follower was present for a whole window of commands
+        self.robot_id, self.user, self.absent_s = robot_id, user, float(absent_s)
+        self._absent_since: float | None = None  # commands going out, the follower never present, since
+        self._ever_present = False
+        self.absent_warnings = 0
+
+    def _absent(self, now: float) -> None:
+        if self._absent_since is None:
+            self._absent_since = now
+        if now - self._absent_since < self.absent_s or self.absent_warnings:
+            return
+        self.absent_warnings += 1
+        who = f"user {self.user!r}" if self.user else "this login"
+        LOG.warning(
+            "%s %s on the router after %.0f s of commands: it is not running, or the router's ACL does not let "
+            "%s reach it (an operator drives only the robots named for it: publishers_allowed 'user@robot_id', "
+            "bipedtele setup fleet --operator USER=ROBOT)", ABSENT, self.robot_id or "(this id)", self.absent_s, who,
+        )  # fmt: skip
 
     def on_feedback(self, fb: Feedback) -> None:
         """Take one received feedback (any thread)."""
@@ -189,6 +221,10 @@ class CommandReach:
     def check(self, follower_present: bool) -> None:
         """Update the verdict; log when it changes (call it a few times per second)."""
         now = self._clock()
+        if follower_present:
+            self._ever_present = True
+        elif not self._ever_present and self._sent_seq() > 0:
+            self._absent(now)
         if not follower_present or self._sent_seq() == 0:
             self._since = None
             return

@@ -127,3 +127,26 @@ def test_commands_that_get_through_again_are_told(caplog: pytest.LogCaptureFixtu
     legacy, clock2, sent2 = make()
     run(legacy, clock2, sent2, 3.0, {"cmd_seq": lambda s: 0, "state": "walking"})
     assert legacy.ever_reached
+
+
+def test_a_robot_never_present_is_told_once_naming_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 23: an operator bound to another robot sees nothing of this one (the router's ACL
+    hides its presence): after absent_s of commands, one line that names the robot, the user
+    and the ACL's per-robot binding; none while the robot is there, none twice."""
+    clock, sent = Clock(), [0]
+    reach = CommandReach(lambda: sent[0], clock=clock, robot_id="nao2", user="alice", absent_s=10.0)
+    run(reach, clock, sent, 9.5, None, present=False)
+    assert warnings(caplog) == []
+    run(reach, clock, sent, 1.0, None, present=False)
+    (line,) = warnings(caplog)
+    assert line.startswith("no robot nao2 on the router after 10 s") and "user 'alice'" in line
+    assert "publishers_allowed 'user@robot_id'" in line
+    run(reach, clock, sent, 30.0, None, present=False)
+    assert len(warnings(caplog)) == 1 and reach.absent_warnings == 1
+    # a robot that was present once and left is the lost case, not this one
+    caplog.clear()
+    clock2, sent2 = Clock(), [0]
+    seen = CommandReach(lambda: sent2[0], clock=clock2, robot_id="nao1", absent_s=10.0)
+    run(seen, clock2, sent2, 1.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    run(seen, clock2, sent2, 20.0, None, present=False)
+    assert not [w for w in warnings(caplog) if w.startswith("no robot")] and seen.absent_warnings == 0
