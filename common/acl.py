@@ -11,6 +11,11 @@ Roles (``[network]`` on the router; see docs/network.md):
   ``.../presence/follower/<zid>``, and receive cmd, clock, status and presence;
 - users in ``observers_allowed`` are **observers**: they receive video, status and
   presence, declare ``.../presence/observer/<zid>``, and put nothing (``bipedtele status``);
+- the routers of other sites, by the common name of their TLS certificate
+  (``routers_allowed``, ``router-<site>``; a router that connected to this one also logs
+  in, but the one this router connected to shows only its certificate): everything under
+  ``bipedtele/**`` both ways. Each site's router applies its own clients' roles; the
+  robots' message keys keep a site's router from forging for another site's robots;
 - every other session (another user of ``credentials_file``, or one matching no
   subject) may do nothing: Zenoh's ``default_permission`` is ``deny``.
 
@@ -49,6 +54,11 @@ ROLE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "follower": (("feedback", "video", "status", "clock"), ("cmd", "clock", "status")),
     "observer": ((), ("video", "status")),
 }
+#: What a linked router passes (everything of a pub/sub and liveliness mesh).
+_ROUTER_MESSAGES = (
+    "put", "delete", "declare_subscriber", "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
+    "query", "reply", "declare_queryable",
+)  # fmt: skip
 #: role -> its ``[network]`` list
 ROLE_LIST = {"leader": "publishers_allowed", "follower": "followers_allowed", "observer": "observers_allowed"}
 
@@ -164,6 +174,13 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
             rules += role_rules
             subjects.append({"id": f"{tag}s", "usernames": names})
             policies.append({"id": f"{tag}_role", "rules": [r["id"] for r in role_rules], "subjects": [f"{tag}s"]})
+    if net.routers_allowed:
+        rules.append({
+            "id": "routers_all", "permission": "allow", "flows": ["ingress", "egress"],
+            "messages": list(_ROUTER_MESSAGES), "key_exprs": ["bipedtele/**"],
+        })  # fmt: skip
+        subjects.append({"id": "routers", "cert_common_names": list(net.routers_allowed)})
+        policies.append({"id": "routers_role", "rules": ["routers_all"], "subjects": ["routers"]})
     return {
         "enabled": True,
         "default_permission": "deny",

@@ -87,6 +87,13 @@ class NetworkConfig:
         doc="router only: users with the observer role (receive video and status, put nothing): 'user' "
         "(every robot) or 'user@robot_id' (that robot only)",
     )
+    routers_allowed: list[str] = param(
+        default_factory=list,
+        doc="router only: certificate common names of the other sites' routers linked to this one "
+        "(router-<site>): they pass everything under bipedtele/** both ways (bipedtele setup sites)",
+    )
+    router_user: str = param("", doc="router only: user name of this router's login to the routers of connect")
+    router_password_file: str = param("", path=True, doc="router only: file holding the password of router_user")
     watch_key_dir: str = param(
         "",
         path=True,

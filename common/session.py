@@ -27,7 +27,8 @@ binds to one follower session (the first that echoes its nonce) and leaves it on
 ``takeover_after_s`` of silence when another echoes (then with a new nonce and a new
 handshake). A side with no session sends nothing on cmd/feedback (the robot stands).
 
-Not covered: Status, Video and the clock pings stay under the master key (docs/network.md).
+Not covered: Status and Video (under the robot's watch key, :func:`bipedtele.auth.watch_key`)
+and the clock pings (under the master key) (docs/network.md).
 """
 
 from __future__ import annotations

@@ -48,15 +48,15 @@ OPEN_TRIES = 2
 REFUSED_RETRY_S = 4.0
 
 
+def _read_secret(key: str, path: str) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8").strip()
+    except OSError as exc:
+        raise ConfigError(f"network.{key} = {path!r}: cannot read ({exc.strerror}); allowed: a readable file") from None
+
+
 def _read_password(net: NetworkConfig) -> str:
-    if net.password_file:
-        try:
-            return Path(net.password_file).read_text(encoding="utf-8").strip()
-        except OSError as exc:
-            raise ConfigError(
-                f"network.password_file = {net.password_file!r}: cannot read ({exc.strerror}); allowed: a readable file"
-            ) from None
-    return net.password
+    return _read_secret("password_file", net.password_file) if net.password_file else net.password
 
 
 def _check_file(key: str, path: str) -> str:
@@ -173,6 +173,14 @@ def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool) -> None:
         if net.credentials_file:
             credential_users(net.credentials_file)
             _put(conf, "transport/auth/usrpwd/dictionary_file", net.credentials_file)
+        if net.router_user or net.router_password_file:  # the login to the other sites' routers
+            if not (net.router_user and net.router_password_file):
+                raise ConfigError(
+                    "network.router_user/router_password_file: allowed: both (this router's login to the "
+                    "routers of connect), or neither"
+                )
+            _put(conf, "transport/auth/usrpwd/user", net.router_user)
+            _put(conf, "transport/auth/usrpwd/password", _read_secret("router_password_file", net.router_password_file))
         acl = access_control_json(net)
         if acl is not None:
             _put(conf, "access_control", acl)

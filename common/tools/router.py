@@ -94,10 +94,13 @@ def run(args: argparse.Namespace) -> int:
                 ", ".join(net.publishers_allowed) or "(none)",
                 ", ".join(net.followers_allowed) or "(none)",
             )
-            if not net.followers_allowed:
-                LOG.warning("network.followers_allowed is empty: no user may act as the follower")
-            if not net.publishers_allowed:
-                LOG.warning("network.publishers_allowed is empty: no user may command the robot")
+            if net.routers_allowed:  # a site's router: its robots or operators may be elsewhere
+                LOG.info("linked routers (by certificate): %s", ", ".join(net.routers_allowed))
+            else:
+                if not net.followers_allowed:
+                    LOG.warning("network.followers_allowed is empty: no user may act as the follower")
+                if not net.publishers_allowed:
+                    LOG.warning("network.publishers_allowed is empty: no user may command the robot")
         print(f"router: {s.zid()} listening on {' '.join(listen)}", flush=True)  # noqa: T201 (CLI output)
         while not stop.wait(0.5):
             pass

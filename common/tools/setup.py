@@ -47,11 +47,13 @@ __all__ = [
     "TwoHosts",
     "check_router_name",
     "client_profile",
+    "issue_router_cert",
     "make_certs",
     "make_message_key",
     "make_password",
     "router_profile",
     "task_course",
+    "tls_endpoint",
     "write_private",
     "write_two_hosts",
 ]
@@ -285,7 +287,8 @@ def _toml_table(name: str, table: Mapping[str, Any], comments: Mapping[str, str]
     return "\n".join(lines) + "\n"
 
 
-def _endpoint(name: str, port: int) -> str:
+def tls_endpoint(name: str, port: int) -> str:
+    """``tls/NAME:PORT`` (an IPv6 address in brackets)."""
     try:
         if ipaddress.ip_address(name).version == 6:
             return f"tls/[{name}]:{port}"
@@ -312,24 +315,29 @@ _WORLD_NOTE = (
 
 
 def router_profile(head: str, router_name: str, port: int, robot_id: str,
-                   publishers: Sequence[str], followers: Sequence[str], observers: Sequence[str] = ()) -> str:  # fmt: skip
-    """Return the router's profile: TLS listener, credentials and the ACL's two roles.
+                   publishers: Sequence[str], followers: Sequence[str], observers: Sequence[str] = (),
+                   *, cert: str = "router", mesh: Mapping[str, Any] | None = None) -> str:  # fmt: skip
+    """Return the router's profile: TLS listener, credentials and the ACL's roles.
 
-    ``publishers`` and ``followers`` are ``publishers_allowed`` / ``followers_allowed``
-    entries (a user, or ``user@robot_id`` for one robot).
+    ``publishers``, ``followers`` and ``observers`` are ``publishers_allowed`` /
+    ``followers_allowed`` / ``observers_allowed`` entries (a user, or ``user@robot_id`` for
+    one robot); ``cert`` names ``certs/<cert>.pem``; ``mesh`` adds the links to other
+    sites' routers (``connect``, ``router_user``, ``router_password_file``,
+    ``routers_allowed``).
     """
     net = _toml_table("network", {
         "mode": "router",
         "listen": [f"tls/0.0.0.0:{port}"],
         "multicast_scouting": False,
         "tls_root_ca": "certs/ca.pem",
-        "tls_cert": "certs/router.pem",
-        "tls_key": "certs/router.key",
+        "tls_cert": f"certs/{cert}.pem",
+        "tls_key": f"certs/{cert}.key",
         "tls_mutual": True,
         "credentials_file": "secrets/router-credentials.txt",
         "publishers_allowed": list(publishers),
         "followers_allowed": list(followers),
         **({"observers_allowed": list(observers)} if observers else {}),
+        **dict(mesh or {}),
         "links": "split",
         "timeout_s": 20.0,
     }, {
@@ -339,8 +347,16 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
         "publishers_allowed": "users with the leader's role (commands); user@robot: that robot only",
         "followers_allowed": "users with the follower's role (feedback, video); user@robot: as that robot only",
         "observers_allowed": "users who receive video and status and put nothing",
+        "connect": "the other sites' routers this one links to",
+        "routers_allowed": "the other sites' routers, by certificate name",
     })  # fmt: skip
     return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
+
+
+def issue_router_cert(out: Path, cn: str, names: Sequence[str], ca_pem: Path, ca_key: Path) -> tuple[Path, Path]:
+    """Issue ``out/<cn>.pem`` and ``.key``: a router certificate named ``cn`` for ``names`` (DNS or IP)."""
+    return _issue(out, cn, _subject_alt_names([check_router_name(n) for n in names]), "serverAuth,clientAuth",
+                  ca_pem, ca_key)  # fmt: skip
 
 
 def client_profile(head: str, host: str, router_name: str, port: int, robot_id: str,
@@ -354,7 +370,7 @@ def client_profile(head: str, host: str, router_name: str, port: int, robot_id: 
     keys: dict[str, Any] = {"message_key_file": key_file} if host != "observer" else {"watch_key_dir": key_file}
     net = _toml_table("network", {
         "mode": "client",
-        "connect": [_endpoint(router_name, port)],
+        "connect": [tls_endpoint(router_name, port)],
         "listen": [],
         "multicast_scouting": False,
         "tls_root_ca": "certs/ca.pem",

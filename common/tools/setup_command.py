@@ -12,7 +12,7 @@ from typing import Any
 
 from bipedtele.config import ConfigError
 from bipedtele.tools.setup import HOSTS, TwoHosts, make_certs, make_message_key, write_two_hosts
-from bipedtele.tools.setup_fleet import add_fleet_parser
+from bipedtele.tools.setup_fleet import add_fleet_parser, add_sites_parser
 
 __all__ = ["add_setup_parser"]
 
@@ -74,7 +74,7 @@ def _run_message_key(args: argparse.Namespace) -> int:
 
 
 def add_setup_parser(sub: Any) -> None:
-    """``bipedtele setup two-hosts|certs|message-key|fleet``: files for a two-continent run or a fleet."""
+    """``bipedtele setup two-hosts|certs|message-key|fleet|sites``: files for a two-continent run or a fleet."""
     p = sub.add_parser("setup", help="make certificates, secrets and per-host profiles for a two-host run")
     ss = p.add_subparsers(dest="setup_command", metavar="WHAT", parser_class=type(p))
     ss.required = True
@@ -95,3 +95,4 @@ def add_setup_parser(sub: Any) -> None:
     m.add_argument("file", metavar="FILE", help="new file to write")
     m.set_defaults(func=_run_message_key)
     add_fleet_parser(ss)
+    add_sites_parser(ss)

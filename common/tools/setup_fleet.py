@@ -39,7 +39,7 @@ import re
 import secrets
 import shutil
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,15 +50,18 @@ from bipedtele.tools.setup import (
     FOLLOWER_USER,
     LEADER_USER,
     ROBOT_ID,
+    CertFiles,
     check_router_name,
     client_profile,
+    issue_router_cert,
     make_certs,
     make_password,
     router_profile,
+    tls_endpoint,
     write_private,
 )
 
-__all__ = ["Fleet", "add_fleet_parser", "parse_operator", "write_fleet"]
+__all__ = ["Fleet", "add_fleet_parser", "add_sites_parser", "parse_at", "parse_operator", "write_fleet", "write_sites"]
 
 #: How many robots and operators one ``setup fleet`` writes at most.
 MAX_MEMBERS = 64
@@ -170,13 +173,82 @@ def write_fleet(out: str | Path, router_name: str, robots: Sequence[str],
     assigned = {k: tuple(v) for k, v in operators.items()}
     watching = {k: tuple(v) for k, v in (observers or {}).items()}
     _check(robot_ids, assigned, watching)
-    out = Path(out)
+    plan = _Plan({"": router_name}, dict.fromkeys(robot_ids, ""),
+                 {k: ("", v) for k, v in assigned.items()}, {k: ("", v) for k, v in watching.items()})  # fmt: skip
+    return _write(Path(out), plan, int(router_port))
+
+
+def parse_at(spec: str, option: str) -> tuple[str, str]:
+    """``"nao1@lab1"`` -> ``("nao1", "lab1")``; ``"alice@lab1=nao1,nao2"``: use :func:`parse_operator` on the rest.
+
+    Raises
+    ------
+    ConfigError
+        Not ``NAME@SITE``.
+    """
+    name, at, site = spec.partition("@")
+    if not at or not name.strip() or not site.strip():
+        raise ConfigError(f"{option} {spec!r}: allowed: NAME@SITE (e.g. nao1@lab1)")
+    return name.strip(), site.strip()
+
+
+def write_sites(out: str | Path, sites: Mapping[str, str], robots: Mapping[str, str],
+                operators: Mapping[str, tuple[str, Sequence[str]]], router_port: int = 7447,
+                observers: Mapping[str, tuple[str, Sequence[str]]] | None = None) -> Fleet:  # fmt: skip
+    """Write one router per site, linked over TLS, and each robot's, operator's and observer's folder.
+
+    Parameters
+    ----------
+    out : str or Path
+        A new or empty folder (written beside it first, moved into place at the end).
+    sites : mapping
+        Site name -> its router's DNS name or IP address. Each site's router links to the
+        routers of the sites named before it (a full mesh), logging in as ``site-<name>``;
+        each accepts the others by their certificates (``router-<site>``).
+    robots : mapping
+        Robot id -> its site (a client of that site's router).
+    operators, observers : mapping
+        Name -> (its site, the robot ids it may drive or watch: of any site).
+    router_port : int
+        Every router's TLS port.
+
+    Raises
+    ------
+    ConfigError
+        ``out`` is not empty, a bad name, port, id, site or assignment, or ``openssl`` failed.
+    """
+    if not 2 <= len(sites) <= 16:
+        raise ConfigError(f"--site given {len(sites)} times; allowed: 2 to 16 sites (one site: setup fleet)")
+    for site, router in sites.items():
+        if not _NAME.match(site):
+            raise ConfigError(f"--site {site!r}: allowed: 1-64 characters of letters, digits, '_' or '-'")
+        check_router_name(router)
+    if not 1 <= int(router_port) <= 65535:
+        raise ConfigError(f"--router-port {router_port}: allowed: 1 to 65535")
+    ops = {k: (st, tuple(v)) for k, (st, v) in operators.items()}
+    obs = {k: (st, tuple(v)) for k, (st, v) in (observers or {}).items()}
+    for opt, members in (
+        ("--robot", {r: (st, ()) for r, st in robots.items()}),
+        ("--operator", ops),
+        ("--observer", obs),
+    ):
+        for name, (site, _) in members.items():
+            if site not in sites:
+                raise ConfigError(f"{opt} {name}@{site}: no such --site; allowed: {', '.join(sites)}")
+    _check(list(robots), {k: v for k, (_, v) in ops.items()}, {k: v for k, (_, v) in obs.items()})
+    taken = sorted({f"site-{s}" for s in sites} & {*robots, *ops, *obs})
+    if taken:
+        raise ConfigError(f"{taken[0]!r}: a name of a site's router login; allowed: any other name")
+    return _write(Path(out), _Plan(dict(sites), dict(robots), ops, obs), int(router_port))
+
+
+def _write(out: Path, plan: _Plan, port: int) -> Fleet:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ConfigError(f"--out {out}: not an empty folder; allowed: a new or empty folder (nothing is overwritten)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
     try:
-        commands = _fill(tmp, router_name, int(router_port), robot_ids, assigned, watching)
+        commands = _fill(tmp, plan, port)
         os.chmod(tmp, 0o700)
         os.replace(tmp, out)
     except BaseException:
@@ -205,45 +277,57 @@ def _write_profile(path: Path, text: str) -> None:
     os.chmod(path, 0o644)
 
 
-def _head(what: str, router_name: str, port: int, command: str) -> str:
+def _head(what: str, router_name: str, port: int, command: str, setup: str = "fleet") -> str:
     return (
-        f"# bipedtele profile for {what}, written by `bipedtele setup fleet`\n"
+        f"# bipedtele profile for {what}, written by `bipedtele setup {setup}`\n"
         f"# for the router {router_name}:{port}. Relative paths are read relative to this\n"
         f"# file's folder. Run:  {command}\n\n"
     )
 
 
-def _fill(root: Path, router_name: str, port: int, robots: list[str], operators: dict[str, tuple[str, ...]],
-          observers: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:  # fmt: skip
-    certs = make_certs(root / "ca-private" / "issued", [router_name], ca_dir=root / "ca-private")
-    users = [*robots, *operators, *observers]
-    passwords = {u: make_password() for u in users}
+@dataclass(frozen=True)
+class _Plan:
+    """Who is where: site -> its router's name; each robot's, operator's and observer's site."""
+
+    routers: dict[str, str]  # site -> router name ("" : the one site of a fleet)
+    robot_site: dict[str, str]
+    operators: dict[str, tuple[str, tuple[str, ...]]]  # name -> (site, robots)
+    observers: dict[str, tuple[str, tuple[str, ...]]]
+
+    def router_folder(self, site: str) -> str:
+        return "router" if site == "" else f"router-{site}"
+
+
+def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
+    first = next(iter(plan.routers.values()))
+    certs = make_certs(root / "ca-private" / "issued", [first], ca_dir=root / "ca-private")
+    sites = list(plan.routers)
+    robots = list(plan.robot_site)
+    users = [*robots, *plan.operators, *plan.observers]
+    links = {s: f"site-{s}" for s in sites[1:]}  # a later site's router logs in to the earlier ones
+    passwords = {u: make_password() for u in [*users, *links.values()]}
     keys = {r: secrets.token_hex(32) + "\n" for r in robots}
     commands: dict[str, tuple[str, ...]] = {}
+    setup = "fleet" if len(sites) == 1 else "sites"
 
-    folder = _host_folder(root, "router", certs.ca_pem, certs.pairs["router"])
-    write_private(folder / "secrets" / "router-credentials.txt", "".join(f"{u}:{passwords[u]}\n" for u in users))
-    cmd = "bipedtele router --config router/bipedtele.toml"
-    publishers = [f"{name}@{r}" for name, ids in operators.items() for r in ids]
-    _write_profile(folder / "bipedtele.toml", router_profile(
-        _head("the fleet's router", router_name, port, cmd), router_name, port, robots[0],
-        publishers, [f"{r}@{r}" for r in robots],
-        [f"{name}@{r}" for name, ids in observers.items() for r in ids]))  # fmt: skip
-    commands["router"] = (cmd,)
+    def head(what: str, router: str, cmd: str) -> str:
+        return _head(what, router, port, cmd, setup)
+
+    commands.update(_write_routers(root, plan, port, certs, passwords, head))
 
     for r in robots:
-        name = f"robot-{r}"
+        name, router = f"robot-{r}", plan.routers[plan.robot_site[r]]
         folder = _host_folder(root, name, certs.ca_pem, certs.pairs[FOLLOWER_USER])
         write_private(folder / "secrets" / f"{r}.pw", passwords[r] + "\n")
         write_private(folder / "secrets" / "message.key", keys[r])
         cmd = f"bipedtele follower --config {name}/bipedtele.toml"
         _write_profile(folder / "bipedtele.toml", client_profile(
-            _head(f"robot {r}", router_name, port, cmd), "robot", router_name, port, r,
+            head(f"robot {r}", router, cmd), "robot", router, port, r,
             r, FOLLOWER_USER, "secrets/message.key"))  # fmt: skip
         commands[name] = (cmd,)
 
-    for op, ids in operators.items():
-        name = f"operator-{op}"
+    for op, (site, ids) in plan.operators.items():
+        name, router = f"operator-{op}", plan.routers[site]
         folder = _host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
         write_private(folder / "secrets" / f"{op}.pw", passwords[op] + "\n")
         cmds = []
@@ -251,21 +335,21 @@ def _fill(root: Path, router_name: str, port: int, robots: list[str], operators:
             write_private(folder / "secrets" / f"{r}.key", keys[r])
             cmd = f"bipedtele leader --config {name}/{r}.toml"
             _write_profile(folder / f"{r}.toml", client_profile(
-                _head(f"operator {op} driving robot {r}", router_name, port, cmd), "operator",
-                router_name, port, r, op, LEADER_USER, f"secrets/{r}.key"))  # fmt: skip
+                head(f"operator {op} driving robot {r}", router, cmd), "operator",
+                router, port, r, op, LEADER_USER, f"secrets/{r}.key"))  # fmt: skip
             cmds.append(cmd)
         commands[name] = tuple(cmds)
 
-    for obs, ids in observers.items():
-        name = f"observer-{obs}"
+    for obs, (site, ids) in plan.observers.items():
+        name, router = f"observer-{obs}", plan.routers[site]
         folder = _host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
         write_private(folder / "secrets" / f"{obs}.pw", passwords[obs] + "\n")
         for r in ids:
             write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
         cmd = f"bipedtele status --config {name}/bipedtele.toml"
         _write_profile(folder / "bipedtele.toml", client_profile(
-            _head(f"observer {obs} watching {', '.join(ids)}", router_name, port, cmd), "observer",
-            router_name, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
+            head(f"observer {obs} watching {', '.join(ids)}", router, cmd), "observer",
+            router, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
         commands[name] = (cmd,)
 
     os.replace(certs.ca_pem, root / "ca-private" / "ca.pem")
@@ -278,8 +362,51 @@ def _fill(root: Path, router_name: str, port: int, robots: list[str], operators:
     return commands
 
 
-def _instructions(fleet: Fleet, router_name: str, port: int) -> str:
-    lines = [f"setup: wrote {fleet.out}/ for the router {router_name}:{port}", ""]
+def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwords: dict[str, str],
+                   head: Callable[[str, str, str], str]) -> dict[str, tuple[str, ...]]:  # fmt: skip
+    """Each site's router folder: certificate, credentials, links to the earlier sites, the ACL."""
+    sites, robots = list(plan.routers), list(plan.robot_site)
+    users = [*robots, *plan.operators, *plan.observers]
+    links = {s: f"site-{s}" for s in sites[1:]}
+    commands: dict[str, tuple[str, ...]] = {}
+    for i, site in enumerate(sites):
+        name = plan.router_folder(site)
+        if site == "":
+            cert, cn = certs.pairs["router"], "router"
+        else:
+            cn = f"router-{site}"
+            cert = issue_router_cert(certs.ca_pem.parent, cn, [plan.routers[site]], certs.ca_pem,
+                                     root / "ca-private" / "ca.key")  # fmt: skip
+        folder = _host_folder(root, name, certs.ca_pem, cert)
+        local = [u for u in users if _site_of(plan, u) == site] + [links[s] for s in sites[i + 1 :]]
+        write_private(folder / "secrets" / "router-credentials.txt", "".join(f"{u}:{passwords[u]}\n" for u in local))
+        mesh: dict[str, Any] = {}
+        if len(sites) > 1:
+            mesh["connect"] = [tls_endpoint(plan.routers[s], port) for s in sites[:i]]
+            if i > 0:
+                write_private(folder / "secrets" / "router.pw", passwords[links[site]] + "\n")
+                mesh.update(router_user=links[site], router_password_file="secrets/router.pw")
+            mesh["routers_allowed"] = [f"router-{s}" for s in sites if s != site]
+        cmd = f"bipedtele router --config {name}/bipedtele.toml"
+        leaders_here = [f"{n}@{r}" for n, (st, ids) in plan.operators.items() if st == site for r in ids]
+        observers_here = [f"{n}@{r}" for n, (st, ids) in plan.observers.items() if st == site for r in ids]
+        _write_profile(folder / "bipedtele.toml", router_profile(
+            head(f"the router of site {site}" if site else "the fleet's router", plan.routers[site], cmd),
+            plan.routers[site], port, next((r for r in robots if plan.robot_site[r] == site), robots[0]),
+            leaders_here, [f"{r}@{r}" for r in robots if plan.robot_site[r] == site], observers_here,
+            cert=cn, mesh=mesh))  # fmt: skip
+        commands[name] = (cmd,)
+    return commands
+
+
+def _site_of(plan: _Plan, user: str) -> str:
+    if user in plan.robot_site:
+        return plan.robot_site[user]
+    return (plan.operators.get(user) or plan.observers[user])[0]
+
+
+def _instructions(fleet: Fleet, what: str) -> str:
+    lines = [f"setup: wrote {fleet.out}/ for the {what}", ""]
     lines.append("1. Copy each folder to its host (keep the modes: scp -rp, rsync -a); 2. there, run:")
     for name, cmds in fleet.commands.items():
         lines += [f"     {name + ':':<24} {c}" for c in cmds]
@@ -295,17 +422,63 @@ def _run_fleet(args: argparse.Namespace) -> int:
     names: list[str] = args.router_name
     if len(names) != 1:
         raise ConfigError(f"--router-name given {len(names)} times; allowed: once")
-    members: dict[str, dict[str, tuple[str, ...]]] = {"--operator": {}, "--observer": {}}
-    for opt, specs in (("--operator", args.operator), ("--observer", args.observer)):
-        for spec in specs or []:
-            name, ids = parse_operator(spec, opt)
-            if name in members[opt]:
-                raise ConfigError(f"{opt} {name!r} given twice; allowed: once, with all its robots (NAME=R1,R2)")
-            members[opt][name] = ids
+    members = {opt: {k: ids for k, (_, ids) in m.items()} for opt, m in _members(args, at=False).items()}
     fleet = write_fleet(args.out, names[0], args.robot or [], members["--operator"], args.router_port,
                         members["--observer"])  # fmt: skip
-    os.write(1, _instructions(fleet, names[0], args.router_port).encode())
+    os.write(1, _instructions(fleet, f"router {names[0]}:{args.router_port}").encode())
     return 0
+
+
+def _members(args: argparse.Namespace, at: bool) -> dict[str, dict[str, tuple[str, tuple[str, ...]]]]:
+    """--operator/--observer specs -> {option: {name: (site, robots)}} (site "" without ``@``)."""
+    members: dict[str, dict[str, tuple[str, tuple[str, ...]]]] = {"--operator": {}, "--observer": {}}
+    for opt, specs in (("--operator", args.operator), ("--observer", args.observer)):
+        for spec in specs or []:
+            who, ids = parse_operator(spec, opt)
+            name, site = parse_at(who, opt) if at else (who, "")
+            if name in members[opt]:
+                raise ConfigError(f"{opt} {name!r} given twice; allowed: once, with all its robots (NAME=R1,R2)")
+            members[opt][name] = (site, ids)
+    return members
+
+
+def _run_sites(args: argparse.Namespace) -> int:
+    sites: dict[str, str] = {}
+    for spec in args.site or []:
+        site, eq, router = spec.partition("=")
+        if not eq or not site or not router:
+            raise ConfigError(f"--site {spec!r}: allowed: SITE=ROUTER_NAME (e.g. lab1=router1.example.org)")
+        if site in sites:
+            raise ConfigError(f"--site {site!r} given twice; allowed: once each")
+        sites[site] = router
+    robots: dict[str, str] = {}
+    for spec in args.robot or []:
+        r, site = parse_at(spec, "--robot")
+        if r in robots:
+            raise ConfigError(f"--robot {r!r} given twice; allowed: once each")
+        robots[r] = site
+    members = _members(args, at=True)
+    fleet = write_sites(args.out, sites, robots, members["--operator"], args.router_port, members["--observer"])
+    where = ", ".join(f"{s} {r}:{args.router_port}" for s, r in sites.items())
+    os.write(1, _instructions(fleet, f"sites {where}").encode())
+    return 0
+
+
+def add_sites_parser(ss: Any) -> None:
+    """``bipedtele setup sites``, under the ``setup`` sub-command parser ``ss``."""
+    f = ss.add_parser("sites", help="one router per site, linked over TLS; robots and operators at their sites")
+    f.add_argument("--site", action="append", metavar="SITE=ROUTER_NAME",
+                   help="a site and its router's DNS name or IP address (repeat; each links to those before)")  # fmt: skip
+    f.add_argument(
+        "--router-port", type=int, default=7447, metavar="PORT", help="every router's TLS port (default 7447)"
+    )
+    f.add_argument("--robot", action="append", metavar="ID@SITE", help="a robot and its site (repeat)")
+    f.add_argument("--operator", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
+                   help="an operator, its site and the robots it may drive, of any site (repeat)")  # fmt: skip
+    f.add_argument("--observer", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
+                   help="an observer, its site and the robots it may watch (repeat)")  # fmt: skip
+    f.add_argument("--out", default="sites", metavar="DIR", help="new or empty folder to write (default: sites)")
+    f.set_defaults(func=_run_sites)
 
 
 def add_fleet_parser(ss: Any) -> None:

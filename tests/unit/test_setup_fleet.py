@@ -20,7 +20,7 @@ from bipedtele.auth import load_message_auth
 from bipedtele.config import ConfigError, load_config
 from bipedtele.sections import NetworkConfig, RobotConfig
 from bipedtele.tools.setup_fleet import parse_operator, write_fleet
-from bipedtele.zenohsession import open_session
+from bipedtele.zenohsession import open_session, zenoh_config
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -245,3 +245,56 @@ def test_observers_get_watch_keys_only(tmp_path: Path) -> None:
         write_fleet(tmp_path / "g", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"alice": ("nao2",)})
     with pytest.raises(ConfigError, match=r"--observer carol=nao9: \['nao9'\] not a --robot"):
         write_fleet(tmp_path / "g", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"carol": ("nao9",)})
+
+
+def test_sites_write_a_router_each_linked_to_the_sites_before(tmp_path: Path) -> None:
+    from bipedtele.tools.setup_fleet import write_sites
+
+    sites = {"lab1": "r1.example.org", "lab2": "r2.example.org", "lab3": "10.0.0.3"}
+    out = write_sites(tmp_path / "s", sites, {"nao1": "lab1", "nao2": "lab2"},
+                      {"alice": ("lab1", ["nao1"]), "bob": ("lab3", ["nao2", "nao1"])}, 7460,
+                      {"carol": ("lab2", ["nao1"])}).out  # fmt: skip
+    nets = {s: load_config(out / f"router-{s}" / "bipedtele.toml").get(NetworkConfig) for s in sites}
+    assert nets["lab1"].connect == [] and not nets["lab1"].router_user
+    assert nets["lab2"].connect == ["tls/r1.example.org:7460"] and nets["lab2"].router_user == "site-lab2"
+    assert nets["lab3"].connect == ["tls/r1.example.org:7460", "tls/r2.example.org:7460"]
+    assert nets["lab1"].routers_allowed == ["router-lab2", "router-lab3"]
+    assert nets["lab1"].publishers_allowed == ["alice@nao1"] and nets["lab1"].followers_allowed == ["nao1@nao1"]
+    assert nets["lab3"].publishers_allowed == ["bob@nao2", "bob@nao1"] and nets["lab3"].followers_allowed == []
+    assert nets["lab2"].observers_allowed == ["carol@nao1"]
+    users = {s: [ln.split(":")[0] for ln in Path(nets[s].credentials_file).read_text().splitlines()] for s in sites}
+    assert users == {"lab1": ["nao1", "alice", "site-lab2", "site-lab3"], "lab2": ["nao2", "carol", "site-lab3"],
+                     "lab3": ["bob"]}  # fmt: skip
+    lab1_creds = dict(ln.split(":", 1) for ln in Path(nets["lab1"].credentials_file).read_text().splitlines())
+    assert Path(nets["lab2"].router_password_file).read_text().strip() == lab1_creds["site-lab2"]
+    for s in sites:
+        pem = out / f"router-{s}" / "certs" / f"router-{s}.pem"
+        text = subprocess.run(["openssl", "x509", "-in", str(pem), "-noout", "-subject", "-ext", "subjectAltName"],
+                              capture_output=True, text=True, check=True).stdout  # fmt: skip
+        assert f"CN = router-{s}" in text and sites[s] in text, text
+    bob = load_config(out / "operator-bob" / "nao2.toml").get(NetworkConfig)
+    assert bob.connect == ["tls/10.0.0.3:7460"]  # his own site's router, whatever the robot's site
+    acl = access_control_json(nets["lab2"])
+    assert acl is not None and {"id": "routers", "cert_common_names": ["router-lab1", "router-lab3"]} in acl["subjects"]
+
+
+def test_sites_refusals(tmp_path: Path) -> None:
+    from bipedtele.tools.setup_fleet import write_sites
+
+    ok_sites = {"lab1": "r1.example.org", "lab2": "r2.example.org"}
+    bad = [
+        ({"lab1": "r1.example.org"}, {"nao1": "lab1"}, {"a": ("lab1", ["nao1"])}, "2 to 16 sites"),
+        ({"la b": "r", "lab2": "r2"}, {"nao1": "lab2"}, {"a": ("lab2", ["nao1"])}, "--site 'la b'"),
+        (ok_sites, {"nao1": "lab9"}, {"a": ("lab1", ["nao1"])}, r"--robot nao1@lab9: no such --site"),
+        (ok_sites, {"nao1": "lab1"}, {"a": ("lab7", ["nao1"])}, r"--operator a@lab7: no such --site"),
+        (ok_sites, {"nao1": "lab1"}, {"site-lab1": ("lab1", ["nao1"])}, "a name of a site's router login"),
+    ]
+    for sites, robots, ops, match in bad:
+        with pytest.raises(ConfigError, match=match):
+            write_sites(tmp_path / "n", sites, robots, ops)
+    assert not (tmp_path / "n").exists()
+    res = _cli("setup", "sites", "--site", "lab1=r1.example.org", "--site", "lab2=r2.example.org",
+               "--robot", "nao1", "--operator", "alice@lab1=nao1", "--out", "x", cwd=tmp_path)  # fmt: skip
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "NAME@SITE" in res.stderr
+    with pytest.raises(ConfigError, match="router_user/router_password_file: allowed: both"):
+        zenoh_config(NetworkConfig(mode="router", router_user="site-lab2"))
