@@ -116,6 +116,7 @@ class FollowerApp:
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(self.dt)
         # Woken by the command receiver: a fresh command is applied at once (pickup).
         self.pacer: Pacer | None = None
+        self._stepper: RealtimeStepper | None = None
         self._cmd_rx: LatestReceiver[Command] | None = None
         self._outlets: dict[type[Message], tuple[MessagePublisher, str]] = {}
         # The uplink: bytes sent counted at the publish call, the leader's rx_bps in.
@@ -184,6 +185,9 @@ class FollowerApp:
             out.update(video.counters())
         else:
             out["video_budget_bps"] = 0
+        if self._stepper is not None:  # real time: does the robot keep pace with the wall clock?
+            st = self._stepper
+            out.update(ticks=st.ticks, steps_caught_up=st.caught_up_steps, steps_dropped=st.dropped_steps)
         return out
 
     def _reset_robot(self, sid: int) -> bool:
@@ -286,7 +290,7 @@ class FollowerApp:
         n_sub = max(1, math.ceil(self.dt / step_s - 1e-9)) if step_s else 1
         sub_dt = self.dt / n_sub
         self.pacer = pacer = Pacer(sub_dt, clock=time.monotonic)
-        stepper = RealtimeStepper(pacer, n_sub)
+        self._stepper = stepper = RealtimeStepper(pacer, n_sub)
         start_t = self.clock()
 
         def tick() -> None:
