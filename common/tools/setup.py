@@ -47,6 +47,7 @@ __all__ = [
     "TwoHosts",
     "check_router_name",
     "client_profile",
+    "host_folder",
     "issue_router_cert",
     "make_certs",
     "make_message_key",
@@ -55,6 +56,7 @@ __all__ = [
     "task_course",
     "tls_endpoint",
     "write_private",
+    "write_profile",
     "write_two_hosts",
 ]
 
@@ -468,22 +470,34 @@ def write_two_hosts(out: str | Path, router_name: str, router_port: int = 7447, 
     return TwoHosts(out, folders, commands, out / "ca-private" / "ca.key")
 
 
+def host_folder(root: Path, name: str, ca_pem: Path, cert: tuple[Path, Path]) -> Path:
+    """Make ``root/name`` (mode 0700) with ``certs/`` (the CA and ``cert``'s pair) and ``secrets/``."""
+    folder = root / name
+    for sub in ("certs", "secrets"):
+        (folder / sub).mkdir(parents=True)
+        os.chmod(folder / sub, 0o700)
+    os.chmod(folder, 0o700)
+    pem, key = cert
+    shutil.copyfile(ca_pem, folder / "certs" / "ca.pem")
+    shutil.copyfile(pem, folder / "certs" / pem.name)
+    write_private(folder / "certs" / key.name, key.read_text(encoding="utf-8"))
+    for f in (folder / "certs" / "ca.pem", folder / "certs" / pem.name):
+        os.chmod(f, 0o644)
+    return folder
+
+
+def write_profile(path: Path, text: str) -> None:
+    """Write a profile (mode 0644: it names files, it holds no secret)."""
+    path.write_text(text, encoding="utf-8")
+    os.chmod(path, 0o644)
+
+
 def _fill(root: Path, router_name: str, port: int, robot_id: str) -> None:
     certs = make_certs(root / "ca-private" / "issued", [router_name], ca_dir=root / "ca-private")
     passwords = {LEADER_USER: make_password(), FOLLOWER_USER: make_password()}
     key_hex = secrets.token_hex(32) + "\n"
     for host in HOSTS:
-        folder = root / host
-        for sub in ("certs", "secrets"):
-            (folder / sub).mkdir(parents=True)
-            os.chmod(folder / sub, 0o700)
-        os.chmod(folder, 0o700)
-        shutil.copyfile(certs.ca_pem, folder / "certs" / "ca.pem")
-        pem, key = certs.pairs[_CERT_OF_HOST[host]]
-        shutil.copyfile(pem, folder / "certs" / pem.name)
-        write_private(folder / "certs" / key.name, key.read_text(encoding="utf-8"))
-        for f in (folder / "certs" / "ca.pem", folder / "certs" / pem.name):
-            os.chmod(f, 0o644)
+        folder = host_folder(root, host, certs.ca_pem, certs.pairs[_CERT_OF_HOST[host]])
         if host == "router":
             lines = "".join(f"{u}:{p}\n" for u, p in passwords.items())
             write_private(folder / "secrets" / "router-credentials.txt", lines)
@@ -491,9 +505,7 @@ def _fill(root: Path, router_name: str, port: int, robot_id: str) -> None:
             user = FOLLOWER_USER if host == "robot" else LEADER_USER
             write_private(folder / "secrets" / f"{user}.pw", passwords[user] + "\n")
             write_private(folder / "secrets" / "message.key", key_hex)
-        profile = folder / "bipedtele.toml"
-        profile.write_text(_profile_text(host, router_name, port, robot_id), encoding="utf-8")
-        os.chmod(profile, 0o644)
+        write_profile(folder / "bipedtele.toml", _profile_text(host, router_name, port, robot_id))
     # The hosts have their copies: only the CA's certificate and key stay in ca-private/.
     os.replace(certs.ca_pem, root / "ca-private" / "ca.pem")
     shutil.rmtree(certs.ca_pem.parent)

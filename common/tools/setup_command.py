@@ -12,7 +12,7 @@ from typing import Any
 
 from bipedtele.config import ConfigError
 from bipedtele.tools.setup import HOSTS, TwoHosts, make_certs, make_message_key, write_two_hosts
-from bipedtele.tools.setup_fleet import add_fleet_parser, add_sites_parser
+from bipedtele.tools.setup_fleet import Fleet, parse_at, parse_operator, write_fleet, write_sites
 
 __all__ = ["add_setup_parser"]
 
@@ -96,3 +96,94 @@ def add_setup_parser(sub: Any) -> None:
     m.set_defaults(func=_run_message_key)
     add_fleet_parser(ss)
     add_sites_parser(ss)
+
+
+def _fleet_instructions(fleet: Fleet, what: str) -> str:
+    lines = [f"setup: wrote {fleet.out}/ for the {what}", ""]
+    lines.append("1. Copy each folder to its host (keep the modes: scp -rp, rsync -a); 2. there, run:")
+    for name, cmds in fleet.commands.items():
+        lines += [f"     {name + ':':<24} {c}" for c in cmds]
+    lines += [
+        "",
+        f"Keep {fleet.ca_key} off the hosts (it signs certificates).",
+        "Each operator drives only the robots named for it; docs/fleet.md.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _run_fleet(args: argparse.Namespace) -> int:
+    names: list[str] = args.router_name
+    if len(names) != 1:
+        raise ConfigError(f"--router-name given {len(names)} times; allowed: once")
+    members = {opt: {k: ids for k, (_, ids) in m.items()} for opt, m in _members(args, at=False).items()}
+    fleet = write_fleet(args.out, names[0], args.robot or [], members["--operator"], args.router_port,
+                        members["--observer"])  # fmt: skip
+    os.write(1, _fleet_instructions(fleet, f"router {names[0]}:{args.router_port}").encode())
+    return 0
+
+
+def _members(args: argparse.Namespace, at: bool) -> dict[str, dict[str, tuple[str, tuple[str, ...]]]]:
+    """--operator/--observer specs -> {option: {name: (site, robots)}} (site "" without ``@``)."""
+    members: dict[str, dict[str, tuple[str, tuple[str, ...]]]] = {"--operator": {}, "--observer": {}}
+    for opt, specs in (("--operator", args.operator), ("--observer", args.observer)):
+        for spec in specs or []:
+            who, ids = parse_operator(spec, opt)
+            name, site = parse_at(who, opt) if at else (who, "")
+            if name in members[opt]:
+                raise ConfigError(f"{opt} {name!r} given twice; allowed: once, with all its robots (NAME=R1,R2)")
+            members[opt][name] = (site, ids)
+    return members
+
+
+def _run_sites(args: argparse.Namespace) -> int:
+    sites: dict[str, str] = {}
+    for spec in args.site or []:
+        site, eq, router = spec.partition("=")
+        if not eq or not site or not router:
+            raise ConfigError(f"--site {spec!r}: allowed: SITE=ROUTER_NAME (e.g. lab1=router1.example.org)")
+        if site in sites:
+            raise ConfigError(f"--site {site!r} given twice; allowed: once each")
+        sites[site] = router
+    robots: dict[str, str] = {}
+    for spec in args.robot or []:
+        r, site = parse_at(spec, "--robot")
+        if r in robots:
+            raise ConfigError(f"--robot {r!r} given twice; allowed: once each")
+        robots[r] = site
+    members = _members(args, at=True)
+    fleet = write_sites(args.out, sites, robots, members["--operator"], args.router_port, members["--observer"])
+    where = ", ".join(f"{s} {r}:{args.router_port}" for s, r in sites.items())
+    os.write(1, _fleet_instructions(fleet, f"sites {where}").encode())
+    return 0
+
+
+def add_sites_parser(ss: Any) -> None:
+    """``bipedtele setup sites``, under the ``setup`` sub-command parser ``ss``."""
+    f = ss.add_parser("sites", help="one router per site, linked over TLS; robots and operators at their sites")
+    f.add_argument("--site", action="append", metavar="SITE=ROUTER_NAME",
+                   help="a site and its router's DNS name or IP address (repeat; each links to those before)")  # fmt: skip
+    f.add_argument(
+        "--router-port", type=int, default=7447, metavar="PORT", help="every router's TLS port (default 7447)"
+    )
+    f.add_argument("--robot", action="append", metavar="ID@SITE", help="a robot and its site (repeat)")
+    f.add_argument("--operator", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
+                   help="an operator, its site and the robots it may drive, of any site (repeat)")  # fmt: skip
+    f.add_argument("--observer", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
+                   help="an observer, its site and the robots it may watch (repeat)")  # fmt: skip
+    f.add_argument("--out", default="sites", metavar="DIR", help="new or empty folder to write (default: sites)")
+    f.set_defaults(func=_run_sites)
+
+
+def add_fleet_parser(ss: Any) -> None:
+    """``bipedtele setup fleet``, under the ``setup`` sub-command parser ``ss``."""
+    f = ss.add_parser("fleet", help="one router, several robots and operators, each operator bound to its robots")
+    f.add_argument("--router-name", action="append", required=True, metavar="NAME",
+                   help="the router's DNS name or IP address, as robots and operators reach it")  # fmt: skip
+    f.add_argument("--router-port", type=int, default=7447, metavar="PORT", help="the router's TLS port (default 7447)")
+    f.add_argument("--robot", action="append", metavar="ID", help="a robot id (repeat for each robot)")
+    f.add_argument("--operator", action="append", metavar="NAME=ROBOT[,ROBOT...]",
+                   help="an operator and the robots it may drive (repeat for each operator)")  # fmt: skip
+    f.add_argument("--observer", action="append", metavar="NAME=ROBOT[,ROBOT...]",
+                   help="an observer and the robots it may watch (video, status; puts nothing)")  # fmt: skip
+    f.add_argument("--out", default="fleet", metavar="DIR", help="new or empty folder to write (default: fleet)")
+    f.set_defaults(func=_run_fleet)

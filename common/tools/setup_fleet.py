@@ -33,7 +33,6 @@ See docs/fleet.md.
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import secrets
@@ -53,15 +52,17 @@ from bipedtele.tools.setup import (
     CertFiles,
     check_router_name,
     client_profile,
+    host_folder,
     issue_router_cert,
     make_certs,
     make_password,
     router_profile,
     tls_endpoint,
     write_private,
+    write_profile,
 )
 
-__all__ = ["Fleet", "add_fleet_parser", "add_sites_parser", "parse_at", "parse_operator", "write_fleet", "write_sites"]
+__all__ = ["Fleet", "parse_at", "parse_operator", "write_fleet", "write_sites"]
 
 #: How many robots and operators one ``setup fleet`` writes at most.
 MAX_MEMBERS = 64
@@ -257,26 +258,6 @@ def _write(out: Path, plan: _Plan, port: int) -> Fleet:
     return Fleet(out, {name: out / name for name in commands}, commands, out / "ca-private" / "ca.key")
 
 
-def _host_folder(root: Path, name: str, ca_pem: Path, cert: tuple[Path, Path]) -> Path:
-    folder = root / name
-    for sub in ("certs", "secrets"):
-        (folder / sub).mkdir(parents=True)
-        os.chmod(folder / sub, 0o700)
-    os.chmod(folder, 0o700)
-    pem, key = cert
-    shutil.copyfile(ca_pem, folder / "certs" / "ca.pem")
-    shutil.copyfile(pem, folder / "certs" / pem.name)
-    write_private(folder / "certs" / key.name, key.read_text(encoding="utf-8"))
-    for f in (folder / "certs" / "ca.pem", folder / "certs" / pem.name):
-        os.chmod(f, 0o644)
-    return folder
-
-
-def _write_profile(path: Path, text: str) -> None:
-    path.write_text(text, encoding="utf-8")
-    os.chmod(path, 0o644)
-
-
 def _head(what: str, router_name: str, port: int, command: str, setup: str = "fleet") -> str:
     return (
         f"# bipedtele profile for {what}, written by `bipedtele setup {setup}`\n"
@@ -317,24 +298,24 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
 
     for r in robots:
         name, router = f"robot-{r}", plan.routers[plan.robot_site[r]]
-        folder = _host_folder(root, name, certs.ca_pem, certs.pairs[FOLLOWER_USER])
+        folder = host_folder(root, name, certs.ca_pem, certs.pairs[FOLLOWER_USER])
         write_private(folder / "secrets" / f"{r}.pw", passwords[r] + "\n")
         write_private(folder / "secrets" / "message.key", keys[r])
         cmd = f"bipedtele follower --config {name}/bipedtele.toml"
-        _write_profile(folder / "bipedtele.toml", client_profile(
+        write_profile(folder / "bipedtele.toml", client_profile(
             head(f"robot {r}", router, cmd), "robot", router, port, r,
             r, FOLLOWER_USER, "secrets/message.key"))  # fmt: skip
         commands[name] = (cmd,)
 
     for op, (site, ids) in plan.operators.items():
         name, router = f"operator-{op}", plan.routers[site]
-        folder = _host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
+        folder = host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
         write_private(folder / "secrets" / f"{op}.pw", passwords[op] + "\n")
         cmds = []
         for r in ids:
             write_private(folder / "secrets" / f"{r}.key", keys[r])
             cmd = f"bipedtele leader --config {name}/{r}.toml"
-            _write_profile(folder / f"{r}.toml", client_profile(
+            write_profile(folder / f"{r}.toml", client_profile(
                 head(f"operator {op} driving robot {r}", router, cmd), "operator",
                 router, port, r, op, LEADER_USER, f"secrets/{r}.key"))  # fmt: skip
             cmds.append(cmd)
@@ -342,12 +323,12 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
 
     for obs, (site, ids) in plan.observers.items():
         name, router = f"observer-{obs}", plan.routers[site]
-        folder = _host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
+        folder = host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
         write_private(folder / "secrets" / f"{obs}.pw", passwords[obs] + "\n")
         for r in ids:
             write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
         cmd = f"bipedtele status --config {name}/bipedtele.toml"
-        _write_profile(folder / "bipedtele.toml", client_profile(
+        write_profile(folder / "bipedtele.toml", client_profile(
             head(f"observer {obs} watching {', '.join(ids)}", router, cmd), "observer",
             router, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
         commands[name] = (cmd,)
@@ -377,7 +358,7 @@ def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwor
             cn = f"router-{site}"
             cert = issue_router_cert(certs.ca_pem.parent, cn, [plan.routers[site]], certs.ca_pem,
                                      root / "ca-private" / "ca.key")  # fmt: skip
-        folder = _host_folder(root, name, certs.ca_pem, cert)
+        folder = host_folder(root, name, certs.ca_pem, cert)
         local = [u for u in users if _site_of(plan, u) == site] + [links[s] for s in sites[i + 1 :]]
         write_private(folder / "secrets" / "router-credentials.txt", "".join(f"{u}:{passwords[u]}\n" for u in local))
         mesh: dict[str, Any] = {}
@@ -390,7 +371,7 @@ def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwor
         cmd = f"bipedtele router --config {name}/bipedtele.toml"
         leaders_here = [f"{n}@{r}" for n, (st, ids) in plan.operators.items() if st == site for r in ids]
         observers_here = [f"{n}@{r}" for n, (st, ids) in plan.observers.items() if st == site for r in ids]
-        _write_profile(folder / "bipedtele.toml", router_profile(
+        write_profile(folder / "bipedtele.toml", router_profile(
             head(f"the router of site {site}" if site else "the fleet's router", plan.routers[site], cmd),
             plan.routers[site], port, next((r for r in robots if plan.robot_site[r] == site), robots[0]),
             leaders_here, [f"{r}@{r}" for r in robots if plan.robot_site[r] == site], observers_here,
@@ -403,94 +384,3 @@ def _site_of(plan: _Plan, user: str) -> str:
     if user in plan.robot_site:
         return plan.robot_site[user]
     return (plan.operators.get(user) or plan.observers[user])[0]
-
-
-def _instructions(fleet: Fleet, what: str) -> str:
-    lines = [f"setup: wrote {fleet.out}/ for the {what}", ""]
-    lines.append("1. Copy each folder to its host (keep the modes: scp -rp, rsync -a); 2. there, run:")
-    for name, cmds in fleet.commands.items():
-        lines += [f"     {name + ':':<24} {c}" for c in cmds]
-    lines += [
-        "",
-        f"Keep {fleet.ca_key} off the hosts (it signs certificates).",
-        "Each operator drives only the robots named for it; docs/fleet.md.",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def _run_fleet(args: argparse.Namespace) -> int:
-    names: list[str] = args.router_name
-    if len(names) != 1:
-        raise ConfigError(f"--router-name given {len(names)} times; allowed: once")
-    members = {opt: {k: ids for k, (_, ids) in m.items()} for opt, m in _members(args, at=False).items()}
-    fleet = write_fleet(args.out, names[0], args.robot or [], members["--operator"], args.router_port,
-                        members["--observer"])  # fmt: skip
-    os.write(1, _instructions(fleet, f"router {names[0]}:{args.router_port}").encode())
-    return 0
-
-
-def _members(args: argparse.Namespace, at: bool) -> dict[str, dict[str, tuple[str, tuple[str, ...]]]]:
-    """--operator/--observer specs -> {option: {name: (site, robots)}} (site "" without ``@``)."""
-    members: dict[str, dict[str, tuple[str, tuple[str, ...]]]] = {"--operator": {}, "--observer": {}}
-    for opt, specs in (("--operator", args.operator), ("--observer", args.observer)):
-        for spec in specs or []:
-            who, ids = parse_operator(spec, opt)
-            name, site = parse_at(who, opt) if at else (who, "")
-            if name in members[opt]:
-                raise ConfigError(f"{opt} {name!r} given twice; allowed: once, with all its robots (NAME=R1,R2)")
-            members[opt][name] = (site, ids)
-    return members
-
-
-def _run_sites(args: argparse.Namespace) -> int:
-    sites: dict[str, str] = {}
-    for spec in args.site or []:
-        site, eq, router = spec.partition("=")
-        if not eq or not site or not router:
-            raise ConfigError(f"--site {spec!r}: allowed: SITE=ROUTER_NAME (e.g. lab1=router1.example.org)")
-        if site in sites:
-            raise ConfigError(f"--site {site!r} given twice; allowed: once each")
-        sites[site] = router
-    robots: dict[str, str] = {}
-    for spec in args.robot or []:
-        r, site = parse_at(spec, "--robot")
-        if r in robots:
-            raise ConfigError(f"--robot {r!r} given twice; allowed: once each")
-        robots[r] = site
-    members = _members(args, at=True)
-    fleet = write_sites(args.out, sites, robots, members["--operator"], args.router_port, members["--observer"])
-    where = ", ".join(f"{s} {r}:{args.router_port}" for s, r in sites.items())
-    os.write(1, _instructions(fleet, f"sites {where}").encode())
-    return 0
-
-
-def add_sites_parser(ss: Any) -> None:
-    """``bipedtele setup sites``, under the ``setup`` sub-command parser ``ss``."""
-    f = ss.add_parser("sites", help="one router per site, linked over TLS; robots and operators at their sites")
-    f.add_argument("--site", action="append", metavar="SITE=ROUTER_NAME",
-                   help="a site and its router's DNS name or IP address (repeat; each links to those before)")  # fmt: skip
-    f.add_argument(
-        "--router-port", type=int, default=7447, metavar="PORT", help="every router's TLS port (default 7447)"
-    )
-    f.add_argument("--robot", action="append", metavar="ID@SITE", help="a robot and its site (repeat)")
-    f.add_argument("--operator", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
-                   help="an operator, its site and the robots it may drive, of any site (repeat)")  # fmt: skip
-    f.add_argument("--observer", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
-                   help="an observer, its site and the robots it may watch (repeat)")  # fmt: skip
-    f.add_argument("--out", default="sites", metavar="DIR", help="new or empty folder to write (default: sites)")
-    f.set_defaults(func=_run_sites)
-
-
-def add_fleet_parser(ss: Any) -> None:
-    """``bipedtele setup fleet``, under the ``setup`` sub-command parser ``ss``."""
-    f = ss.add_parser("fleet", help="one router, several robots and operators, each operator bound to its robots")
-    f.add_argument("--router-name", action="append", required=True, metavar="NAME",
-                   help="the router's DNS name or IP address, as robots and operators reach it")  # fmt: skip
-    f.add_argument("--router-port", type=int, default=7447, metavar="PORT", help="the router's TLS port (default 7447)")
-    f.add_argument("--robot", action="append", metavar="ID", help="a robot id (repeat for each robot)")
-    f.add_argument("--operator", action="append", metavar="NAME=ROBOT[,ROBOT...]",
-                   help="an operator and the robots it may drive (repeat for each operator)")  # fmt: skip
-    f.add_argument("--observer", action="append", metavar="NAME=ROBOT[,ROBOT...]",
-                   help="an observer and the robots it may watch (video, status; puts nothing)")  # fmt: skip
-    f.add_argument("--out", default="fleet", metavar="DIR", help="new or empty folder to write (default: fleet)")
-    f.set_defaults(func=_run_fleet)

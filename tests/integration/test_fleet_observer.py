@@ -9,12 +9,11 @@ robot's message key: video and status under its watch key) and declaring presenc
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import threading
 import time
-from collections import Counter
+from collections.abc import Iterator
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from bipedtele.sections import NetworkConfig
 from bipedtele.tools.setup_fleet import write_fleet
 from bipedtele.transport import Keys, Publishers, declare_presence
 from bipedtele.zenohsession import open_session
+from fleet_support import Tap, free_port, written_router
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 
@@ -35,41 +35,12 @@ OPERATORS = {"alice": ("nao1",), "bob": ("nao2",)}
 OBSERVERS = {"carol": ("nao1", "nao2"), "dave": ("nao2",)}
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class _Tap:
-    def __init__(self) -> None:
-        self.by: Counter[str] = Counter()
-        self.payloads: set[bytes] = set()
-        self._lock = threading.Lock()
-
-    def __call__(self, sample: zenoh.Sample) -> None:
-        with self._lock:
-            self.by[str(sample.key_expr)] += 1
-            self.payloads.add(sample.payload.to_bytes())
-
-
 @pytest.fixture
-def fleet(tmp_path: Path):  # type: ignore[no-untyped-def]
-    port = _free_port()
+def fleet(tmp_path: Path) -> Iterator[Path]:
+    port = free_port()
     out = write_fleet(tmp_path / "f", "127.0.0.1", ROBOTS, OPERATORS, port, OBSERVERS).out
-    router = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "router", "--config", "router/bipedtele.toml",
-         "--set", f'network.listen=["tls/127.0.0.1:{port}"]'],
-        cwd=out, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    try:
-        assert router.stdout is not None
-        line = router.stdout.readline()
-        assert "listening" in line, router.stderr.read() if router.stderr else line
+    with written_router(out, "router/bipedtele.toml", port):
         yield out
-    finally:
-        router.terminate()
-        router.wait(10)
 
 
 def _status(role: str, seq: int, state: str, text: str, counters: dict[str, int]) -> Status:
@@ -96,15 +67,15 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
         carol_again = login("observer-carol/bipedtele.toml")[0]  # her puts (a session hears its own)
         # what each observer receives (raw, key by key: the ACL refuses a wildcard subscription),
         # and what nao1's follower receives on its command key
-        seen = {"carol": _Tap(), "dave": _Tap()}
+        seen = {"carol": Tap(), "dave": Tap()}
         for who, session in (("carol", carol), ("dave", dave)):
             for r in ROBOTS:
                 for k in ("video", "status", "cmd", "feedback", "clock"):
                     stack.callback(session.declare_subscriber(f"bipedtele/{r}/{k}", seen[who]).undeclare)
-        f1_cmd = _Tap()
+        f1_cmd = Tap()
         rs1 = login("robot-nao1/bipedtele.toml")[0]
         stack.callback(rs1.declare_subscriber("bipedtele/nao1/cmd", f1_cmd).undeclare)
-        l1_status = _Tap()  # what alice's side hears on nao1's status key
+        l1_status = Tap()  # what alice's side hears on nao1's status key
         stack.callback(
             login("operator-alice/nao1.toml")[0].declare_subscriber("bipedtele/nao1/status", l1_status).undeclare
         )
@@ -166,14 +137,14 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
             stop.set()
             th.join(5)
         assert sum(f1_cmd.by.values()) == 0, f1_cmd.by
-        assert l1_status.by["bipedtele/nao1/status"] > 0 and forged_status not in l1_status.payloads
+        assert l1_status.by_key["bipedtele/nao1/status"] > 0 and l1_status.n(forged_status) == 0
         master = load_message_auth(load_config(fleet / "robot-nao1/bipedtele.toml").get(NetworkConfig))
         assert master is not None and watch_key(read_key_file(str(fleet / "robot-nao1/secrets/message.key"))) == wk
         with pytest.raises(MacError, match="bad_mac"):
             master.verify(forged, "bipedtele/nao1/cmd")
         # carol received both robots' video and status, dave nao2's only; neither any command or feedback
         for who, robots in (("carol", ROBOTS), ("dave", ["nao2"])):
-            got = seen[who].by
+            got = seen[who].by_key
             for r in ROBOTS:
                 want = r in robots
                 assert (got[f"bipedtele/{r}/video"] > 0) == want and (got[f"bipedtele/{r}/status"] > 0) == want, (
@@ -181,3 +152,36 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
                     got,
                 )
             assert not [k for k in got if k.endswith(("/cmd", "/feedback", "/clock"))], (who, got)
+
+
+def test_written_fleet_on_a_real_router_each_operator_reaches_its_robots_only(tmp_path: Path) -> None:
+    """The router as printed (TLS, mutual certificates, the written ACL), robots and operators
+    logged in from their written profiles: alice's puts reach nao1 and never nao2; bob reaches both."""
+    port = free_port()
+    out = write_fleet(
+        tmp_path / "g", "127.0.0.1", ["nao1", "nao2"], {"alice": ("nao1",), "bob": ("nao2", "nao1")}, port
+    ).out
+    with written_router(out, "router/bipedtele.toml", port), ExitStack() as stack:
+
+        def login(profile: str) -> zenoh.Session:
+            net = load_config(out / profile).get(NetworkConfig)
+            return stack.enter_context(open_session(net))
+
+        robots = {r: login(f"robot-{r}/bipedtele.toml") for r in ROBOTS}
+        got = {r: Tap() for r in ROBOTS}
+        for r, session in robots.items():
+            stack.callback(session.declare_subscriber(f"bipedtele/{r}/cmd", got[r]).undeclare)
+        alice, bob = login("operator-alice/nao1.toml"), login("operator-bob/nao2.toml")
+        time.sleep(1.0)  # the subscriptions reach the router
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and not (got["nao1"].by[b"a1"] >= 20 and got["nao2"].by[b"b2"] >= 20):
+            for _ in range(10):
+                alice.put("bipedtele/nao1/cmd", b"a1")
+                alice.put("bipedtele/nao2/cmd", b"a2")  # not hers: the router drops it
+                bob.put("bipedtele/nao2/cmd", b"b2")
+            time.sleep(0.2)
+        time.sleep(0.5)
+        assert got["nao1"].by[b"a1"] >= 20, got["nao1"].by  # alice reaches nao1
+        assert got["nao2"].by[b"b2"] >= 20, got["nao2"].by  # bob reaches nao2
+        assert got["nao2"].by[b"a2"] == 0 and got["nao1"].by[b"a2"] == 0, (got["nao1"].by, got["nao2"].by)
+        assert got["nao1"].by[b"b2"] == 0  # bob's put on nao2's key is nao2's only
