@@ -49,6 +49,7 @@ __all__ = [
     "client_profile",
     "host_folder",
     "issue_router_cert",
+    "keep_ca_only",
     "make_certs",
     "make_message_key",
     "make_password",
@@ -506,11 +507,15 @@ def _fill(root: Path, router_name: str, port: int, robot_id: str) -> None:
             write_private(folder / "secrets" / f"{user}.pw", passwords[user] + "\n")
             write_private(folder / "secrets" / "message.key", key_hex)
         write_profile(folder / "bipedtele.toml", _profile_text(host, router_name, port, robot_id))
-    # The hosts have their copies: only the CA's certificate and key stay in ca-private/.
+    keep_ca_only(root, certs, "deployment")
+
+
+def keep_ca_only(root: Path, certs: CertFiles, what: str) -> None:
+    """Leave only the CA's certificate and key in ``root/ca-private/`` (the hosts have their copies)."""
     os.replace(certs.ca_pem, root / "ca-private" / "ca.pem")
     shutil.rmtree(certs.ca_pem.parent)
     (root / "ca-private" / "README.txt").write_text(
-        "ca.key signs the certificates of this deployment. Keep it off the router, robot and\n"
+        f"ca.key signs the certificates of this {what}. Keep it off the router, robot and\n"
         "operator hosts (offline); it is needed only to issue new certificates.\n",
         encoding="utf-8",
     )

@@ -54,6 +54,7 @@ from bipedtele.tools.setup import (
     client_profile,
     host_folder,
     issue_router_cert,
+    keep_ca_only,
     make_certs,
     make_password,
     router_profile,
@@ -333,13 +334,7 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
             router, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
         commands[name] = (cmd,)
 
-    os.replace(certs.ca_pem, root / "ca-private" / "ca.pem")
-    shutil.rmtree(certs.ca_pem.parent)
-    (root / "ca-private" / "README.txt").write_text(
-        "ca.key signs the certificates of this fleet. Keep it off the router, robot and\n"
-        "operator hosts (offline); it is needed only to issue new certificates.\n",
-        encoding="utf-8",
-    )
+    keep_ca_only(root, certs, "fleet")
     return commands
 
 
