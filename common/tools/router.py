@@ -90,9 +90,11 @@ def run(args: argparse.Namespace) -> int:
         LOG.info("zenoh router %s listening on %s", s.zid(), where)
         if net.publishers_allowed or net.followers_allowed:
             LOG.info(
-                "access control (deny by default): leaders %s; followers %s; every other user may do nothing",
+                "access control (deny by default): leaders %s; followers %s; observers %s; every other user may "
+                "do nothing",
                 ", ".join(net.publishers_allowed) or "(none)",
                 ", ".join(net.followers_allowed) or "(none)",
+                ", ".join(net.observers_allowed) or "(none)",
             )
             if net.routers_allowed:  # a site's router: its robots or operators may be elsewhere
                 LOG.info("linked routers (by certificate): %s", ", ".join(net.routers_allowed))
