@@ -131,8 +131,10 @@ def fleet_view(cfg: Any, robots: list[str] | None = None, seconds: float = 3.0) 
                         else:
                             views[r].leaders[f"{st.sid:x}"] = {**entry, "operator": _operator(st.text)}
                 time.sleep(0.1)
-            for r in ids:
-                for reply in session.liveliness().get(f"{Keys(r).root}/presence/*/*", timeout=2.0):
+            # every robot's query at once (a bound observer may not ask with a wildcard for the robot)
+            queries = {r: session.liveliness().get(f"{Keys(r).root}/presence/*/*", timeout=2.0) for r in ids}
+            for r, replies in queries.items():
+                for reply in replies:
                     if reply.ok is None:
                         continue
                     parts = str(reply.ok.key_expr).split("/")  # bipedtele/<id>/presence/<role>/<zid>

@@ -32,7 +32,7 @@ def test_the_demo_drives_the_robot_with_the_scheme(tmp_path: Path, scheme: str) 
         [
             *demo,
             "--duration",
-            "20",
+            "12",
             "--run-dir",
             str(run_dir),
             "--json",
