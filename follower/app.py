@@ -164,8 +164,8 @@ class FollowerApp:
             b = self.budget
             self._video.set_budget(b.video_budget_bps(), b.frame_bits_max(), b.part_bits_max())
 
-    def _uplink_counters(self) -> dict[str, int]:
-        """Return the follower's uplink figures for its Status (docs/follower.md, Capacity)."""
+    def _status_counters(self) -> dict[str, int]:
+        """Return the program's figures for its Status: the uplink's (docs/follower.md, Capacity) and, in real time, the stepper's."""
         b, now = self.budget, self.clock()
         self._fb_times = [t for t in self._fb_times if t > now - 2.0]
         vb = b.video_budget_bps()
@@ -227,7 +227,7 @@ class FollowerApp:
             pubs = node.pubs
             self._outlets = {Feedback: (pubs.feedback, "feedback/sent"), Status: (pubs.status, "status/sent")}
             loop = self._make_loop(robot)
-            loop.extra_counters = self._uplink_counters
+            loop.extra_counters = self._status_counters
             # The leader's Status: what it receives of ours (rx_bps) for the uplink budget.
             self._status_rx = node.receive(
                 node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid
