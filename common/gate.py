@@ -46,13 +46,22 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 from bipedtele.messages import Message
 
-__all__ = ["DROP_REASONS", "SequenceGate"]
+__all__ = ["DROP_REASONS", "MessageGate", "SequenceGate"]
 
 #: Every reason :meth:`SequenceGate.accept` may return.
 DROP_REASONS = ("foreign_session", "seq_jump", "stale", "duplicate")
+
+
+class MessageGate(Protocol):
+    """What the receivers ask of a gate: accept one message or name why not."""
+
+    def accept(self, msg: Message) -> str | None:
+        """Return None if ``msg`` is accepted, else the drop reason."""
+        ...
 
 
 class SequenceGate:

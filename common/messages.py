@@ -127,6 +127,8 @@ Waves: TypeAlias = Annotated[list[Wave], PAIR]
 Energies: TypeAlias = Annotated[list[Energy], PAIR]
 Pose: TypeAlias = Annotated[list[Position], Meta(min_length=3, max_length=3)]
 Text: TypeAlias = Annotated[str, Meta(max_length=MAX_TEXT)]
+#: An operator's name: its router login (``[network] user``); empty: none given.
+OperatorName: TypeAlias = Annotated[str, Meta(max_length=64, pattern=r"^[A-Za-z0-9_-]*$")]
 NONCE_BYTES: Final = 32
 Nonce: TypeAlias = Annotated[bytes, Meta(min_length=NONCE_BYTES, max_length=NONCE_BYTES)]
 ZERO_NONCE: Final = bytes(NONCE_BYTES)
@@ -186,6 +188,12 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
     energy : [float, float] or None
         Energy that entered the link at the leader's port so far [N cm, N deg] (the
         follower's passivity observer, scheme ``tdpa``; None otherwise).
+    operator : str
+        Who sends it: the leader's router login (``[network] user``; empty: none). The
+        robot's hand-over rule (docs/fleet.md, Hand-over) keys on it.
+    release : bool
+        True: the operator gives the robot up (with ``enable`` False): another operator
+        may take it. A leader sends it when released in the cockpit and when it exits.
     """
 
     KIND: ClassVar[str] = "cmd"
@@ -197,6 +205,8 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
     enable: bool = True
     wave: Waves | None = None
     energy: Energies | None = None
+    operator: OperatorName = ""
+    release: bool = False
 
 
 class Feedback(Message, frozen=True, gc=False, tag="fb"):
@@ -325,6 +335,11 @@ class Status(Message, frozen=True, gc=False, tag="status"):
         Dropped messages by reason, falls, watchdog stops, ...
     text : str
         Human-readable detail (last error, clock-mode note).
+    operator : str
+        A leader's: its operator (``[network] user``; empty: none given).
+    held_by : str
+        A follower's: the operator who holds the robot now (empty: free, or operators
+        without names); see docs/fleet.md, Hand-over.
     """
 
     KIND: ClassVar[str] = "status"
@@ -332,6 +347,8 @@ class Status(Message, frozen=True, gc=False, tag="status"):
     state: Annotated[str, _choice(*dict.fromkeys(FOLLOWER_STATES + LEADER_STATES))] = "starting"
     counters: Counters = field(default_factory=dict)
     text: Text = ""
+    operator: OperatorName = ""
+    held_by: OperatorName = ""
 
 
 class Hello(Message, frozen=True, gc=False, tag="hello"):

@@ -43,7 +43,7 @@ from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
+from bipedtele.gate import MessageGate
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
 from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.recording import Recorder, recording_for_run
@@ -268,7 +268,7 @@ class Node:
         self,
         key: str,
         expect: type[M],
-        gate: SequenceGate | None,
+        gate: MessageGate | None,
         *,
         topic: str | None = None,
         estimator: DelayEstimator | None = None,
@@ -285,7 +285,7 @@ class Node:
             Key expression.
         expect : type
             The message class accepted.
-        gate : SequenceGate or None
+        gate : MessageGate or None
             Drops stale and duplicated messages: the only de-duplication on the way in.
         topic : str, optional
             Every accepted message is recorded under this topic, once, in the receiver.

@@ -34,7 +34,7 @@ from bipedtele.auth import UNEXPECTED_MAC_LINE, MacError, MessageAuth, is_signed
 from bipedtele.clock import ClockSync
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
+from bipedtele.gate import MessageGate
 from bipedtele.messages import MAX_JPEG_BYTES, Message, MessageError, VideoFrame, decode
 
 if TYPE_CHECKING:
@@ -93,7 +93,7 @@ class _Receiver(Generic[M]):
         key: str,
         expect: type[M] | tuple[type[M], ...],
         drops: DropCounter,
-        gate: SequenceGate | None = None,
+        gate: MessageGate | None = None,
         *,
         estimator: DelayEstimator | None = None,
         clock_sync: ClockSync | None = None,
@@ -246,7 +246,7 @@ class LatestReceiver(_Receiver[M]):
         Accepted message class(es); any other kind is dropped (``unknown_kind``).
     drops : DropCounter
         Where invalid/stale messages are counted.
-    gate : SequenceGate, optional
+    gate : MessageGate, optional
         Drops stale and duplicated messages.
     estimator : DelayEstimator, optional
         Fed with every accepted message (send time, receive time) at reception, so the

@@ -125,6 +125,14 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
         Follower counters: watchdog stops, falls, obstacle contacts.
     follower_text : str or None
         Follower status text.
+    held_by : str or None
+        Who holds the robot, from the follower's status (``""``: an unnamed operator or
+        free; see docs/fleet.md, Hand-over).
+    hand : str or None
+        This leader's hand: ``drive`` (it takes and drives the robot) or ``released``
+        (it gave the robot up: stops only, another operator may take it).
+    me : str or None
+        This leader's operator name (``[network] user``), to tell ``held_by`` apart.
     """
 
     t: Annotated[float, _d("time of the sample [s, time.time()]")]
@@ -199,6 +207,9 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     falls: Annotated[int | None, _d("follower falls")] = None
     collisions: Annotated[int | None, _d("follower obstacle contacts")] = None
     follower_text: Annotated[str | None, _d("follower status text")] = None
+    held_by: Annotated[str | None, _d("who holds the robot (follower status)")] = None
+    hand: Annotated[str | None, _d("this leader's hand: drive or released")] = None
+    me: Annotated[str | None, _d("this leader's operator name")] = None
 
 
 def link_words(state: str | None, lost_s: float | None = None) -> str:

@@ -29,6 +29,7 @@ from bipedtele.config import Config, ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.config import FollowerConfig
+from bipedtele.follower.custody import CustodyGate
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.realtime import RealtimeStepper
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot, robot_names, robot_part
@@ -39,7 +40,7 @@ from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, e
 from bipedtele.node import Node, StepClock
 from bipedtele.pacer import Pacer
 from bipedtele.receivers import LatestReceiver, Received
-from bipedtele.sections import ClockConfig
+from bipedtele.sections import ClockConfig, RobotConfig
 from bipedtele.transport import MessagePublisher
 
 __all__ = ["FollowerApp", "add_follower_parser"]
@@ -111,7 +112,11 @@ class FollowerApp:
         # watchdog's silence): the only de-duplication of commands. Its live sid binds
         # the clock link.
         # Without the message key a forged high seq is rolled back after 3 real commands.
-        self.gate = SequenceGate(takeover_after_s=self.fcfg.watchdog_s, rollback_after=0 if self.node.auth else 3)
+        # Around it, who holds the robot: another operator takes it only after a release.
+        self.gate = CustodyGate(
+            SequenceGate(takeover_after_s=self.fcfg.watchdog_s, rollback_after=0 if self.node.auth else 3),
+            cfg.get(RobotConfig).id,
+        )
         self.dt = 1.0 / self.fcfg.control_rate_hz
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(self.dt)
         # Woken by the command receiver: a fresh command is applied at once (pickup).
@@ -185,6 +190,7 @@ class FollowerApp:
             out.update(video.counters())
         else:
             out["video_budget_bps"] = 0
+        out.update(takes=self.gate.takes, releases=self.gate.releases)
         if self._stepper is not None:  # real time: does the robot keep pace with the wall clock?
             st = self._stepper
             out.update(ticks=st.ticks, steps_caught_up=st.caught_up_steps, steps_dropped=st.dropped_steps)
@@ -228,6 +234,7 @@ class FollowerApp:
             self._outlets = {Feedback: (pubs.feedback, "feedback/sent"), Status: (pubs.status, "status/sent")}
             loop = self._make_loop(robot)
             loop.extra_counters = self._status_counters
+            loop.held_by = lambda: self.gate.held_by
             # The leader's Status: what it receives of ours (rx_bps) for the uplink budget.
             self._status_rx = node.receive(
                 node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid

@@ -228,6 +228,8 @@ class FollowerLoop:
         self.feedback_rate_hz = float(cfg.feedback_rate_hz)
         #: Extra Status counters (the program's uplink figures), merged into every Status.
         self.extra_counters: Callable[[], dict[str, int]] | None = None
+        # who holds the robot (follower/custody.py), for the Status; None: free
+        self.held_by: Callable[[], str | None] = lambda: None
         self.baseline = DelayBaseline(window_s=cfg.backlog_window_s, relearn_s=cfg.backlog_window_s)
         self._next_backlog_log = -math.inf
         self._cmd: Command | None = None
@@ -613,6 +615,7 @@ class FollowerLoop:
             state=self.telemetry.state,
             counters=self._counters(),
             text=f"robot={self.robot.name} T={self._T:.2f}s{self._status_note()}",
+            held_by=self.held_by() or "",
         )
 
     def _counters(self) -> dict[str, int]:

@@ -88,8 +88,10 @@ class _Aux:
         self, loop: LeaderLoop, pubs: Publishers, cfg: Config, status_rx: LatestReceiver[Status],
         presence: PresenceWatcher, drops: DropCounter, record: Callable[[str, Any, float], None],
         reach: CommandReach | None = None, link: LinkQuality | None = None,
+        hand: Callable[[], bool] | None = None,
     ) -> None:  # fmt: skip
         self.reach = reach
+        self.hand = hand
         self.link = link or LinkQuality(feedback_timeout_s=cfg.get(LeaderConfig).feedback_timeout_s)
         self._not_synced = 0  # drops counted as clock_not_synced so far
         self.loop, self.pubs, self.cfg = loop, pubs, cfg
@@ -141,15 +143,27 @@ class _Aux:
             sample.falls = counters.get("falls", 0)
             sample.collisions = counters.get("collisions", 0)
             sample.follower_text = st.text
+            sample.held_by = st.held_by
         fill_link(sample, self.report(), counters)
+
+    def _take_hand(self) -> None:
+        """Pass the cockpit's Release / Take into the loop (docs/fleet.md, Hand-over)."""
+        if self.hand is None:
+            return
+        released = self.hand()
+        if released != self.loop.released:
+            self.loop.released = released
+            robot = self.cfg.get(RobotConfig).id
+            if released:
+                LOG.info("robot %s released (cockpit): the robot stops; another operator may take it", robot)
+            else:
+                LOG.info("robot %s: Take (cockpit): driving it again once it is free", robot)
 
     def _run(self) -> None:
         lc, ck = self.cfg.get(LeaderConfig), self.cfg.get(ClockConfig)
         next_status = time.monotonic()
         text = "clock: synced" if ck.mode == "synced" else "clock: ntp (h1+h2 exact, split estimated)"
-        user = self.cfg.get(NetworkConfig).user
-        if user:  # who drives, for the fleet view (bipedtele status)
-            text += f"; operator={user}"
+        user = self.cfg.get(NetworkConfig).user  # who drives, for the fleet view (bipedtele status)
         while not self._stop.wait(0.05):
             now_m, now = time.monotonic(), time.time()
             try:
@@ -165,10 +179,11 @@ class _Aux:
                     counters.update(link_counters(self.report(now)))
                     self._status_seq += 1
                     st = Status(sid=self.loop.sid, seq=self._status_seq, t=now, role="leader",
-                                state=self.loop.state, counters=counters, text=text)  # fmt: skip
+                                state=self.loop.state, counters=counters, text=text, operator=user)  # fmt: skip
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
                 self.record_progress(now)
+                self._take_hand()
                 if self.reach is not None:
                     self.reach.check(self.presence.alive)
             except Exception as exc:  # a bad moment on the network must not end the program
@@ -320,7 +335,8 @@ class LeaderApp:
         # Without the message key a forged high seq is rolled back after 3 real feedbacks.
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
         self.reach = CommandReach(self._commands_sent, key_drops=self.node.drops.counts,
-                                  robot_id=cfg.get(RobotConfig).id, user=cfg.get(NetworkConfig).user)  # fmt: skip
+                                  robot_id=cfg.get(RobotConfig).id, user=cfg.get(NetworkConfig).user,
+                                  holder=self._holder, released=self._released)  # fmt: skip
         self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
         self._frames = FrameAssembler(self.node.drops)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
@@ -335,6 +351,18 @@ class LeaderApp:
         self._fb_rx: LatestReceiver[Feedback] | None = None
 
     # ------------------------------------------------------------------ wiring
+
+    def _holder(self) -> str | None:
+        """Who holds the robot, from the follower's newest status (None: none heard yet)."""
+        st = self.aux.follower_status if self.aux is not None else None
+        return st.held_by if st is not None else None
+
+    def _released(self) -> bool:
+        return bool(self.loop is not None and self.loop.released)
+
+    def _hand(self) -> bool:
+        """Return the cockpit's hand: True after its Release, False after its Take."""
+        return bool(self.cockpit is not None and self.cockpit.released())
 
     def _joystick(self) -> tuple[float, float, float] | None:
         return self.cockpit.joystick() if self.cockpit is not None else None
@@ -471,10 +499,10 @@ class LeaderApp:
             self.loop = loop = LeaderLoop(
                 self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, self._latest_feedback,
                 cfg=lc, clock=self.clock, estimator=self.estimator, conservative_rtt=node.round_trip,
-                on_sample=self._on_sample, sid=node.sid,
+                on_sample=self._on_sample, sid=node.sid, operator_name=self.cfg.get(NetworkConfig).user,
             )  # fmt: skip
             self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
-                                             node.record, self.reach, self.link))  # fmt: skip
+                                             node.record, self.reach, self.link, hand=self._hand))  # fmt: skip
             LOG.info(
                 "leader ready: robot %s, device %s, operator %s, %s%s", self.cfg.get(RobotConfig).id, self.dev_name,
                 self.op_name if self.operator is not None else "(person)",

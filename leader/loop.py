@@ -104,6 +104,16 @@ class LeaderLoop:
         Called with the telemetry sample (:class:`~bipedtele.telemetry.LeaderSample`) at
         every command, after the operator model saw it; the program completes it and
         hands it to the cockpit and the recorder.
+    operator_name : str
+        Who drives (``[network] user``), sent in every command: the robot's hand-over
+        rule keys on it (docs/fleet.md, Hand-over).
+
+    Attributes
+    ----------
+    released : bool
+        True: the operator gave the robot up (cockpit button Release): commands are stops
+        with ``release`` set, and another operator may take the robot. False again (Take):
+        the loop drives, and takes the robot once it is free.
     """
 
     def __init__(
@@ -121,8 +131,11 @@ class LeaderLoop:
         conservative_rtt: Callable[[], float | None] | None = None,
         sid: int | None = None,
         on_sample: Callable[[LeaderSample], None] | None = None,
+        operator_name: str = "",
     ) -> None:
         self.device = device
+        self.operator_name = operator_name
+        self.released = False
         self.operator = operator
         self.control = control
         self.cfg = cfg or LeaderConfig()
@@ -299,8 +312,9 @@ class LeaderLoop:
         op = self.operator
         if op is not None:
             op.update(t_dev, self._fb)
-        released = bool(buttons) and not buttons[0]
-        self.enable = not released and not (op is not None and op.done)
+        let_go = bool(buttons) and not buttons[0]
+        hand_off = self.released
+        self.enable = not let_go and not hand_off and not (op is not None and op.done)
         ref = self._k_g * self.x_m if self.enable else np.zeros(2)
         wave, energy = self.port.outgoing(ref)
         self.seq += 1
@@ -316,6 +330,8 @@ class LeaderLoop:
             enable=self.enable,
             wave=wave,
             energy=energy,
+            operator=self.operator_name,
+            release=hand_off,
         )
         try:
             self._send(cmd)
@@ -350,6 +366,8 @@ class LeaderLoop:
             alpha_m_w=float(self.alpha_m[1]),
             gain=float(self.gain),
             enable=self.enable,
+            hand="released" if cmd.release else "drive",
+            me=self.operator_name,
             leader_state=self.state,
             link=_LINK.get(self.state, self.state),
             feedback_age_ms=None if fb is None else 1000.0 * (now - self._fb_recv),
@@ -373,9 +391,10 @@ class LeaderLoop:
         return sample
 
     def send_stop(self, repeats: int = 3) -> None:
-        """Zero the force and send ``enable = False`` commands.
+        """Zero the force and send ``enable = False`` commands that release the robot.
 
-        The follower stops and stands at once instead of waiting for its watchdog.
+        The follower stops and stands at once instead of waiting for its watchdog, and
+        another operator may take the robot (the leader is leaving).
         """
         try:
             self.device.apply_force(np.zeros(2))
@@ -389,7 +408,7 @@ class LeaderLoop:
                 sid=self.sid, seq=self.seq, t=self._clock(),
                 x_m=[float(v) for v in self.x_m], h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
                 alpha_m=[float(v) for v in self.alpha_m], enable=False,
-                energy=self.port.outgoing(np.zeros(2))[1],
+                energy=self.port.outgoing(np.zeros(2))[1], operator=self.operator_name, release=True,
             )  # fmt: skip
             try:
                 self._send(cmd)

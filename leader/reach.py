@@ -30,6 +30,10 @@ points to:
   ``commands not reaching the robot: message keys do not match: ...`` with the line that
   says which; the ACL is not named.
 
+- the follower's status says another operator holds the robot (hand-over, docs/fleet.md):
+  ``robot <id> is held by <operator>``: our commands are refused until that operator
+  releases it; the ACL is not named.
+
 - the follower is never present while this leader sends commands for ``absent_s`` (10 s):
   ``no robot <id> on the router``: it is not running, or the router's ACL does not let this
   login reach it (an operator bound to other robots, ``user@robot_id`` in
@@ -57,7 +61,7 @@ from collections.abc import Callable
 from bipedtele.auth import BAD_MAC_LINE, KEY_REASONS, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.messages import Feedback
 
-__all__ = ["ABSENT", "KEY_MISMATCH", "LOST", "REFUSED", "CommandReach"]
+__all__ = ["ABSENT", "HELD", "KEY_MISMATCH", "LOST", "REFUSED", "CommandReach"]
 
 LOG = logging.getLogger("bipedtele.leader")
 
@@ -71,6 +75,8 @@ _KEY_LINES: dict[str, str] = {"no_mac": NO_MAC_LINE, "bad_mac": BAD_MAC_LINE, "m
 LOST = "link lost: no feedback for"
 #: The WARNING of a robot never present starts with this.
 ABSENT = "no robot"
+#: The WARNING of a robot held by another operator starts with this.
+HELD = "commands not reaching the robot: held by another operator:"
 
 
 class CommandReach:
@@ -93,6 +99,12 @@ class CommandReach:
         Named in the line of a robot never present (:data:`ABSENT`).
     absent_s : float
         How long commands go out with the follower never present before that line [s].
+    holder : callable, optional
+        ``() -> str | None``: who holds the robot, from the follower's status (``""``:
+        free or unnamed; None: not known). Another operator than ``user`` makes the
+        verdict :data:`HELD`.
+    released : callable, optional
+        ``() -> bool``: this leader gave the robot up (cockpit Release): no verdicts then.
 
     Notes
     -----
@@ -109,6 +121,8 @@ class CommandReach:
         robot_id: str = "",
         user: str = "",
         absent_s: float = 10.0,
+        holder: Callable[[], str | None] | None = None,
+        released: Callable[[], bool] | None = None,
     ) -> None:
         if not window_s > 0:
             raise ValueError(f"window_s must be > 0, got {window_s!r}")
@@ -137,6 +151,9 @@ class CommandReach:
         self._absent_since: float | None = None  # commands going out, the follower never present, since
         self._ever_present = False
         self.absent_warnings = 0
+        self._holder, self._released = holder, released
+        self._held_over: float | None = None  # when the robot stopped being held by another
+        self.held_warnings = 0
 
     def _absent(self, now: float) -> None:
         if self._absent_since is None:
@@ -225,7 +242,7 @@ class CommandReach:
             self._ever_present = True
         elif not self._ever_present and self._sent_seq() > 0:
             self._absent(now)
-        if not follower_present or self._sent_seq() == 0:
+        if not follower_present or self._sent_seq() == 0 or (self._released is not None and self._released()):
             self._since = None
             return
         if self._since is None:
@@ -238,6 +255,10 @@ class CommandReach:
                 LOG.info("commands reach the robot again (the follower's feedback acknowledges them)")
                 self._warned = None
             return
+        held = self._holder() if self._holder is not None else None
+        held_by_other = bool(held) and held != self.user
+        if self._warned == "held" and not held_by_other and self._held_over is None:
+            self._held_over = self._since = now  # released to us: a fresh window for the take
         if now - self._since < self.window_s:
             return
         self.present_window = True
@@ -249,6 +270,16 @@ class CommandReach:
                 self._warned = "key"
                 self.warnings += 1
                 LOG.warning("%s %s", KEY_MISMATCH, key)
+            return
+        if held_by_other:
+            self._held_over = None
+            if self._warned != "held":
+                self._warned = "held"
+                self.held_warnings += 1
+                LOG.warning(
+                    "%s robot %s is held by %s: our commands are refused until %s releases it (cockpit: Release); "
+                    "we take it then", HELD, self.robot_id or "(this id)", held, held,
+                )  # fmt: skip
             return
         if heard:
             self.exposed = True

@@ -91,13 +91,6 @@ def _auths(net: NetworkConfig, robots: list[str], own: str) -> dict[str, Message
     return auths
 
 
-def _operator(text: str) -> str:
-    for word in text.replace(";", " ").split():
-        if word.startswith("operator="):
-            return word.partition("=")[2]
-    return ""
-
-
 def fleet_view(cfg: Any, robots: list[str] | None = None, seconds: float = 3.0) -> list[RobotView]:
     """Listen ``seconds`` on the profile's router and return one :class:`RobotView` per robot.
 
@@ -127,9 +120,9 @@ def fleet_view(cfg: Any, robots: list[str] | None = None, seconds: float = 3.0) 
                         st = got.msg
                         entry = {"state": st.state, "text": st.text, "counters": dict(st.counters), "t": st.t}
                         if st.role == "follower":
-                            views[r].follower = entry
+                            views[r].follower = {**entry, "held_by": st.held_by}
                         else:
-                            views[r].leaders[f"{st.sid:x}"] = {**entry, "operator": _operator(st.text)}
+                            views[r].leaders[f"{st.sid:x}"] = {**entry, "operator": st.operator}
                 time.sleep(0.1)
             # every robot's query at once (a bound observer may not ask with a wildcard for the robot)
             queries = {r: session.liveliness().get(f"{Keys(r).root}/presence/*/*", timeout=2.0) for r in ids}
@@ -163,10 +156,12 @@ def _fmt_leader(lead: dict[str, Any]) -> str:
 
 def format_table(views: list[RobotView]) -> str:
     """Return the views as a table: one line per robot (and one per extra leader)."""
-    lines = [f"{'robot':<12} {'follower':<22} driven by (state; link)"]
+    lines = [f"{'robot':<12} {'follower':<30} leaders (state; link)"]
     for v in views:
         n_f = len(v.present.get("follower", []))
         fol = "absent" if not n_f else (v.follower["state"] if v.follower else "present, no status")
+        if v.follower and v.follower.get("held_by"):
+            fol += f", held by {v.follower['held_by']}"
         leaders = [_fmt_leader(lead) for lead in v.leaders.values()] or (
             ["nobody"] if not v.present.get("leader") else [f"{len(v.present['leader'])} leader(s), no status"]
         )
@@ -174,8 +169,8 @@ def format_table(views: list[RobotView]) -> str:
         bad = {k: n for k, n in v.dropped.items() if n}
         if bad:
             note += f"  [status dropped: {', '.join(f'{k} {n}' for k, n in sorted(bad.items()))}]"
-        lines.append(f"{v.robot:<12} {fol:<22} {leaders[0]}{note}")
-        lines += [f"{'':<12} {'':<22} {extra}" for extra in leaders[1:]]
+        lines.append(f"{v.robot:<12} {fol:<30} {leaders[0]}{note}")
+        lines += [f"{'':<12} {'':<30} {extra}" for extra in leaders[1:]]
     return "\n".join(lines) + "\n"
 
 

@@ -83,6 +83,7 @@ class CockpitProcess:
         self._frames: dict[str, tuple[int, float, bytes]] = {}
         self._frame_n = 0
         self._joy: tuple[float, float, float] | None = None
+        self._released = False
         self._stats: dict[str, Any] = {}
         self._stats_event = threading.Event()
         self._send_lock = threading.Lock()
@@ -135,6 +136,10 @@ class CockpitProcess:
     def joystick(self) -> tuple[float, float, float] | None:
         """Return ``(x, y, t)`` as the child last reported it (see ``CockpitServer.joystick``)."""
         return self._joy
+
+    def released(self) -> bool:
+        """Return the page's hand as the child last reported it (see ``CockpitServer.released``)."""
+        return self._released
 
     @property
     def stats(self) -> dict[str, Any]:
@@ -258,6 +263,8 @@ class CockpitProcess:
             kind = msg[0]
             if kind == "joy":
                 self._joy = msg[1]
+            elif kind == "hand":
+                self._released = bool(msg[1])
             elif kind == "stats":
                 self._stats = msg[1]
                 self._stats_event.set()
@@ -298,7 +305,9 @@ def _child_main(conn: Connection, kwargs: dict[str, Any]) -> None:  # pragma: no
     root.handlers[:] = [_PipeLog(send)]
     root.setLevel(logging.INFO)
     try:
-        server = CockpitServer(**kwargs, on_joystick=lambda joy: send(("joy", joy))).start()
+        server = CockpitServer(
+            **kwargs, on_joystick=lambda joy: send(("joy", joy)), on_hand=lambda rel: send(("hand", rel))
+        ).start()
     except BaseException as exc:
         send(("error", exc))
         return

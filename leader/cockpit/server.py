@@ -29,7 +29,9 @@ Server to browser:
 
 Browser to server: text ``{"type": "joy", "x": x, "y": y}`` with x, y in [-1, 1]; x is
 right-positive, y is up-positive (up = forward). The page re-sends the held position every
-100 ms and sends (0, 0) on release. Anything else (binary, not JSON, unknown type, bad or
+100 ms and sends (0, 0) on release. Text ``{"type": "hand", "release": true|false}``: the
+buttons Release (give the robot up: another operator may take it) and Take (drive it
+again, once it is free; docs/fleet.md, Hand-over). Anything else (binary, not JSON, unknown type, bad or
 out-of-range numbers, over 1 KiB) is dropped and counted (:attr:`CockpitServer.stats`).
 
 Access
@@ -201,14 +203,22 @@ def _sample_json(sample: LeaderSample | EncodedSample | dict[str, Any]) -> str:
     return json.dumps({str(k): _clean(v) for k, v in sample.items()}, allow_nan=False)
 
 
-def _parse_joy(text: str) -> tuple[float, float]:
-    """Validate one joystick message; raise ValueError(reason) when it is bad."""
+def _parse_in(text: str) -> tuple[float, float] | bool:
+    """Validate one browser message: ``(x, y)`` of a joystick one, the flag of a hand one.
+
+    Raises ValueError(reason) when it is bad.
+    """
     if len(text) > _MAX_IN_TEXT:
         raise ValueError("too_long")
     try:
         msg = json.loads(text)
     except (ValueError, RecursionError):
         raise ValueError("not_json") from None
+    if isinstance(msg, dict) and msg.get("type") == "hand":
+        release = msg.get("release")
+        if not isinstance(release, bool):
+            raise ValueError("bad_hand")
+        return release
     if not isinstance(msg, dict) or msg.get("type") != "joy":
         raise ValueError("unknown_type")
     out = []
@@ -277,9 +287,12 @@ class CockpitServer:
         course: Iterable[tuple[float, float, float]] = (),
         limits: Limits | None = None,
         on_joystick: Callable[[tuple[float, float, float]], None] | None = None,
+        on_hand: Callable[[bool], None] | None = None,
     ) -> None:
         self.limits = limits or Limits()
         self._on_joystick = on_joystick
+        self._on_hand = on_hand
+        self._released = False
         self.guard: Guard | None = None
         self.course = [[float(v) for v in ob] for ob in course]
         if any(len(ob) != 3 or not all(math.isfinite(v) for v in ob) for ob in self.course):
@@ -325,7 +338,7 @@ class CockpitServer:
         self._clients: set[_Client] = set()
         self._drops = DropCounter("cockpit/ws")
         self._refusals = DropCounter("cockpit/http")
-        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "connections": 0,
+        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "hand_messages": 0, "connections": 0,
                           "refused_host": 0, "refused_token": 0, "refused_origin": 0, "refused_full": 0}  # fmt: skip
         self._descriptors: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -449,6 +462,10 @@ class CockpitServer:
         browser that moved it disconnects.
         """
         return self._joy
+
+    def released(self) -> bool:
+        """Return True after the page's Release, False after its Take (and at the start)."""
+        return self._released
 
     @property
     def stats(self) -> dict[str, Any]:
@@ -744,10 +761,18 @@ class CockpitServer:
 
     def _on_text(self, text: str) -> bool:
         try:
-            x, y = _parse_joy(text)
+            got = _parse_in(text)
         except ValueError as exc:
             self._drops.drop(str(exc), text[:80])
             return False
+        if isinstance(got, bool):
+            self._counters["hand_messages"] += 1
+            if got != self._released:
+                self._released = got
+                if self._on_hand is not None:
+                    self._on_hand(got)
+            return False
+        x, y = got
         self._set_joy((x, y, time.time()))
         self._counters["joystick_messages"] += 1
         return True

@@ -43,9 +43,9 @@ def fleet(tmp_path: Path) -> Iterator[Path]:
         yield out
 
 
-def _status(role: str, seq: int, state: str, text: str, counters: dict[str, int]) -> Status:
+def _status(role: str, seq: int, state: str, text: str, counters: dict[str, int], **who: str) -> Status:
     return Status(sid=0x1234 if role == "leader" else 0x5678, seq=seq, t=time.time(), role=role, state=state,
-                  counters=counters, text=text)  # fmt: skip
+                  counters=counters, text=text, **who)  # fmt: skip
 
 
 def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
@@ -87,9 +87,10 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
             while not stop.wait(0.1):
                 seq += 1
                 for r, (fp, lp) in pubs.items():
-                    fp.status.put(_status("follower", seq, "walking", f"robot={r}", {"falls": 0}))
-                    lp.status.put(_status("leader", seq, "running", f"clock: ntp; operator={'alice' if r == 'nao1' else 'bob'}",
-                                          {"fb_age_ms": 12, "fb_loss_ppm": 1000, "rx_bps": 64000}))  # fmt: skip
+                    who = "alice" if r == "nao1" else "bob"
+                    fp.status.put(_status("follower", seq, "walking", f"robot={r}", {"falls": 0}, held_by=who))
+                    lp.status.put(_status("leader", seq, "running", "clock: ntp",
+                                          {"fb_age_ms": 12, "fb_loss_ppm": 1000, "rx_bps": 64000}, operator=who))  # fmt: skip
                     fp.video.put(VideoFrame(sid=0x5678, seq=seq, t=time.time(), camera="head", width=2, height=2,
                                             jpeg=b"\xff\xd8jpeg"))  # fmt: skip
 
@@ -106,7 +107,7 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
             assert sorted(views) == ROBOTS
             for r, who in (("nao1", "alice"), ("nao2", "bob")):
                 v = views[r]
-                assert v["verified"] and v["follower"]["state"] == "walking", v
+                assert v["verified"] and v["follower"]["state"] == "walking" and v["follower"]["held_by"] == who, v
                 assert [lead["operator"] for lead in v["leaders"].values()] == [who], v
                 assert len(v["present"]["follower"]) >= 1 and len(v["present"]["leader"]) == 1, v
                 assert not any(v["dropped"].values()), v
@@ -115,6 +116,7 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
                  "--seconds", "1.5"], capture_output=True, text=True, timeout=60, cwd=fleet,
             )  # fmt: skip
             assert table.returncode == 0 and "alice (running; feedback age 12 ms" in table.stdout, table.stdout
+            assert "walking, held by alice" in table.stdout, table.stdout
             # carol tries to command nao1: the router drops her put, and her watch key cannot sign one
             wk = read_key_file(str(fleet / "observer-carol/secrets/nao1.watch"), "watch_key_dir")
             forged = MessageAuth(wk).sign(encode(Command(sid=9, seq=1, t=time.time())), "bipedtele/nao1/cmd")

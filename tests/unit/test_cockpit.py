@@ -14,7 +14,7 @@ import aiohttp
 import pytest
 from bipedtele.leader.cockpit import CockpitServer
 from bipedtele.leader.cockpit.guard import Limits
-from bipedtele.leader.cockpit.server import _parse_joy
+from bipedtele.leader.cockpit.server import _parse_in
 
 
 def _get(url: str) -> tuple[int, bytes]:
@@ -300,9 +300,11 @@ def test_port_in_use_and_bad_parameters() -> None:
 @pytest.mark.parametrize(
     ("text", "reason"),
     [("{", "not_json"), ('{"type":"joy","x":null,"y":0}', "bad_number"),
-     ('{"type":"joy","x":0,"y":-1.01}', "out_of_range"), ("[1]", "unknown_type")],
+     ('{"type":"joy","x":0,"y":-1.01}', "out_of_range"), ("[1]", "unknown_type"),
+     ('{"type":"hand","release":1}', "bad_hand"), ('{"type":"hand"}', "bad_hand")],
 )  # fmt: skip
-def test_parse_joy_rejects(text: str, reason: str) -> None:
+def test_parse_in_rejects(text: str, reason: str) -> None:
     with pytest.raises(ValueError, match=reason):
-        _parse_joy(text)
-    assert _parse_joy('{"type":"joy","x":-1,"y":1}') == (-1.0, 1.0)
+        _parse_in(text)
+    assert _parse_in('{"type":"joy","x":-1,"y":1}') == (-1.0, 1.0)
+    assert _parse_in('{"type":"hand","release":true}') is True

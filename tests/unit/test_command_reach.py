@@ -150,3 +150,31 @@ def test_a_robot_never_present_is_told_once_naming_the_acl(caplog: pytest.LogCap
     run(seen, clock2, sent2, 1.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
     run(seen, clock2, sent2, 20.0, None, present=False)
     assert not [w for w in warnings(caplog) if w.startswith("no robot")] and seen.absent_warnings == 0
+
+
+def test_a_robot_held_by_another_operator_is_told_as_held_not_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 23, hand-over: bob's commands are refused because alice holds the robot (the
+    follower's status says so, and its status is heard): the line names alice and the
+    release, not the router's ACL; while bob has released the robot himself, no verdict."""
+    clock, sent = Clock(), [0]
+    holder: list[str | None] = ["alice"]
+    released = [False]
+    reach = CommandReach(lambda: sent[0], clock=clock, robot_id="nao1", user="bob",
+                         holder=lambda: holder[0], released=lambda: released[0])  # fmt: skip
+    for _ in range(40):  # 2 s of status heard, no feedback acknowledging bob
+        reach.on_heard()
+        run(reach, clock, sent, 0.05, None)
+    (line,) = warnings(caplog)
+    assert line.startswith("commands not reaching the robot: held by another operator: robot nao1 is held by alice")
+    assert "ACL" not in line and not reach.never_reached and reach.held_warnings == 1
+    # alice releases, bob takes: acknowledged again
+    caplog.clear()
+    holder[0] = "bob"
+    run(reach, clock, sent, 1.0, {"cmd_seq": lambda s: s, "state": "walking"})
+    assert warnings(caplog) == [] and reach.ever_reached
+    # bob releases: his stops are not acknowledged by a robot that alice took again: no verdict
+    released[0], holder[0] = True, "alice"
+    for _ in range(60):
+        reach.on_heard()
+        run(reach, clock, sent, 0.05, None)
+    assert warnings(caplog) == []

@@ -6,7 +6,8 @@ const KNOWN = new Set(["t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w"
   "force_w", "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
   "state", "link", "link_lost_s", "fb_age_ms", "loss_pct", "rx_kbps", "tx_kbps", "video_fps",
   "video_quality", "watchdog", "falls", "passes_done", "pose_x", "pose_y", "pose_yaw",
-  "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt"]);
+  "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt",
+  "held_by", "hand", "me"]);
 
 const state = {
   wsOpen: false, connects: 0, framesReceived: 0, framesShown: 0, samplesReceived: 0,
@@ -92,7 +93,8 @@ function showStatus(s) {
     const q = typeof s.video_quality === "number" ? `, q${s.video_quality}` : "";
     setPill("st-video", `${s.video_fps.toFixed(1)} fps${q}`, "unknown");
   }
-  if (s.watchdog !== undefined) setPill("st-watchdog", String(s.watchdog), classify(s.watchdog));
+  if (typeof s.watchdog === "number") setPill("st-watchdog", String(s.watchdog), s.watchdog > 0 ? "warn" : "ok");
+  if (s.hand !== undefined) showHand(s);
   if (s.state !== undefined) setPill("st-state", String(s.state), classify(s.state));
   if (typeof s.falls === "number") setPill("st-falls", String(s.falls), s.falls > 0 ? "bad" : "ok");
   if (s.passes_done !== undefined) setPill("st-passes", String(s.passes_done), "unknown");
@@ -213,6 +215,32 @@ function connect() {
     }
   };
 }
+
+// Hand-over (docs/fleet.md): who holds the robot, and this operator's Release / Take.
+function handWords(s) {
+  const me = s.me || "";
+  const held = typeof s.held_by === "string" ? s.held_by : null;
+  if (s.hand === "released") return held && held !== me ? [`released; held by ${held}`, "unknown"] : ["released: free", "warn"];
+  if (held === null) return ["taking", "unknown"];
+  if (held === me) return [me ? `you (${me}) hold it` : "you hold it", "ok"];
+  if (held === "") return ["free: taking it", "warn"];
+  return [`held by ${held}: ask for release`, "bad"];
+}
+state.handWords = handWords;
+
+function showHand(s) {
+  const [words, cls] = handWords(s);
+  setPill("st-hand", words, cls);
+  const btn = document.getElementById("hand-btn");
+  state.released = s.hand === "released";
+  btn.textContent = state.released ? "Take" : "Release";
+  btn.disabled = false;
+}
+
+document.getElementById("hand-btn").addEventListener("click", () => {
+  if (!ws || ws.readyState !== WebSocket.OPEN) return;
+  ws.send(JSON.stringify({ type: "hand", release: !state.released }));
+});
 
 function sendJoy() {
   if (!ws || ws.readyState !== WebSocket.OPEN) return;
