@@ -39,7 +39,7 @@ from bipedtele.sections import NetworkConfig, RobotConfig
 from bipedtele.transport import Keys
 from bipedtele.zenohsession import open_session
 
-__all__ = ["RobotView", "add_status_parser", "fleet_view", "format_table"]
+__all__ = ["RobotView", "add_status_parser", "fleet_view", "format_table", "watch_auths", "watched_robots"]
 
 ROLES = ("follower", "leader", "observer")
 
@@ -73,7 +73,8 @@ class RobotView:
     dropped: dict[str, int] = field(default_factory=dict)
 
 
-def _robots(args_robots: list[str] | None, net: NetworkConfig, own: str) -> list[str]:
+def watched_robots(args_robots: list[str] | None, net: NetworkConfig, own: str) -> list[str]:
+    """Return the robots to watch: those asked, else one per watch key file, else the profile's own."""
     if args_robots:
         return list(dict.fromkeys(args_robots))
     if net.watch_key_dir and Path(net.watch_key_dir).is_dir():
@@ -83,7 +84,8 @@ def _robots(args_robots: list[str] | None, net: NetworkConfig, own: str) -> list
     return [own]
 
 
-def _auths(net: NetworkConfig, robots: list[str], own: str) -> dict[str, MessageAuth]:
+def watch_auths(net: NetworkConfig, robots: list[str], own: str) -> dict[str, MessageAuth]:
+    """Return each robot's watch key (the own robot's derived from the message key)."""
     auths = load_watch_auths(net, robots)
     master = load_message_auth(net)
     if master is not None and own in robots and own not in auths:
@@ -103,8 +105,8 @@ def fleet_view(cfg: Any, robots: list[str] | None = None, seconds: float = 3.0) 
     """
     net = cfg.get(NetworkConfig)
     own = cfg.get(RobotConfig).id
-    ids = _robots(robots, net, own)
-    auths = _auths(net, ids, own)
+    ids = watched_robots(robots, net, own)
+    auths = watch_auths(net, ids, own)
     views = {r: RobotView(r, verified=r in auths) for r in ids}
     mode = "client" if net.connect else "peer"
     with open_session(net, mode=mode, listen=[]) as session:

@@ -23,7 +23,8 @@ and the CA in ``DIR/ca-private/`` (keep it off the hosts). What it sets up:
   status of their robots and put nothing; they hold each robot's *watch key*
   (``secrets/<id>.watch``, derived one-way from the robot's message key,
   :func:`bipedtele.auth.watch_key`), which verifies video and status and signs nothing a
-  robot obeys. ``bipedtele status --config observer-carol/bipedtele.toml``: the fleet view.
+  robot obeys. ``bipedtele observe --config observer-carol/bipedtele.toml``: their video
+  and status in the cockpit; ``bipedtele status --config ...``: the fleet view.
 - One profile per operator and robot: ``operator-alice/nao1.toml``. Every user has its own
   password; the TLS certificates are per role (``leader``, ``follower``), as in
   ``setup two-hosts``.
@@ -328,11 +329,12 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
         write_private(folder / "secrets" / f"{obs}.pw", passwords[obs] + "\n")
         for r in ids:
             write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
-        cmd = f"bipedtele status --config {name}/bipedtele.toml"
+        cmd = f"bipedtele observe --config {name}/bipedtele.toml"
+        fleet = f"bipedtele status --config {name}/bipedtele.toml"
         write_profile(folder / "bipedtele.toml", client_profile(
             head(f"observer {obs} watching {', '.join(ids)}", router, cmd), "observer",
             router, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
-        commands[name] = (cmd,)
+        commands[name] = (cmd, fleet)
 
     keep_ca_only(root, certs, "fleet")
     return commands
