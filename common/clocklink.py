@@ -10,7 +10,9 @@ link's thread answers and matches.
   ``t2`` = its receive time and ``t3`` = the answer's send time. At most
   ``answer_rate_hz`` pings are answered per second (token bucket, bursts of
   ``max(1, answer_rate_hz / 4)``; excess: ``ping_rate_limited``). While ``peer_sid()``
-  names a session only its pings are answered (others: ``foreign_session``); before, any
+  names a session only its pings are answered, and those of sessions ``also_answer(sid)``
+  admits (the follower: leader sessions that completed the handshake, e.g. one waiting
+  for a robot another operator holds); others: ``foreign_session``. Before, any
   session's are. Our own messages are ignored. A ping that waited longer than
   ``hold_max_s`` before its answer could be sent is not answered (``ping_late``): the
   peer would drop the answer.
@@ -102,6 +104,9 @@ class ClockLink:
         Returns the session this node follows now (e.g. ``gate.live_sid`` of the
         command receiver on the follower, of the feedback receiver on the leader), or
         None while it follows none. Polled by the link's thread (at least every 0.1 s).
+    also_answer : callable, optional
+        ``also_answer(sid) -> bool``: answer this other session's pings too (the
+        follower: :meth:`bipedtele.session.Handshake.answers`). None: the followed only.
     monotonic : callable
         Monotonic time source for pacing and rate limits [s] (injectable for tests).
     queue_max : int
@@ -133,6 +138,7 @@ class ClockLink:
         ping_rate_hz: float = 4.0,
         answer_rate_hz: float = 20.0,
         peer_sid: Callable[[], int | None] = lambda: None,
+        also_answer: Callable[[int], bool] | None = None,
         monotonic: Callable[[], float] = time.monotonic,
         queue_max: int = 256,
         hold_max_s: float | None = None,
@@ -155,6 +161,7 @@ class ClockLink:
         self._clock = clock
         self._mono = monotonic
         self._peer_sid = peer_sid
+        self._also_answer = also_answer
         self._peer: int | None = None  # cached for on_message (read without a lock)
         self._seq = 0
         self._next_ping = -math.inf
@@ -202,7 +209,7 @@ class ClockLink:
             return
         reason = None
         with self._qlock:
-            if peer is not None and sid != peer:
+            if peer is not None and sid != peer and not self._answers_also(msg):
                 self.foreign += 1
                 reason = "foreign_session"
             elif isinstance(msg, ClockPing) and not self._take_token():
@@ -217,6 +224,10 @@ class ClockLink:
             self._wake.set()
         else:
             self.drops.drop(reason, f"clock {msg.KIND} sid={sid} seq={msg.seq}")
+
+    def _answers_also(self, msg: Any) -> bool:
+        """Whether a ping of a session other than the followed one is answered too."""
+        return isinstance(msg, ClockPing) and self._also_answer is not None and self._also_answer(msg.sid)
 
     def _take_token(self) -> bool:
         """Token bucket (caller holds ``_qlock``)."""
@@ -289,7 +300,7 @@ class ClockLink:
 
     def _answer(self, rec: Received[Any]) -> None:
         msg = rec.msg
-        if self._peer is not None and msg.sid != self._peer:  # peer bound after enqueueing
+        if self._peer is not None and msg.sid != self._peer and not self._answers_also(msg):  # bound after enqueueing
             self.foreign += 1
             self.drops.drop("foreign_session", f"clock ping sid={msg.sid} seq={msg.seq}")
             return

@@ -326,6 +326,9 @@ class Node:
         link = self.enter(ClockLink(
             self.pubs.clock.put, self.sid, sync=self.sync, drops=self.drops, ping_rate_hz=ck.ping_rate_hz,
             answer_rate_hz=ck.answer_rate_hz, peer_sid=peer_sid,
+            # the follower also answers leader sessions that completed the handshake (one
+            # waiting for a robot another operator holds syncs and reads its status)
+            also_answer=self.handshake.answers if self.handshake is not None and self.role == "follower" else None,
         ))  # fmt: skip
         # The clock receiver gets no clock conversion, future check nor gate: pings are
         # stamped on the peer's clock, and the link does its own matching. With the key,

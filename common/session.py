@@ -68,6 +68,15 @@ SLOW_HZ: Final = 1.0
 ANSWER_GAP_S: Final = 0.02
 #: Leader sessions the follower keeps answered keys for (beyond the bound one).
 MAX_CANDIDATES: Final = 4
+#: A leader takes the bound follower's traffic it cannot verify for another leader session's
+#: (``other_leader``, not ``bad_mac``) while the follower's Hellos named another leader
+#: session this recently [s] (they come at SLOW_HZ while it is bound).
+ELSEWHERE_S: Final = 3.0
+#: The line of ``other_leader``.
+OTHER_LEADER_LINE: Final = (
+    "the robot's traffic to another leader session (the robot follows another operator: "
+    "see who holds it, docs/fleet.md, Hand-over)"
+)
 
 
 def session_info(sid_leader: int, sid_follower: int) -> bytes:
@@ -160,6 +169,7 @@ class Handshake:
         self._answers: OrderedDict[tuple[int, bytes], None] = OrderedDict()  # peers owed an answer
         self._next_hello = -float("inf")
         self._last_answer = -float("inf")
+        self._elsewhere_t = -float("inf")  # leader: when the bound follower last named another leader session
         self.completed = 0  # handshakes completed (bindings)
         self.changed = threading.Event()  # set when a Hello should go out now
 
@@ -253,6 +263,9 @@ class Handshake:
                 self._follower_hello(h, now)
 
     def _leader_hello(self, h: Hello, now: float) -> None:
+        cur = self._current
+        if cur is not None and h.sid == cur.peer_sid and h.peer_sid not in (0, self.sid):
+            self._elsewhere_t = now  # our follower is bound to another leader session
         if h.peer_sid != self.sid or h.peer_nonce != self._nonce:
             self._owe((h.sid, h.nonce))  # not an answer to our current nonce: send it ours
             return
@@ -340,8 +353,23 @@ class Handshake:
         except MessageError:
             raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, body not a message)") from None
         if keys and keys[0] is self._current and keys[0].peer_sid == sid:
+            if self.role == "leader" and self._clock() - self._elsewhere_t < ELSEWHERE_S:
+                raise MacError("other_leader", f"{OTHER_LEADER_LINE} ({topic})")
             raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, sid={sid})")
         raise MacError("old_session", f"{OLD_SESSION_LINE} ({topic})")
+
+    def answers(self, peer_sid: int) -> bool:
+        """Follower: whether ``peer_sid`` is a leader session that completed the handshake.
+
+        Bound or not (a confirmed candidate holds our fresh nonce: live, not a replay).
+        The clock link answers such a session's pings too, so a leader waiting for the
+        robot (held by another operator) syncs its clock and reads the robot's status.
+        """
+        with self._lock:
+            cur = self._current
+            if cur is not None and cur.peer_sid == peer_sid:
+                return True
+            return any(s.confirmed and s.peer_sid == peer_sid for s in self._candidates.values())
 
     def accepted(self, s: SessionKey, sid: int) -> None:
         """Mark ``s`` live (and bound): a message under it passed every check, the gate included."""

@@ -350,3 +350,17 @@ def test_two_links_synchronise_over_their_threads() -> None:
     n = a.pings_sent
     time.sleep(0.2)
     assert a.pings_sent == n  # stopped
+
+
+def test_a_session_also_answered_gets_its_pings_answered_while_another_is_followed() -> None:
+    """Issue 23, hand-over: the follower follows alice's session and also answers a leader
+    session that completed the handshake (one waiting for the robot); others stay foreign."""
+    waiting = 5555
+    link, sent, clk, drops = make(peer=[PEER], also_answer=lambda sid: sid == waiting)
+    link.poll()
+    for k, sid in enumerate((PEER, waiting, EVIL)):
+        clk.t += 0.1
+        link.on_message(Rec(ClockPing(sid=sid, seq=k + 1, t=clk.t), clk.t))
+        link.poll()
+    assert [p.ping_sid for p in pongs(sent)] == [PEER, waiting]
+    assert drops.counts() == {"foreign_session": 1}

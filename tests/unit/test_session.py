@@ -231,3 +231,43 @@ def test_replayed_hellos_do_not_evict_a_confirmed_candidate() -> None:
     for i in range(20):
         follower.on_hello(Hello(sid=1000 + i, seq=1, t=1e9, role="leader", nonce=bytes([i + 1]) * 32))
     assert _deliver(follower, SequenceGate(), leader.sign(_command(11, 1), CMD) or b"") is None
+
+
+def _deliver_all(clock: Clock, parties: list[Handshake], rounds: int = 4) -> None:
+    """Every Hello due goes to every other party (one shared clock key)."""
+    for _ in range(rounds):
+        clock.t += 0.05
+        for a in parties:
+            for h in a.due():
+                for b in parties:
+                    if b is not a:
+                        b.on_hello(decode(encode(h), Hello))  # type: ignore[arg-type]
+
+
+def test_a_second_leader_names_the_robots_feedback_to_the_first_other_leader_not_bad_mac() -> None:
+    """Issue 23, hand-over: two operators of one robot share its key; the robot follows
+    alice's session, and bob's leader, waiting for it, receives feedback under alice's
+    session key. That is the robot's traffic to another leader (``other_leader``), not
+    altered bytes (``bad_mac``, which the leader reports as keys that do not match); and
+    the robot answers bob's clock pings (:meth:`Handshake.answers`)."""
+    clock = Clock()
+    alice, robot = _pair(clock)
+    _exchange(alice, robot)
+    signed = alice.sign(_command(11, 1), CMD)
+    assert signed is not None and _deliver(robot, SequenceGate(), signed) is None and robot.peer_sid == 11
+    bob = Handshake("leader", 33, MASTER, clock=clock, wall=lambda: 1e9)
+    _deliver_all(clock, [alice, robot, bob])
+    assert bob.complete and bob.peer_sid == 22  # the robot answered him: a candidate
+    assert robot.answers(33) and robot.answers(11) and not robot.answers(44)
+    clock.t += 1.1  # the robot's own Hello (1 Hz while bound) names alice's session
+    _deliver_all(clock, [alice, robot, bob], rounds=1)
+    fb = robot.sign(encode(Feedback(sid=22, seq=1, t=1e9)), FB)
+    assert fb is not None
+    with pytest.raises(MacError) as got:
+        bob.open(fb, FB)
+    assert got.value.reason == "other_leader"
+    # without a Hello naming another leader lately, the same is bad_mac (altered, or another key)
+    clock.t += 10.0
+    with pytest.raises(MacError) as got:
+        bob.open(fb, FB)
+    assert got.value.reason == "bad_mac"
