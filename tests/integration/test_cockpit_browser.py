@@ -40,7 +40,7 @@ def _sample(t: float, i: int) -> dict[str, object]:
         "h1_ms": 150.0 + 20 * math.sin(t), "h2_ms": 180.0 + 30 * math.cos(0.7 * t),
         "alpha_m_v": 2.0 + 0.1 * math.sin(t), "alpha_m_w": 1.5, "s_r_v": 0.8, "s_r_w": 0.6,
         "T": 0.6 + 0.05 * math.sin(t), "eps": 0.5, "state": "walking", "link": "ok",
-        "watchdog": "ok", "falls": 0, "passes_done": i // 200, "sonar_left_m": 0.8,
+        "watchdog": 0, "held_by": "alice", "hand": "drive", "me": "dave", "falls": 0, "passes_done": i // 200, "sonar_left_m": 0.8,
         "fb_age_ms": 312.4, "loss_pct": 1.25, "rx_kbps": 850.2, "tx_kbps": 900.0, "video_fps": 9.8,
         "video_quality": 60,
     }  # fmt: skip
@@ -132,6 +132,21 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             )
             assert words == ["link lost for 3.2 s", "no follower", "capacity-limited"]
             assert "sonar_left_m" in page.locator("#other").inner_text()  # unknown key as text
+            # A zero watchdog count is green; the robot is held by another operator (hand-over)
+            assert page.locator("#st-watchdog b").inner_text() == "0"
+            assert page.locator("#st-watchdog").get_attribute("data-state") == "ok"
+            assert page.locator("#st-hand b").inner_text() == "held by alice: ask for release"
+            hands = page.evaluate(
+                "[{hand: 'drive', held_by: 'dave', me: 'dave'}, {hand: 'released', held_by: ''},"
+                " {hand: 'released', held_by: 'bob', me: 'dave'}].map((s) => cockpit.handWords(s)[0])"
+            )
+            assert hands == ["you (dave) hold it", "released: free", "released; held by bob"]
+            assert not server.released()
+            page.locator("#hand-btn").click()  # Release
+            deadline = time.monotonic() + 5.0
+            while not server.released() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert server.released() and server.stats["hand_messages"] == 1
             assert server.stats["frames_pushed"] >= 3 and server.stats["clients"] == 1
             assert server.joystick() is None
 
