@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import ast
 import importlib.util
+import json
 import logging
 import sys
 from collections.abc import Sequence
@@ -27,7 +28,15 @@ from bipedtele import __version__
 from bipedtele.config import Config, ConfigError, load_config
 from bipedtele.linkcheck import LinkError
 
-__all__ = ["EXTRAS", "OneLineParser", "add_config_args", "config_from_args", "main", "missing_extra_message"]
+__all__ = [
+    "EXTRAS",
+    "OneLineParser",
+    "add_config_args",
+    "add_foxglove_arg",
+    "config_from_args",
+    "main",
+    "missing_extra_message",
+]
 
 LOG = logging.getLogger("bipedtele")
 
@@ -59,8 +68,12 @@ def add_config_args(parser: argparse.ArgumentParser, default: str = "default") -
 
 
 def config_from_args(args: argparse.Namespace) -> Config:
-    """Load the profile named by ``--config`` with ``--set`` overrides."""
-    return load_config(args.config, args.overrides)
+    """Load the profile named by ``--config`` with ``--set`` overrides (and ``--foxglove``, where offered)."""
+    overrides = list(args.overrides)
+    foxglove = getattr(args, "foxglove", None)
+    if foxglove:
+        overrides.append("record.foxglove=" + json.dumps(foxglove))
+    return load_config(args.config, overrides)
 
 
 def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -144,9 +157,18 @@ EXTRAS = {
     "aiohttp": "cockpit",
     "matplotlib": "plots",
     "tqdm": "progress",
+    "foxglove": "foxglove",
     "qi": "naoqi",
     "evdev": "joystick",
 }
+
+
+def add_foxglove_arg(parser: argparse.ArgumentParser) -> None:
+    """Add ``--foxglove [HOST:]PORT`` (sets ``[record] foxglove``; see :func:`config_from_args`)."""
+    parser.add_argument(
+        "--foxglove", metavar="[HOST:]PORT",
+        help="also serve the recording's channels live on a Foxglove WebSocket (e.g. 8765; extra foxglove)",
+    )  # fmt: skip
 
 
 def missing_extra_message(exc: ModuleNotFoundError) -> str:

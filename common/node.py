@@ -43,6 +43,7 @@ from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
+from bipedtele.foxglovelive import LiveView, parse_address
 from bipedtele.gate import MessageGate
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
 from bipedtele.receivers import LatestReceiver, Received
@@ -231,13 +232,34 @@ class Node:
         ``kwargs`` go to :class:`~bipedtele.recording.Recorder` (e.g. ``jpeg_every``).
         """
         rc = self.cfg.get(RecordConfig)
+        live = self._live_view(rc.foxglove) if rc.foxglove else None
         if self._record_path is None and not rc.enabled:
-            return None
-        self.recorder = self.enter(recording_for_run(
-            self._record_path, rc.dir, self.role, flush_s=rc.flush_s,
-            metadata={"role": self.role, "config": self.cfg.to_dict(), **metadata}, **kwargs,
-        ))  # fmt: skip
+            if live is None:
+                return None
+            self.recorder = self.enter(Recorder(None, flush_s=rc.flush_s, live=live, **kwargs))  # live only
+            return self.recorder
+        try:
+            self.recorder = self.enter(recording_for_run(
+                self._record_path, rc.dir, self.role, flush_s=rc.flush_s,
+                metadata={"role": self.role, "config": self.cfg.to_dict(), **metadata}, live=live, **kwargs,
+            ))  # fmt: skip
+        except BaseException:
+            if live is not None:
+                live.close()
+            raise
         return self.recorder
+
+    def _live_view(self, address: str) -> LiveView:
+        """Start the Foxglove live view (``[record] foxglove``, ``--foxglove``)."""
+        host, port = parse_address(address)
+        try:
+            return LiveView(host, port, name=f"bipedtele {self.role} {self.keys.root}")
+        except ModuleNotFoundError:
+            raise ConfigError(
+                "record.foxglove: the python package foxglove-sdk is missing: allowed: pip install 'bipedtele[foxglove]'"
+            ) from None
+        except (RuntimeError, OSError) as exc:
+            raise ConfigError(f"record.foxglove = {address!r}: cannot listen ({exc}); allowed: a free port") from None
 
     def record(self, topic: str, msg: Any, t: float) -> None:
         """Write one record (no-op when the run records nothing)."""

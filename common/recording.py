@@ -38,6 +38,7 @@ from typing import IO, Any
 
 import msgspec
 from bipedtele import __version__, schemas
+from bipedtele.foxglovelive import LiveView
 from bipedtele.messages import Message, VideoFrame
 from bipedtele.recordformat import (
     MESSAGE_ENCODING,
@@ -254,6 +255,9 @@ class Recorder:
     max_pending : int
         Most messages waiting for the writer thread; beyond it new messages are dropped and
         counted (``stats["dropped_full"]``).
+    live : LiveView, optional
+        Also hand every encoded message, on the same channel and schema, to this live
+        view (:mod:`bipedtele.foxglovelive`). With ``path`` None only to it: no file.
 
     Raises
     ------
@@ -272,12 +276,13 @@ class Recorder:
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | Path | None,
         flush_s: float = 1.0,
         metadata: Mapping[str, Any] | None = None,
         *,
         jpeg_every: int = 1,
         max_pending: int = 200_000,
+        live: LiveView | None = None,
     ) -> None:
         if not (math.isfinite(flush_s) and flush_s > 0):
             raise ValueError(f"flush_s must be > 0 s, got {flush_s!r}")
@@ -285,31 +290,19 @@ class Recorder:
             raise ValueError(f"jpeg_every must be >= 0, got {jpeg_every!r}")
         if max_pending < 1:
             raise ValueError(f"max_pending must be >= 1, got {max_pending!r}")
-        self.path = Path(path)
+        if path is None and live is None:
+            raise ValueError("path: allowed: a file, or None with a live view")
+        self.path = Path(path) if path is not None else None
         self.flush_s = float(flush_s)
         self.jpeg_every = int(jpeg_every)
         self.max_pending = int(max_pending)
+        self.live = live
         #: True once :meth:`close` removed the file because nothing was recorded.
         self.removed = False
-        self._file: IO[bytes] = open(self.path, "xb")  # noqa: SIM115 - closed in close()
-        try:
-            self._writer = Writer(
-                self._file,
-                chunk_size=_CHUNK_BYTES,
-                compression=CompressionType.ZSTD,
-            )
-            self._writer.start(profile=PROFILE, library=f"bipedtele {__version__}")
-            meta = {
-                str(k): v if isinstance(v, str) else json.dumps(v, default=str) for k, v in (metadata or {}).items()
-            }
-            meta.setdefault("bipedtele_version", __version__)
-            meta.setdefault("created_unix_s", repr(time.time()))
-            self._writer.add_metadata(METADATA_NAME, meta)
-            self._file.flush()
-        except BaseException:  # a failed start leaves no file
-            self._file.close()
-            self.path.unlink(missing_ok=True)
-            raise
+        self._file: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        if self.path is not None:
+            self._open_file(self.path, metadata)
         self._channels: dict[tuple[str, Any], int] = {}
         self._schema_ids: dict[tuple[str, bytes], int] = {}
         self._pending: collections.deque[tuple[str, Any, int, int]] = collections.deque()
@@ -331,6 +324,27 @@ class Recorder:
         self._wake = min(0.1, self.flush_s / 2)
         self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
         self._thread.start()
+
+    def _open_file(self, path: Path, metadata: Mapping[str, Any] | None) -> None:
+        self._file = file = open(path, "xb")  # noqa: SIM115 - closed in close()
+        try:
+            self._writer = writer = Writer(
+                file,
+                chunk_size=_CHUNK_BYTES,
+                compression=CompressionType.ZSTD,
+            )
+            writer.start(profile=PROFILE, library=f"bipedtele {__version__}")
+            meta = {
+                str(k): v if isinstance(v, str) else json.dumps(v, default=str) for k, v in (metadata or {}).items()
+            }
+            meta.setdefault("bipedtele_version", __version__)
+            meta.setdefault("created_unix_s", repr(time.time()))
+            writer.add_metadata(METADATA_NAME, meta)
+            file.flush()
+        except BaseException:  # a failed start leaves no file
+            file.close()
+            path.unlink(missing_ok=True)
+            raise
 
     # ------------------------------------------------------------------ public
 
@@ -430,18 +444,25 @@ class Recorder:
         try:
             if not self._failed:
                 self._drain()
-                self._writer.finish()
+                if self._writer is not None:
+                    self._writer.finish()
         except Exception:
             LOG.exception("recorder: finishing %s failed", self.path)
         finally:
-            self._file.close()
-            if self.written == 0:
-                try:
-                    os.unlink(self.path)
-                    self.removed = True
-                    LOG.info("recorder: nothing recorded, removed %s", self.path)
-                except OSError as exc:
-                    LOG.warning("recorder: cannot remove the empty %s (%s)", self.path, exc)
+            if self.live is not None:
+                self.live.close()
+            if self._file is not None and self.path is not None:
+                self._close_file(self._file, self.path)
+
+    def _close_file(self, file: IO[bytes], path: Path) -> None:
+        file.close()
+        if self.written == 0:
+            try:
+                os.unlink(path)
+                self.removed = True
+                LOG.info("recorder: nothing recorded, removed %s", path)
+            except OSError as exc:
+                LOG.warning("recorder: cannot remove the empty %s (%s)", path, exc)
 
     def __enter__(self) -> Recorder:
         return self
@@ -479,13 +500,18 @@ class Recorder:
         """Register the channel ``key`` (its schema once per distinct schema)."""
         blob = json.dumps(schema, separators=(",", ":")).encode()
         name = str(schema["title"])
-        sid = self._schema_ids.get((name, blob))
-        if sid is None:
-            sid = self._writer.register_schema(name=name, encoding=schemas.SCHEMA_ENCODING, data=blob)
-            self._schema_ids[(name, blob)] = sid
-        cid = self._writer.register_channel(
-            topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=sid, metadata=metadata or {}
-        )
+        if self._writer is not None:
+            sid = self._schema_ids.get((name, blob))
+            if sid is None:
+                sid = self._writer.register_schema(name=name, encoding=schemas.SCHEMA_ENCODING, data=blob)
+                self._schema_ids[(name, blob)] = sid
+            cid = self._writer.register_channel(
+                topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=sid, metadata=metadata or {}
+            )
+        else:
+            cid = len(self._channels) + 1
+        if self.live is not None:
+            self.live.add_channel(cid, topic, name, schemas.SCHEMA_ENCODING, blob)
         self._channels[key] = cid
         return cid
 
@@ -564,7 +590,10 @@ class Recorder:
                 self._count("dropped_unencodable")
                 self._log_once(f"bad:{topic}", f"cannot record a message on {topic!r}: {exc}")
                 continue
-            self._writer.add_message(channel_id=cid, log_time=t_log, data=payload, publish_time=t_recv)
+            if self._writer is not None:
+                self._writer.add_message(channel_id=cid, log_time=t_log, data=payload, publish_time=t_recv)
+            if self.live is not None:
+                self.live.log(cid, payload, t_log)
             n += 1
             now = time.perf_counter_ns()
             if now - last_yield >= _YIELD_NS:
@@ -581,7 +610,7 @@ class Recorder:
             try:
                 dirty |= self._drain() > 0
                 now = time.monotonic()
-                if dirty and now - last_flush >= self.flush_s - self._wake:
+                if dirty and now - last_flush >= self.flush_s - self._wake and self._writer is not None:
                     self._writer.flush()
                     self._count("flushes")
                     dirty = False

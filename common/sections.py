@@ -168,6 +168,16 @@ class RecordConfig:
     enabled: bool = param(True, doc="write an MCAP file per run")
     dir: str = param("runs", doc="folder for recordings")
     flush_s: float = param(1.0, lo=0.05, hi=10.0, unit="s", doc="flush period (max data lost on a crash)")
+    foxglove: str = param(
+        "",
+        doc="[HOST:]PORT: also serve the recording's channels live on a Foxglove WebSocket (extra foxglove); empty: off",
+    )
+
+    def __post_init__(self) -> None:
+        if self.foxglove:
+            from bipedtele.foxglovelive import parse_address
+
+            parse_address(self.foxglove)  # ValueError naming what is allowed
 
 
 CORE_SECTIONS: dict[str, type] = {

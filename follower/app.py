@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from bipedtele.auth import MAC_OVERHEAD
-from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.cli import add_config_args, add_foxglove_arg, config_from_args
 from bipedtele.config import Config, ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.capacity import UplinkBudget
@@ -353,6 +353,7 @@ def add_follower_parser(sub: Any) -> None:
     p.add_argument("--realtime", choices=["on", "off"], default=None, help="pace in real time (off: simulator only)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds of robot time")
     p.add_argument("--record", default=None, metavar="F.mcap", help="recording file")
+    add_foxglove_arg(p)
     p.add_argument(
         "--reset-on-leader",
         action="store_true",

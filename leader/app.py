@@ -40,14 +40,14 @@ from typing import Any
 
 import numpy as np
 from bipedtele.auth import MAC_OVERHEAD
-from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.cli import add_config_args, add_foxglove_arg, config_from_args
 from bipedtele.config import Config, ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
 from bipedtele.leader.config import LeaderConfig
-from bipedtele.leader.device import DeviceError, LeaderDevice, device_names, make_device
+from bipedtele.leader.device import DeviceError, LeaderDevice, PadInput, device_names, make_device
 from bipedtele.leader.linkquality import LinkQuality, LinkReport
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Operator, make_operator, operator_names
@@ -314,6 +314,12 @@ class LeaderApp:
         self.device = _make_device(cfg, self.dev_name)  # a bad name fails here, before any I/O
         self.token = _cockpit_token() if lc.cockpit else None
         self.cockpit: Any = None  # the cockpit server, once it runs (the browser operator reads it)
+        if self.device.needs_cockpit:  # a gamepad or the keyboard in the cockpit's page
+            if not lc.cockpit:
+                raise ConfigError(
+                    f"--device {self.dev_name}: it is read in the cockpit's page; allowed: with leader.cockpit = true"
+                )
+            self.device.attach_cockpit(self._pad)
         self.loop: LeaderLoop | None = None
         self.aux: _Aux | None = None
         try:
@@ -363,6 +369,11 @@ class LeaderApp:
     def _hand(self) -> bool:
         """Return the cockpit's hand: True after its Release, False after its Take."""
         return bool(self.cockpit is not None and self.cockpit.released())
+
+    def _pad(self) -> PadInput | None:
+        """Return the page's controller (``--device gamepad``, ``keyboard``), None before the cockpit runs."""
+        got = self.cockpit.pad() if self.cockpit is not None else None
+        return PadInput(*got) if got is not None else None
 
     def _joystick(self) -> tuple[float, float, float] | None:
         return self.cockpit.joystick() if self.cockpit is not None else None
@@ -451,7 +462,7 @@ class LeaderApp:
             cockpit = CockpitProcess(
                 lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=self.token,
                 allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
-                course=_map_course(self.cfg),
+                course=_map_course(self.cfg), force_max_n=self.device.limits.force_max_n,
             ).start()  # fmt: skip
         except OSError as exc:
             raise ConfigError(
@@ -639,4 +650,5 @@ def add_leader_parser(sub: Any) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (0: no limit)")
     p.add_argument("--realtime", choices=["on", "off"], help="pace in real time (default: [leader] realtime)")
     p.add_argument("--record", metavar="FILE", help="MCAP file (default: a new leader-<time>.mcap in [record] dir)")
+    add_foxglove_arg(p)
     p.set_defaults(func=_run)

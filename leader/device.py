@@ -19,6 +19,10 @@ Contract (checked by :func:`bipedtele.leader.check.check_device`):
 - ``set_operator(hand)`` attaches a simulated operator's hand (f_h of eq. 1) to a
   simulated device; physical devices are moved by a real hand and raise
   :class:`DeviceError`.
+- Capability flags: :attr:`LeaderDevice.simulated`, :attr:`LeaderDevice.force_output`
+  (False: the force is not put on the hand; a gamepad renders it as rumble) and
+  :attr:`LeaderDevice.needs_cockpit` (its input comes from the cockpit's page:
+  :meth:`LeaderDevice.attach_cockpit`).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ __all__ = [
     "HandleState",
     "LeaderDevice",
     "OperatorHand",
+    "PadInput",
     "device_names",
     "device_part",
     "make_device",
@@ -94,6 +99,29 @@ class HandleState:
     buttons: tuple[bool, ...] = ()
 
 
+@dataclass(frozen=True)
+class PadInput:
+    """One state of the cockpit page's controller (devices ``gamepad``, ``keyboard``).
+
+    Attributes
+    ----------
+    src : str
+        ``gamepad`` or ``keyboard``.
+    x, y : float
+        Stick (arrows) right and up, each in [-1, 1].
+    held : bool
+        The dead-man button is held (and no stop is latched).
+    t : float
+        When the server received it [s, ``time.time()``].
+    """
+
+    src: str
+    x: float
+    y: float
+    held: bool
+    t: float
+
+
 class OperatorHand(Protocol):
     """A simulated operator's hand: the force f_h it puts on the handle (eq. 1)."""
 
@@ -112,6 +140,12 @@ class LeaderDevice(abc.ABC):
     #: Capability flag: True when a simulated operator's hand moves the device (operator
     #: models drive it, :meth:`set_operator` accepts a hand); False when a person holds it.
     simulated: ClassVar[bool] = False
+    #: Capability flag: True when ``apply_force`` pushes the operator's hand (a Falcon, a
+    #: force-feedback stick); False when the force is only shown (a gamepad's rumble).
+    force_output: ClassVar[bool] = True
+    #: Capability flag: True when the input comes from the cockpit's browser page (the
+    #: leader then needs ``leader.cockpit = true`` and calls :meth:`attach_cockpit`).
+    needs_cockpit: ClassVar[bool] = False
     limits: DeviceLimits = DeviceLimits()
 
     @property
@@ -146,6 +180,10 @@ class LeaderDevice(abc.ABC):
             "device (--device sim-falcon)"
         )
 
+    def attach_cockpit(self, pad: Any) -> None:
+        """Give a device that reads the cockpit's page its input (``() -> PadInput | None``)."""
+        raise DeviceError(f"device {self.name!r} does not read the cockpit's page")
+
     def clamp_force(self, force_n: np.ndarray) -> np.ndarray:
         """``force_n`` clamped to the device limit, non-finite entries set to 0."""
         f = np.asarray(force_n, dtype=float).reshape(2)
@@ -176,9 +214,15 @@ class DevicePart(Part):
     simulated : bool
         A simulated operator's hand moves it (operator models drive it); False when a
         person holds it. Equal to the device's :attr:`LeaderDevice.simulated`.
+    force_output : bool
+        The force reaches the hand (equal to :attr:`LeaderDevice.force_output`).
+    needs_cockpit : bool
+        Its input comes from the cockpit's page (equal to :attr:`LeaderDevice.needs_cockpit`).
     """
 
     simulated: bool = False
+    force_output: bool = True
+    needs_cockpit: bool = False
 
 
 #: The leader devices: the entry points of ``bipedtele.devices`` (the recipe: docs/architecture.md).

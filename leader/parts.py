@@ -1,4 +1,4 @@
-"""The leader's built-in parts: three devices and three operator models, with the device settings sections.
+"""The leader's built-in parts: five devices and three operator models, with the device settings sections.
 
 Each ``PART`` here is one entry point (``bipedtele.devices``, ``bipedtele.operators`` in
 pyproject.toml). Every program that loads a profile loads this module for the
@@ -23,13 +23,16 @@ from bipedtele.parts import lazy
 __all__ = [
     "BROWSER",
     "FALCON",
+    "GAMEPAD",
     "JOYSTICK",
+    "KEYBOARD",
     "PILOT",
     "SCRIPTED",
     "SIM_FALCON",
     "FFMode",
     "FalconConfig",
     "JoystickConfig",
+    "PadConfig",
 ]
 
 FFMode = Literal["auto", "constant", "rumble", "none"]
@@ -52,6 +55,16 @@ class JoystickConfig:
     enable_button: str = param(
         "",
         doc="dead-man button, reported as button 0 (e.g. BTN_SOUTH, BTN_TRIGGER): walking only while held; empty: none, and no buttons are reported",
+    )
+
+
+@dataclass(frozen=True)
+class PadConfig:
+    """The ``[pad]`` section: the cockpit page's game controller and keyboard."""
+
+    deadzone: float = param(0.08, lo=0.0, hi=0.5, doc="central dead zone of the stick, fraction of its half range")
+    timeout_s: float = param(
+        0.5, lo=0.05, hi=5.0, unit="s", doc="a page state older than this reads as centred, dead-man let go"
     )
 
 
@@ -106,6 +119,26 @@ JOYSTICK = DevicePart(
     build=lazy("bipedtele.leader.devices.joystick:JoystickDevice"),
     section="joystick",
     config=JoystickConfig,
+)
+#: ``--device gamepad``.
+GAMEPAD = DevicePart(
+    name="gamepad",
+    doc="a game controller in the cockpit's page (browser Gamepad API, any OS; rumble for the force)",
+    build=lazy("bipedtele.leader.devices.pad:PadDevice"),
+    section="pad",
+    config=PadConfig,
+    force_output=False,
+    needs_cockpit=True,
+)
+#: ``--device keyboard``.
+KEYBOARD = DevicePart(
+    name="keyboard",
+    doc="the keyboard in the cockpit's page (arrows, space as the dead-man, Escape to stop)",
+    build=lazy("bipedtele.leader.devices.pad:KeyboardDevice"),
+    section="pad",
+    config=PadConfig,
+    force_output=False,
+    needs_cockpit=True,
 )
 #: ``--operator scripted``.
 SCRIPTED = OperatorPart(

@@ -22,7 +22,6 @@ import asyncio
 import contextlib
 import logging
 import os
-import resource
 import socket
 import struct
 import time
@@ -65,6 +64,11 @@ def descriptor_budget(limits: Limits) -> tuple[int, dict[str, int]]:
     The cap is ``limits.total`` or half of the descriptors left after those in use and
     ``descriptor_reserve``, whichever is smaller (at least 8).
     """
+    try:
+        import resource  # POSIX only
+    except ImportError:  # Windows: no descriptor limit to raise; sockets are handles
+        cap = max(8, min(limits.total, 4096))
+        return cap, {"nofile_soft": 0, "descriptors_used": 0, "total_cap": cap}
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     want = 65536 if hard == resource.RLIM_INFINITY else hard
     if soft != resource.RLIM_INFINITY and soft < want:

@@ -64,12 +64,14 @@ class CockpitProcess:
         max_clients: int = 4,
         course: Iterable[tuple[float, float, float]] = (),
         limits: Limits | None = None,
+        force_max_n: float = 8.0,
     ) -> None:
         allowed = list(allowed_hosts)
         course = [(float(ob[0]), float(ob[1]), float(ob[2])) for ob in course]
         # Checks the arguments and draws the token; never started in this process.
         spec = CockpitServer(host, port, telemetry_hz=telemetry_hz, history_s=history_s, token=token,
-                             allowed_hosts=allowed, max_clients=max_clients, course=course, limits=limits)  # fmt: skip
+                             allowed_hosts=allowed, max_clients=max_clients, course=course, limits=limits,
+                             force_max_n=force_max_n)  # fmt: skip
         self._spec = spec
         self.host, self.token = spec.host, spec.token
         self.telemetry_hz = spec.telemetry_hz
@@ -77,6 +79,7 @@ class CockpitProcess:
         self._kwargs: dict[str, Any] = dict(
             host=host, port=port, telemetry_hz=telemetry_hz, history_s=history_s, token=spec.token,
             allowed_hosts=allowed, max_clients=max_clients, course=course, limits=spec.limits,
+            force_max_n=spec.force_max_n,
         )  # fmt: skip
         self._sample: tuple[int, LeaderSample | dict[str, Any]] | None = None
         self._sample_n = 0
@@ -84,6 +87,7 @@ class CockpitProcess:
         self._frame_n = 0
         self._joy: tuple[float, float, float] | None = None
         self._released = False
+        self._pad: tuple[str, float, float, bool, float] | None = None
         self._stats: dict[str, Any] = {}
         self._stats_event = threading.Event()
         self._send_lock = threading.Lock()
@@ -140,6 +144,10 @@ class CockpitProcess:
     def released(self) -> bool:
         """Return the page's hand as the child last reported it (see ``CockpitServer.released``)."""
         return self._released
+
+    def pad(self) -> tuple[str, float, float, bool, float] | None:
+        """Return the page's controller as the child last reported it (see ``CockpitServer.pad``)."""
+        return self._pad
 
     @property
     def stats(self) -> dict[str, Any]:
@@ -265,6 +273,8 @@ class CockpitProcess:
                 self._joy = msg[1]
             elif kind == "hand":
                 self._released = bool(msg[1])
+            elif kind == "pad":
+                self._pad = msg[1]
             elif kind == "stats":
                 self._stats = msg[1]
                 self._stats_event.set()
@@ -293,8 +303,10 @@ def _child_main(conn: Connection, kwargs: dict[str, Any]) -> None:  # pragma: no
     # its end closes the pipe), after it released the robot.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    with contextlib.suppress(OSError):
-        os.nice(_NICE)  # the haptic loop's CPU comes first
+    nice = getattr(os, "nice", None)  # not on Windows
+    if nice is not None:
+        with contextlib.suppress(OSError):
+            nice(_NICE)  # the haptic loop's CPU comes first
     lock = threading.Lock()
 
     def send(obj: Any) -> None:
@@ -306,7 +318,10 @@ def _child_main(conn: Connection, kwargs: dict[str, Any]) -> None:  # pragma: no
     root.setLevel(logging.INFO)
     try:
         server = CockpitServer(
-            **kwargs, on_joystick=lambda joy: send(("joy", joy)), on_hand=lambda rel: send(("hand", rel))
+            **kwargs,
+            on_joystick=lambda joy: send(("joy", joy)),
+            on_hand=lambda rel: send(("hand", rel)),
+            on_pad=lambda pad: send(("pad", pad)),
         ).start()
     except BaseException as exc:
         send(("error", exc))

@@ -110,7 +110,7 @@ SAMPLE_KEYS: tuple[str, ...] = (
 
 _MAX_IN_TEXT = 1024
 _VIDEO_MAGIC = b"VF"
-_STATIC = ("index.html", "app.js", "plot.js", "map.js", "style.css")
+_STATIC = ("index.html", "app.js", "plot.js", "map.js", "pad.js", "style.css")
 _CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
 
 #: Host names always allowed in the ``Host`` header (loopback).
@@ -203,24 +203,23 @@ def _sample_json(sample: LeaderSample | EncodedSample | dict[str, Any]) -> str:
     return json.dumps({str(k): _clean(v) for k, v in sample.items()}, allow_nan=False)
 
 
-def _parse_in(text: str) -> tuple[float, float] | bool:
-    """Validate one browser message: ``(x, y)`` of a joystick one, the flag of a hand one.
+#: Where a ``pad`` message comes from (the page's Gamepad API, or its keyboard).
+PAD_SOURCES = ("gamepad", "keyboard")
 
-    Raises ValueError(reason) when it is bad.
-    """
-    if len(text) > _MAX_IN_TEXT:
-        raise ValueError("too_long")
-    try:
-        msg = json.loads(text)
-    except (ValueError, RecursionError):
-        raise ValueError("not_json") from None
-    if isinstance(msg, dict) and msg.get("type") == "hand":
-        release = msg.get("release")
-        if not isinstance(release, bool):
-            raise ValueError("bad_hand")
-        return release
-    if not isinstance(msg, dict) or msg.get("type") != "joy":
-        raise ValueError("unknown_type")
+
+def _parse_pad(msg: dict[str, Any]) -> tuple[str, float, float, bool]:
+    """Validate a ``pad`` message's fields: ``(src, x, y, held)``; ValueError(reason) when bad."""
+    src = msg.get("src")
+    if src not in PAD_SOURCES:
+        raise ValueError("bad_pad")
+    held = msg.get("held")
+    if not isinstance(held, bool):
+        raise ValueError("bad_pad")
+    x, y = _numbers(msg)
+    return str(src), x, y, held
+
+
+def _numbers(msg: dict[str, Any]) -> tuple[float, float]:
     out = []
     for key in ("x", "y"):
         v = msg.get(key)
@@ -230,6 +229,30 @@ def _parse_in(text: str) -> tuple[float, float] | bool:
             raise ValueError("out_of_range")
         out.append(float(v))
     return out[0], out[1]
+
+
+def _parse_in(text: str) -> tuple[float, float] | bool | tuple[str, float, float, bool]:
+    """Validate one browser message.
+
+    Returns ``(x, y)`` of a joystick one, the flag of a hand one, ``(src, x, y, held)`` of a
+    pad one. Raises ValueError(reason) when it is bad.
+    """
+    if len(text) > _MAX_IN_TEXT:
+        raise ValueError("too_long")
+    try:
+        msg = json.loads(text)
+    except (ValueError, RecursionError):
+        raise ValueError("not_json") from None
+    if isinstance(msg, dict) and msg.get("type") == "pad":
+        return _parse_pad(msg)
+    if isinstance(msg, dict) and msg.get("type") == "hand":
+        release = msg.get("release")
+        if not isinstance(release, bool):
+            raise ValueError("bad_hand")
+        return release
+    if not isinstance(msg, dict) or msg.get("type") != "joy":
+        raise ValueError("unknown_type")
+    return _numbers(msg)
 
 
 class _Client:
@@ -288,10 +311,17 @@ class CockpitServer:
         limits: Limits | None = None,
         on_joystick: Callable[[tuple[float, float, float]], None] | None = None,
         on_hand: Callable[[bool], None] | None = None,
+        on_pad: Callable[[tuple[str, float, float, bool, float]], None] | None = None,
+        force_max_n: float = 8.0,
     ) -> None:
         self.limits = limits or Limits()
         self._on_joystick = on_joystick
         self._on_hand = on_hand
+        self._on_pad = on_pad
+        self._pad: tuple[str, float, float, bool, float] | None = None
+        if not (math.isfinite(force_max_n) and force_max_n > 0):
+            raise ValueError(f"force_max_n must be > 0 N, got {force_max_n!r}")
+        self.force_max_n = float(force_max_n)
         self._released = False
         self.guard: Guard | None = None
         self.course = [[float(v) for v in ob] for ob in course]
@@ -338,7 +368,7 @@ class CockpitServer:
         self._clients: set[_Client] = set()
         self._drops = DropCounter("cockpit/ws")
         self._refusals = DropCounter("cockpit/http")
-        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "hand_messages": 0, "connections": 0,
+        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "hand_messages": 0, "pad_messages": 0, "connections": 0,
                           "refused_host": 0, "refused_token": 0, "refused_origin": 0, "refused_full": 0}  # fmt: skip
         self._descriptors: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -466,6 +496,10 @@ class CockpitServer:
     def released(self) -> bool:
         """Return True after the page's Release, False after its Take (and at the start)."""
         return self._released
+
+    def pad(self) -> tuple[str, float, float, bool, float] | None:
+        """Return the page's controller: ``(src, x, y, held, t)`` (None before any; see ``pad`` in docs/cockpit.md)."""
+        return self._pad
 
     @property
     def stats(self) -> dict[str, Any]:
@@ -740,7 +774,13 @@ class CockpitServer:
         try:
             await ws.send_str(
                 json.dumps(
-                    {"type": "hello", "telemetry_hz": self.telemetry_hz, "keys": SAMPLE_KEYS, "course": self.course}
+                    {
+                        "type": "hello",
+                        "telemetry_hz": self.telemetry_hz,
+                        "keys": SAMPLE_KEYS,
+                        "course": self.course,
+                        "force_max_n": self.force_max_n,
+                    }
                 )
             )
             pusher = asyncio.create_task(self._push(client))
@@ -765,6 +805,13 @@ class CockpitServer:
         except ValueError as exc:
             self._drops.drop(str(exc), text[:80])
             return False
+        if isinstance(got, tuple) and len(got) == 4:
+            src, x, y, held = got
+            self._pad = (src, x, y, held, time.time())
+            self._counters["pad_messages"] += 1
+            if self._on_pad is not None:
+                self._on_pad(self._pad)
+            return False
         if isinstance(got, bool):
             self._counters["hand_messages"] += 1
             if got != self._released:
@@ -772,7 +819,7 @@ class CockpitServer:
                 if self._on_hand is not None:
                     self._on_hand(got)
             return False
-        x, y = got
+        x, y = got  # type: ignore[misc]
         self._set_joy((x, y, time.time()))
         self._counters["joystick_messages"] += 1
         return True

@@ -29,6 +29,9 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
         (["follower", "--duration", "0"], "> 0"),
         (["follower", "--set", 'follower.cameras=["tail"]'], "head"),
         (["health", "--role", "router", "--timeout", "0"], "> 0"),
+        (["leader", "--device", "gamepad", "--set", "leader.cockpit=false"], "leader.cockpit = true"),
+        (["leader", "--foxglove", "127.0.0.1:99999"], "0-65535"),
+        (["leader", "--set", "pad.deadzone=0.9"], "pad.deadzone"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args: list[str], needle: str) -> None:

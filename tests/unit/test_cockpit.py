@@ -308,3 +308,17 @@ def test_parse_in_rejects(text: str, reason: str) -> None:
         _parse_in(text)
     assert _parse_in('{"type":"joy","x":-1,"y":1}') == (-1.0, 1.0)
     assert _parse_in('{"type":"hand","release":true}') is True
+
+
+def test_docs_name_every_field_the_cockpit_is_sent() -> None:
+    """Issue 24: docs/cockpit.md's key table matches the fields the leader sends the page."""
+    import re
+    from pathlib import Path
+
+    from bipedtele.telemetry import LeaderSample
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "cockpit.md").read_text(encoding="utf-8")
+    table = "\n".join(line for line in doc.splitlines() if line.startswith("| `"))
+    named = set(re.findall(r"`([a-z_0-9A-Z]+)`", table))
+    missing = [f for f in LeaderSample.__struct_fields__ if f not in named]
+    assert not missing, f"docs/cockpit.md does not describe: {missing}"

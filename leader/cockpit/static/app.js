@@ -125,6 +125,7 @@ function onSamples(samples) {
     state.samplesReceived += 1;
     state.lastSample = s;
   }
+  if (state.lastSample && state.onForce) state.onForce(state.lastSample);
   state.plotPoints = plots.reduce((n, p) => n + p.points, 0);
   if (state.lastSample) showStatus(state.lastSample);
   document.getElementById("sample-count").textContent = String(state.samplesReceived);
@@ -208,7 +209,10 @@ function connect() {
       let msg;
       try { msg = JSON.parse(ev.data); } catch (e) { return; }
       if (msg.type === "refused") state.refused = `refused: ${msg.reason}`;
-      if (msg.type === "hello") map.setCourse(msg.course);
+      if (msg.type === "hello") {
+        map.setCourse(msg.course);
+        if (typeof msg.force_max_n === "number" && msg.force_max_n > 0) state.forceMax = msg.force_max_n;
+      }
       if (msg.type === "samples" && Array.isArray(msg.samples)) onSamples(msg.samples);
     } else {
       onFrame(ev.data);
@@ -241,6 +245,13 @@ document.getElementById("hand-btn").addEventListener("click", () => {
   if (!ws || ws.readyState !== WebSocket.OPEN) return;
   ws.send(JSON.stringify({ type: "hand", release: !state.released }));
 });
+
+// Send one JSON message to the server (false when the socket is not open); pad.js uses it.
+state.send = (obj) => {
+  if (!ws || ws.readyState !== WebSocket.OPEN) return false;
+  ws.send(JSON.stringify(obj));
+  return true;
+};
 
 function sendJoy() {
   if (!ws || ws.readyState !== WebSocket.OPEN) return;

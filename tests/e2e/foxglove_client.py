@@ -1,0 +1,72 @@
+"""A Foxglove WebSocket client (protocol ``foxglove.websocket.v1``) for the live-view test.
+
+:func:`watch` connects, subscribes to every channel as it is advertised and counts the
+messages per topic for a while; it keeps each channel's schema as advertised. Only what
+the protocol defines: JSON ``advertise`` operations in, ``subscribe`` out, binary
+message-data frames (opcode 1, subscription id u32, log time u64, payload) in.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import aiohttp
+
+SUBPROTOCOL = "foxglove.websocket.v1"
+
+
+@dataclass
+class Seen:
+    """What one client saw: channels by topic (as advertised), messages by topic, and when."""
+
+    channels: dict[str, dict[str, Any]] = field(default_factory=dict)
+    messages: dict[str, int] = field(default_factory=dict)
+    first_payload: dict[str, Any] = field(default_factory=dict)
+    t_open: float = 0.0
+    t_close: float = 0.0
+    server: dict[str, Any] = field(default_factory=dict)
+
+
+async def _watch(url: str, seconds: float) -> Seen:
+    seen = Seen()
+    by_sub: dict[int, str] = {}
+    async with aiohttp.ClientSession() as session, session.ws_connect(url, protocols=[SUBPROTOCOL]) as ws:
+        seen.t_open = time.time()
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            try:
+                msg = await ws.receive(timeout=left)
+            except TimeoutError:
+                break
+            if msg.type == aiohttp.WSMsgType.TEXT:
+                op = json.loads(msg.data)
+                if op.get("op") == "serverInfo":
+                    seen.server = op
+                elif op.get("op") == "advertise":
+                    subs = []
+                    for ch in op["channels"]:
+                        seen.channels[ch["topic"]] = ch
+                        sub = len(by_sub) + 1
+                        by_sub[sub] = ch["topic"]
+                        subs.append({"id": sub, "channelId": ch["id"]})
+                    await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            elif msg.type == aiohttp.WSMsgType.BINARY and msg.data[:1] == b"\x01":
+                (sub,) = struct.unpack_from("<I", msg.data, 1)
+                topic = by_sub.get(sub, "?")
+                seen.messages[topic] = seen.messages.get(topic, 0) + 1
+                if topic not in seen.first_payload:
+                    seen.first_payload[topic] = json.loads(msg.data[13:])
+            elif msg.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                break
+        seen.t_close = time.time()
+    return seen
+
+
+def watch(url: str, seconds: float) -> Seen:
+    """Watch the live view at ``url`` (``ws://host:port``) for ``seconds``."""
+    return asyncio.run(_watch(url, seconds))
