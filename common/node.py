@@ -47,7 +47,8 @@ from bipedtele.foxglovelive import LiveView, parse_address
 from bipedtele.gate import MessageGate
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
 from bipedtele.receivers import LatestReceiver, Received
-from bipedtele.recording import Recorder, recording_for_run
+from bipedtele.recordfiles import recording_for_run
+from bipedtele.recording import Recorder
 from bipedtele.sections import ClockConfig, NetworkConfig, RecordConfig, RobotConfig
 from bipedtele.session import Handshake
 from bipedtele.shutdown import shutdown_on_signals

@@ -6,14 +6,10 @@ writes MCAP chunks, flushed at least every ``flush_s`` seconds. The file format,
 reading a recording back (:func:`read_records`, :func:`read_metadata`,
 :class:`RecordDecoder`, re-exported here), are in :mod:`bipedtele.recordformat`.
 
-File names and life
--------------------
-:func:`new_recording_path` gives ``FOLDER/ROLE-YYYYmmdd-HHMMSS-mmm.mcap`` (local time to the
-millisecond; ``-1``, ``-2``, ... appended when taken). :class:`Recorder` creates its file
-exclusively (it never overwrites one) and, when closed without a single message recorded,
-removes it, so a run that failed at start leaves no empty file behind.
-:func:`open_recording` combines the two and retries with the next name if another process
-took the same one in between.
+File names and opening a run's file: :mod:`bipedtele.recordfiles`. A recorder creates its
+file exclusively (it never overwrites one) and, when closed without a single message
+recorded, removes it. With a live view (:mod:`bipedtele.foxglovelive`) it also hands every
+encoded message to it, or only to it (no file).
 
 Topics and fields used by the leader, the follower and ``bipedtele report`` are listed in
 ``docs/recording.md``.
@@ -28,7 +24,6 @@ import json
 import logging
 import math
 import os
-import re
 import threading
 import time
 from collections.abc import Mapping
@@ -62,11 +57,8 @@ __all__ = [  # the reading API re-exported (docs/recording.md names it here)
     "Recorder",
     "RecordingError",
     "message_to_dict",
-    "new_recording_path",
-    "open_recording",
     "read_metadata",
     "read_records",
-    "recording_for_run",
 ]
 
 LOG = logging.getLogger("bipedtele.recording")
@@ -119,112 +111,6 @@ def _dataclass_dict(obj: Any) -> dict[str, Any]:
 
 def _ns(t: float) -> int:
     return max(0, round(t * 1e9))
-
-
-_ROLE = re.compile(r"^[A-Za-z0-9_]+(?:-[A-Za-z0-9_]+)*$")
-_MAX_SUFFIX = 10_000
-
-
-def new_recording_path(folder: str | Path, role: str, *, now: float | None = None) -> Path:
-    """Return a recording file name in ``folder`` that no file has yet.
-
-    ``FOLDER/ROLE-YYYYmmdd-HHMMSS-mmm.mcap`` (local time, milliseconds); when that name
-    is taken, ``-1``, ``-2``, ... is appended before ``.mcap``. The file is not created:
-    :class:`Recorder` creates it exclusively, so two processes that got the same name
-    cannot overwrite each other (the second gets ``FileExistsError``; see
-    :func:`open_recording`, which then takes the next name).
-
-    Parameters
-    ----------
-    folder : str or Path
-        Folder of the recordings (need not exist yet).
-    role : str
-        ``leader``, ``follower``, ...: letters, digits, ``_`` and inner ``-``.
-    now : float, optional
-        The time to stamp [s since the epoch]; ``time.time()`` when omitted.
-
-    Raises
-    ------
-    ValueError
-        ``role`` is not a plain name.
-    """
-    if not _ROLE.match(role):
-        raise ValueError(f"role {role!r}: allowed: letters, digits, '_' and inner '-'")
-    t = time.time() if now is None else now
-    ms = int((t % 1.0) * 1000)
-    stem = f"{role}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(t))}-{ms:03d}"
-    folder = Path(folder)
-    path = folder / f"{stem}.mcap"
-    n = 0
-    while path.exists():
-        n += 1
-        if n > _MAX_SUFFIX:
-            raise FileExistsError(f"{folder}: {_MAX_SUFFIX} recordings named {stem}-*.mcap")
-        path = folder / f"{stem}-{n}.mcap"
-    return path
-
-
-def open_recording(folder: str | Path, role: str, **kwargs: Any) -> Recorder:
-    """Return a :class:`Recorder` on a new file :func:`new_recording_path` names in ``folder``.
-
-    Creates ``folder`` if needed. If another process creates the same name between the
-    choice and the exclusive creation, the next free name is taken.
-
-    Parameters
-    ----------
-    folder : str or Path
-        Folder of the recordings.
-    role : str
-        The file name's prefix (``leader``, ``follower``).
-    **kwargs
-        :class:`Recorder` parameters (``flush_s``, ``metadata``, ``jpeg_every``, ...).
-
-    Raises
-    ------
-    OSError
-        The folder or the file cannot be created.
-    """
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    for _ in range(100):
-        try:
-            return Recorder(new_recording_path(folder, role), **kwargs)
-        except FileExistsError:
-            continue
-    raise FileExistsError(f"{folder}: no free recording name for {role!r} after 100 tries")
-
-
-def recording_for_run(record: Path | None, folder: str | Path, role: str, **kwargs: Any) -> Recorder:
-    """Return the recording of one program run: ``record`` when given, else a new file in ``folder``.
-
-    Parameters
-    ----------
-    record : Path or None
-        The file the user asked for (``--record``); it must not exist.
-    folder : str or Path
-        Folder of the recordings (``[record] dir``) when ``record`` is None.
-    role : str
-        The new file's name prefix (``leader``, ``follower``).
-    **kwargs
-        :class:`Recorder` parameters.
-
-    Raises
-    ------
-    ConfigError
-        ``record`` exists, or the folder or file cannot be created (one line, exit 2).
-    """
-    from bipedtele.config import ConfigError
-
-    try:
-        if record is not None:
-            record.parent.mkdir(parents=True, exist_ok=True)
-            return Recorder(record, **kwargs)
-        return open_recording(folder, role, **kwargs)
-    except FileExistsError:
-        raise ConfigError(f"--record {record}: the file exists; allowed: a new file (never overwritten)") from None
-    except OSError as exc:
-        raise ConfigError(
-            f"recording {record or folder}: cannot create ({exc.strerror or exc}); allowed: a writable folder"
-        ) from None
 
 
 class Recorder:

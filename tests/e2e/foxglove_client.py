@@ -1,4 +1,4 @@
-"""A Foxglove WebSocket client (protocol ``foxglove.websocket.v1``) for the live-view test.
+"""A Foxglove WebSocket client (the Foxglove WebSocket protocol) for the live-view test.
 
 :func:`watch` connects, subscribes to every channel as it is advertised and counts the
 messages per topic for a while; it keeps each channel's schema as advertised. Only what
@@ -17,7 +17,8 @@ from typing import Any
 
 import aiohttp
 
-SUBPROTOCOL = "foxglove.websocket.v1"
+#: The protocol's names: foxglove-sdk's servers speak ``foxglove.sdk.v1``, older ones ``foxglove.websocket.v1``.
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 
 
 @dataclass
@@ -35,7 +36,7 @@ class Seen:
 async def _watch(url: str, seconds: float) -> Seen:
     seen = Seen()
     by_sub: dict[int, str] = {}
-    async with aiohttp.ClientSession() as session, session.ws_connect(url, protocols=[SUBPROTOCOL]) as ws:
+    async with aiohttp.ClientSession() as session, session.ws_connect(url, protocols=SUBPROTOCOLS) as ws:
         seen.t_open = time.time()
         end = time.monotonic() + seconds
         while (left := end - time.monotonic()) > 0:
