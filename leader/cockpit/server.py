@@ -255,6 +255,20 @@ def _parse_in(text: str) -> tuple[float, float] | bool | tuple[str, float, float
     return _numbers(msg)
 
 
+def _check_figures(telemetry_hz: float, history_s: float, port: int, max_clients: int, force_max_n: float) -> None:
+    """Raise ValueError naming the first of the server's figures out of its range."""
+    if not (math.isfinite(telemetry_hz) and 1.0 <= telemetry_hz <= 100.0):
+        raise ValueError(f"telemetry_hz must be in [1, 100] Hz, got {telemetry_hz!r}")
+    if not (math.isfinite(history_s) and 0.0 <= history_s <= 600.0):
+        raise ValueError(f"history_s must be in [0, 600] s, got {history_s!r}")
+    if not 0 <= port <= 65535:
+        raise ValueError(f"port must be in [0, 65535], got {port!r}")
+    if not 1 <= max_clients <= 1000:
+        raise ValueError(f"max_clients must be in [1, 1000], got {max_clients!r}")
+    if not (math.isfinite(force_max_n) and force_max_n > 0):
+        raise ValueError(f"force_max_n must be > 0 N, got {force_max_n!r}")
+
+
 class _Client:
     """One browser connection: what it has already been sent."""
 
@@ -319,22 +333,13 @@ class CockpitServer:
         self._on_hand = on_hand
         self._on_pad = on_pad
         self._pad: tuple[str, float, float, bool, float] | None = None
-        if not (math.isfinite(force_max_n) and force_max_n > 0):
-            raise ValueError(f"force_max_n must be > 0 N, got {force_max_n!r}")
+        _check_figures(telemetry_hz, history_s, port, max_clients, force_max_n)
         self.force_max_n = float(force_max_n)
         self._released = False
         self.guard: Guard | None = None
         self.course = [[float(v) for v in ob] for ob in course]
         if any(len(ob) != 3 or not all(math.isfinite(v) for v in ob) for ob in self.course):
             raise ValueError("course: allowed: finite (x, y, radius) triples [m]")
-        if not (math.isfinite(telemetry_hz) and 1.0 <= telemetry_hz <= 100.0):
-            raise ValueError(f"telemetry_hz must be in [1, 100] Hz, got {telemetry_hz!r}")
-        if not (math.isfinite(history_s) and 0.0 <= history_s <= 600.0):
-            raise ValueError(f"history_s must be in [0, 600] s, got {history_s!r}")
-        if not 0 <= port <= 65535:
-            raise ValueError(f"port must be in [0, 65535], got {port!r}")
-        if not 1 <= max_clients <= 1000:
-            raise ValueError(f"max_clients must be in [1, 1000], got {max_clients!r}")
         if token is not None:
             try:
                 check_token(token)

@@ -176,6 +176,9 @@ def test_two_sites_two_pairs_an_observer_and_a_hand_over(sites_link: EmulatedLin
     ev2 = [e.data for e in _topic(rec["nao2"], "events")]
     stops = [e["t"] for e in ev2 if e["event"] == "watchdog_stop" and e["t"] > t_kill]
     assert stops and stops[0] - t_kill <= STOP_WITHIN_S, (stops[:1], t_kill)
+    print(f"hand-over: dave's first command accepted {first_dave - t_release:.2f} s after the Release was sent; "
+          f"nao2 stopped {stops[0] - t_kill:.3f} s after its router was killed; "
+          f"{held[-1]} of dave's commands refused while alice held nao1")  # fmt: skip
     assert not [e for e in ev1 if e["event"] == "watchdog_stop" and t_kill < e["t"] < t_end], ev1[-5:]
     after = [c for c in cmds["nao1"] if t_kill < c.t_recv < t_end and c.data["enable"]]
     assert len(after) > 200 and {c.data["operator"] for c in after} == {"dave"}, len(after)  # 100 Hz for 4 s

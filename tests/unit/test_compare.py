@@ -14,6 +14,8 @@ from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import StudyParams
 from bipedtele.control.schemes import scheme_class, scheme_names
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 CFG = ControlConfig()
 
 

@@ -16,6 +16,8 @@ from bipedtele.control.hybrid import (
     rho_hybrid_grid,
 )
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 CFG = ControlConfig()
 
 

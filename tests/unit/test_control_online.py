@@ -12,6 +12,8 @@ from bipedtele.control.hybrid import rho_blocks
 from bipedtele.control.online import Choice, OnlineChooser, choice_cost
 from bipedtele.control.online import solve_exact as _solve_exact
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 CFG = ControlConfig()
 
 

@@ -14,6 +14,8 @@ from bipedtele.control.hybrid import rho_hybrid
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.study import CASES, StudyParams, run_case
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 SUMMARY_KEYS = {"forward_error", "forward_ci95", "turn_error", "turn_ci95", "diverged"}
 
 

@@ -24,6 +24,8 @@ from bipedtele.delayestimate import DelayEstimator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 CFG = ControlConfig()
 ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True)
 # times as they come off the wire (validated range) plus everything else

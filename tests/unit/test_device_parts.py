@@ -31,7 +31,7 @@ def test_follower_and_router_load_no_leader_device_driver() -> None:
 
 
 def test_unknown_device_names_the_allowed_ones() -> None:
-    with pytest.raises(ValueError, match="allowed: falcon, joystick, sim-falcon"):
+    with pytest.raises(ValueError, match="allowed: falcon, gamepad, joystick, keyboard, sim-falcon"):
         device_part("nope")
 
 
@@ -48,5 +48,7 @@ def test_leader_device_choices_come_from_the_entry_points() -> None:
 
 
 def test_a_profile_naming_an_unknown_device_fails_at_load_naming_the_allowed_ones() -> None:
-    with pytest.raises(ConfigError, match=r"device.*'nope'.*allowed: 'falcon', 'joystick', 'sim-falcon'"):
+    with pytest.raises(
+        ConfigError, match=r"device.*'nope'.*allowed: 'falcon', 'gamepad', 'joystick', 'keyboard', 'sim-falcon'"
+    ):
         load_config("default", ['leader.device="nope"'])

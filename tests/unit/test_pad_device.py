@@ -68,5 +68,5 @@ def test_stick_to_handle_like_the_other_devices_dead_man_and_staleness() -> None
 
 def test_without_the_cockpit_it_says_so() -> None:
     dev = make_device("gamepad", config=load_config("default"))
-    with pytest.raises(DeviceError, match="leader.cockpit = true"):
+    with pytest.raises(DeviceError, match=r"leader\.cockpit = true"):
         dev.connect()

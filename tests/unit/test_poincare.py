@@ -21,6 +21,8 @@ from bipedtele.follower.sim.poincare import (
     state_names,
 )
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 SHORT = MapSettings(warmup_s=6.0, average_cycles=2)
 
 

@@ -21,6 +21,8 @@ from bipedtele.control.walker_map import (
     parse_walker_table,
 )
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 WALKER = ControlConfig(hybrid_model="walker")
 # equivalent damping from the scheduler's floor to well past the walker's turn limit cycle
 S_E = [[a, b] for a in (0.05, 0.5, 1.0, 2.5, 4.0, 7.0) for b in (0.05, 0.5, 1.5, 2.5, 3.2, 3.75, 5.0, 8.0)]

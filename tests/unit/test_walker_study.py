@@ -16,6 +16,8 @@ from bipedtele.follower.sim.calibrate import calibrate
 from bipedtele.follower.sim.poincare import MapSettings
 from bipedtele.follower.sim.walker_study import run_walker_study, walker_run
 
+pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
+
 
 @pytest.fixture(scope="module")
 def sections() -> tuple:
