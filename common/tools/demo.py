@@ -55,6 +55,7 @@ from bipedtele.delaymodels import (
     UniformDelay,
     parse_delay_model,
 )
+from bipedtele.foxglovelive import parse_address
 from bipedtele.impairments import parse_loss, parse_outage, parse_rate
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.tools.demoplan import DemoPlan
@@ -419,11 +420,27 @@ def _run(args: argparse.Namespace) -> int:
         impairments=impairments if backend == "packet" else [],
         netem_extra=netem_extra,
     )
+    if args.foxglove:
+        plan.leader_args += ["--foxglove", args.foxglove]
+        plan.follower_args += ["--foxglove", _next_port(args.foxglove, backend)]
     if args.dry_run:
         return _dry_run(plan)
     leader = cfg.sections.get("leader")
     passes = getattr(leader, "pilot_passes", None) if args.operator == "pilot" else None
     return run_demo(plan, json_path=Path(args.json) if args.json else None, quiet=args.quiet, passes_total=passes)
+
+
+def _next_port(address: str, backend: str) -> str:
+    """Return the follower's live view: the leader's ``[HOST:]PORT`` with the next port (0: any)."""
+    try:
+        host, port = parse_address(address)
+    except ValueError as exc:
+        raise ConfigError(f"--foxglove {exc}") from None
+    if backend != "proxy":
+        raise ConfigError(f"--foxglove with --delay-backend {backend}: allowed: with the delay proxy (the default)")
+    if port == 65535:
+        raise ConfigError("--foxglove 65535: allowed: a port below 65535 (the follower takes the next one)")
+    return f"{host}:{port + 1 if port else 0}"
 
 
 def add_demo_parser(sub: Any) -> None:
@@ -490,6 +507,10 @@ def add_demo_parser(sub: Any) -> None:
         help="control scheme of both sides (default: the profile's, the paper's; docs/schemes.md lists them)",
     )  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
+    p.add_argument(
+        "--foxglove", default=None, metavar="[HOST:]PORT",
+        help="watch live in Foxglove: the leader on PORT, the follower on PORT+1 (extra foxglove)",
+    )  # fmt: skip
     p.add_argument(
         "--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing"
     )

@@ -135,3 +135,15 @@ def test_the_demo_scheme_goes_to_both_sides_and_a_bad_one_is_one_line(
     for role in ("follower", "leader"):
         line = next(x for x in out if x.startswith(f"# process {role}"))
         assert 'control.scheme="tdpa"' in line
+
+
+def test_foxglove_serves_the_leader_on_port_and_the_follower_on_the_next(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 24: ``bipedtele demo --foxglove 8765``: each program its live view."""
+    assert main(["demo", "--dry-run", "--run-dir", str(tmp_path / "run"), "--foxglove", "8765"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    leader = next(x for x in lines if x.startswith("# process leader:"))
+    follower = next(x for x in lines if x.startswith("# process follower:"))
+    assert "--foxglove 8765" in leader and "--foxglove 127.0.0.1:8766" in follower, (leader, follower)
+    assert main(["demo", "--dry-run", "--foxglove", "8765", "--delay-backend", "packet"]) == 2
