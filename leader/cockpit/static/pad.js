@@ -63,12 +63,20 @@
     document.getElementById("force-gauge").value = Math.max(strong, weak);
     document.getElementById("force-value").textContent = `${Math.hypot(fv, fw).toFixed(1)} N`;
     const p = state.pad;
-    const act = p && p.gp && p.gp.vibrationActuator;
+    const gp = p && p.gp;
     const now = performance.now();
-    if (!act || typeof act.playEffect !== "function" || now - lastRumble < 100) return;
-    lastRumble = now;
+    if (!gp || now - lastRumble < 100) return;
     const effect = { startDelay: 0, duration: 150, strongMagnitude: round(strong), weakMagnitude: round(weak) };
-    act.playEffect("dual-rumble", effect).catch(() => {});
+    const act = gp.vibrationActuator;  // Chrome, Edge, Safari
+    const haptic = gp.hapticActuators && gp.hapticActuators[0];  // Firefox: one motor
+    if (act && typeof act.playEffect === "function") {
+      act.playEffect("dual-rumble", effect).catch(() => {});
+    } else if (haptic && typeof haptic.pulse === "function") {
+      haptic.pulse(Math.max(strong, weak), effect.duration).catch(() => {});
+    } else {
+      return;
+    }
+    lastRumble = now;
     state.rumbles.push({ t: Date.now() / 1000, force_v: fv, force_w: fw, ...effect });
     if (state.rumbles.length > 2000) state.rumbles.splice(0, 1000);
   };
