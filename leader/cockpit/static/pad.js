@@ -70,9 +70,9 @@
     const act = gp.vibrationActuator;  // Chrome, Edge, Safari
     const haptic = gp.hapticActuators && gp.hapticActuators[0];  // Firefox: one motor
     if (act && typeof act.playEffect === "function") {
-      act.playEffect("dual-rumble", effect).catch(() => {});
+      Promise.resolve(act.playEffect("dual-rumble", effect)).catch(() => {});
     } else if (haptic && typeof haptic.pulse === "function") {
-      haptic.pulse(Math.max(strong, weak), effect.duration).catch(() => {});
+      Promise.resolve(haptic.pulse(Math.max(strong, weak), effect.duration)).catch(() => {});
     } else {
       return;
     }
