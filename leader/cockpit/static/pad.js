@@ -69,12 +69,16 @@
     const effect = { startDelay: 0, duration: 150, strongMagnitude: round(strong), weakMagnitude: round(weak) };
     const act = gp.vibrationActuator;  // Chrome, Edge, Safari
     const haptic = gp.hapticActuators && gp.hapticActuators[0];  // Firefox: one motor
-    if (act && typeof act.playEffect === "function") {
-      Promise.resolve(act.playEffect("dual-rumble", effect)).catch(() => {});
-    } else if (haptic && typeof haptic.pulse === "function") {
-      Promise.resolve(haptic.pulse(Math.max(strong, weak), effect.duration)).catch(() => {});
-    } else {
-      return;
+    try {
+      if (act && typeof act.playEffect === "function") {
+        Promise.resolve(act.playEffect("dual-rumble", effect)).catch(() => {});
+      } else if (haptic && typeof haptic.pulse === "function") {
+        Promise.resolve(haptic.pulse(Math.max(strong, weak), effect.duration)).catch(() => {});
+      } else {
+        return;
+      }
+    } catch (e) {
+      return;  // a controller that refuses the effect: no rumble, the gauge still shows the force
     }
     lastRumble = now;
     state.rumbles.push({ t: Date.now() / 1000, force_v: fv, force_w: fw, ...effect });
