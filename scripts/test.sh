@@ -4,9 +4,9 @@
 #
 # With arguments, they go to one pytest run as they are. Without, the suite runs in two
 # steps so that it fits its budget (under 30 min on 2 cores): first the end-to-end and
-# integration tests, alone on the machine (they keep time); then the unit tests, the
-# CPU-bound deterministic ones (marker `compute`: no real time, no timing) in a second,
-# niced pytest beside the others. Each step lists its slowest tests. pytest's exit code 5
+# integration tests, alone on the machine (they keep time); then the unit tests, and the
+# CPU-bound deterministic tests (marker `compute`: simulated time, no timing) in a second,
+# niced pytest beside them. Each step lists its slowest tests. pytest's exit code 5
 # (no tests collected) is a failure.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -25,16 +25,16 @@ if [[ $# -gt 0 ]]; then
     check_rc $? "$*" || exit $?
 else
     start=$(date +%s)
-    .venv/bin/python -m pytest --durations=25 tests/e2e tests/integration
+    .venv/bin/python -m pytest --durations=25 -m "not compute" tests/e2e tests/integration
     check_rc $? "e2e and integration" || exit $?
     log=$(mktemp)
-    nice -n 10 .venv/bin/python -m pytest --durations=10 -m compute -p no:cacheprovider tests/unit >"$log" 2>&1 &
+    nice -n 10 .venv/bin/python -m pytest --durations=10 -m compute -p no:cacheprovider tests/unit tests/integration >"$log" 2>&1 &
     compute=$!
     .venv/bin/python -m pytest --durations=15 -m "not compute" tests/unit
     rc=$?
     wait "$compute"
     compute_rc=$?
-    echo "---- the unit tests marked compute, run beside:"
+    echo "---- the tests marked compute, run beside the unit tests:"
     cat "$log"
     rm -f "$log"
     check_rc $rc "unit" || exit $?

@@ -32,7 +32,7 @@ from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators.scripted import ScriptedOperator
 from bipedtele.messages import Command, Feedback
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.slow, pytest.mark.compute, pytest.mark.timeout(300)]  # compute: deterministic, simulated time
 
 REF = 5.0  # cm/s
 RUN_S = 40.0
