@@ -48,7 +48,7 @@ pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.docker]
 
 REPO = Path(__file__).resolve().parents[2]
 BASE_IMAGE = "bipedtele-base:bookworm"
-WALK_S = 60.0  # the first obstacle pass comes after about 40 s of walking (0.9 m away)
+WALK_S = 60.0  # the first obstacle pass comes after about 20 s of walking (18.2 s in a demo, 2026-11-26)
 DELAY_TOLERANCE_S = 0.015
 LONG_RUNNING = ("router", "delay", "follower", "leader")
 BOOTSTRAP = "run scripts/bootstrap.sh --test"
