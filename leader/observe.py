@@ -27,7 +27,7 @@ import logging
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +76,7 @@ class Watched:
     statuses: int = 0
     state: str = ""
     held_by: str = ""
-    operators: list[str] | None = None
+    operators: list[str] = field(default_factory=list)
     verified: bool = False
 
 
@@ -85,7 +85,7 @@ class _Robot:
 
     def __init__(self, robot: str, session: Any, cockpit: CockpitServer, auth: Any) -> None:
         self.robot, self.cockpit = robot, cockpit
-        self.watched = Watched(operators=[], verified=auth is not None)
+        self.watched = Watched(verified=auth is not None)
         self.drops = DropCounter(f"observe/{robot}")
         self._frames = FrameAssembler(self.drops)
         self._lock = threading.Lock()
@@ -110,11 +110,11 @@ class _Robot:
             w.statuses += 1
             if st.role == "follower":
                 w.state, w.held_by = st.state, st.held_by
-            elif st.operator and w.operators is not None and st.operator not in w.operators:
+            elif st.operator and st.operator not in w.operators:
                 w.operators.append(st.operator)
         r = self.robot
         return {f"{r}_state": w.state or "-", f"{r}_held_by": w.held_by or "-", f"{r}_frames": w.frames,
-                f"{r}_leaders": ",".join(w.operators or []) or "-"}  # fmt: skip
+                f"{r}_leaders": ",".join(w.operators) or "-"}  # fmt: skip
 
     def close(self) -> None:
         self.video.close()

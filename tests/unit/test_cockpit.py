@@ -301,13 +301,17 @@ def test_port_in_use_and_bad_parameters() -> None:
     ("text", "reason"),
     [("{", "not_json"), ('{"type":"joy","x":null,"y":0}', "bad_number"),
      ('{"type":"joy","x":0,"y":-1.01}', "out_of_range"), ("[1]", "unknown_type"),
-     ('{"type":"hand","release":1}', "bad_hand"), ('{"type":"hand"}', "bad_hand")],
+     ('{"type":"hand","release":1}', "bad_hand"), ('{"type":"hand"}', "bad_hand"),
+     ('{"type":"pad","src":"mouse","x":0,"y":0,"held":true}', "bad_pad"),
+     ('{"type":"pad","src":"gamepad","x":0,"y":0,"held":1}', "bad_pad"),
+     ('{"type":"pad","src":"gamepad","x":2,"y":0,"held":true}', "out_of_range")],
 )  # fmt: skip
 def test_parse_in_rejects(text: str, reason: str) -> None:
     with pytest.raises(ValueError, match=reason):
         _parse_in(text)
     assert _parse_in('{"type":"joy","x":-1,"y":1}') == (-1.0, 1.0)
     assert _parse_in('{"type":"hand","release":true}') is True
+    assert _parse_in('{"type":"pad","src":"keyboard","x":1,"y":-1,"held":false}') == ("keyboard", 1.0, -1.0, False)
 
 
 def test_docs_name_every_field_the_cockpit_is_sent() -> None:
