@@ -30,6 +30,7 @@ from bipedtele.linkcheck import LinkError
 
 __all__ = [
     "EXTRAS",
+    "PYTHON_311_EXTRAS",
     "OneLineParser",
     "add_config_args",
     "add_foxglove_arg",
@@ -163,6 +164,10 @@ EXTRAS = {
 }
 
 
+#: The robot side's extras: their packages (pybullet, qi) ship wheels for Python 3.11 only.
+PYTHON_311_EXTRAS = frozenset({"sim", "naoqi"})
+
+
 def add_foxglove_arg(parser: argparse.ArgumentParser) -> None:
     """Add ``--foxglove [HOST:]PORT`` (sets ``[record] foxglove``; see :func:`config_from_args`)."""
     parser.add_argument(
@@ -183,13 +188,20 @@ def missing_extra_message(exc: ModuleNotFoundError) -> str:
     extra = EXTRAS.get(top)
     if extra is None:
         return f"the python package {top or '?'} is missing"
+    if extra in PYTHON_311_EXTRAS and sys.version_info[:2] != (3, 11):
+        return (
+            f"the python package {top} is missing: it ships wheels for Python 3.11 only: allowed: "
+            f"pip install 'bipedtele[{extra}]' in a Python 3.11 environment (this is Python {sys.version_info[0]}."
+            f"{sys.version_info[1]})"
+        )
     return f"the python package {top} is missing: allowed: pip install 'bipedtele[{extra}]' (or 'bipedtele[all]')"
 
 
 def _add_missing_parser(sub: Any, name: str, exc: ModuleNotFoundError) -> None:
     """Register ``name`` as a sub-command that says which extra it needs (exit 2) when run."""
     message = missing_extra_message(exc)
-    p = sub.add_parser(name, help=f"(not available: {message})", add_help=False)
+    # No option prefix: every word, --help included, is taken, and the command says the line.
+    p = sub.add_parser(name, help=f"(not available: {message})", add_help=False, prefix_chars="\0")
     p.add_argument("rest", nargs=argparse.REMAINDER)
 
     def _missing(args: argparse.Namespace) -> int:
@@ -216,6 +228,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except LinkError as exc:
         sys.stderr.write(f"bipedtele {args.command}: link error: {exc}\n")
         return 1
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] not in EXTRAS:
+            raise  # a broken install, not a missing extra
+        # a part built on demand (bipedtele.parts.lazy) whose extra is missing
+        sys.stderr.write(f"bipedtele {args.command}: config error: {missing_extra_message(exc)}\n")
+        return 2
     except KeyboardInterrupt:
         return 130
 

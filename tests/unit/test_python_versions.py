@@ -188,6 +188,13 @@ def test_the_robot_side_extras_name_python_3_11(second_venv: Path) -> None:
         assert "pybullet" not in would and " qi-" not in would, would
 
 
+def test_a_robot_side_command_names_python_3_11(second_venv: Path) -> None:
+    proc = _bipedtele(second_venv, "poincare", "--help")
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and "pybullet" in lines[0] and "Python 3.11" in lines[0], proc.stderr
+
+
 def test_operator_unit_tests_pass_on_the_second_python(second_venv: Path) -> None:
     _pip(second_venv, "install", f"{ROOT}[test-operator]")
     files = [str(ROOT / "tests" / "unit" / name) for name in OPERATOR_TESTS]
