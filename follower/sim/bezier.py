@@ -12,7 +12,7 @@ from math import comb
 
 import numpy as np
 
-__all__ = ["BezierFitter", "bernstein", "evaluate"]
+__all__ = ["BezierFitter", "bernstein", "evaluate", "second_derivative"]
 
 
 def bernstein(n: int, s: float | np.ndarray) -> np.ndarray:
@@ -46,6 +46,12 @@ def evaluate(ctrl: np.ndarray, s: float, duration: float) -> tuple[np.ndarray, n
     q = bernstein(n, s) @ ctrl
     qd = n * (bernstein(n - 1, s) @ np.diff(ctrl, axis=0)) / duration
     return q, qd
+
+
+def second_derivative(ctrl: np.ndarray, s: float, duration: float) -> np.ndarray:
+    """Second time derivative of a Bezier curve [rad/s^2] (``ctrl`` (n + 1, m) [rad], ``s`` in [0, 1], ``duration`` [s])."""
+    n = ctrl.shape[0] - 1
+    return n * (n - 1) * (bernstein(n - 2, s) @ np.diff(ctrl, n=2, axis=0)) / (duration * duration)
 
 
 class BezierFitter:

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from bipedtele.follower.sim.bezier import BezierFitter, evaluate
+from bipedtele.follower.sim.bezier import BezierFitter, evaluate, second_derivative
 from bipedtele.follower.sim.model import NaoGeometry
 
 __all__ = ["Gait", "GaitConfig", "Leg", "hip_speed", "hip_x", "ik_linear", "ik_sagittal", "p_hip_linear"]
@@ -329,6 +329,34 @@ class Gait:
         ph = next((p for p in self._phases if t < p.t0 + p.duration), self._phases[-1])
         q, qd = evaluate(ph.ctrl, (t - ph.t0) / ph.duration, ph.duration)
         return q, qd
+
+    def acceleration(self) -> np.ndarray:
+        """Joint reference accelerations [rad/s^2] (12,) at the time of the last :meth:`update`.
+
+        The second derivative of the phase's Bezier curve; zero while standing. Phases join
+        in position, so this jumps where one phase meets the next.
+        """
+        t = self._t
+        if not self._phases:
+            return np.zeros(12)
+        ph = next((p for p in self._phases if t < p.t0 + p.duration), self._phases[-1])
+        return second_derivative(ph.ctrl, (t - ph.t0) / ph.duration, ph.duration)
+
+    @property
+    def support(self) -> Literal["L", "R", "LR"]:
+        """The feet the reference holds on the floor at the time of the last :meth:`update`.
+
+        Both, except in the single support of a walking step, from lift-off until the swing
+        foot has come down over its landing spot (the fraction ``_LIFT_DONE`` of the swing):
+        then the stance leg alone. The phase variable is the time since the step began.
+        """
+        s = self._step
+        if s is None or s.kind != "walk":
+            return "LR"
+        ts = s.cycle_s / 2.0
+        t_ds = self.cfg.double_support * ts
+        tau = self._t - s.t0
+        return s.stance if t_ds <= tau < t_ds + _LIFT_DONE * (ts - t_ds) else "LR"
 
     # ------------------------------------------------------------------ planning
 

@@ -69,6 +69,9 @@ class NaoGeometry:
     m_tibia: float = 0.30
     m_foot: float = 0.20
     m_small: float = 0.05
+    torso_com_z_m: float = 0.055
+    rotor_pitch_kgm2: float = 0.0
+    rotor_roll_kgm2: float = 0.0
 
     @property
     def total_mass(self) -> float:
@@ -78,13 +81,20 @@ class NaoGeometry:
     @property
     def torso_com_z(self) -> float:
         """Torso (with head and arms) centre of mass above the torso origin [m]."""
-        return 0.055
+        return self.torso_com_z_m
 
 
-def _box_inertia(m: float, x: float, y: float, z: float) -> str:
+def _box_inertia(m: float, x: float, y: float, z: float, rotor: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> str:
+    """Return a solid box's inertia [kg m^2] plus ``rotor``, a motor's reflected rotor inertia about x, y or z.
+
+    The rotor is a disk: ``J`` about its axis, ``J / 2`` about the other two (a valid rigid
+    body, which pybullet's URDF importer requires).
+    """
+    j = max(rotor)
+    rx, ry, rz = (r if r else j / 2 for r in rotor) if j > 0 else rotor
     return (
-        f'<inertia ixx="{m * (y * y + z * z) / 12:.6g}" iyy="{m * (x * x + z * z) / 12:.6g}" '
-        f'izz="{m * (x * x + y * y) / 12:.6g}" ixy="0" ixz="0" iyz="0"/>'
+        f'<inertia ixx="{m * (y * y + z * z) / 12 + rx:.6g}" iyy="{m * (x * x + z * z) / 12 + ry:.6g}" '
+        f'izz="{m * (x * x + y * y) / 12 + rz:.6g}" ixy="0" ixz="0" iyz="0"/>'
     )
 
 
@@ -130,7 +140,7 @@ def _leg_urdf(g: NaoGeometry, side: str, s: float, effort_nm: float) -> list[str
     The chain hip yaw (z) - hip roll (x) - hip pitch (y) - knee pitch (y) - ankle pitch (y) -
     ankle roll (x) - foot, from the torso; the right leg's roll and yaw limits are mirrored.
     """
-    small = _box_inertia(g.m_small, 0.02, 0.02, 0.02)
+    rp, rr = g.rotor_pitch_kgm2, g.rotor_roll_kgm2
     parts: list[str] = []
     lim = {k: (math.radians(a), math.radians(b)) for k, (a, b) in _LIMITS_DEG.items()}
     if s < 0:  # the right leg's roll joints are mirrored
@@ -148,15 +158,15 @@ def _leg_urdf(g: NaoGeometry, side: str, s: float, effort_nm: float) -> list[str
         f"{side}_anklepitch",
         f"{side}_foot",
     ]
-    parts.append(_link(links[0], g.m_small, (0, 0, 0), small, ""))
-    parts.append(_link(links[1], g.m_small, (0, 0, 0), small, ""))
+    parts.append(_link(links[0], g.m_small, (0, 0, 0), _box_inertia(g.m_small, 0.02, 0.02, 0.02, (0, 0, rr)), ""))
+    parts.append(_link(links[1], g.m_small, (0, 0, 0), _box_inertia(g.m_small, 0.02, 0.02, 0.02, (rr, 0, 0)), ""))
     thigh_geom = f'<cylinder radius="0.035" length="{g.thigh - 0.02:.4f}"/>'
     parts.append(
         _link(
             links[2],
             g.m_thigh,
             (0, 0, -g.thigh / 2),
-            _box_inertia(g.m_thigh, 0.07, 0.07, g.thigh),
+            _box_inertia(g.m_thigh, 0.07, 0.07, g.thigh, (0, rp, 0)),
             _shape(thigh_geom, (0, 0, -g.thigh / 2), "white"),
         )
     )
@@ -166,11 +176,11 @@ def _leg_urdf(g: NaoGeometry, side: str, s: float, effort_nm: float) -> list[str
             links[3],
             g.m_tibia,
             (0, 0, -g.tibia / 2),
-            _box_inertia(g.m_tibia, 0.06, 0.06, g.tibia),
+            _box_inertia(g.m_tibia, 0.06, 0.06, g.tibia, (0, rp, 0)),
             _shape(tibia_geom, (0, 0, -g.tibia / 2), "white"),
         )
     )
-    parts.append(_link(links[4], g.m_small, (0, 0, 0), small, ""))
+    parts.append(_link(links[4], g.m_small, (0, 0, 0), _box_inertia(g.m_small, 0.02, 0.02, 0.02, (0, rp, 0)), ""))
     sole_t = 0.015
     foot_c = (g.foot_x, s * g.foot_y_out, -g.foot_height + sole_t / 2)
     foot_geom = f'<box size="{g.foot_length} {g.foot_width} {sole_t}"/>'
@@ -180,7 +190,7 @@ def _leg_urdf(g: NaoGeometry, side: str, s: float, effort_nm: float) -> list[str
             links[5],
             g.m_foot,
             (g.foot_x, 0, -g.foot_height + 0.015),
-            _box_inertia(g.m_foot, g.foot_length, g.foot_width, 0.03),
+            _box_inertia(g.m_foot, g.foot_length, g.foot_width, 0.03, (rr, 0, 0)),
             _shape(foot_geom, foot_c, "grey") + _shape(ankle_geom, (0, 0, -g.foot_height / 2), "white", collide=False),
         )
     )
@@ -227,7 +237,12 @@ def nao_urdf(geom: NaoGeometry | None = None, effort_nm: float = 10.0) -> str:
         + _shape('<box size="0.05 0.05 0.17"/>', (0.0, 0.10, 0.04), "grey", collide=False)
         + _shape('<box size="0.05 0.05 0.17"/>', (0.0, -0.10, 0.04), "grey", collide=False)
     )
-    torso_inertia = '<inertia ixx="0.030" iyy="0.028" izz="0.010" ixy="0" ixz="0" iyz="0"/>'
+    # Torso, head and arms about their common centre of mass: 0.030, 0.028, 0.010 kg m^2 for the
+    # NAO's 3.2 kg, scaled with the mass (a model with another torso mass keeps its shape).
+    k = g.m_torso / 3.2
+    torso_inertia = (
+        f'<inertia ixx="{0.030 * k:.6g}" iyy="{0.028 * k:.6g}" izz="{0.010 * k:.6g}" ixy="0" ixz="0" iyz="0"/>'
+    )
     parts.append(_link("torso", g.m_torso, (0.0, 0.0, g.torso_com_z), torso_inertia, torso_shapes))
 
     for side, s in (("L", 1.0), ("R", -1.0)):

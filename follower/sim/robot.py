@@ -280,7 +280,6 @@ class SimNao(FollowerRobot):
     def _run_physics(self, n: int) -> None:
         c = self._client
         rob, joints = self._robot, self._joints
-        force = [self.config.max_torque_nm] * 12
         thigh, tibia, hip_y = self.geom.thigh, self.geom.tibia, self.geom.hip_offset_y
         for _ in range(n):
             states = pb.getJointStates(rob, joints, physicsClientId=c)
@@ -290,10 +289,7 @@ class SimNao(FollowerRobot):
             step = self.gait.step
             if step != self._gait_step:
                 self._step_changed(step)
-            vel = qdref + (qref - q) / self._eps
-            pb.setJointMotorControlArray(
-                rob, joints, pb.VELOCITY_CONTROL, targetVelocities=vel.tolist(), forces=force, physicsClientId=c
-            )
+            self._actuate(q, qd, qref, qdref)
             pb.stepSimulation(physicsClientId=c)
             self._steps += 1
             self._t = self._steps * self._dt
@@ -304,6 +300,21 @@ class SimNao(FollowerRobot):
             self._vhip_sum += v_st - side * hip_y * qd[o + YAW]
             self._vhip_n += 1
             self._q, self._qd, self._qref = q, qd, qref
+
+    def _actuate(self, q: np.ndarray, qd: np.ndarray, qref: np.ndarray, qdref: np.ndarray) -> None:
+        """Drive the joints for one physics step: the velocity motors realise (21), ``qdref + (qref - q) / eps``.
+
+        ``q``, ``qd``: measured joint angles [rad] and speeds [rad/s]; ``qref``, ``qdref``: the gait's.
+        """
+        vel = qdref + (qref - q) / self._eps
+        pb.setJointMotorControlArray(
+            self._robot,
+            self._joints,
+            pb.VELOCITY_CONTROL,
+            targetVelocities=vel.tolist(),
+            forces=[self.config.max_torque_nm] * 12,
+            physicsClientId=self._client,
+        )
 
     def _step_changed(self, step: tuple[str, float, float, float] | None) -> None:
         """Record a touchdown when the gait begins a new step after a walking step."""

@@ -1,0 +1,206 @@
+"""The torque walker's model and joint law: the rigid-body model against pybullet, (14)'s
+``y'' = -v`` with the exact model over a walking cycle (checked by an independent KKT solve),
+the disturbance observer against ``W_hat = 0`` with a wrong model, the motor envelope, and a
+walk on joint torques alone.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+
+import numpy as np
+import pinocchio as pin
+import pybullet as pb
+import pytest
+from bipedtele.follower.robot import WalkCommand
+from bipedtele.follower.sim.flcontrol import FeedbackLinearising, FlInput, FlState, MotorLimits, output_rows
+from bipedtele.follower.sim.model import NaoGeometry, nao_urdf
+from bipedtele.follower.sim.rigidbody import RigidBodyModel, perturbed_geometry, state_from_pybullet
+from bipedtele.follower.sim.torque_config import TorqueConfig
+from bipedtele.follower.sim.torque_robot import TorqueNao, motor_limits
+
+pytestmark = [pytest.mark.compute, pytest.mark.timeout(300)]
+
+GEOM = NaoGeometry(rotor_pitch_kgm2=0.0068, rotor_roll_kgm2=0.0162)
+
+
+def _state(robot: TorqueNao) -> tuple[np.ndarray, np.ndarray]:
+    rob, c = robot._robot, robot._client
+    pos, orn = pb.getBasePositionAndOrientation(rob, physicsClientId=c)
+    lin, ang = pb.getBaseVelocity(rob, physicsClientId=c)
+    js = pb.getJointStates(rob, robot._joints, physicsClientId=c)
+    q = np.array([s[0] for s in js])
+    dq = np.array([s[1] for s in js])
+    return state_from_pybullet(np.array(pos), np.array(orn), np.array(lin), np.array(ang), q, dq, robot._com)
+
+
+def test_the_model_predicts_pybullets_accelerations_in_free_flight() -> None:
+    """M, h and the state conversion: the model's joint accelerations are pybullet's (no contact)."""
+    c = pb.connect(pb.DIRECT)
+    try:
+        dt = 1e-3
+        pb.setGravity(0, 0, -9.81, physicsClientId=c)
+        pb.setTimeStep(dt, physicsClientId=c)
+        fd, path = tempfile.mkstemp(suffix=".urdf")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(nao_urdf(GEOM))
+        try:
+            rob = pb.loadURDF(path, [0, 0, 2], flags=pb.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+        finally:
+            os.unlink(path)
+        joints = list(range(12))
+        for j in [-1, *joints]:
+            pb.changeDynamics(rob, j, linearDamping=0, angularDamping=0, jointDamping=0, physicsClientId=c)
+        pb.setJointMotorControlArray(rob, joints, pb.VELOCITY_CONTROL, forces=[0] * 12, physicsClientId=c)
+        rng = np.random.default_rng(0)
+        for j in joints:
+            pb.resetJointState(rob, j, rng.uniform(-0.3, 0.3), rng.uniform(-1, 1), physicsClientId=c)
+        pb.resetBaseVelocity(rob, [0.1, 0.2, 0.0], [0.5, -0.3, 0.2], physicsClientId=c)
+        model = RigidBodyModel(GEOM)
+        com = np.array([0.0, 0.0, GEOM.torso_com_z])
+        worst = 0.0
+        for k in range(6):
+            pos, orn = pb.getBasePositionAndOrientation(rob, physicsClientId=c)
+            lin, ang = pb.getBaseVelocity(rob, physicsClientId=c)
+            js = pb.getJointStates(rob, joints, physicsClientId=c)
+            q, v = state_from_pybullet(
+                np.array(pos), np.array(orn), np.array(lin), np.array(ang),
+                np.array([s[0] for s in js]), np.array([s[1] for s in js]), com,
+            )  # fmt: skip
+            u = rng.uniform(-1.0, 1.0, 12)
+            aff = model.affine(q, v, "")
+            pb.setJointMotorControlArray(rob, joints, pb.TORQUE_CONTROL, forces=u.tolist(), physicsClientId=c)
+            pb.stepSimulation(physicsClientId=c)
+            js2 = pb.getJointStates(rob, joints, physicsClientId=c)
+            measured = (np.array([s[1] for s in js2]) - v[6:]) / dt
+            if k > 0:  # pybullet's first step after resetJointState is not a dynamics step
+                worst = max(worst, float(np.max(np.abs(measured - (aff.A @ u + aff.b)) / (1.0 + np.abs(measured)))))
+        assert worst < 1e-6
+    finally:
+        pb.disconnect(physicsClientId=c)
+
+
+def _kkt_joint_acceleration(
+    model: RigidBodyModel, q: np.ndarray, v: np.ndarray, u: np.ndarray, contacts: str
+) -> np.ndarray:
+    """The constrained joint accelerations by one KKT solve (not the projection :meth:`affine` uses)."""
+    m, d = model.model, model.data
+    pin.forwardKinematics(m, d, q, v, np.zeros(m.nv))
+    pin.computeJointJacobians(m, d, q)
+    pin.updateFramePlacements(m, d)
+    M = pin.crba(m, d, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    h = pin.nonLinearEffects(m, d, q, v)
+    frames = [m.getFrameId(f"{k}_foot") for k in contacts]
+    J = np.vstack([pin.getFrameJacobian(m, d, f, pin.LOCAL) for f in frames])
+    g = np.concatenate([pin.getFrameAcceleration(m, d, f, pin.LOCAL).vector for f in frames])
+    n, k = m.nv, J.shape[0]
+    kkt = np.block([[M, -J.T], [J, np.zeros((k, k))]])
+    rhs = np.concatenate([np.concatenate([np.zeros(6), u]) - h, -g])
+    return np.linalg.solve(kkt, rhs)[6:n]
+
+
+def test_with_the_exact_model_the_outputs_obey_ddy_equal_minus_v_over_a_walking_cycle() -> None:
+    """(14) with the exact model: along a real walking cycle of the torque walker, in single and
+    double support, the outputs' accelerations under the computed torques (constrained dynamics
+    solved independently) are ``-v`` to numerical precision."""
+    robot = TorqueNao(torque=TorqueConfig(model_error=0.0, dob_rate_s=0.0))
+    exact = RigidBodyModel(robot.geom)
+    law = FeedbackLinearising(exact, dob_rate_s=0.0, limits=None)
+    worst, seen = 0.0, set()
+    with robot:
+        robot.advance(0.3)
+        robot.send_walk(WalkCommand(0.04, math.radians(10.0), 1.0, 0.05))
+        robot.advance(1.0)
+        for _ in range(100):  # one walking cycle, every 10 ms
+            robot.advance(0.01)
+            q, v = _state(robot)
+            g = robot.gait
+            qref, dqref = g.update(robot._t)
+            inp = FlInput(q, v, qref, dqref, g.acceleration(), g.stance, g.support, 0.05, 0.2)
+            _, u, out = law.step(FlState(), inp, 1e-3)
+            rows, H, _, _, drift = law.outputs(inp)
+            ddq = _kkt_joint_acceleration(exact, q, v, u, g.support)
+            ddy = H @ ddq + drift
+            worst = max(worst, float(np.max(np.abs(ddy + out.v)) / (1.0 + np.max(np.abs(out.v)))))
+            seen.add((g.support, len(rows)))
+    assert {("LR", 6), ("L", 12), ("R", 12)} <= seen
+    assert worst < 1e-8
+
+
+def test_output_rows_are_the_stance_legs_six_then_the_swing_legs_six() -> None:
+    assert output_rows("L", "LR") == [12, 3, 4, 0, 1, 5]
+    assert output_rows("R", "R") == [13, 9, 10, 6, 7, 11, 0, 1, 2, 3, 4, 5]
+
+
+def test_the_motor_envelope_cuts_driving_torque_with_speed_and_never_braking() -> None:
+    lim = MotorLimits(np.full(12, 7.78), np.full(12, 6.4))
+    dq = np.array([0.0, 3.2, 6.4, 8.0, -3.2, 3.2] * 2)
+    u = np.array([20.0, 20.0, 20.0, 20.0, 20.0, -20.0] * 2)
+    out = lim.clip(u, dq)
+    assert out[:6] == pytest.approx([7.78, 3.89, 0.0, 0.0, 7.78, -7.78])
+    cfg = TorqueConfig()
+    env = motor_limits(cfg)
+    assert env.stall_nm[3] == pytest.approx(7.78) and env.stall_nm[0] == pytest.approx(11.97)
+    assert env.no_load_rad_s[2] == pytest.approx(math.radians(366.83))
+
+
+def test_the_wrong_model_is_off_by_at_most_the_stated_fraction() -> None:
+    g = NaoGeometry()
+    w = perturbed_geometry(g, 0.2)
+    ratios = [w.m_torso / g.m_torso, w.m_thigh / g.m_thigh, w.m_tibia / g.m_tibia, w.m_foot / g.m_foot]
+    assert max(abs(r - 1.0) for r in ratios) == pytest.approx(0.2)
+    assert RigidBodyModel(w).mass != pytest.approx(RigidBodyModel(g).mass, rel=1e-3)
+    with pytest.raises(ValueError, match="allowed"):
+        perturbed_geometry(g, 1.5)
+
+
+def squat_tracking_rms(model_error: float, dob_rate_s: float, seconds: float = 3.0) -> float:
+    """RMS of the outputs [rad, m] while the torque walker squats in double support (0.7 Hz, +-0.15 rad).
+
+    The shared task of this test and ``bench/flcontrol.py``: the joint law with a model off by
+    ``model_error``, ``W_hat`` by the observer at ``dob_rate_s`` (0: ``W_hat = 0``).
+    """
+    robot = TorqueNao(torque=TorqueConfig(model_error=model_error, dob_rate_s=dob_rate_s))
+    with robot:
+        robot.advance(0.3)
+        rob, c = robot._robot, robot._client
+        q0 = robot.gait.standing_pose()
+        pattern = np.array([0, 0, -1, 2, -1, 0] * 2, dtype=float)
+        state, ys = FlState(), []
+        dt = robot.torque.dt_s
+        w = 2.0 * math.pi * 0.7
+        for k in range(round(seconds / dt)):
+            t = k * dt
+            qr = q0 + pattern * 0.15 * math.sin(w * t)
+            dqr = pattern * 0.15 * w * math.cos(w * t)
+            ddqr = -pattern * 0.15 * w * w * math.sin(w * t)
+            q, v = _state(robot)
+            state, u, out = robot.law.step(state, FlInput(q, v, qr, dqr, ddqr, "L", "LR", 0.1, 0.1), dt)
+            pb.setJointMotorControlArray(rob, robot._joints, pb.TORQUE_CONTROL, forces=u.tolist(), physicsClientId=c)
+            pb.stepSimulation(physicsClientId=c)
+            if t > 1.0:
+                ys.append(out.y)
+    return float(np.sqrt(np.mean(np.square(ys))))
+
+
+def test_the_observer_tracks_at_least_three_times_better_than_w_hat_zero_with_a_wrong_model() -> None:
+    without = squat_tracking_rms(0.2, 0.0)
+    with_dob = squat_tracking_rms(0.2, TorqueConfig().dob_rate_s)
+    assert with_dob * 3.0 <= without, (with_dob, without)
+
+
+def test_the_torque_walker_walks_on_joint_torques_alone_with_the_exact_model() -> None:
+    with TorqueNao(torque=TorqueConfig(model_error=0.0, dob_rate_s=0.0)) as robot:
+        robot.advance(0.5)
+        x0 = robot.observe().pose[0]
+        robot.send_walk(WalkCommand(0.04, 0.0, 1.0, 0.05))
+        for _ in range(80):
+            robot.advance(0.1)
+            obs = robot.observe()
+            assert not obs.fallen, obs
+        assert obs.pose[0] - x0 > 0.2  # 8 s at 4 cm/s asked
+        assert 0.03 < robot.cycle_speed() < 0.06
+        assert robot.saturated_steps == 0
