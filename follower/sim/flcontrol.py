@@ -28,7 +28,7 @@ outputs use the commanded ``eps``; the stance leg's (the torso's motion over the
 foot) a slower ``body_eps``: the stance foot can push the floor only within its sole, and a
 fast body loop asks for centres of pressure outside it whenever the gait's reference
 changes speed (measured: the robot tips at ``body_eps = 0.05 s`` and walks at 0.2 s,
-docs/follower.md).
+docs/method.md, "The torque walker").
 
 ``W_hat``: a **disturbance observer** (Chen, Ballance, Gawthrop and O'Reilly, "A nonlinear
 disturbance observer for robotic manipulators", IEEE Trans. Ind. Electron. 47(4), 2000; of
@@ -76,7 +76,7 @@ def output_rows(stance: str, contacts: Contacts) -> list[int]:
 
 @dataclass(frozen=True)
 class MotorLimits:
-    """A DC motor's torque-speed envelope per joint (docs/follower.md, "The torque walker").
+    """A DC motor's torque-speed envelope per joint (docs/method.md, "The torque walker").
 
     ``|u| <= stall (1 - |dq| / no_load)`` in the direction of motion, ``|u| <= stall``
     against it (braking), ``u = 0`` driving beyond ``no_load``.

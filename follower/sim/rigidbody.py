@@ -23,7 +23,7 @@ must be a *second* robot, deliberately wrong (masses, inertias and centre-of-mas
 off, :func:`perturbed_geometry`), built from the same URDF text, and evaluated at the state
 pybullet measures; pinocchio evaluates ``M``, ``h``, the foot Jacobians and ``Jdot v`` from a
 URDF string in about 30 us (``bench/follower.py`` prints the controller's cost per step),
-without a second physics world to keep in step. See docs/follower.md, "The torque walker".
+without a second physics world to keep in step. See docs/method.md, "The torque walker".
 
 State convention: pinocchio's free flyer, ``q = [p, quat(x, y, z, w), q_j]`` with ``p`` the
 torso link's origin in the world [m], and ``v = [v_o, w, dq_j]`` with the origin's linear

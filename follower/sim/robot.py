@@ -2,7 +2,8 @@
 
 Physics runs headless (``pybullet.DIRECT``) at ``[sim] physics_hz``; ``advance(dt)`` steps
 it. Every physics step the gait (:mod:`.gait`) gives joint references ``q_ref, dq_ref`` and
-the joint servo realises eq. (21) with feed-forward: each joint gets the velocity command
+a first-order joint servo with feed-forward (not the paper's second-order (21); the torque
+walker, :mod:`.torque_robot`, runs (15) and (21)): each joint gets the velocity command
 ``dq_ref + (q_ref - q) / eps`` through pybullet's velocity motor (a stiff constraint
 limited by ``max_torque_nm``), so a tracking error decays with time constant ``eps``
 (bandwidth ``1/eps``). See docs/follower.md for why.
@@ -302,7 +303,7 @@ class SimNao(FollowerRobot):
             self._q, self._qd, self._qref = q, qd, qref
 
     def _actuate(self, q: np.ndarray, qd: np.ndarray, qref: np.ndarray, qdref: np.ndarray) -> None:
-        """Drive the joints for one physics step: the velocity motors realise (21), ``qdref + (qref - q) / eps``.
+        """Drive the joints for one physics step: velocity motors at ``qdref + (qref - q) / eps`` (first order).
 
         ``q``, ``qd``: measured joint angles [rad] and speeds [rad/s]; ``qref``, ``qdref``: the gait's.
         """

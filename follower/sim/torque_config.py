@@ -3,7 +3,7 @@
 The robot is the ``[sim]`` NAO (same body, gait, sensors and world) with pybullet's motors
 off: every physics step the paper's joint law (15) computes the joint torques on a
 deliberately wrong rigid-body model, with a disturbance observer for ``W_hat``
-(:mod:`bipedtele.follower.sim.flcontrol`). See docs/follower.md, "The torque walker".
+(:mod:`bipedtele.follower.sim.flcontrol`). See docs/method.md, "The torque walker".
 
 Motor limits: NAO's leg joints are driven by Maxon RE-Max 24 motors (stall torque 59.5 mN m,
 no-load speed 8,000 rpm) through reduction ratios of 130.85 (hip, knee and ankle pitch) and
