@@ -7,7 +7,9 @@
 # integration tests, alone on the machine (they keep time); then the unit tests, and the
 # CPU-bound deterministic tests (marker `compute`: simulated time, no timing) in a second,
 # niced pytest beside them. Each step lists its slowest tests. pytest's exit code 5
-# (no tests collected) is a failure.
+# (no tests collected) is a failure. The compute step also builds the documentation site
+# strict (tests/unit/test_docs_site.py) and runs the operator's side on a second Python
+# (tests/unit/test_python_versions.py: one skip line where none is found; in CI a failure).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 scripts/bootstrap.sh --test || exit $?
@@ -41,6 +43,6 @@ else
     check_rc $compute_rc "unit, compute" || exit $?
     echo "test.sh: pytest took $(( $(date +%s) - start )) s in all (budget: under 1800 s)"
 fi
-.venv/bin/ruff check common leader follower tests bench || exit 1
-.venv/bin/ruff format --check common leader follower configs docker tests bench || exit 1
+.venv/bin/ruff check common leader follower tests bench docs/hooks || exit 1
+.venv/bin/ruff format --check common leader follower configs docker tests bench docs/hooks || exit 1
 scripts/typecheck.sh || exit 1  # mypy -p bipedtele, the package as installed

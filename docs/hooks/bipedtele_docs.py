@@ -18,6 +18,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from mkdocs.plugins import event_priority
+
 ROOT = Path(__file__).resolve().parents[2]
 API_SRC = ROOT / "build" / "api-src"
 MARKER = "<!-- cli-reference -->"
@@ -26,6 +28,7 @@ MARKER = "<!-- cli-reference -->"
 SUBPACKAGES = {"leader": "leader", "follower": "follower", "configs": "configs"}
 
 
+@event_priority(100)  # before mkdocstrings reads its handler's paths (a fresh clone has none)
 def on_config(config: Any) -> Any:
     """Lay out ``build/api-src/bipedtele`` as the installed package (links into the repository)."""
     pkg = API_SRC / "bipedtele"
@@ -62,7 +65,7 @@ def _escape(text: str) -> str:
 
 
 def _help(action: argparse.Action) -> str:
-    """An action's help with argparse's ``%(default)s``-style fields filled in."""
+    """Return an action's help with argparse's ``%(default)s``-style fields filled in."""
     text = action.help or ""
     if "%" in text:
         params = {k: v for k, v in vars(action).items() if v is not argparse.SUPPRESS}
@@ -139,7 +142,7 @@ def command_parsers() -> list[tuple[str, str, argparse.ArgumentParser]]:
 
 
 def cli_reference() -> str:
-    """The markdown reference of ``bipedtele`` and every sub-command."""
+    """Return the markdown reference of ``bipedtele`` and every sub-command."""
     from bipedtele.cli import _build_parser
 
     os.environ["COLUMNS"] = "100"  # usage lines wrapped the same on every machine
