@@ -11,7 +11,9 @@ want_test=0
 
 PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null 2>&1 || PY=python3
-"$PY" - <<'PYV' || { echo "bootstrap: Python 3.11 is required (found $($PY --version 2>&1))" >&2; exit 2; }
+# The robot side (pybullet, qi) needs Python 3.11; the operator's side alone installs on any
+# current Python with pip (docs/install.md).
+"$PY" - <<'PYV' || { echo "bootstrap: Python 3.11 is required for the robot side (found $($PY --version 2>&1)); allowed: PYTHON=python3.11, or for the operator's side alone on this Python: python3 -m venv .venv && .venv/bin/pip install -e '.[cockpit]'" >&2; exit 2; }
 import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)
 PYV
 
