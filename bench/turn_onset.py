@@ -82,7 +82,7 @@ def models(T: float, latency_s: float, cfg: ControlConfig, dt: float) -> list[di
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--T", type=_floats, default=[0.8, 1.0, 1.2], help="walking cycles [s]")
     ap.add_argument("--scan", type=_floats, default=[1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0], help="turn dampings scanned")
@@ -92,7 +92,58 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stride", type=int, default=2, help="latency step times every N control ticks")
     ap.add_argument("--json", type=Path, default=Path("docs/method_latency.json"))
     ap.add_argument("-v", "--verbose", action="store_true")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _print_table(rows: list[dict[str, Any]]) -> None:
+    print()
+    print("| model | form | " + " | ".join(f"T = {r['T']:g} s: tau* (period [s])" for r in rows) + " | inside all |")
+    print("| --- | --- | " + " | ".join("---" for _ in rows) + " | --- |")
+    print(
+        "| **walker, measured** | | "
+        + " | ".join(
+            f"({r['onset']['below']:g}, {r['onset']['above']:g}] "
+            f"({next(x['period_s'] for x in r['onset']['runs'] if x['tau'] == r['onset']['above']):.2f})"
+            for r in rows
+        )
+        + " | |"
+    )
+    print("| **walker, growth = 1** | | " + " | ".join(f"{r['growth_crossing']:.3f}" for r in rows) + " | |")
+    for i, p in enumerate(rows[0]["models"]):
+        cells = []
+        for r in rows:
+            q = r["models"][i]
+            cells.append(f"{q['tau']:.3f} ({q['period_s']:.2f}){' in' if q['inside'] else ''}")
+        ok = all(r["models"][i]["inside"] for r in rows)
+        print(f"| {p['model']} | {p['form']} | " + " | ".join(cells) + f" | {'yes' if ok else 'no'} |")
+
+
+def _growth(
+    T: float, onset: Any, st: OnsetSettings, cfg: ControlConfig, dt: float
+) -> tuple[list[dict[str, Any]], float]:
+    growth = []
+    for tau in (onset.below - 0.1, onset.below, onset.above, onset.above + 0.1):
+        g = flip_growth(round(tau, 6), T, st)
+        lam = np.linalg.eigvals(latched_step_map_discrete(tau, T / 2.0, cfg, "servo", dt))
+        g["model_latched_servo_50hz"] = float(abs(lam[np.argmin(lam.real)]) ** 2)
+        growth.append(g)
+        print(
+            f"  growth T {T:.2f} tau {tau:.4f}: {g['radius']:.3f} per cycle ({g['steps_fitted']} steps, "
+            f"{g['start']}); latched servo model {g['model_latched_servo_50hz']:.3f}",
+            flush=True,
+        )
+    crossing = math.nan
+    for g0, g1 in itertools.pairwise(growth):
+        r0, r1 = g0["radius"], g1["radius"]
+        if math.isfinite(r0) and math.isfinite(r1) and r0 < 1.0 <= r1:
+            crossing = g0["tau"] + (1.0 - r0) * (g1["tau"] - g0["tau"]) / (r1 - r0)
+            break
+    print(f"  growth crosses 1 at tau {crossing:.3f}", flush=True)
+    return growth, crossing
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     cfg = ControlConfig()
     st = OnsetSettings(warmup_s=args.warmup)
@@ -132,24 +183,7 @@ def main(argv: list[str] | None = None) -> int:
                 + f": turn std {c['turn_std']:.2f} deg/s, limit cycle {c['limit_cycle']}",
                 flush=True,
             )
-        growth = []
-        for tau in (onset.below - 0.1, onset.below, onset.above, onset.above + 0.1):
-            g = flip_growth(round(tau, 6), T, st)
-            lam = np.linalg.eigvals(latched_step_map_discrete(tau, T / 2.0, cfg, "servo", dt))
-            g["model_latched_servo_50hz"] = float(abs(lam[np.argmin(lam.real)]) ** 2)
-            growth.append(g)
-            print(
-                f"  growth T {T:.2f} tau {tau:.4f}: {g['radius']:.3f} per cycle ({g['steps_fitted']} steps, "
-                f"{g['start']}); latched servo model {g['model_latched_servo_50hz']:.3f}",
-                flush=True,
-            )
-        crossing = math.nan
-        for g0, g1 in itertools.pairwise(growth):
-            r0, r1 = g0["radius"], g1["radius"]
-            if math.isfinite(r0) and math.isfinite(r1) and r0 < 1.0 <= r1:
-                crossing = g0["tau"] + (1.0 - r0) * (g1["tau"] - g0["tau"]) / (r1 - r0)
-                break
-        print(f"  growth crosses 1 at tau {crossing:.3f}", flush=True)
+        growth, crossing = _growth(T, onset, st, cfg, dt)
         preds = models(T, lat["mean_s"], cfg, dt)
         for p in preds:
             p["inside"] = bool(onset.below < p["tau"] <= onset.above)
@@ -164,26 +198,7 @@ def main(argv: list[str] | None = None) -> int:
                 "models": preds,
             }
         )
-    print()
-    print("| model | form | " + " | ".join(f"T = {r['T']:g} s: tau* (period [s])" for r in rows) + " | inside all |")
-    print("| --- | --- | " + " | ".join("---" for _ in rows) + " | --- |")
-    print(
-        "| **walker, measured** | | "
-        + " | ".join(
-            f"({r['onset']['below']:g}, {r['onset']['above']:g}] "
-            f"({next(x['period_s'] for x in r['onset']['runs'] if x['tau'] == r['onset']['above']):.2f})"
-            for r in rows
-        )
-        + " | |"
-    )
-    print("| **walker, growth = 1** | | " + " | ".join(f"{r['growth_crossing']:.3f}" for r in rows) + " | |")
-    for i, p in enumerate(rows[0]["models"]):
-        cells = []
-        for r in rows:
-            q = r["models"][i]
-            cells.append(f"{q['tau']:.3f} ({q['period_s']:.2f}){' in' if q['inside'] else ''}")
-        ok = all(r["models"][i]["inside"] for r in rows)
-        print(f"| {p['model']} | {p['form']} | " + " | ".join(cells) + f" | {'yes' if ok else 'no'} |")
+    _print_table(rows)
     wall = time.monotonic() - t_start
     print(f"\nwall {wall:.0f} s")
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=False).stdout.strip()

@@ -442,8 +442,16 @@ def step_latency(
         LOG.info("T %.2f s: step %.2f s into the gait step: latency %.3f s", T, j * dt, lat[-1])
     # baseline profile over whole gait steps in the window
     seg = rate_b[win_a : win_a + 2 * per_step].reshape(2, per_step)
+    settings = {"base_deg_s": base, "delta_deg_s": delta, "v_cm_s": v_cm_s, "eps_s": eps, "settle_s": settle_s,
+                "after_cycles": after_cycles, "control_rate_hz": control_rate_hz}  # fmt: skip
+    return _latency_result(T, phase, lat, seg, settings)
+
+
+def _latency_result(
+    T: float, phase: list[float], lat: list[float], seg: np.ndarray, settings: dict[str, Any]
+) -> dict[str, Any]:
+    """Return :func:`step_latency`'s result from the latencies [s] and the baseline's per-tick turn rates ``seg``."""
     mean_rate = float(seg.mean())
-    profile = (seg.mean(axis=0) / mean_rate).tolist()
     arr = np.array(lat)
     return {
         "T": float(T),
@@ -452,15 +460,7 @@ def step_latency(
         "mean_s": float(arr.mean()),
         "min_s": float(arr.min()),
         "max_s": float(arr.max()),
-        "profile": profile,
+        "profile": (seg.mean(axis=0) / mean_rate).tolist(),
         "mean_rate_deg_s": mean_rate,
-        "settings": {
-            "base_deg_s": base,
-            "delta_deg_s": delta,
-            "v_cm_s": v_cm_s,
-            "eps_s": eps,
-            "settle_s": settle_s,
-            "after_cycles": after_cycles,
-            "control_rate_hz": control_rate_hz,
-        },
+        "settings": settings,
     }
