@@ -41,6 +41,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import IO, Any
 
@@ -57,6 +58,7 @@ from bipedtele.delaymodels import (
 )
 from bipedtele.foxglovelive import parse_address
 from bipedtele.impairments import parse_loss, parse_outage, parse_rate
+from bipedtele.parts import PART_GROUPS
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.tools.demoplan import DemoPlan
 from bipedtele.tools.demostatus import StatusPrinter
@@ -388,6 +390,8 @@ def _run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--scheme {args.scheme}: allowed: {', '.join(scheme_names())}")
         # leader and follower read the same profile: they run the same scheme
         args.overrides = [*args.overrides, f'control.scheme="{args.scheme}"']
+    if args.robot is not None and args.robot not in _robot_names():
+        raise ConfigError(f"--robot {args.robot}: allowed: {', '.join(_robot_names())}")
     cfg = load_config(args.config, args.overrides)  # fail early, before any process starts
     if args.duration is not None and args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds > 0")
@@ -420,6 +424,8 @@ def _run(args: argparse.Namespace) -> int:
         impairments=impairments if backend == "packet" else [],
         netem_extra=netem_extra,
     )
+    if args.robot is not None:
+        plan.follower_args += ["--robot", args.robot]
     if args.foxglove:
         plan.leader_args += ["--foxglove", args.foxglove]
         plan.follower_args += ["--foxglove", _next_port(args.foxglove, backend)]
@@ -428,6 +434,11 @@ def _run(args: argparse.Namespace) -> int:
     leader = cfg.sections.get("leader")
     passes = getattr(leader, "pilot_passes", None) if args.operator == "pilot" else None
     return run_demo(plan, json_path=Path(args.json) if args.json else None, quiet=args.quiet, passes_total=passes)
+
+
+def _robot_names() -> list[str]:
+    """Return the registered robots' names (their entry points: no role is imported)."""
+    return sorted({ep.name for ep in metadata.entry_points(group=PART_GROUPS["robot"])})
 
 
 def _next_port(address: str, backend: str) -> str:
@@ -467,6 +478,12 @@ def add_demo_parser(sub: Any) -> None:
         "--operator", default="pilot", choices=["pilot", "scripted", "browser"], help="who drives (default: pilot)"
     )
     p.add_argument("--headless", action="store_true", help="no cockpit server")
+    p.add_argument(
+        "--robot",
+        default=None,
+        metavar="NAME",
+        help="the follower's robot (default: the profile's [follower] robot; e.g. sim, sim-torque)",
+    )
     p.add_argument("--record", default=None, metavar="F.mcap", help="leader recording (default: RUN_DIR/leader.mcap)")
     p.add_argument("--json", default=None, metavar="F", help="write the report as JSON")
     p.add_argument("--run-dir", default=None, metavar="DIR", help="folder for logs and recordings")

@@ -144,13 +144,14 @@ class RigidBodyModel:
         if names != expected:
             raise RuntimeError(f"pinocchio joint order {names} differs from the gait's {expected}")
         self._foot = {k: self.model.getFrameId(v) for k, v in _FOOT_FRAMES.items()}
+        self._torso = self.model.inertias[1].copy()  # the free flyer's body: torso, head and arms
 
     @property
     def mass(self) -> float:
         """Total mass [kg]."""
         return float(sum(i.mass for i in self.model.inertias))
 
-    def affine(self, q: np.ndarray, v: np.ndarray, contacts: Contacts) -> Affine:
+    def affine(self, q: np.ndarray, v: np.ndarray, contacts: Contacts, torso_scale: float = 1.0) -> Affine:
         """Return ``A``, ``b`` of ``qdd_j = A u + b`` at state ``(q, v)`` with the feet ``contacts`` held.
 
         Parameters
@@ -159,8 +160,14 @@ class RigidBodyModel:
             Free-flyer configuration (19,) and velocity (18,) (see the module's convention).
         contacts : {"L", "R", "LR", ""}
             The feet on the floor ("" : none, free fall).
+        torso_scale : float
+            The torso's (with head and arms) mass and rotational inertia, as a multiple of this
+            model's [-]; its centre of mass stays. The adaptive law's estimate
+            (:class:`~.flcontrol.FeedbackLinearising`).
         """
         model, data = self.model, self.data
+        t0 = self._torso
+        model.inertias[1] = pin.Inertia(t0.mass * torso_scale, t0.lever.copy(), t0.inertia * torso_scale)
         pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)

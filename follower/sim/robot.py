@@ -155,8 +155,9 @@ class SimNao(FollowerRobot):
         self.gait.reset(0.0)
         self._last_yaw = self._yaw_unwrapped = self._base()[2]
         LOG.info(
-            "sim NAO ready: %.0f Hz physics, %d obstacles, sonar %s",
-            cfg.physics_hz,
+            "sim NAO ready (%s): %.0f Hz physics, %d obstacles, sonar %s",
+            self.name,
+            1.0 / self._dt,
             len(self.world.obstacles),
             cfg.nao_version,
         )

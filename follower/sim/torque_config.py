@@ -32,7 +32,7 @@ __all__ = ["PART", "TorqueConfig"]
 class TorqueConfig:
     """Torque-driven NAO settings (``[torque]``; the body, gait and sensors are ``[sim]``'s)."""
 
-    physics_hz: float = param(1000.0, lo=500.0, hi=4000.0, unit="Hz", doc="physics and joint-law rate (>= 500 Hz)")
+    physics_hz: float = param(500.0, lo=500.0, hi=4000.0, unit="Hz", doc="physics and joint-law rate (>= 500 Hz)")
     body_eps_s: float = param(
         0.2, lo=0.01, hi=2.0, unit="s", doc="time constant of the stance leg's outputs (the torso over the stance foot)"
     )
@@ -44,6 +44,13 @@ class TorqueConfig:
     )
     dob_rate_s: float = param(
         20.0, lo=0.0, hi=400.0, unit="1/s", doc="the disturbance observer's rate L for W_hat (0: W_hat = 0)"
+    )
+    mass_rate_s: float = param(
+        5.0,
+        lo=0.0,
+        hi=100.0,
+        unit="1/s",
+        doc="gain of the torso-mass adaptation from W_hat in single support (0: the model's mass is kept)",
     )
     pitch_stall_nm: float = param(
         7.78, lo=0.1, hi=100.0, unit="N m", doc="stall torque of the hip, knee, ankle pitch joints"

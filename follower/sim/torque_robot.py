@@ -72,7 +72,9 @@ class TorqueNao(SimNao):
         pitch, roll = self.torque.reflected_inertia_kgm2()
         self.geom = dataclasses.replace(self.geom, rotor_pitch_kgm2=pitch, rotor_roll_kgm2=roll)
         self.control_model = RigidBodyModel(perturbed_geometry(self.geom, self.torque.model_error))
-        self.law = FeedbackLinearising(self.control_model, self.torque.dob_rate_s, motor_limits(self.torque))
+        self.law = FeedbackLinearising(
+            self.control_model, self.torque.dob_rate_s, motor_limits(self.torque), self.torque.mass_rate_s
+        )
         self._fl = FlState()
         self._com = np.array([0.0, 0.0, self.geom.torso_com_z])
         self.last_output: FlOutput | None = None
