@@ -7,8 +7,11 @@ side by side in one process:
 2. the same plus one QVGA camera rendered at 10 fps (TinyRenderer, CPU);
 3. the same plus both cameras (head and scene) at 10 fps each.
 
+Then the torque walker (``--robot sim-torque``: the joint law (15) on a 20 % wrong model every
+500 Hz physics step) the same way, without and with the head camera.
+
 Prints the real-time factor (simulated seconds per wall second; goals >= 4x physics+control,
->= 1.5x with the camera at 10 fps), the camera's cost per frame (p50/p99), the RMS joint
+>= 1.5x with the camera at 10 fps, >= 1x for the torque walker), the camera's cost per frame (p50/p99), the RMS joint
 tracking error and the forward (eq. 8) and turn tracking errors after the first 5 s.
 
 Then the walker's speed range: per cycle time T (0.6, 0.8, 1.0, 1.2 s asked; the robot
@@ -32,6 +35,7 @@ import time
 import numpy as np
 from bipedtele.follower.robot import WalkCommand
 from bipedtele.follower.sim.robot import SimNao
+from bipedtele.follower.sim.torque_robot import TorqueNao
 from bipedtele.follower.sim.world import TASK_COURSE, WorldConfig
 
 DT = 0.02
@@ -39,14 +43,14 @@ V = 0.05
 TURN = math.radians(4.0)
 
 
-def run(seconds: float, cameras: tuple[str, ...], fps: float) -> dict[str, float]:
+def run(seconds: float, cameras: tuple[str, ...], fps: float, torque: bool = False) -> dict[str, float]:
     # the task course, moved 1.5 m further so the walk (about 1.3 m) does not reach it
     course = [dataclasses.replace(o, position=[o.position[0] + 1.5, *o.position[1:]]) for o in TASK_COURSE]
     world = WorldConfig(obstacles=course)
     frame_s: list[float] = []
     v_err, w_err, j_err = [], [], []
     every = round(1.0 / (fps * DT)) if cameras else 0
-    with SimNao(world=world) as robot:
+    with TorqueNao(world=world) if torque else SimNao(world=world) as robot:
         t0 = time.perf_counter()
         for i in range(round(seconds / DT)):
             turn = TURN if i * DT > seconds / 2 else 0.0
@@ -157,17 +161,22 @@ def main() -> None:
 
 def print_rtf(seconds: float) -> None:
     rows = [
-        ("physics + control", (), 0.0, 4.0),
-        ("+ head camera 10 fps", ("head",), 10.0, 1.5),
-        ("+ head & scene 10 fps", ("head", "scene"), 10.0, 1.5),
+        ("physics + control", (), 0.0, 4.0, False),
+        ("+ head camera 10 fps", ("head",), 10.0, 1.5, False),
+        ("+ head & scene 10 fps", ("head", "scene"), 10.0, 1.5, False),
+        ("torque walker", (), 0.0, 1.0, True),
+        ("torque + head camera", ("head",), 10.0, 1.0, True),
     ]
-    print(f"sim NAO, {seconds:.0f} s simulated per run, 50 Hz control, QVGA TinyRenderer")
+    print(
+        f"sim NAO, {seconds:.0f} s simulated per run, 50 Hz control, QVGA TinyRenderer; the torque walker "
+        "(--robot sim-torque): the joint law (15) every 500 Hz physics step, model 20 % wrong"
+    )
     print(
         f"{'run':24s} {'RTF':>6s} {'goal':>5s} {'frame p50/p99 ms':>17s} {'joint RMS deg':>13s} "
         f"{'|v err| cm/s':>12s} {'|turn err| deg/s':>16s}"
     )
-    for name, cams, fps, goal in rows:
-        r = run(seconds, cams, fps)
+    for name, cams, fps, goal, torque in rows:
+        r = run(seconds, cams, fps, torque)
         frame = f"{r['frame_p50_ms']:.1f}/{r['frame_p99_ms']:.1f}" if cams else "-"
         print(
             f"{name:24s} {r['rtf']:5.1f}x {goal:4.1f}x {frame:>17s} {r['joint_rms_deg']:13.2f} "

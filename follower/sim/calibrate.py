@@ -7,12 +7,17 @@ Both are identified on the walker the follower runs (physics, gait and the follo
 servo, :class:`~bipedtele.follower.sim.poincare.WalkerServo`):
 
 ``dp``
-    At steady walking with the paper's reference speeds, for every touchdown: the hip
-    speed of eq. (8) as the follower measures it (mean over a control period) in the
-    first control period after the gait's touchdown over that in the last control period
-    before it; the median over the touchdowns. The mean over the half step after
-    (``dp_step``) is reported next to it: the walker regains its speed within a control
-    period or two, at the joint servo's bandwidth, not at the rate ``k_v/M``.
+    At steady walking with the paper's reference speeds, for every touchdown: the torso's
+    forward speed at the end of the control period that holds the gait's touchdown over
+    that at the end of the period before it; the median over the touchdowns
+    (``dp_torso``: the speed the impact keeps, what the reset (22) models). Reported next
+    to it: the same ratio of the hip speed of eq. (8) as the follower measures it (mean
+    over a control period, ``dp``) and of the means over the half steps (``dp_step``).
+    The hip speed is measured over the stance foot, so in the period of a touchdown it
+    also holds the landing foot's own motion: on the position walker, whose joints track
+    their references exactly, the two ratios agree (1.04 and 1.05); on the torque walker
+    the landing foot still moves when it lands and the hip's ratio is 0.06 (quartiles
+    -0.13 to 0.18) while the torso keeps 0.96 of its speed (docs/method.md).
 ``k_v``
     A step of the forward reference (2 -> 5 cm/s, no turn, ``sigma_r = 0``); the hip
     speed averaged over a walking cycle is fitted by the first-order response
@@ -52,11 +57,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pybullet as pb
 from bipedtele.config import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.hybrid import rho_hybrid
 from bipedtele.follower.sim.config import SimConfig
-from bipedtele.follower.sim.poincare import MapSettings, WalkerMap, operating_point
+from bipedtele.follower.sim.poincare import MapSettings, WalkerMap, add_walker_arg, operating_point, walker_torque
 from scipy.optimize import curve_fit
 
 __all__ = ["add_calibrate_parser", "calibrate", "identify_dp", "identify_speed_response", "model_dp"]
@@ -77,8 +83,9 @@ def identify_dp(
     Returns
     -------
     dict
-        ``dp`` (median), ``dp_iqr`` ([25 %, 75 %] quantiles), ``dp_step`` (half-step
-        means), ``touchdowns`` (count), ``T``.
+        ``dp_torso`` (median of the torso's ratios: the model's ``dp``), ``dp`` (median of
+        the hip's), ``dp_iqr`` (its [25 %, 75 %] quantiles), ``dp_step`` (half-step means),
+        ``touchdowns`` (count), ``T``.
     """
     control = control or ControlConfig()
     st = settings or MapSettings()
@@ -91,12 +98,15 @@ def identify_dp(
         sv.run(st.warmup_s)
         half = round(T / 2.0 / sv.dt)
         speeds: list[float] = []
+        torso: list[float] = []
         stance: list[str] = []
         for _ in range(round(cycles * T / sv.dt)):
             sv.step()
             speeds.append(float(sv.eta_meas[0]))
+            torso.append(_torso_forward(robot))
             stance.append(robot.gait.stance)
-    v = np.asarray(speeds)
+    v, w = np.asarray(speeds), np.asarray(torso)
+    torso_ratios: list[float] = []
     for k in range(1, len(stance)):
         if stance[k] != stance[k - 1] and k + 1 < len(v) and k >= half and k + half <= len(v):
             # the control period ending at tick k holds the touchdown; k - 1 is the last before
@@ -104,6 +114,8 @@ def identify_dp(
             if abs(before) > 1e-6:
                 ratios.append(float(v[k] / before))
                 step_ratios.append(float(v[k : k + half].mean() / v[k - half : k].mean()))
+            if abs(w[k - 1]) > 1e-6:
+                torso_ratios.append(float(w[k] / w[k - 1]))
     if not ratios:
         raise RuntimeError("no touchdown observed: the walker did not walk")
     q25, q75 = np.percentile(ratios, [25, 75])
@@ -111,9 +123,17 @@ def identify_dp(
         "dp": float(np.median(ratios)),
         "dp_iqr": [float(q25), float(q75)],
         "dp_step": float(np.median(step_ratios)),
+        "dp_torso": float(np.median(torso_ratios)) if torso_ratios else math.nan,
         "touchdowns": len(ratios),
         "T": T,
     }
+
+
+def _torso_forward(robot: Any) -> float:
+    """Return the torso's forward speed along its heading now [cm/s] (pybullet's base velocity)."""
+    lin, _ = pb.getBaseVelocity(robot._robot, physicsClientId=robot._client)
+    yaw = robot._base()[2]
+    return 100.0 * (lin[0] * math.cos(yaw) + lin[1] * math.sin(yaw))
 
 
 def model_dp(measured: float) -> float:
@@ -163,7 +183,7 @@ def identify_speed_response(
         st_eps(control),
         control=control,
         sim=sim,
-        settings=MapSettings(v_ref=v0, turn_ref=0.0, control_rate_hz=st.control_rate_hz),
+        settings=MapSettings(v_ref=v0, turn_ref=0.0, control_rate_hz=st.control_rate_hz, torque=st.torque),
     ) as m:
         sv, robot = m.servo, m.robot
         sv.tick()
@@ -227,12 +247,12 @@ def calibrate(
     st = settings or MapSettings()
     reset = identify_dp(T, control=control, sim=sim, settings=st)
     resp = identify_speed_response(T, control=control, sim=sim, settings=st)
-    dp = model_dp(reset["dp"])
+    dp = model_dp(reset["dp_torso"])
     loop = dataclasses.replace(
         control, hybrid_model="speed-loop", calibrated_dp=dp, calibrated_k_v=resp["k_v"]
     ).hybrid()
     if points is None:
-        op = operating_point(control, sim)
+        op = operating_point(control, sim, st.control_rate_hz, st.physics_hz(sim))
         points = [(op["sigma_r"], op["T"]), ([0.0, 0.0], 0.8), ([0.0, 0.0], 1.6)]
     rows: list[dict[str, Any]] = []
     eps = st_eps(control)
@@ -274,7 +294,8 @@ def _run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     control = cfg.get(ControlConfig)
     sim = cfg.get(SimConfig)
-    out = calibrate(control=control, sim=sim, T=args.T)
+    settings = MapSettings(torque=walker_torque(args.robot, cfg))
+    out = calibrate(control=control, sim=sim, settings=settings, T=args.T)
     text = json.dumps(out, indent=1)
     if args.json:
         try:
@@ -283,8 +304,9 @@ def _run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--json {args.json}: cannot write ({exc.strerror})") from None
     r, s = out["dp"], out["speed_response"]
     sys.stdout.write(
-        f"dp = {r['dp']:.3f} (IQR {r['dp_iqr'][0]:.3f}-{r['dp_iqr'][1]:.3f}, {r['touchdowns']} touchdowns; "
-        f"half-step ratio {r['dp_step']:.3f}); the model's dp {out['speed_loop']['dp']:.3f} (reset (22) in (0, 1])\n"
+        f"dp = {r['dp_torso']:.3f} (torso's speed across a touchdown, {r['touchdowns']} touchdowns; hip of eq. (8) "
+        f"{r['dp']:.3f}, IQR {r['dp_iqr'][0]:.3f}-{r['dp_iqr'][1]:.3f}; half-step ratio {r['dp_step']:.3f}); "
+        f"the model's dp {out['speed_loop']['dp']:.3f} (reset (22) in (0, 1])\n"
         f"speed response: tau = {s['tau_s']:.2f} s, dead time {s['dead_time_s']:.2f} s, k_v = M/tau = {s['k_v']:.3f}, "
         f"v_hip gain {s['gain']:.3f}, ground-speed gain {s['ground_gain']:.3f}, fit rms {s['rms']:.3f} cm/s\n"
     )
@@ -305,5 +327,6 @@ def add_calibrate_parser(sub: Any) -> None:
     p = sub.add_parser("calibrate", help="identify the reduced model's dp and k_v on the simulated walker")
     p.add_argument("--json", metavar="FILE", help="write the identification and the radius comparison as JSON")
     p.add_argument("--T", type=float, default=0.8, help="walking cycle for the identification [s] (default 0.8)")
+    add_walker_arg(p)
     add_config_args(p)
     p.set_defaults(func=_run)

@@ -70,6 +70,7 @@ from bipedtele.follower.robot import WalkCommand
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.model import LEG_JOINTS
 from bipedtele.follower.sim.robot import SimNao
+from bipedtele.follower.sim.torque_config import TorqueConfig
 from bipedtele.follower.sim.world import WorldConfig
 
 __all__ = [
@@ -129,6 +130,12 @@ _NOT_STATE = {
     "limits",
     "sonar_range_m",
     "_dt",
+    # the torque walker's law and model (its state, _fl, is copied)
+    "torque",
+    "law",
+    "control_model",
+    "_com",
+    "last_output",
 }
 
 
@@ -182,6 +189,11 @@ class MapSettings:
     newton_max_step : float
         Largest Newton step per state value, in perturbation sizes (a trust region: the map
         is non-smooth beyond a few sizes).
+    torque : TorqueConfig or None
+        None: the position walker (``--robot sim``); a ``[torque]`` section: the torque
+        walker (``--robot sim-torque``, :class:`~.torque_robot.TorqueNao`), whose joint law's
+        state (observer, torso-mass estimate) is kept at the fixed point's in every
+        evaluation (it is not in the map's state vector).
     """
 
     v_ref: float = 5.0
@@ -196,6 +208,19 @@ class MapSettings:
     newton_iterations: int = 0
     newton_scales: tuple[float, ...] = (0.3, 1.0, 3.0)
     newton_max_step: float = 10.0
+    torque: TorqueConfig | None = None
+
+    def physics_hz(self, sim: SimConfig) -> float:
+        """Return the walker's physics rate [Hz]: ``[torque]``'s for the torque walker, else ``[sim]``'s."""
+        return self.torque.physics_hz if self.torque is not None else sim.physics_hz
+
+    def build_robot(self, sim: SimConfig) -> SimNao:
+        """Return the walker these settings name, not yet connected, on an empty floor."""
+        if self.torque is None:
+            return SimNao(sim, world=WorldConfig())
+        from bipedtele.follower.sim.torque_robot import TorqueNao
+
+        return TorqueNao(sim, world=WorldConfig(), torque=self.torque)
 
 
 class WalkerServo:
@@ -478,12 +503,12 @@ class WalkerMap:
     ) -> None:
         self.settings = settings or MapSettings()
         self.sim = sim or SimConfig()
-        check_alignment(T, self.sim.physics_hz, self.settings.control_rate_hz)
+        check_alignment(T, self.settings.physics_hz(self.sim), self.settings.control_rate_hz)
         lo, hi = self.sim.cycle_min_s, self.sim.cycle_max_s
         if not lo - 1e-9 <= T <= hi + 1e-9:
             raise ConfigError(f"T = {T:g} s: allowed: the simulated NAO's cycle range [{lo:g}, {hi:g}] s")
         self.control = control or ControlConfig()
-        self.robot = SimNao(self.sim, world=WorldConfig())
+        self.robot = self.settings.build_robot(self.sim)
         self.robot.connect()
         st = self.settings
         self.servo = WalkerServo(
@@ -754,17 +779,20 @@ def alignment_quantum(physics_hz: float, control_rate_hz: float) -> float:
     return 1.0 / math.gcd(a, b)
 
 
-def operating_point(control: ControlConfig, sim: SimConfig, control_rate_hz: float = 50.0) -> dict[str, Any]:
+def operating_point(
+    control: ControlConfig, sim: SimConfig, control_rate_hz: float = 50.0, physics_hz: float | None = None
+) -> dict[str, Any]:
     """Return the follower's parameters at zero delay: (40) then (30), as the robot applies them.
 
     The robot clamps ``T`` and ``eps`` to what it accepts; ``T`` is then rounded to the
-    nearest cycle whose touchdowns fall on control ticks (:func:`alignment_quantum`).
+    nearest cycle whose touchdowns fall on control ticks (:func:`alignment_quantum`) at
+    ``physics_hz`` [Hz] (default ``sim.physics_hz``).
     """
     from bipedtele.control.damping import schedule_damping
     from bipedtele.control.online import OnlineChooser
 
     choice = OnlineChooser(control).choose(schedule_damping(0.0, 0.0, control).s_e)
-    q = 2.0 * alignment_quantum(sim.physics_hz, control_rate_hz)
+    q = 2.0 * alignment_quantum(sim.physics_hz if physics_hz is None else physics_hz, control_rate_hz)
     T = float(np.clip(choice.T, sim.cycle_min_s, sim.cycle_max_s))
     T = float(
         np.clip(round(T / q) * q, math.ceil(sim.cycle_min_s / q - 1e-9) * q, math.floor(sim.cycle_max_s / q + 1e-9) * q)
@@ -841,10 +869,10 @@ def poincare_grid(
     control = control or ControlConfig()
     sim = sim or SimConfig()
     st = settings or MapSettings()
-    op = operating_point(control, sim, st.control_rate_hz)
+    op = operating_point(control, sim, st.control_rate_hz, st.physics_hz(sim))
     eps = op["eps"]
     for T in Ts:
-        check_alignment(T, sim.physics_hz, st.control_rate_hz)
+        check_alignment(T, st.physics_hz(sim), st.control_rate_hz)
     grid_st = dataclasses.replace(st, newton_iterations=0)
     tasks = [([s, s], T, eps, control, sim, grid_st) for s, T in grid(sigmas, Ts)]
     tasks.append((op["sigma_r"], op["T"], eps, control, sim, st))
@@ -1113,6 +1141,7 @@ def _run(args: argparse.Namespace) -> int:
         control_rate_hz=cfg.get(FollowerConfig).control_rate_hz,
         contraction=not args.table,
         newton_iterations=args.newton,
+        torque=walker_torque(args.robot, cfg),
     )
     sim = cfg.get(SimConfig)
     for T in Ts:
@@ -1157,6 +1186,23 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def walker_torque(robot: str, cfg: Any) -> TorqueConfig | None:
+    """``--robot``: None for the position walker (``sim``), the profile's ``[torque]`` for ``sim-torque``."""
+    from bipedtele.config import resolve_section
+
+    return resolve_section(cfg, TorqueConfig, "torque") if robot == "sim-torque" else None
+
+
+def add_walker_arg(p: Any) -> None:
+    """``--robot {sim,sim-torque}``: the simulated walker whose map is measured."""
+    p.add_argument(
+        "--robot",
+        choices=["sim", "sim-torque"],
+        default="sim",
+        help="the position walker (sim, default) or the torque walker (sim-torque: the paper's joint law (15))",
+    )
+
+
 def add_poincare_parser(sub: Any) -> None:
     """``bipedtele poincare [--json F] [--plot F.png] [--sigma 0,2.5,5] [--T 0.8,1.2,1.6]``."""
     from bipedtele.cli import add_config_args
@@ -1195,5 +1241,6 @@ def add_poincare_parser(sub: Any) -> None:
     )
     p.add_argument("--json", metavar="FILE", help="write the points as JSON")
     p.add_argument("--plot", metavar="FILE.png", help="write the surfaces (Fig. 6 counterpart)")
+    add_walker_arg(p)
     add_config_args(p)
     p.set_defaults(func=_run)

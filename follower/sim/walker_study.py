@@ -50,6 +50,7 @@ from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.loop import FollowerLoop
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.robot import SimNao
+from bipedtele.follower.sim.torque_config import TorqueConfig
 from bipedtele.follower.sim.world import WorldConfig
 from bipedtele.messages import Command, Feedback, new_session_id
 from scipy import stats
@@ -181,6 +182,7 @@ def walker_run(
     params: StudyParams,
     cp: tuple[np.ndarray, float, float] | None,
     lost: tuple[np.ndarray, np.ndarray] | None = None,
+    torque: TorqueConfig | None = None,
 ) -> WalkerRun:
     """Simulate one run (CP when ``cp = (sigma_r, T, eps)`` is given, VP otherwise).
 
@@ -188,6 +190,8 @@ def walker_run(
     ``h1``/``h2`` the one-way delay of a message sent at each leader step [s]; ``lost``
     marks the commands and the feedback messages lost on the way (none by default). Both
     sides run ``control.scheme`` (pd-worst-case sized for this run's largest delays).
+    ``torque``: drive the torque walker (``--robot sim-torque``) with this ``[torque]``
+    instead of the position walker.
     """
     t_wall = time.perf_counter()
     dt = params.dt
@@ -212,7 +216,7 @@ def walker_run(
         if isinstance(msg, Feedback) and not lost2[k]:
             heapq.heappush(pending_fb, (k + math.ceil(h2[k] / dt - 1e-9), k, msg))
 
-    robot = SimNao(sim, world=WorldConfig())
+    robot = SimNao(sim, world=WorldConfig()) if torque is None else _torque_nao(sim, torque)
     robot.connect()
     try:
         kwargs: dict[str, Any] = {"now": lambda: clock[0]}
@@ -242,6 +246,12 @@ def walker_run(
     finally:
         robot.disconnect()
     return acc.result(time.perf_counter() - t_wall)
+
+
+def _torque_nao(sim: SimConfig, torque: TorqueConfig) -> SimNao:
+    from bipedtele.follower.sim.torque_robot import TorqueNao
+
+    return TorqueNao(sim, world=WorldConfig(), torque=torque)
 
 
 class _Accumulator:

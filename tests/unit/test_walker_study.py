@@ -83,6 +83,7 @@ def test_calibration_identifies_dp_and_k_v() -> None:
     out = calibrate(settings=st, points=[([0.0, 0.0], 0.8)])
     reset, resp = out["dp"], out["speed_response"]
     assert 0.0 < reset["dp"] <= 1.2 and reset["touchdowns"] >= 10
+    assert 0.9 < reset["dp_torso"] <= 1.2  # the position walker: the torso keeps its speed across an impact
     assert resp["k_v"] == pytest.approx(ControlConfig().D[0] / resp["tau_s"])
     assert 0.5 < resp["tau_s"] < 20.0 and resp["rms"] < 0.3  # a first-order response fits the walker
     assert 0.9 < resp["gain"] < 1.1  # the servo's integral action: v_hip reaches the reference
