@@ -175,11 +175,13 @@ class _Aux:
                     next_status = now_m + 1.0 / lc.status_rate_hz
                     counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
                     counters.update(commands=self.loop.seq, feedback=self.loop.feedback_count,
-                                    missed_ticks=self.loop.missed_ticks)  # fmt: skip
+                                    missed_ticks=self.loop.missed_ticks, blind_stops=self.loop.blind.stops)  # fmt: skip
                     counters.update(link_counters(self.report(now)))
                     self._status_seq += 1
+                    blind = self.loop.blind.words()
                     st = Status(sid=self.loop.sid, seq=self._status_seq, t=now, role="leader",
-                                state=self.loop.state, counters=counters, text=text, operator=user)  # fmt: skip
+                                state=self.loop.state, counters=counters, text=f"{text}; {blind}" if blind else text,
+                                operator=user)  # fmt: skip
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
                 self.record_progress(now)
@@ -511,6 +513,7 @@ class LeaderApp:
                 self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, self._latest_feedback,
                 cfg=lc, clock=self.clock, estimator=self.estimator, conservative_rtt=node.round_trip,
                 on_sample=self._on_sample, sid=node.sid, operator_name=self.cfg.get(NetworkConfig).user,
+                feedback_age=self.link.feedback_age if self.realtime else None, on_blind=node.event,
             )  # fmt: skip
             self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
                                              node.record, self.reach, self.link, hand=self._hand))  # fmt: skip
@@ -609,6 +612,8 @@ def _summary(
     else:
         received = f"{loop.feedback_count} feedback received"
     parts.append(f"{loop.seq} commands sent, {received}, {drops.total} dropped")
+    if loop.blind.stops:
+        parts.append(f"{loop.blind.stops} blind stops (no fresh feedback for {loop.blind.stop_s:g} s)")
     if loop.h1 is not None and loop.h2 is not None:
         parts.append(f"last delay h1+h2 {1000 * (loop.h1 + loop.h2):.0f} ms")
     parts.append(f"max |f_m| now {float(np.abs(loop.force).max()):.2f} N")
