@@ -397,7 +397,7 @@ class LeaderApp:
         t_sent = self.node.to_local(msg.t)
         if self.link.on_feedback(msg.sid, msg.seq, t_sent, got.t_recv, self._size(msg)):
             self._fb_ok = got
-            self.reach.on_feedback(msg)  # only young feedback acknowledges commands
+            self.reach.on_feedback(msg, got.t_recv - t_sent)  # only young feedback acknowledges commands
         else:
             self.node.drops.drop(
                 "fb_too_old",
@@ -407,7 +407,7 @@ class LeaderApp:
 
     def _on_video(self, got: Received[VideoFrame]) -> None:
         msg = got.msg
-        self.reach.on_heard()
+        self.reach.on_heard(got.t_recv - self.node.to_local(msg.t))  # old frames: a stalled uplink, not the ACL
         nbytes = self._size(msg)
         if msg.parts > 1:
             self.link.on_video_part(got.t_recv, nbytes)
@@ -422,7 +422,7 @@ class LeaderApp:
 
     def _on_status(self, got: Received[Status]) -> None:
         if got.msg.role == "follower":
-            self.reach.on_heard()
+            self.reach.on_heard(got.t_recv - self.node.to_local(got.msg.t))
             self.link.on_status(got.t_recv, self._size(got.msg))
 
     def _latest_feedback(self) -> tuple[Feedback, float] | None:
