@@ -15,8 +15,9 @@ Everything here is measured at the leader from what arrives (no clock but the on
 - **loss**: sequence gaps of the feedback that arrived over the last ``window_s`` (2 s),
   in parts per million of the messages sent in that time (a new follower session starts
   counting afresh); the gap of an outage (a feedback arriving after ``lost_after_s`` of
-  silence) is no loss: it is counted apart (``outage_gaps``), or the link read "lossy"
-  for 2 s after every gap of a cellular uplink;
+  silence, or more than ``lost_after_s`` older than the recent minimum delay: the backlog
+  of a stalled path) is no loss: it is counted apart (``outage_gaps``), or the link read
+  "lossy" for 2 s after every gap of a cellular uplink;
 - **goodput**: payload bytes received over the last ``window_s`` on feedback, video and
   status [bit/s]; unknown (None) until ``window_s`` has passed since the first byte;
 - **video**: frames received per second over ``window_s`` (all cameras) and the newest
@@ -230,7 +231,11 @@ class LinkQuality:
             self.fb_arrived += 1
             self._add_bytes(t_recv, nbytes)
             lost = 0
-            outage = self._last_arrival is not None and t_recv - self._last_arrival > self.lost_after_s
+            base = self._mins[0][1] if self._mins else 0.0
+            # after a silence, or part of the backlog a stalled path delivers late
+            outage = (self._last_arrival is not None and t_recv - self._last_arrival > self.lost_after_s) or (
+                age > base + self.lost_after_s
+            )
             self._last_arrival = t_recv
             if sid != self._fb_sid:  # a new follower session: its numbers start afresh
                 self._fb_sid, self._fb_seq = sid, seq

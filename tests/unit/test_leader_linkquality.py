@@ -247,3 +247,9 @@ def test_an_outages_sequence_gap_is_not_loss() -> None:
     assert rep.loss_ppm == 0 and rep.state == "ok" and lq.outage_gaps == 1
     feed(lq, clock, 1.0, seq=seq, skip_every=10)  # a gap within the flow is loss as before
     assert lq.report().loss_ppm > 0
+    # the backlog of a stalled path (1.5 s late, some of it dropped on the way): no loss
+    lq2, clock2 = make()
+    seq2 = [0]
+    feed(lq2, clock2, 3.0, seq=seq2)
+    feed(lq2, clock2, 2.5, seq=seq2, delay=1.5, skip_every=3)
+    assert lq2.report().loss_ppm == 0 and lq2.outage_gaps > 20
