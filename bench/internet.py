@@ -646,6 +646,7 @@ def main(argv: list[str] | None = None) -> int:
         "--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)"
     )
     p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
+    p.add_argument("--tag", default="", help="prefix of the namespaces' 4-character tag (random hex after it)")
     p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
     p.add_argument(
         "--workdir", default=None, metavar="DIR", help="keep logs and recordings here (default: a temp dir, removed)"
@@ -683,7 +684,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"--- {cond.label} [{lk}] ({args.seconds:g} s) ...", flush=True)
                 try:
                     r = run_condition(cond, lk, args.seconds, setup_out, commands,
-                                      work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed)  # fmt: skip
+                                      work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed,
+                                      tag=args.tag + secrets.token_hex(2)[: 4 - len(args.tag)])  # fmt: skip
                 except (RuntimeError, NetnsError) as exc:
                     r = {"condition": name, "label": cond.label, "links": lk, "error": str(exc)}
                 r["wall_s"] = round(time.monotonic() - t_start, 1)
