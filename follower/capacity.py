@@ -69,9 +69,10 @@ runs).
   (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
   ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a
   cellular uplink to 4-43 kbit/s at its first gap and probed back at 0.5 %/s.
-- **recovery.** Below ``drain_ratio`` of that delivered rate, with h2 clear, the capacity
-  grows by ``start_growth`` (x1.3) a second, up to it: a dip of the path's capacity is
-  not a new ceiling.
+- **recovery.** With a ceiling under half that delivered rate (set in a dip) and h2
+  clear, the capacity grows by ``start_growth`` (x1.3) a second up to ``drain_ratio`` of
+  it, the ceiling with it: a dip of the path's capacity is not a new ceiling. (A token
+  bucket's burst delivers above its rate for a window; a ceiling near the rate is kept.)
 
 :meth:`UplinkBudget.video_budget_bps` gives video what control leaves: capacity minus the
 measured control rate minus a margin (``margin`` of the capacity, at least
@@ -354,10 +355,15 @@ class UplinkBudget:
             # changes now and then; a sawtooth against a known ceiling only builds queues)
             step = tu.ceiling_probe * self.capacity_bps
         step *= 1.0 - min(1.0, q.standing_s / tu.queue_target_s)  # slower as a standing queue nears the target
-        # below what the path delivered lately (a dip, not a new ceiling): back towards it fast
-        known = tu.drain_ratio * (self.delivery.max_bps or 0.0)
+        # a ceiling under half what the path delivered lately was set in a dip (a near-zero
+        # stretch): back towards what it delivered, fast; a token bucket's burst delivers
+        # above its rate for a window, so a ceiling near that rate is kept
+        best = self.delivery.max_bps or 0.0
+        known = tu.drain_ratio * best if self.ceiling_bps is None or self.ceiling_bps < 0.5 * best else 0.0
         if self.capacity_bps < known:
             step = max(step, (tu.start_growth - 1.0) * self.capacity_bps)
+            if self.ceiling_bps is not None:
+                self.ceiling_bps = max(self.ceiling_bps, self.capacity_bps)  # frames sized to the path again
         probed = self.capacity_bps + step * dt
         # probe near what is used: an estimate far above the sending rate was never tested
         self.capacity_bps = max(self.capacity_bps, min(probed, max(2.0 * tx + tu.floor_bps, known)))
