@@ -438,6 +438,20 @@ def operator_sockets(ns: str, out: Path) -> dict[str, int]:
     }
 
 
+def _summary_line(leader: Proc) -> str:
+    summary = [ln for ln in leader.log().splitlines() if ln.startswith("leader:")]
+    return summary[-1] if summary else leader.tail(3)
+
+
+def shape_robot(top: Topology, tbf: tuple[str, ...]) -> None:
+    """The kernel's tbf on the robot's egress, before the (then transparent) emulator."""
+    dev = top.link.dev[SIDE_A]
+    tc = ["ip", "netns", "exec", top.ns["robot"], "tc", "qdisc", "add", "dev", dev, "root", "tbf", *tbf]
+    r = subprocess.run(tc, capture_output=True, text=True, timeout=20)
+    if r.returncode != 0:
+        raise RuntimeError(f"tc tbf: {r.stderr.strip()}")
+
+
 def run_condition(
     cond: Condition, links: str | None, seconds: float, setup_out: Path, commands: dict[str, list[str]],
     run_dir: Path, *, seed: int = 1, startup_s: float = 5.0, say: Any = print, tag: str | None = None,
@@ -468,25 +482,8 @@ def run_condition(
                 ])  # fmt: skip
                 return t0
 
-            if cond.tbf:  # the robot's egress, before the (then transparent) emulator
-                dev = top.link.dev[SIDE_A]
-                tc = [
-                    "ip",
-                    "netns",
-                    "exec",
-                    top.ns["robot"],
-                    "tc",
-                    "qdisc",
-                    "add",
-                    "dev",
-                    dev,
-                    "root",
-                    "tbf",
-                    *cond.tbf,
-                ]
-                r = subprocess.run(tc, capture_output=True, text=True, timeout=20)
-                if r.returncode != 0:
-                    raise RuntimeError(f"tc tbf: {r.stderr.strip()}")
+            if cond.tbf:
+                shape_robot(top, cond.tbf)
             router = go("router", "router", [])
             router.wait_log(r"router: \S+ listening on", 60.0)
             t0 = emulate() if cond.topology == "lan" else None  # the robot's path crosses it
@@ -512,9 +509,8 @@ def run_condition(
                 p.stop(5.0)
             top.link.stop_emulator()
     res: dict[str, Any] = {"condition": cond.name, "label": cond.label, "links": links or "as written",
-                           "leader_rc": leader_rc, "run_dir": str(run_dir), "operator_sockets": sockets}  # fmt: skip
-    summary = [ln for ln in leader.log().splitlines() if ln.startswith("leader:")]
-    res["leader_summary"] = summary[-1] if summary else leader.tail(3)
+                           "leader_rc": leader_rc, "run_dir": str(run_dir), "operator_sockets": sockets,
+                           "leader_summary": _summary_line(leader)}  # fmt: skip
     l_path, f_path = _recording(homes["operator"], "leader"), _recording(homes["robot"], "follower")
     if l_path is None or f_path is None:
         res["error"] = f"no recording (leader {l_path}, follower {f_path}); leader log:\n{leader.tail()}"
