@@ -33,9 +33,9 @@ s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("0.0.0.0", 5333))
 s.settimeout(3.0); got = []
 try:
     while True:
-        got.append(time.time()); s.recv(2000)
+        s.recv(2000); got.append(time.time())
 except TimeoutError:
-    got.pop()
+    pass
 print(json.dumps(got))
 """
 
