@@ -363,7 +363,8 @@ def analyse(
     )
     res["gap"] = gap_figures(l_rec, f_rec, leader_log)
     if outage_wall is not None:
-        res["outage"] = outage_figures(fb_sent, cmd, *outage_wall)
+        moved = [r.t_recv for r in l_rec if r.topic == "events" and r.data.get("event") == "blind_over"]
+        res["outage"] = outage_figures(fb_sent, cmd, *outage_wall, moved=moved)
         res["outage"]["cut_after_first_command_s"] = round(outage_wall[0] - t_begin, 1)
     return res
 
@@ -404,8 +405,21 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
     }  # fmt: skip
 
 
-def outage_figures(fb_sent: list[Record], cmd: list[Record], cut: float, back: float) -> dict[str, Any]:
-    """Stop and restart latencies around an outage, and what of the backlog was applied after it."""
+def outage_figures(
+    fb_sent: list[Record], cmd: list[Record], cut: float, back: float, moved: list[float] | None = None
+) -> dict[str, Any]:
+    """Stop and restart latencies around an outage, and what of the backlog was applied after it.
+
+    ``moved``: when the leader's blind stops ended (fresh feedback and a handle move,
+    ``blind_over`` events): the restart after the first one past the path's return is
+    ``restart_after_move_s`` (the robot waits for the operator's move then).
+    """
+    move = min((t for t in moved or [] if t >= back), default=None)
+    after_move = (
+        None
+        if move is None
+        else next((r.t_recv - move for r in fb_sent if r.t_recv >= move and r.data.get("state") == "walking"), None)
+    )
     before = [r for r in fb_sent if r.t_recv < cut]
     walking_at_cut = bool(before) and before[-1].data.get("state") == "walking"
     stop = next((r.t_recv - cut for r in fb_sent if r.t_recv >= cut and r.data.get("state") != "walking"), None)
@@ -421,6 +435,8 @@ def outage_figures(fb_sent: list[Record], cmd: list[Record], cut: float, back: f
             None if stop is None or last_cmd is None else round(cut + stop - last_cmd, 3)
         ),
         "restart_latency_s": None if restart is None else round(restart, 3),
+        "restart_after_move_s": None if after_move is None else round(after_move, 3),
+        "move_after_return_s": None if move is None else round(move - back, 3),
         "first_command_after_s": None if first_after is None else round(first_after.t_recv - back, 3),
         "stale_applied": len(stale),
         "stale_oldest_age_s": round(max((r.t_recv - r.data["t"] for r in stale), default=0.0), 3),
