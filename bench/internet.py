@@ -1,7 +1,8 @@
 """Benchmark: issue 19's table, the README's two hosts on an emulated internet path.
 
     .venv/bin/python bench/internet.py [--seconds 90] [--links split|single|single,split]
-        [--only trace,loss1,loss5,outage,lan600-video,lan600-novideo,lan300-video,lan300-novideo]
+        [--only trace,loss1,loss5,outage,lan600-video,lan600-novideo,lan300-video,lan300-novideo,
+                tbf600-video,tbf600-novideo,tbf300-video,lte,3g]
         [--json F] [--workdir DIR] [--seed N]
 
 What a field engineer would do: ``bipedtele setup two-hosts --router-name router.bt.test``
@@ -23,7 +24,13 @@ namespace (``/etc/netns/NS/hosts``):
   the outage both directions at ``--outage-at`` s (default 40) of the emulator's origin,
   which is set just before the leader starts;
 - LAN rows: robot | emulator | router + operator. No delay; the robot -> router direction
-  capped (``--rate-forward``) with a 64 kB queue.
+  capped (``--rate-forward``) with a 64 kB queue;
+- kernel tbf rows: the same hosts, the emulator transparent, the robot's interface shaped by
+  the kernel's token bucket (``tc qdisc add dev D root tbf rate R burst 16kb limit 64kb``:
+  a modem's or a policer's shaper, whose burst lets a start or a probe overshoot);
+- cellular rows: the same hosts, 40 ms each way, the robot -> router direction replaying a
+  mahimahi capacity trace (``--rate-forward mahimahi:lte|3g``, the shipped synthetic ones)
+  through a 256 kB drop-tail queue.
 
 ``--links single|split`` rewrites ``links`` in the three profiles (setup writes ``split``),
 so the same bench shows the old single-connection transport beside the split one.
@@ -58,6 +65,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -101,6 +109,7 @@ class Condition:
     emulator: tuple[str, ...] = ()  # impairments besides the delays
     video: bool = True
     outage: tuple[float, float] | None = None  # (at, for) [s] of the emulator's origin, both directions
+    tbf: tuple[str, ...] = ()  # the kernel's tbf on the robot's interface (`tc qdisc add ... root tbf` ARGS)
 
 
 def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
@@ -108,6 +117,11 @@ def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
     both = lambda opt, v: (f"--{opt}-forward", v, f"--{opt}-backward", v)  # noqa: E731
     out = f"at={outage_at:g}s,for=3s"
     lan = lambda rate: ("--rate-forward", rate, "--queue-forward", "64kB")  # noqa: E731
+    # the kernel's token bucket as a modem or a policer has it: 16 kB burst, 64 kB queue
+    tbf = lambda rate: ("rate", rate, "burst", "16kb", "limit", "64kb")  # noqa: E731
+    # a cellular uplink: a mahimahi capacity trace with a deep drop-tail queue, 40 ms each way
+    cell = lambda name: ("--forward", "const:40ms", "--backward", "const:40ms",  # noqa: E731
+                         "--rate-forward", f"mahimahi:{name}", "--queue-forward", "256kB")  # fmt: skip
     rows = [
         Condition("trace", "shipped trace", "intercontinental"),
         Condition("loss1", "+ 1 % loss", "intercontinental", both("loss", "1%")),
@@ -117,6 +131,13 @@ def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
         Condition("lan600-novideo", "LAN 600 kbit/s uplink, video off", "lan", lan("600kbit"), video=False),
         Condition("lan300-video", "LAN 300 kbit/s uplink, video on", "lan", lan("300kbit")),
         Condition("lan300-novideo", "LAN 300 kbit/s uplink, video off", "lan", lan("300kbit"), video=False),
+        Condition("tbf600-video", "kernel tbf 600 kbit/s (16 kB burst), video on", "lan", tbf=tbf("600kbit")),
+        Condition(
+            "tbf600-novideo", "kernel tbf 600 kbit/s (16 kB burst), video off", "lan", tbf=tbf("600kbit"), video=False
+        ),
+        Condition("tbf300-video", "kernel tbf 300 kbit/s (16 kB burst), video on", "lan", tbf=tbf("300kbit")),
+        Condition("lte", "LTE trace (synthetic, 1.95 Mbit/s, 4 s gap), 40 ms", "lan", cell("lte")),
+        Condition("3g", "3G trace (synthetic, 0.52 Mbit/s, 9 s near zero), 40 ms", "lan", cell("3g")),
     ]
     return {c.name: c for c in rows}
 
@@ -231,10 +252,10 @@ class Topology:
 
 
 @contextlib.contextmanager
-def topology(kind: str, emulator_log: Path) -> Iterator[Topology]:
-    """The three hosts around the emulator (not started yet); torn down on exit."""
-    tag = secrets.token_hex(2)
-    n = int(tag, 16) % 250 + 2
+def topology(kind: str, emulator_log: Path, tag: str | None = None) -> Iterator[Topology]:
+    """The three hosts around the emulator (not started yet); torn down on exit (``tag``: 4 characters of the names)."""
+    tag = tag or secrets.token_hex(2)
+    n = secrets.randbelow(250) + 2
     a_ip, b_ip, c_ip = f"10.235.{n}.1", f"10.235.{n}.2", f"10.235.{n}.3"
     link = EmulatedLink([], tag=tag, a_ip=a_ip, b_ip=b_ip, log_path=emulator_log, autostart=False)
     top = Topology(link, {}, {})
@@ -340,14 +361,65 @@ def analyse(
     res["walking_fraction"] = (
         sum(1 for r in fb_sent if r.data.get("state") == "walking") / len(fb_sent) if fb_sent else None
     )
+    res["gap"] = gap_figures(l_rec, f_rec, leader_log)
     if outage_wall is not None:
-        res["outage"] = outage_figures(fb_sent, cmd, *outage_wall)
+        moved = [r.t_recv for r in l_rec if r.topic == "events" and r.data.get("event") == "blind_over"]
+        res["outage"] = outage_figures(fb_sent, cmd, *outage_wall, moved=moved)
         res["outage"]["cut_after_first_command_s"] = round(outage_wall[0] - t_begin, 1)
     return res
 
 
-def outage_figures(fb_sent: list[Record], cmd: list[Record], cut: float, back: float) -> dict[str, Any]:
-    """Stop and restart latencies around an outage, and what of the backlog was applied after it."""
+def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind_stop_s: float = 1.5) -> dict[str, Any]:
+    """Gaps of the feedback at the leader, the first feedback after each, the blind stops, the wording.
+
+    A gap: more than 1 s between two feedback the leader received. ``first_age_s``: how old
+    the first one after it was (receive time - send stamp); ``fresh_after_s``: from the gap's
+    end to the first one at most 0.5 s old. Blind stops (leader events): the robot's stop
+    (its first feedback sent in a state other than ``walking``) after the send time of the
+    newest feedback the operator had, and its first ``walking`` feedback after the
+    ``blind_over`` event.
+    """
+    fb = sorted((r.t_recv, r.t_recv - r.data["t"], r.data["t"]) for r in l_rec if r.topic == "feedback/recv")
+    gaps = []
+    for (a, _, _), (b, age, _) in itertools.pairwise(fb):
+        if b - a > 1.0:
+            fresh = next((t - b for t, ag, _ in fb if t >= b and ag <= 0.5), None)
+            gaps.append({"at": round(a, 2), "length_s": round(b - a, 2), "first_age_s": round(age, 3),
+                         "fresh_after_s": None if fresh is None else round(fresh, 3)})  # fmt: skip
+    sent = [(r.t_recv, r.data.get("state")) for r in f_rec if r.topic == "feedback/sent"]
+    ev = [(r.t_recv, r.data) for r in l_rec if r.topic == "events"]
+    stops, walks = [], []
+    for t, d in ev:
+        if d.get("event") == "blind_stop":
+            newest = max((ts for tr, _, ts in fb if tr <= t), default=None)
+            t_stop = next((ts for ts, st in sent if ts >= t and st != "walking"), None)
+            if newest is not None and t_stop is not None:
+                stops.append(round(t_stop - newest, 3))
+        elif d.get("event") == "blind_over":
+            t_walk = next((ts for ts, st in sent if ts >= t and st == "walking"), None)
+            walks.append(None if t_walk is None else round(t_walk - t, 3))
+    return {
+        "gaps": gaps, "blind_stops": len(stops), "stop_after_newest_fb_s": stops, "walk_after_handle_s": walks,
+        "acl_lines": sum(1 for ln in leader_log.splitlines() if "ACL" in ln and "WARNING" in ln),
+        "stall_lines": leader_log.count("uplink stalled for"), "blind_stop_s": blind_stop_s,
+    }  # fmt: skip
+
+
+def outage_figures(
+    fb_sent: list[Record], cmd: list[Record], cut: float, back: float, moved: list[float] | None = None
+) -> dict[str, Any]:
+    """Stop and restart latencies around an outage, and what of the backlog was applied after it.
+
+    ``moved``: when the leader's blind stops ended (fresh feedback and a handle move,
+    ``blind_over`` events): the restart after the first one past the path's return is
+    ``restart_after_move_s`` (the robot waits for the operator's move then).
+    """
+    move = min((t for t in moved or [] if t >= back), default=None)
+    after_move = (
+        None
+        if move is None
+        else next((r.t_recv - move for r in fb_sent if r.t_recv >= move and r.data.get("state") == "walking"), None)
+    )
     before = [r for r in fb_sent if r.t_recv < cut]
     walking_at_cut = bool(before) and before[-1].data.get("state") == "walking"
     stop = next((r.t_recv - cut for r in fb_sent if r.t_recv >= cut and r.data.get("state") != "walking"), None)
@@ -363,6 +435,8 @@ def outage_figures(fb_sent: list[Record], cmd: list[Record], cut: float, back: f
             None if stop is None or last_cmd is None else round(cut + stop - last_cmd, 3)
         ),
         "restart_latency_s": None if restart is None else round(restart, 3),
+        "restart_after_move_s": None if after_move is None else round(after_move, 3),
+        "move_after_return_s": None if move is None else round(move - back, 3),
         "first_command_after_s": None if first_after is None else round(first_after.t_recv - back, 3),
         "stale_applied": len(stale),
         "stale_oldest_age_s": round(max((r.t_recv - r.data["t"] for r in stale), default=0.0), 3),
@@ -380,9 +454,23 @@ def operator_sockets(ns: str, out: Path) -> dict[str, int]:
     }
 
 
+def _summary_line(leader: Proc) -> str:
+    summary = [ln for ln in leader.log().splitlines() if ln.startswith("leader:")]
+    return summary[-1] if summary else leader.tail(3)
+
+
+def shape_robot(top: Topology, tbf: tuple[str, ...]) -> None:
+    """The kernel's tbf on the robot's egress, before the (then transparent) emulator."""
+    dev = top.link.dev[SIDE_A]
+    tc = ["ip", "netns", "exec", top.ns["robot"], "tc", "qdisc", "add", "dev", dev, "root", "tbf", *tbf]
+    r = subprocess.run(tc, capture_output=True, text=True, timeout=20)
+    if r.returncode != 0:
+        raise RuntimeError(f"tc tbf: {r.stderr.strip()}")
+
+
 def run_condition(
     cond: Condition, links: str | None, seconds: float, setup_out: Path, commands: dict[str, list[str]],
-    run_dir: Path, *, seed: int = 1, startup_s: float = 5.0, say: Any = print,
+    run_dir: Path, *, seed: int = 1, startup_s: float = 5.0, say: Any = print, tag: str | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """One run of ``cond`` with ``links`` (None: as setup wrote); return its figures."""
     run_dir.mkdir(parents=True)
@@ -390,7 +478,7 @@ def run_condition(
     stats = run_dir / "linkemu.json"
     procs: list[Proc] = []
     sockets: dict[str, int] | None = None
-    with topology(cond.topology, run_dir / "linkemu.log") as top:
+    with topology(cond.topology, run_dir / "linkemu.log", tag) as top:
         models = ("const:0ms", "const:0ms")
         if cond.topology == "intercontinental":
             models = ("trace:intercontinental:h1", "trace:intercontinental:h2")
@@ -410,6 +498,8 @@ def run_condition(
                 ])  # fmt: skip
                 return t0
 
+            if cond.tbf:
+                shape_robot(top, cond.tbf)
             router = go("router", "router", [])
             router.wait_log(r"router: \S+ listening on", 60.0)
             t0 = emulate() if cond.topology == "lan" else None  # the robot's path crosses it
@@ -435,9 +525,8 @@ def run_condition(
                 p.stop(5.0)
             top.link.stop_emulator()
     res: dict[str, Any] = {"condition": cond.name, "label": cond.label, "links": links or "as written",
-                           "leader_rc": leader_rc, "run_dir": str(run_dir), "operator_sockets": sockets}  # fmt: skip
-    summary = [ln for ln in leader.log().splitlines() if ln.startswith("leader:")]
-    res["leader_summary"] = summary[-1] if summary else leader.tail(3)
+                           "leader_rc": leader_rc, "run_dir": str(run_dir), "operator_sockets": sockets,
+                           "leader_summary": _summary_line(leader)}  # fmt: skip
     l_path, f_path = _recording(homes["operator"], "leader"), _recording(homes["robot"], "follower")
     if l_path is None or f_path is None:
         res["error"] = f"no recording (leader {l_path}, follower {f_path}); leader log:\n{leader.tail()}"
@@ -512,6 +601,14 @@ def row_line(r: dict[str, Any]) -> str:
             f"{_f(t2['forward_error_cm_s'])} cm/s, {_f(t2['turn_error_deg_s'])} deg/s, "
             f"delay min/mean/max {_f(t2['min_delay_ms'], 0)}/{_f(t2['mean_delay_ms'], 0)}/{_f(t2['max_delay_ms'], 0)} ms"
         )
+    g = r.get("gap") or {}
+    if g.get("gaps") or g.get("blind_stops") or g.get("acl_lines"):
+        s += (
+            f"; gaps {[(x['length_s'], x['first_age_s'], x['fresh_after_s']) for x in g['gaps']]} (length, first "
+            f"feedback's age, fresh after s), blind stops {g['blind_stops']} (stopped {g['stop_after_newest_fb_s']} s "
+            f"after the newest feedback's send, walking {g['walk_after_handle_s']} s after the move), "
+            f"ACL lines {g['acl_lines']}, stall lines {g['stall_lines']}"
+        )
     if "outage" in r:
         o = r["outage"]
         s += (
@@ -561,6 +658,7 @@ def main(argv: list[str] | None = None) -> int:
         "--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)"
     )
     p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
+    p.add_argument("--tag", default="", help="prefix of the namespaces' 4-character tag (random hex after it)")
     p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
     p.add_argument(
         "--workdir", default=None, metavar="DIR", help="keep logs and recordings here (default: a temp dir, removed)"
@@ -598,7 +696,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"--- {cond.label} [{lk}] ({args.seconds:g} s) ...", flush=True)
                 try:
                     r = run_condition(cond, lk, args.seconds, setup_out, commands,
-                                      work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed)  # fmt: skip
+                                      work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed,
+                                      tag=args.tag + secrets.token_hex(2)[: 4 - len(args.tag)])  # fmt: skip
                 except (RuntimeError, NetnsError) as exc:
                     r = {"condition": name, "label": cond.label, "links": lk, "error": str(exc)}
                 r["wall_s"] = round(time.monotonic() - t_start, 1)

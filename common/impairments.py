@@ -29,6 +29,7 @@ from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from bipedtele.config import ConfigError
 from bipedtele.delaymodels import DelayModel
@@ -47,6 +48,7 @@ __all__ = [
     "Outage",
     "RandomLoss",
     "RateQueue",
+    "Shaper",
     "Verdict",
     "parse_loss",
     "parse_outage",
@@ -307,6 +309,16 @@ def _long_duration(text: str) -> float:
     return value
 
 
+class Shaper(Protocol):
+    """A bottleneck: :class:`RateQueue`, or :class:`~bipedtele.shapers.TokenBucket` / :class:`~bipedtele.shapers.TraceRate`."""
+
+    backlog_max: int
+
+    def enqueue(self, t: float, size: int) -> float | None:
+        """Offer a frame of ``size`` bytes at ``t`` [s]; return when it leaves [s], or None (queue full)."""
+        ...
+
+
 class RateQueue:
     """A bottleneck: a FIFO of ``capacity`` bytes drained at ``rate_bps`` bits per second.
 
@@ -375,8 +387,9 @@ class Direction:
         Propagation delay, evaluated when a frame leaves the rate queue.
     loss : LossModel, optional
         Default: no loss.
-    rate : RateQueue, optional
-        Bottleneck; default none (infinite rate, no queue).
+    rate : Shaper, optional
+        Bottleneck (a rate FIFO, a token bucket, a capacity trace); default none (infinite
+        rate, no queue).
     outages : sequence of Outage
         Windows that drop everything arriving in them.
     """
@@ -385,7 +398,7 @@ class Direction:
         self,
         delay: DelayModel,
         loss: LossModel | None = None,
-        rate: RateQueue | None = None,
+        rate: Shaper | None = None,
         outages: Sequence[Outage] = (),
     ) -> None:
         self.delay, self.loss, self.rate = delay, loss or NoLoss(), rate

@@ -66,6 +66,11 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     feedback_age_ms : float or None
         Time since the feedback in use was received [ms] (the loop's; the force fades
         after ``feedback_timeout_s``).
+    blind : str or None
+        Why the robot is stopped for old feedback (``no fresh feedback for N s: ...``);
+        unset while it is not (:mod:`bipedtele.leader.blind`).
+    blind_stops : int or None
+        How many times the robot was stopped for old feedback.
     link_lost_s : float or None
         State ``lost``: time since the last feedback arrived [s].
     fb_age_ms : float or None
@@ -158,6 +163,8 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
         None
     )
     feedback_age_ms: Annotated[float | None, _d("time since the feedback in use was received [ms]")] = None
+    blind: Annotated[str | None, _d("why the robot is stopped for old feedback (unset: it is not)")] = None
+    blind_stops: Annotated[int | None, _d("times the robot was stopped for old feedback")] = None
     link_lost_s: Annotated[float | None, _d("state lost: time since the last feedback arrived [s]")] = None
     fb_age_ms: Annotated[float | None, _d("age of the newest feedback accepted, since it was sent [ms]")] = None
     loss_pct: Annotated[float | None, _d("feedback lost over the last 2 s [%]")] = None

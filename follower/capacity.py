@@ -54,7 +54,25 @@ overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s; a full-rate start, QVGA vid
 acknowledgement per command, 0.6-0.8 Mbit/s, queued 0.5-1 s).
 
 Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
-a full one.
+a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more, the rate rule
+cuts only while h2 rises (``rising_s_per_s``, 0.1 s/s): video on TCP slowed by loss arrives
+below what was sent, and a swing of the path's own delay is then no queue of ours (under
+1-5 % loss on the intercontinental trace the budget was cut to 330-360 kbit/s in half the
+runs).
+
+- **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
+  more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
+  stretch of a cellular link). Video pauses (budget 0) and the feedback drops to
+  ``stall_fb_hz`` (5 Hz, the newest only), so the follower adds nearly nothing to the
+  path's queue (what it sent before the stall showed still waits there). No rule cuts during it,
+  and when it ends the capacity restarts from what the path delivered before it
+  (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
+  ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a
+  cellular uplink to 4-43 kbit/s at its first gap and probed back at 0.5 %/s.
+- **recovery.** With a ceiling under half that delivered rate (set in a dip) and h2
+  clear, the capacity grows by ``start_growth`` (x1.3) a second up to ``drain_ratio`` of
+  it, the ceiling with it: a dip of the path's capacity is not a new ceiling. (A token
+  bucket's burst delivers above its rate for a window; a ceiling near the rate is kept.)
 
 :meth:`UplinkBudget.video_budget_bps` gives video what control leaves: capacity minus the
 measured control rate minus a margin (``margin`` of the capacity, at least
@@ -75,6 +93,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 
+from bipedtele.follower.delivery import DeliveryRate
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -157,7 +176,8 @@ class UplinkBudget:
         self._start_clear_s = 0.0
         self.ceiling_bps: float | None = None
         self.leader: dict[str, int] = {}
-        self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0}
+        self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0}
+        self.delivery = DeliveryRate(self.tuning.delivery_window_s)
         self._undo: _PendingCut | None = None
         self._last_signal = -math.inf
         self._last_cut = -math.inf
@@ -230,15 +250,19 @@ class UplinkBudget:
         if rx is None:
             return
         self._last_status = now
+        ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
+        if self._judge_stall(now, ts, rx):
+            return
         if now < self._q.quiet_until:
             return
-        ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
         h2 = self._q.h2_s or 0.0
         tx = self._log.rate(ts - h2 - tu.window_s, ts - h2)
         # a full path queues: without h2 above its minimum, rx below tx is the windows'
         # misalignment (traffic sent before the leader listened, a step of the video rate)
-        # or loss, not the path's capacity
+        # or loss, not the path's capacity; on a lossy path the queue must also rise
         queued = self._q.excess_s >= 0.5 * tu.delay_rise_s
+        if self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm:
+            queued = queued and self._q.slope(now) >= tu.rising_s_per_s
         rate_limited = queued and tx >= tu.min_tx_bps and rx < tu.ratio * tx
         if rate_limited:
             self.signals["rate"] += 1
@@ -252,6 +276,44 @@ class UplinkBudget:
             elif ts - h2 - tu.window_s >= self._last_cut:  # still over, judged on a window sent after the cut
                 self.capacity_bps = max(tu.floor_bps, tu.decrease * float(rx))
                 self._last_cut = now
+
+    @property
+    def stalled(self) -> bool:
+        """True while the path is stalled (see the module docstring); False without a recent leader status."""
+        return self.delivery.stalled and self._clock() - self._last_heard <= self.tuning.status_timeout_s
+
+    def _judge_stall(self, now: float, ts: float, rx: int) -> bool:
+        """Feed the delivery rate; say whether the path is stalled, and restart the capacity after a stall.
+
+        Parameters
+        ----------
+        now, ts : float
+            Now, and when the leader sent its status [s].
+        rx : int
+            What the leader received over its window [bit/s].
+        """
+        tu, q = self.tuning, self._q
+        age_ms, floor = self.leader.get("fb_age_ms"), q.floor_s
+        stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s
+        was = self.delivery.stalled
+        self.delivery.sample(ts, float(rx), stall)
+        if stall and not was:
+            self.signals["stall"] += 1
+            self._undo = None  # a cut that the gap's queue caused is not judged by it
+        if was and not stall:
+            self._restart(now)
+        return stall
+
+    def _restart(self, now: float) -> None:
+        """After a stall: the capacity from what the path delivered before it, not the collapse."""
+        tu, best = self.tuning, self.delivery.max_bps
+        self._q.quiet_until = now + tu.window_s + 1.0  # the leader's window and h2 hold the gap
+        if best is None or not math.isfinite(self.capacity_bps):
+            return
+        self.capacity_bps = max(self.capacity_bps, tu.drain_ratio * best)
+        if self.ceiling_bps is not None:
+            self.ceiling_bps = max(self.ceiling_bps, best)
+        self._last_signal = -math.inf
 
     def update(self) -> None:
         """Judge the delay rule and probe upward while not limited; call it every tick."""
@@ -270,7 +332,7 @@ class UplinkBudget:
             and q.excess_s <= 0.5 * tu.delay_rise_s
         ):
             self._start(max(0.0, now - last), tx)
-        if last is None or not math.isfinite(self.capacity_bps):
+        if last is None or not math.isfinite(self.capacity_bps) or self.stalled:
             return
         dt = max(0.0, now - last)
         fresh = now - self._last_status <= tu.status_timeout_s and now - q.at < tu.gap_s
@@ -293,9 +355,18 @@ class UplinkBudget:
             # changes now and then; a sawtooth against a known ceiling only builds queues)
             step = tu.ceiling_probe * self.capacity_bps
         step *= 1.0 - min(1.0, q.standing_s / tu.queue_target_s)  # slower as a standing queue nears the target
+        # a ceiling under half what the path delivered lately was set in a dip (a near-zero
+        # stretch): back towards what it delivered, fast; a token bucket's burst delivers
+        # above its rate for a window, so a ceiling near that rate is kept
+        best = self.delivery.max_bps or 0.0
+        known = tu.drain_ratio * best if self.ceiling_bps is None or self.ceiling_bps < 0.5 * best else 0.0
+        if self.capacity_bps < known:
+            step = max(step, (tu.start_growth - 1.0) * self.capacity_bps)
+            if self.ceiling_bps is not None:
+                self.ceiling_bps = max(self.ceiling_bps, self.capacity_bps)  # frames sized to the path again
         probed = self.capacity_bps + step * dt
         # probe near what is used: an estimate far above the sending rate was never tested
-        self.capacity_bps = max(self.capacity_bps, min(probed, 2.0 * tx + tu.floor_bps))
+        self.capacity_bps = max(self.capacity_bps, min(probed, max(2.0 * tx + tu.floor_bps, known)))
 
     def _start(self, dt: float, tx: float) -> None:
         """Count ``dt`` [s] more of clear path in the start: grow video's budget, and take the capacity after ``start_s``.
@@ -356,8 +427,8 @@ class UplinkBudget:
         tu, q = self.tuning, self._q
         if q.rise_since is None or now - q.rise_since < tu.delay_hold_s:
             return
-        if now - self._last_heard > tu.status_timeout_s or now < q.quiet_until:
-            return  # no leader status (nothing could undo a cut), or just after a silence
+        if now - self._last_heard > tu.status_timeout_s or now < q.quiet_until or self.stalled:
+            return  # no leader status (nothing could undo a cut), just after a silence, or in a stall
         if now - self._last_cut < max(tu.cut_gap_s, 2.0 * q.excess_s):
             self._last_signal = now
             return
@@ -408,10 +479,12 @@ class UplinkBudget:
     def video_budget_bps(self) -> float | None:
         """Video's budget [bit/s]: capacity - control's measured rate - margin; None: unlimited.
 
-        Before the first signal: the start budget (``start_budget_bps``).
+        Before the first signal: the start budget (``start_budget_bps``); 0 while the path is stalled.
         """
         tu = self.tuning
         cap = self.capacity_bps
+        if self.stalled:
+            return 0.0  # the path delivers nothing: what video sends would only queue
         if not math.isfinite(cap):
             return self.start_budget_bps
         # a queue in the path (h2 above its minimum) is drained within ``drain_s``
@@ -455,6 +528,9 @@ class UplinkBudget:
         tick's feedback, and the rate is the highest of ``rate_hz``, 25 and 10 Hz that fits.
         As the capacity is probed back up, the plan returns to full rate.
         """
+        if self.stalled:  # the newest only, rarely: nothing of ours waits in the path's queue
+            hz = min(rate_hz, self.tuning.stall_fb_hz)
+            return FeedbackPlan(False, hz, 1.0 / hz if hz > 0 else 0.0)
         fits = self.tuning.control_share * self.capacity_bps
         cmd_hz, fb_bits = self._q.command_hz(), self._log.fb_bits
         if not math.isfinite(fits) and self.start_budget_bps is not None:

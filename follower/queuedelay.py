@@ -143,6 +143,11 @@ class QueueDelay:
             return 0.0
         return (pts[-1][1] - pts[0][1]) / (pts[-1][0] - pts[0][0])
 
+    @property
+    def floor_s(self) -> float | None:
+        """h2's minimum over ``base_window_s`` [s] (None before the first h2): the path's delay without a queue."""
+        return self._floor.value(self.at)
+
     def command_hz(self) -> float:
         """Return the rate of commands bringing h2 over the last ``window_s`` [Hz]."""
         return len(self._cmd_times) / self.tuning.window_s

@@ -80,6 +80,18 @@ class UplinkTuning:
         h2 is within ``queue_target_s`` [s] of its minimum over ``base_window_s`` [s]
         (the probe slows as h2 nears it), and above it the capacity steps down by
         ``queue_decrease`` of itself per second [1/s], not below 0.8 x the ceiling.
+    stall_s : float
+        The path is stalled when the leader's newest feedback is older than h2's minimum
+        over ``base_window_s`` by more than this [s]: video pauses, feedback drops to
+        ``stall_fb_hz``, and the capacity restarts from what the path delivered before.
+    stall_fb_hz : float
+        Feedback rate while stalled [Hz] (the newest only: no acknowledgement per command).
+    delivery_window_s : float
+        The delivery rate's maximum is kept this long [s] of time the path delivered.
+    lossy_ppm, rising_s_per_s : float
+        With the leader's feedback loss at or above ``lossy_ppm`` [ppm], the rate rule cuts
+        only while h2 rises faster than ``rising_s_per_s`` [s/s]: a lossy path whose TCP
+        video is slowed by loss is not a full one unless a queue grows.
     """
 
     window_s: float = 2.0
@@ -113,6 +125,11 @@ class UplinkTuning:
     base_window_s: float = 60.0
     queue_target_s: float = 0.015
     queue_decrease: float = 0.05
+    stall_s: float = 0.5
+    stall_fb_hz: float = 5.0
+    delivery_window_s: float = 10.0
+    lossy_ppm: float = 1000.0
+    rising_s_per_s: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):  # ints given (4000) are kept as floats, as the budget computes

@@ -286,8 +286,11 @@ class VideoStreamer:
             was, self._budget = self._budget, (None if bps is None else max(0.0, float(bps)))
             if self._budget is None:
                 self._level, self._fps = 0, self.max_fps
-        if was is None and bps is not None:
-            self._next_choose = -float("inf")  # choose at the next capture
+        now = self._budget
+        if (was is None and now is not None) or (was is not None and was <= 0.0) != (now is not None and now <= 0.0):
+            # a budget from none, or video paused (0) or resumed (a stall of the uplink and
+            # its end): choose at the next capture, not up to a second later
+            self._next_choose = -float("inf")
 
     def frame_bits(self, level: int) -> float:
         """Return the expected bits per frame at ``level``: measured there, else scaled from a measured level."""

@@ -175,11 +175,13 @@ class _Aux:
                     next_status = now_m + 1.0 / lc.status_rate_hz
                     counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
                     counters.update(commands=self.loop.seq, feedback=self.loop.feedback_count,
-                                    missed_ticks=self.loop.missed_ticks)  # fmt: skip
+                                    missed_ticks=self.loop.missed_ticks, blind_stops=self.loop.blind.stops)  # fmt: skip
                     counters.update(link_counters(self.report(now)))
                     self._status_seq += 1
+                    blind = self.loop.blind.words()
                     st = Status(sid=self.loop.sid, seq=self._status_seq, t=now, role="leader",
-                                state=self.loop.state, counters=counters, text=text, operator=user)  # fmt: skip
+                                state=self.loop.state, counters=counters, text=f"{text}; {blind}" if blind else text,
+                                operator=user)  # fmt: skip
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
                 self.record_progress(now)
@@ -395,7 +397,7 @@ class LeaderApp:
         t_sent = self.node.to_local(msg.t)
         if self.link.on_feedback(msg.sid, msg.seq, t_sent, got.t_recv, self._size(msg)):
             self._fb_ok = got
-            self.reach.on_feedback(msg)  # only young feedback acknowledges commands
+            self.reach.on_feedback(msg, got.t_recv - t_sent)  # only young feedback acknowledges commands
         else:
             self.node.drops.drop(
                 "fb_too_old",
@@ -405,7 +407,7 @@ class LeaderApp:
 
     def _on_video(self, got: Received[VideoFrame]) -> None:
         msg = got.msg
-        self.reach.on_heard()
+        self.reach.on_heard(got.t_recv - self.node.to_local(msg.t))  # old frames: a stalled uplink, not the ACL
         nbytes = self._size(msg)
         if msg.parts > 1:
             self.link.on_video_part(got.t_recv, nbytes)
@@ -420,7 +422,7 @@ class LeaderApp:
 
     def _on_status(self, got: Received[Status]) -> None:
         if got.msg.role == "follower":
-            self.reach.on_heard()
+            self.reach.on_heard(got.t_recv - self.node.to_local(got.msg.t))
             self.link.on_status(got.t_recv, self._size(got.msg))
 
     def _latest_feedback(self) -> tuple[Feedback, float] | None:
@@ -511,6 +513,7 @@ class LeaderApp:
                 self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, self._latest_feedback,
                 cfg=lc, clock=self.clock, estimator=self.estimator, conservative_rtt=node.round_trip,
                 on_sample=self._on_sample, sid=node.sid, operator_name=self.cfg.get(NetworkConfig).user,
+                feedback_age=self.link.feedback_age if self.realtime else None, on_blind=node.event,
             )  # fmt: skip
             self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
                                              node.record, self.reach, self.link, hand=self._hand))  # fmt: skip
@@ -609,6 +612,8 @@ def _summary(
     else:
         received = f"{loop.feedback_count} feedback received"
     parts.append(f"{loop.seq} commands sent, {received}, {drops.total} dropped")
+    if loop.blind.stops:
+        parts.append(f"{loop.blind.stops} blind stops (no fresh feedback for {loop.blind.stop_s:g} s)")
     if loop.h1 is not None and loop.h2 is not None:
         parts.append(f"last delay h1+h2 {1000 * (loop.h1 + loop.h2):.0f} ms")
     parts.append(f"max |f_m| now {float(np.abs(loop.force).max()):.2f} N")

@@ -57,6 +57,11 @@ class LeaderConfig:
         0.5, lo=0.01, hi=30.0, unit="s", doc="no new feedback for this long -> fade the force out"
     )
     fade_s: float = param(0.2, lo=0.0, hi=10.0, unit="s", doc="duration of the force fade out/in")
+    # twice the largest age of the newest feedback on the paper's path (h2 up to 0.644 s,
+    # 50 Hz feedback, a burst of 3 lost: 0.72 s), rounded up to half a second
+    blind_stop_s: float = param(
+        1.5, lo=0.1, hi=60.0, unit="s", doc="newest feedback older than this -> commands stop the robot"
+    )
     force_rate_max_n_s: float = param(
         80.0, lo=1.0, hi=100000.0, unit="N/s",
         doc="largest change of the handle force per axis (8 N in 0.1 s: no step the hand cannot meet)",

@@ -14,7 +14,10 @@ Everything here is measured at the leader from what arrives (no clock but the on
   restarted leader fed from a queue) is refused;
 - **loss**: sequence gaps of the feedback that arrived over the last ``window_s`` (2 s),
   in parts per million of the messages sent in that time (a new follower session starts
-  counting afresh);
+  counting afresh); the gap of an outage (a feedback arriving after ``lost_after_s`` of
+  silence, or more than ``lost_after_s`` older than the recent minimum delay: the backlog
+  of a stalled path) is no loss: it is counted apart (``outage_gaps``), or the link read
+  "lossy" for 2 s after every gap of a cellular uplink;
 - **goodput**: payload bytes received over the last ``window_s`` on feedback, video and
   status [bit/s]; unknown (None) until ``window_s`` has passed since the first byte;
 - **video**: frames received per second over ``window_s`` (all cameras) and the newest
@@ -172,6 +175,8 @@ class LinkQuality:
         # feedback
         self.fb_arrived = 0
         self.fb_too_old = 0
+        #: Sequence gaps after an outage (not counted as loss).
+        self.outage_gaps = 0
         self._fb_sid: int | None = None
         self._fb_seq = 0
         self._last_arrival: float | None = None  # receive time of the newest feedback that arrived
@@ -224,13 +229,20 @@ class LinkQuality:
         age = max(t_recv - t_sent, 0.0) if math.isfinite(t_sent) else math.inf
         with self._lock:
             self.fb_arrived += 1
-            self._last_arrival = t_recv
             self._add_bytes(t_recv, nbytes)
             lost = 0
+            base = self._mins[0][1] if self._mins else 0.0
+            # after a silence, or part of the backlog a stalled path delivers late
+            outage = (self._last_arrival is not None and t_recv - self._last_arrival > self.lost_after_s) or (
+                age > base + self.lost_after_s
+            )
+            self._last_arrival = t_recv
             if sid != self._fb_sid:  # a new follower session: its numbers start afresh
                 self._fb_sid, self._fb_seq = sid, seq
             else:
-                if seq > self._fb_seq + 1:
+                if seq > self._fb_seq + 1 and outage:
+                    self.outage_gaps += 1  # what the follower sent into a dead path: not the path's loss
+                elif seq > self._fb_seq + 1:
                     lost = min(seq - self._fb_seq - 1, _MAX_GAP)
                 self._fb_seq = max(seq, self._fb_seq)
             self._seq_events.append((t_recv, lost))

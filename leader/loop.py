@@ -22,7 +22,8 @@ Every haptic tick (1 kHz by default) the loop
 6. lets the device time pass (a simulated device integrates eq. 1 with the operator's
    hand attached);
 7. at ``cmd_rate_hz`` updates the operator model and sends a :class:`Command`
-   (``ref = k_g x_m``), and makes the telemetry sample
+   (``ref = k_g x_m``; a stop while the operator is *blind*, see
+   :mod:`bipedtele.leader.blind`), and makes the telemetry sample
    (:class:`bipedtele.telemetry.LeaderSample`) read by the operator model, the cockpit and
    the recorder.
 
@@ -49,6 +50,7 @@ from bipedtele.control.leader_law import leader_force
 from bipedtele.control.schemes import make_scheme
 from bipedtele.control.schemes.runtime import LeaderPort, received
 from bipedtele.delayestimate import DelayEstimator, conservative_delays
+from bipedtele.leader.blind import BlindGuard
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operator import Operator
@@ -107,6 +109,11 @@ class LeaderLoop:
     operator_name : str
         Who drives (``[network] user``), sent in every command: the robot's hand-over
         rule keys on it (docs/fleet.md, Hand-over).
+    feedback_age : callable, optional
+        ``feedback_age(now) -> s | None``: age of the newest usable feedback (now minus its
+        send time on the local clock); default ``now - feedback.t`` (one clock).
+    on_blind : callable, optional
+        ``on_blind(event, data)``: the blind guard's ``blind_stop`` / ``blind_over`` events.
 
     Attributes
     ----------
@@ -132,6 +139,8 @@ class LeaderLoop:
         sid: int | None = None,
         on_sample: Callable[[LeaderSample], None] | None = None,
         operator_name: str = "",
+        feedback_age: Callable[[float], float | None] | None = None,
+        on_blind: Callable[[str, dict[str, float]], None] | None = None,
     ) -> None:
         self.device = device
         self.operator_name = operator_name
@@ -184,6 +193,16 @@ class LeaderLoop:
         self.period_stats = PeriodStats()
         self.missed_ticks = 0
         self._stop = threading.Event()
+        self._fb_age = feedback_age
+        #: Stops the robot while the newest feedback is older than ``blind_stop_s``.
+        self.blind = BlindGuard(self.cfg.blind_stop_s, device.limits.workspace_m, on_event=on_blind,
+                                settle_s=self.cfg.fade_s + 0.3)  # fmt: skip
+
+    def feedback_age(self, now: float) -> float | None:
+        """Age of the newest usable feedback at ``now`` [s] (None before the first)."""
+        if self._fb_age is not None:
+            return self._fb_age(now)
+        return None if self._fb is None else max(0.0, now - self._fb.t)
 
     # ------------------------------------------------------------------ one tick
 
@@ -314,7 +333,8 @@ class LeaderLoop:
             op.update(t_dev, self._fb)
         let_go = bool(buttons) and not buttons[0]
         hand_off = self.released
-        self.enable = not let_go and not hand_off and not (op is not None and op.done)
+        blind = self.blind.check(now, self._fb is not None, self.feedback_age(now), self.x_m)
+        self.enable = not let_go and not hand_off and not (op is not None and op.done) and not blind
         ref = self._k_g * self.x_m if self.enable else np.zeros(2)
         wave, energy = self.port.outgoing(ref)
         self.seq += 1
@@ -371,6 +391,8 @@ class LeaderLoop:
             leader_state=self.state,
             link=_LINK.get(self.state, self.state),
             feedback_age_ms=None if fb is None else 1000.0 * (now - self._fb_recv),
+            blind=self.blind.words(),
+            blind_stops=self.blind.stops,
         )
         if fb is not None:
             sample.z_e_v, sample.z_e_w = fb.z_e

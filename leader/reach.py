@@ -16,11 +16,19 @@ While the follower is present (liveliness) and this leader sends commands, no
 acknowledgement for ``window_s`` gives one WARNING line naming the cause the evidence
 points to:
 
-- the follower is *heard* (its feedback, status or video arrived within ``window_s``, or a
-  message of its was dropped only because our clock is not synced to its yet): the path
-  and the router work, so the commands are refused on the way, ``commands not reaching
-  the robot: refused by the router's ACL? ...`` (a leader logged in as the follower's user
-  receives the follower's status but no feedback);
+- the follower is *heard fresh* for a whole window (its feedback, status or video,
+  each sent less than ``fresh_s`` before it arrived, with no pause longer than the window
+  between them, or a message of its dropped only because our clock is not synced to its
+  yet): the path and the router work, so the commands are refused on the way,
+  ``commands not reaching the robot: refused by the router's ACL? ...`` (a leader logged
+  in as the follower's user receives the follower's status but no feedback);
+- the follower is heard, but nothing fresh arrived within the window (what arrives was
+  sent ``fresh_s`` or more before): its uplink is stalled or draining a backlog (a
+  cellular blackout), ``uplink stalled for N s: ...``, N the time since the last
+  acknowledgement; the ACL is not named (and while fresh messages have come for less
+  than a window, no verdict) (before, every gap of a cellular uplink
+  ended in "refused by the router's ACL?": the old status and video arrived first, the
+  feedback after them);
 - nothing is heard from the follower (a stalled or cut path, a router down: its presence
   may still linger): ``link lost: no feedback for N s (path or router down?)``; the ACL
   is not named, nothing says our commands were refused.
@@ -61,7 +69,7 @@ from collections.abc import Callable
 from bipedtele.auth import BAD_MAC_LINE, KEY_REASONS, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.messages import Feedback
 
-__all__ = ["ABSENT", "HELD", "KEY_MISMATCH", "LOST", "REFUSED", "CommandReach"]
+__all__ = ["ABSENT", "HELD", "KEY_MISMATCH", "LOST", "REFUSED", "STALLED", "CommandReach"]
 
 LOG = logging.getLogger("bipedtele.leader")
 
@@ -73,6 +81,8 @@ KEY_MISMATCH = "commands not reaching the robot: message keys do not match:"
 _KEY_LINES: dict[str, str] = {"no_mac": NO_MAC_LINE, "bad_mac": BAD_MAC_LINE, "mac_unexpected": UNEXPECTED_MAC_LINE}
 #: The WARNING of the lost case starts with this.
 LOST = "link lost: no feedback for"
+#: The WARNING of a stalled uplink (the follower heard, late) starts with this.
+STALLED = "uplink stalled for"
 #: The WARNING of a robot never present starts with this.
 ABSENT = "no robot"
 #: The WARNING of a robot held by another operator starts with this.
@@ -105,6 +115,9 @@ class CommandReach:
         verdict :data:`HELD`.
     released : callable, optional
         ``() -> bool``: this leader gave the robot up (cockpit Release): no verdicts then.
+    fresh_s : float, optional
+        A message of the follower's heard this long or longer after it was sent is old
+        [s] (default: ``window_s``).
 
     Notes
     -----
@@ -123,9 +136,14 @@ class CommandReach:
         absent_s: float = 10.0,
         holder: Callable[[], str | None] | None = None,
         released: Callable[[], bool] | None = None,
+        fresh_s: float | None = None,
     ) -> None:
         if not window_s > 0:
             raise ValueError(f"window_s must be > 0, got {window_s!r}")
+        self.fresh_s = float(window_s if fresh_s is None else fresh_s)
+        self._fresh_since: float | None = None  # fresh messages heard without a window's pause since
+        self._last_fresh: float | None = None
+        self.stall_warnings = 0
         self._sent_seq = sent_seq
         self._key_counts = key_drops
         self._key_seen_counts: dict[str, int] = {}
@@ -168,13 +186,23 @@ class CommandReach:
             "bipedtele setup fleet --operator USER=ROBOT)", ABSENT, self.robot_id or "(this id)", self.absent_s, who,
         )  # fmt: skip
 
-    def on_feedback(self, fb: Feedback) -> None:
-        """Take one received feedback (any thread)."""
+    def _heard(self, now: float, age_s: float | None) -> None:
+        """Something of the follower's arrived ``age_s`` after it was sent (None: unknown); lock held."""
+        self._last_heard = now
+        if age_s is not None and not age_s < self.fresh_s:
+            return
+        if self._last_fresh is None or now - self._last_fresh > self.window_s:
+            self._fresh_since = now
+        self._last_fresh = now
+
+    def on_feedback(self, fb: Feedback, age_s: float | None = None) -> None:
+        """Take one received feedback (any thread), ``age_s`` after it was sent [s] (None: unknown)."""
         sent = self._sent_seq()
         now = self._clock()
         with self._lock:
             self.feedback += 1
-            self._last_fb = self._last_heard = now
+            self._last_fb = now
+            self._heard(now, age_s)
             base = self._baseline.setdefault(fb.sid, fb.cmd_seq)
             if fb.cmd_seq:  # noqa: SIM108 (two rules, clearer apart than in one ternary)
                 ok = 1 <= fb.cmd_seq <= sent and fb.cmd_seq != base
@@ -204,14 +232,15 @@ class CommandReach:
         """The line naming the last key problem (empty when there was none)."""
         return _KEY_LINES.get(self.key_reason or "", "")
 
-    def on_heard(self) -> None:
+    def on_heard(self, age_s: float | None = None) -> None:
         """Something of the follower's arrived other than feedback (status, video; any thread).
 
-        Evidence that the path and the router work.
+        Evidence that the path and the router work; of a timely path only when it is fresh
+        (``age_s``: how long after it was sent it arrived [s]; None: unknown, taken as fresh).
         """
         now = self._clock()
         with self._lock:
-            self._last_heard = now
+            self._heard(now, age_s)
 
     @property
     def ever_reached(self) -> bool:
@@ -249,6 +278,7 @@ class CommandReach:
             self._since = now
         with self._lock:
             last_ack, last_fb, last_heard, feedback = self._last_ack, self._last_fb, self._last_heard, self.feedback
+            last_fresh, fresh_since = self._last_fresh, self._fresh_since
         recent = last_ack is not None and now - last_ack < self.window_s
         if recent:
             if self._warned is not None:
@@ -281,6 +311,12 @@ class CommandReach:
                     "we take it then", HELD, self.robot_id or "(this id)", held, held,
                 )  # fmt: skip
             return
+        fresh = last_fresh is not None and now - last_fresh < self.window_s
+        if heard and not fresh:
+            self._stalled(now, last_ack if last_ack is not None else self._since)
+            return
+        if heard and fresh_since is not None and now - fresh_since < self.window_s:
+            return  # timely again only just now (a backlog drained): its feedback may follow
         if heard:
             self.exposed = True
             if self._warned != "refused":
@@ -297,7 +333,7 @@ class CommandReach:
                     REFUSED, why, self.window_s,
                 )  # fmt: skip
             return
-        if self._warned != "lost":
+        if self._warned not in ("lost", "stalled"):
             self._warned = "lost"
             self.lost_warnings += 1
             silent = now - (last_fb if last_fb is not None else self._since)
@@ -305,3 +341,14 @@ class CommandReach:
                 "%s %.1f s (path or router down?): nothing heard from the follower while its presence is "
                 "still seen; commands may or may not reach it", LOST, silent,
             )  # fmt: skip
+
+    def _stalled(self, now: float, since: float) -> None:
+        """Tell (once per episode) that the follower is heard, but late: its uplink is stalled."""
+        if self._warned == "stalled":
+            return
+        self._warned = "stalled"
+        self.stall_warnings += 1
+        LOG.warning(
+            "%s %.1f s: the follower's messages arrive %.1f s late or older (its uplink is stalled or "
+            "draining a backlog); commands may still reach the robot", STALLED, now - since, self.fresh_s,
+        )  # fmt: skip

@@ -48,13 +48,15 @@ from bipedtele.impairments import (
     ALLOWED_RATE,
     Direction,
     RateQueue,
+    Shaper,
     parse_loss,
     parse_outage,
     parse_queue,
     parse_rate,
 )
+from bipedtele.shapers import ALLOWED_TRACE, TokenBucket, TraceRate, load_mahimahi
 
-__all__ = ["LinkEmulator", "add_link_emu_parser", "build_direction", "disable_offloads", "run"]
+__all__ = ["LinkEmulator", "add_link_emu_parser", "build_direction", "build_shaper", "disable_offloads", "run"]
 
 LOG = logging.getLogger("bipedtele.tools.linkemu")
 
@@ -103,15 +105,36 @@ def build_direction(
     queue: str = "64kB",
     outages: list[str] | None = None,
     seed: int = 0,
+    burst: str | None = None,
 ) -> Direction:
-    """Build one direction's model from its specs (ConfigError, one line, when one is bad)."""
-    bps = parse_rate(rate)
+    """Build one direction's model from its specs (ConfigError, one line, when one is bad).
+
+    ``rate``: a rate (a FIFO serialising at it; with ``burst``, a token bucket of that many
+    bytes, the kernel's tbf) or ``mahimahi:NAME|FILE`` (a capacity trace).
+    """
     return Direction(
         parse_delay_model(delay, seed=seed),
         parse_loss(loss, seed=seed + 1000),
-        RateQueue(bps, parse_queue(queue)) if bps is not None else None,
+        build_shaper(rate, queue, burst),
         [parse_outage(o) for o in outages or []],
     )
+
+
+def build_shaper(rate: str, queue: str = "64kB", burst: str | None = None) -> Shaper | None:
+    """Build the bottleneck of ``--rate``, ``--queue`` and ``--burst`` (None: none; ConfigError when bad)."""
+    size = parse_queue(queue)
+    if rate.strip().startswith("mahimahi:"):
+        if burst is not None:
+            raise ConfigError(f"--burst {burst!r} with --rate {rate!r}; allowed: a burst with a rate in bits/s only")
+        return TraceRate(load_mahimahi(rate.strip().removeprefix("mahimahi:")), size)
+    bps = parse_rate(rate)
+    if bps is None:
+        if burst is not None:
+            raise ConfigError(f"--burst {burst!r} without a rate; allowed: a burst with --rate RATE")
+        return None
+    if burst is None:
+        return RateQueue(bps, size)
+    return TokenBucket(bps, parse_queue(burst), size)
 
 
 @dataclass
@@ -277,11 +300,18 @@ def run(args: argparse.Namespace) -> int:
     if not args.stats_every > 0:
         raise ConfigError(f"--stats-every {args.stats_every}: allowed: a number of seconds > 0")
     forward = build_direction(
-        args.forward, args.loss_forward, args.rate_forward, args.queue_forward, args.outage_forward, args.seed
+        args.forward,
+        args.loss_forward,
+        args.rate_forward,
+        args.queue_forward,
+        args.outage_forward,
+        args.seed,
+        args.burst_forward,
     )
     backward = build_direction(
-        args.backward, args.loss_backward, args.rate_backward, args.queue_backward, args.outage_backward, args.seed + 1
-    )
+        args.backward, args.loss_backward, args.rate_backward, args.queue_backward, args.outage_backward,
+        args.seed + 1, args.burst_backward,
+    )  # fmt: skip
     t_origin = time.time() - args.t0 if args.t0 is not None else 0.0
     emu = LinkEmulator(args.a, args.b, forward, backward, t_origin=t_origin)
     try:
@@ -322,7 +352,14 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         p.add_argument(
             f"--loss-{name}", default="none", metavar="SPEC", help=f"{arrow} loss: {ALLOWED_LOSS}".replace("%", "%%")
         )
-        p.add_argument(f"--rate-{name}", default="none", metavar="RATE", help=f"{arrow} rate cap: {ALLOWED_RATE}")
+        p.add_argument(
+            f"--rate-{name}", default="none", metavar="RATE",
+            help=f"{arrow} rate cap: {ALLOWED_RATE}; or a capacity trace: {ALLOWED_TRACE}",
+        )  # fmt: skip
+        p.add_argument(
+            f"--burst-{name}", default=None, metavar="SIZE",
+            help=f"{arrow} token bucket of SIZE bytes at the rate (the kernel's tbf): {ALLOWED_QUEUE} (default: none, a FIFO)",
+        )  # fmt: skip
         p.add_argument(
             f"--queue-{name}",
             default="64kB",

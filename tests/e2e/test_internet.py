@@ -164,5 +164,10 @@ def test_outage_stops_and_resumes_on_fresh_commands(bench: Any, tmp_path: Path) 
     # h1 (about 0.18 s here) after the cut: 0.68-0.72 s from the cut in the runs so far.
     assert o["stop_after_last_command_s"] is not None and o["stop_after_last_command_s"] <= 0.6, o
     assert o["stop_latency_s"] is not None and o["stop_latency_s"] <= 0.6 + 0.3, o
-    assert o["restart_latency_s"] is not None and o["restart_latency_s"] <= 1.0, o
+    # 3 s without feedback stop the robot from the leader too (blind_stop_s, 1.5 s): then it
+    # walks again within 1 s of fresh feedback and the operator's handle move
+    if o["move_after_return_s"] is None:
+        assert o["restart_latency_s"] is not None and o["restart_latency_s"] <= 1.0, o
+    else:
+        assert o["restart_after_move_s"] is not None and o["restart_after_move_s"] <= 1.0, o
     assert o["stale_applied"] == 0, o

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 
 import pytest
-from bipedtele.leader.reach import LOST, REFUSED, CommandReach
+from bipedtele.leader.reach import LOST, REFUSED, STALLED, CommandReach
 from bipedtele.messages import Feedback
 
 FOLLOWER = 77
@@ -178,3 +178,40 @@ def test_a_robot_held_by_another_operator_is_told_as_held_not_the_acl(caplog: py
         reach.on_heard()
         run(reach, clock, sent, 0.05, None)
     assert warnings(caplog) == []
+
+
+def test_a_gap_that_ends_with_the_followers_old_messages_is_a_stall_not_the_acl(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A cellular uplink's gap: commands flow on the free downlink, nothing arrives for 4 s,
+    then the backlog: the follower's status and video sent during the gap arrive 4 s late
+    (its feedback that old is refused before it reaches this check), and fresh feedback
+    only after them. Before, "refused by the router's ACL?" was told at every gap's end."""
+    caplog.set_level(logging.INFO, logger="bipedtele.leader")
+    reach, clock, sent = make()
+    acks = {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"}
+    run(reach, clock, sent, 5.0, acks)
+    run(reach, clock, sent, 4.0, None)  # the gap
+    for _ in range(10):  # 1 s of the backlog: old status and video
+        run(reach, clock, sent, 0.1, None)
+        reach.on_heard(age_s=4.0)
+    for _ in range(5):  # the first fresh messages of the drained path: a status, then feedback
+        run(reach, clock, sent, 0.1, None)
+        reach.on_heard(age_s=0.1)
+    run(reach, clock, sent, 2.0, acks)
+    lines = warnings(caplog)
+    assert not any("ACL" in ln or "refused" in ln for ln in lines), lines
+    assert [ln.split(" ")[0] for ln in lines] == ["link", "uplink"], lines
+    assert lines[1].startswith(STALLED) and float(lines[1].removeprefix(STALLED).split(" s")[0]) >= 4.0
+    assert reach.stall_warnings == 1 and not reach.never_reached
+    assert any("reach the robot again" in r.getMessage() for r in caplog.records)
+
+
+def test_old_messages_alone_never_name_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    """From the start only old messages arrive (a slow uplink's first queue): a stall is told."""
+    reach, clock, sent = make()
+    for _ in range(30):
+        run(reach, clock, sent, 0.1, None)
+        reach.on_heard(age_s=2.5)
+    (line,) = warnings(caplog)
+    assert line.startswith(STALLED) and not reach.never_reached and reach.never_acknowledged

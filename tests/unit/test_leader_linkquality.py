@@ -232,3 +232,24 @@ def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> No
     line = _summary(loop, "scripted", None, 0.1, DropCounter("t"), None, False, None, lq)
     assert "200 feedback received (100 used by the loop, 0 too old)" in line
     assert loop.feedback_count == 100
+
+
+def test_an_outages_sequence_gap_is_not_loss() -> None:
+    """3 s without feedback (a blackout of the uplink; the follower's feedback of that time
+    was lost in it): the gap is no loss, and the link is ok again, not lossy for 2 s."""
+    lq, clock = make()
+    seq = [0]
+    feed(lq, clock, 3.0, seq=seq)
+    clock.t += 3.0
+    seq[0] += 150  # sent into the dead path
+    feed(lq, clock, 0.5, seq=seq)
+    rep = lq.report()
+    assert rep.loss_ppm == 0 and rep.state == "ok" and lq.outage_gaps == 1
+    feed(lq, clock, 1.0, seq=seq, skip_every=10)  # a gap within the flow is loss as before
+    assert lq.report().loss_ppm > 0
+    # the backlog of a stalled path (1.5 s late, some of it dropped on the way): no loss
+    lq2, clock2 = make()
+    seq2 = [0]
+    feed(lq2, clock2, 3.0, seq=seq2)
+    feed(lq2, clock2, 2.5, seq=seq2, delay=1.5, skip_every=3)
+    assert lq2.report().loss_ppm == 0 and lq2.outage_gaps > 20

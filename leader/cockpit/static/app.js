@@ -59,6 +59,7 @@ const WARN = new Set(["stale", "waiting", "starting", "stopping", "feedback_stal
 // The link state in words (docs/cockpit.md): "link lost for 3.2 s", "no follower", ...
 function linkWords(s) {
   const v = String(s.link);
+  if (typeof s.blind === "string") return s.blind;  // the robot is stopped for old feedback (leader/blind.py)
   if (v === "lost") return typeof s.link_lost_s === "number" ? `link lost for ${s.link_lost_s.toFixed(1)} s` : "link lost";
   if (v === "no-follower" || v === "no follower") return "no follower";
   return v;
