@@ -33,7 +33,7 @@ from bipedtele.control.study import CASES, case_inputs
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.torque_config import TorqueConfig
-from bipedtele.follower.sim.walker_study import walker_run
+from bipedtele.follower.sim.walker_study import WalkerRun, walker_run
 
 #: The torque walker's reduced model, identified by ``bipedtele calibrate --robot sim-torque`` (docs/method.md).
 TORQUE_DP, TORQUE_K_V = 1.0, 1.3356
@@ -43,6 +43,35 @@ HELD: list[tuple[str, tuple[list[float], float, float] | None]] = [
     ("held sigma_r = 5", ([5.0, 5.0], 0.8, 0.05)),
     ("held eps = 0.5 s", ([0.0, 0.0], 0.8, 0.5)),
 ]
+
+
+def runs(seconds: float, case_name: str, names: tuple[str, ...] | None = None) -> dict[str, WalkerRun]:
+    """Walk the case's run 0 once per setting of :data:`HELD` (those in ``names``; default all)."""
+    cfg = load_config("localhost-delay", [])
+    control = dataclasses.replace(
+        cfg.get(ControlConfig), hybrid_model="speed-loop", calibrated_dp=TORQUE_DP, calibrated_k_v=TORQUE_K_V
+    )
+    params = StudyParams(duration_s=seconds)
+    case = next(c for c in CASES if c.name == case_name)
+    inp = case_inputs(case, 1, 0, control, params)
+    out: dict[str, WalkerRun] = {}
+    for name, hold in HELD:
+        if names is not None and name not in names:
+            continue
+        cp = None if hold is None else (np.array(hold[0], dtype=float), hold[1], hold[2])
+        out[name] = walker_run(
+            switch=inp.switch,
+            intent=inp.intent,
+            h1=inp.h1,
+            h2=inp.h2,
+            control=control,
+            follower=cfg.get(FollowerConfig),
+            sim=cfg.get(SimConfig),
+            params=params,
+            cp=cp,
+            torque=TorqueConfig(),
+        )
+    return out
 
 
 def main() -> None:
@@ -55,32 +84,13 @@ def main() -> None:
         help="delay case (default intercontinental: the shipped trace)",
     )
     args = ap.parse_args()
-    cfg = load_config("localhost-delay", [])
-    control = dataclasses.replace(
-        cfg.get(ControlConfig), hybrid_model="speed-loop", calibrated_dp=TORQUE_DP, calibrated_k_v=TORQUE_K_V
-    )
-    params = StudyParams(duration_s=args.seconds)
     case = next(c for c in CASES if c.name == args.case)
-    inp = case_inputs(case, 1, 0, control, params)
     print(
         f"torque walker, 20 % wrong model, case {case.name} ({case.description}), {args.seconds:.0f} s, "
         f"(30) on the reduced model with dp {TORQUE_DP}, k_v {TORQUE_K_V}"
     )
     print(f"{'setting':>18s} {'fell':>5s} {'fwd err cm/s':>12s} {'turn err deg/s':>14s} {'T s':>5s} {'sigma_r':>12s}")
-    for name, hold in HELD:
-        cp = None if hold is None else (np.array(hold[0], dtype=float), hold[1], hold[2])
-        r = walker_run(
-            switch=inp.switch,
-            intent=inp.intent,
-            h1=inp.h1,
-            h2=inp.h2,
-            control=control,
-            follower=cfg.get(FollowerConfig),
-            sim=cfg.get(SimConfig),
-            params=params,
-            cp=cp,
-            torque=TorqueConfig(),
-        )
+    for name, r in runs(args.seconds, args.case).items():
         s_r = "/".join(f"{v:.2f}" for v in r.mean_s_r)
         print(
             f"{name:>18s} {'yes' if r.fell else 'no':>5s} {r.forward_error:12.2f} {r.turn_error:14.2f} "

@@ -6,7 +6,6 @@ the adaptation's estimate, the motor envelope, and walks on joint torques alone.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import sys
@@ -17,19 +16,12 @@ import numpy as np
 import pinocchio as pin
 import pybullet as pb
 import pytest
-from bipedtele.config import load_config
-from bipedtele.control.config import ControlConfig
-from bipedtele.control.reduced import StudyParams
-from bipedtele.control.study import CASES, case_inputs
-from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.robot import WalkCommand
-from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.flcontrol import FeedbackLinearising, FlInput, FlState, MotorLimits, output_rows
 from bipedtele.follower.sim.model import NaoGeometry, nao_urdf
 from bipedtele.follower.sim.rigidbody import RigidBodyModel, perturbed_geometry, state_from_pybullet
 from bipedtele.follower.sim.torque_config import TorqueConfig
 from bipedtele.follower.sim.torque_robot import TorqueNao, motor_limits
-from bipedtele.follower.sim.walker_study import walker_run
 
 pytestmark = [pytest.mark.compute, pytest.mark.timeout(300)]
 
@@ -260,34 +252,7 @@ def test_a_held_joint_servo_falls_where_the_online_choice_does_not() -> None:
     delays, the torque walker with the joint servo held at ``eps = 0.5 s`` falls; with (30)
     choosing ``(sigma_r, T, eps)`` on this walker's reduced model it does not."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-    import stability_pair as pair  # the bench script's settings, so the test runs what it prints
+    import stability_pair as pair  # the bench script's runs, so the test runs what it prints
 
-    cfg = load_config("localhost-delay", [])
-    control = dataclasses.replace(
-        cfg.get(ControlConfig),
-        hybrid_model="speed-loop",
-        calibrated_dp=pair.TORQUE_DP,
-        calibrated_k_v=pair.TORQUE_K_V,
-    )
-    params = StudyParams(duration_s=15.0)
-    case = next(c for c in CASES if c.name == "intercontinental")
-    inp = case_inputs(case, 1, 0, control, params)
-    fell = {}
-    for name, hold in pair.HELD:
-        if name.startswith("held sigma_r"):
-            continue  # a limit cycle, not a fall: the bench prints it
-        cp = None if hold is None else (np.array(hold[0], dtype=float), hold[1], hold[2])
-        run = walker_run(
-            switch=inp.switch,
-            intent=inp.intent,
-            h1=inp.h1,
-            h2=inp.h2,
-            control=control,
-            follower=cfg.get(FollowerConfig),
-            sim=cfg.get(SimConfig),
-            params=params,
-            cp=cp,
-            torque=TorqueConfig(),
-        )
-        fell[name] = run.fell
-    assert fell == {"(30) online": False, "held eps = 0.5 s": True}
+    out = pair.runs(15.0, "intercontinental", ("(30) online", "held eps = 0.5 s"))
+    assert {name: run.fell for name, run in out.items()} == {"(30) online": False, "held eps = 0.5 s": True}
