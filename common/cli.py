@@ -74,6 +74,8 @@ def config_from_args(args: argparse.Namespace) -> Config:
     foxglove = getattr(args, "foxglove", None)
     if foxglove:
         overrides.append("record.foxglove=" + json.dumps(foxglove))
+    if getattr(args, "allow_remote", False):
+        overrides.append("record.foxglove_allow_remote=true")
     return load_config(args.config, overrides)
 
 
@@ -174,6 +176,7 @@ def add_foxglove_arg(parser: argparse.ArgumentParser) -> None:
         "--foxglove", metavar="[HOST:]PORT",
         help="also serve the recording's channels live on a Foxglove WebSocket (e.g. 8765; extra foxglove)",
     )  # fmt: skip
+    parser.add_argument("--allow-remote", action="store_true", help="let --foxglove listen on a non-loopback address")
 
 
 def missing_extra_message(exc: ModuleNotFoundError) -> str:

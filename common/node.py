@@ -254,10 +254,11 @@ class Node:
         """Start the Foxglove live view (``[record] foxglove``, ``--foxglove``)."""
         host, port = parse_address(address)
         try:
-            return LiveView(host, port, name=f"bipedtele {self.role} {self.keys.root}")
+            remote = self.cfg.get(RecordConfig).foxglove_allow_remote
+            return LiveView(host, port, name=f"bipedtele {self.role} {self.keys.root}", allow_remote=remote)
         except ModuleNotFoundError:
             raise ConfigError(
-                "record.foxglove: the python package foxglove-sdk is missing: allowed: pip install 'bipedtele[foxglove]'"
+                "record.foxglove: the python package aiohttp is missing: allowed: pip install 'bipedtele[foxglove]'"
             ) from None
         except (RuntimeError, OSError) as exc:
             raise ConfigError(f"record.foxglove = {address!r}: cannot listen ({exc}); allowed: a free port") from None

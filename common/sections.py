@@ -172,12 +172,15 @@ class RecordConfig:
         "",
         doc="[HOST:]PORT: also serve the recording's channels live on a Foxglove WebSocket (extra foxglove); empty: off",
     )
+    foxglove_allow_remote: bool = param(
+        False, doc="let the live view listen on a non-loopback address (--allow-remote)"
+    )
 
     def __post_init__(self) -> None:
         if self.foxglove:
-            from bipedtele.foxglovelive import parse_address
+            from bipedtele.foxglovelive import check_bind, parse_address
 
-            parse_address(self.foxglove)  # ValueError naming what is allowed
+            check_bind(parse_address(self.foxglove), self.foxglove_allow_remote)  # ValueError naming what is allowed
 
 
 CORE_SECTIONS: dict[str, type] = {

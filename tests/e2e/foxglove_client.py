@@ -31,12 +31,24 @@ class Seen:
     t_open: float = 0.0
     t_close: float = 0.0
     server: dict[str, Any] = field(default_factory=dict)
+    refused: int = 0  # the HTTP status of a refused upgrade (0: served)
 
 
-async def _watch(url: str, seconds: float) -> Seen:
+async def _watch(url: str, seconds: float, headers: dict[str, str] | None = None) -> Seen:
     seen = Seen()
+    try:
+        await _session(url, seconds, headers or {}, seen)
+    except aiohttp.WSServerHandshakeError as exc:
+        seen.refused = exc.status
+    return seen
+
+
+async def _session(url: str, seconds: float, headers: dict[str, str], seen: Seen) -> None:
     by_sub: dict[int, str] = {}
-    async with aiohttp.ClientSession() as session, session.ws_connect(url, protocols=SUBPROTOCOLS) as ws:
+    async with (
+        aiohttp.ClientSession() as session,
+        session.ws_connect(url, protocols=SUBPROTOCOLS, headers=headers) as ws,
+    ):
         seen.t_open = time.time()
         end = time.monotonic() + seconds
         while (left := end - time.monotonic()) > 0:
@@ -65,9 +77,12 @@ async def _watch(url: str, seconds: float) -> Seen:
             elif msg.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
                 break
         seen.t_close = time.time()
-    return seen
 
 
-def watch(url: str, seconds: float) -> Seen:
-    """Watch the live view at ``url`` (``ws://host:port``) for ``seconds``."""
-    return asyncio.run(_watch(url, seconds))
+def watch(url: str, seconds: float, headers: dict[str, str] | None = None) -> Seen:
+    """Watch the live view at ``url`` (``ws://host:port/?token=...``) for ``seconds``.
+
+    ``headers`` go with the upgrade (e.g. an ``Origin``); a refused upgrade is
+    :attr:`Seen.refused` (its status), with nothing seen.
+    """
+    return asyncio.run(_watch(url, seconds, headers))

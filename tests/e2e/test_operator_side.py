@@ -23,7 +23,9 @@ Checked, each by its own test:
   robot the rumble rises well above its lowest of the walk (measured: 2.0 to 2.3 times);
 - every channel of each program's recording was advertised live with the recording's own
   JSON Schema, and messages reached the client on every topic the recording wrote while it
-  watched.
+  watched;
+- a client without the token, or with the token from a foreign web page (``Origin``), is
+  refused and gets nothing.
 """
 
 from __future__ import annotations
@@ -122,7 +124,6 @@ def _drive(url: str) -> tuple[float, float, list[dict[str, Any]], str]:
 def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     if not Path(CHROMIUM).exists():
         pytest.fail(f"{CHROMIUM} is missing: run scripts/bootstrap.sh --test (installs chromium)")
-    pytest.importorskip("foxglove", reason="the live view needs foxglove-sdk: scripts/bootstrap.sh --test installs it")
     folder = tmp_path_factory.mktemp("operator-side")
     procs = Procs(folder)
     ep = f"tcp/127.0.0.1:{free_port()}"
@@ -135,8 +136,8 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     fox = ["--foxglove", "127.0.0.1:0"]
     seen: dict[str, Seen] = {}
 
-    def watching(role: str, url: str) -> threading.Thread:
-        th = threading.Thread(target=lambda: seen.__setitem__(role, watch(url, WATCH_S)), daemon=True)
+    def watching(role: str, url: str, headers: dict[str, str] | None = None) -> threading.Thread:
+        th = threading.Thread(target=lambda: seen.__setitem__(role, watch(url, WATCH_S, headers)), daemon=True)
         th.start()
         return th
 
@@ -148,7 +149,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
                               record=rec["leader"], env=env)  # fmt: skip
         l_url = "ws://" + leader.wait_log(r"foxglove live view on ws://(\S+)", 30.0).group(1)
         url = leader.wait_log(r"cockpit: open (http://\S+)", 10.0).group(1)
-        watchers = [watching("follower", f_url), watching("leader", l_url)]
+        watchers = [watching("follower", f_url), watching("leader", l_url),
+                    watching("no token", l_url.split("?")[0]),
+                    watching("foreign origin", l_url, {"Origin": "https://evil.example.com"})]  # fmt: skip
         t_walk, t_release, effects, label = _drive(url)
         for th in watchers:
             th.join(30.0)
@@ -238,3 +241,11 @@ def test_a_foxglove_client_gets_every_channel_schema_and_messages(run: Run, role
     missing = {t for t in during if not seen.messages.get(t)}
     assert not missing, (missing, seen.messages)
     print(f"{role}: {len(seen.channels)} channels, messages {dict(sorted(seen.messages.items()))}")
+
+
+@pytest.mark.parametrize("who", ["no token", "foreign origin"])
+def test_a_foxglove_client_without_the_token_or_from_a_foreign_origin_gets_nothing(run: Run, who: str) -> None:
+    seen = run.seen[who]
+    assert not seen.channels and not seen.messages and not seen.server, (who, seen)
+    assert seen.refused == 403, (who, seen.refused)
+    assert run.seen["leader"].messages, "the token holder watched meanwhile"

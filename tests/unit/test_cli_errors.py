@@ -31,6 +31,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
         (["health", "--role", "router", "--timeout", "0"], "> 0"),
         (["leader", "--device", "gamepad", "--set", "leader.cockpit=false"], "leader.cockpit = true"),
         (["leader", "--foxglove", "127.0.0.1:99999"], "0-65535"),
+        (["follower", "--foxglove", "0.0.0.0:8765"], "--allow-remote"),
         (["leader", "--set", "pad.deadzone=0.9"], "pad.deadzone"),
     ],
 )
