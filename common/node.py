@@ -50,7 +50,7 @@ from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.recordfiles import recording_for_run
 from bipedtele.recording import Recorder
 from bipedtele.sections import ClockConfig, NetworkConfig, RecordConfig, RobotConfig
-from bipedtele.session import Handshake
+from bipedtele.session import Handshake, live_checks
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import Keys, MessagePublisher, PresenceWatcher, Publishers, declare_presence
 from bipedtele.zenohsession import open_session
@@ -334,6 +334,7 @@ class Node:
                 on_message(got)
 
         wants = (topic is not None and recorder is not None) or on_message is not None
+        gate, max_age_s = live_checks(self, key, gate, max_age_s)  # video and status: bound, never old
         # commands and feedback: under the session key only (with the message key)
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
         auth = self.watch_auth if key in (self.keys.video, self.keys.status) else self.auth

@@ -27,8 +27,11 @@ binds to one follower session (the first that echoes its nonce) and leaves it on
 ``takeover_after_s`` of silence when another echoes (then with a new nonce and a new
 handshake). A side with no session sends nothing on cmd/feedback (the robot stands).
 
-Not covered: Status and Video (under the robot's watch key, :func:`bipedtele.auth.watch_key`)
-and the clock pings (under the master key) (docs/network.md).
+Status and Video travel under the robot's watch key (:func:`bipedtele.auth.watch_key`, so an
+observer can read them) and the clock pings under the master key (docs/network.md). A
+replay of an earlier session's video or status is refused by the receivers' age bound and,
+for what the leader shows as live, by :class:`PeerBound`: only the follower session this
+handshake bound (a fresh nonce of its own) is shown.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from typing import Final
+from typing import Any, Final
 
 from bipedtele.auth import (
     BAD_MAC_LINE,
@@ -52,9 +55,12 @@ from bipedtele.messages import NONCE_BYTES, ZERO_NONCE, Hello, MessageError, dec
 
 __all__ = [
     "INFO",
+    "LIVE_MAX_AGE_S",
     "OLD_SESSION_LINE",
     "Handshake",
+    "PeerBound",
     "SessionKey",
+    "live_checks",
     "session_info",
 ]
 
@@ -72,6 +78,8 @@ MAX_CANDIDATES: Final = 4
 #: (``other_leader``, not ``bad_mac``) while the follower's Hellos named another leader
 #: session this recently [s] (they come at SLOW_HZ while it is bound).
 ELSEWHERE_S: Final = 3.0
+#: Age bound of video and status [s]: older ones (a replay, a backlog) are never taken as live.
+LIVE_MAX_AGE_S: Final = 3.0
 #: The line of ``other_leader``.
 OTHER_LEADER_LINE: Final = (
     "the robot's traffic to another leader session (the robot follows another operator: "
@@ -386,3 +394,59 @@ class Handshake:
                 self.completed += 1
                 self._next_hello = now
                 self.changed.set()
+
+
+class PeerBound:
+    """A gate that passes only the messages of the peer session a handshake bound.
+
+    Video (and the follower's status, on the leader) travel under the watch key, not a
+    session key: without this an earlier follower session's frames, replayed, could bind
+    the leader's video gate and be shown as live. With it, a frame is shown only when its
+    ``sid`` is that of the follower session that answered this leader's current nonce.
+
+    Parameters
+    ----------
+    inner : MessageGate
+        The gate behind (sequence, duplicates).
+    peer_sid : callable
+        The bound peer session, None while none is bound (:attr:`Handshake.peer_sid`).
+    strict : bool
+        True: nothing passes while no peer is bound (video). False: until a peer is bound,
+        the inner gate decides alone (status, which also says why a link fails).
+    """
+
+    def __init__(self, inner: Any, peer_sid: Callable[[], int | None], *, strict: bool = True) -> None:
+        self.inner = inner
+        self._peer_sid = peer_sid
+        self.strict = strict
+
+    def accept(self, msg: Any) -> str | None:
+        """Return None if ``msg`` is the bound peer's and the inner gate takes it, else the reason."""
+        peer = self._peer_sid()
+        if peer is None:
+            if self.strict:
+                return "no_session"
+        elif msg.sid != peer:
+            return "old_session" if self.strict else "foreign_session"  # status: as the sequence gate says it
+        return self.inner.accept(msg)  # type: ignore[no-any-return]
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)  # live_sid and the like, as the inner gate's
+
+
+def live_checks(node: Any, key: str, gate: Any, max_age_s: Any) -> tuple[Any, Any]:
+    """Return the gate and age bound a node's receiver of ``key`` runs with.
+
+    Video and status get :data:`LIVE_MAX_AGE_S` unless the caller gives a bound; with a
+    handshake, the leader's video passes only the bound follower session's frames
+    (:class:`PeerBound`, strict) and its status the bound follower's once one is bound.
+    Other keys are left as given.
+    """
+    keys, hs = node.keys, node.handshake
+    if key not in (keys.video, keys.status):
+        return gate, max_age_s
+    if max_age_s is None:
+        max_age_s = LIVE_MAX_AGE_S
+    if hs is not None and gate is not None and node.role == "leader":
+        gate = PeerBound(gate, lambda: hs.peer_sid, strict=key == keys.video)
+    return gate, max_age_s

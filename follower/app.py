@@ -252,7 +252,7 @@ class FollowerApp:
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
             video = node.enter(VideoStreamer(
                 robot, self.fcfg.cameras, self.fcfg.camera_fps, self._publish_video, now=self.clock,
-                jpeg_quality=self.fcfg.jpeg_quality,
+                jpeg_quality=self.fcfg.jpeg_quality, sid=node.sid,
             ))  # fmt: skip
             self._video = video
             node.link_clocks(peer_sid=lambda: self.gate.live_sid)

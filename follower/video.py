@@ -85,6 +85,7 @@ class VideoStreamer:
         *,
         now: Callable[[], float] = time.time,
         jpeg_quality: int = 80,
+        sid: int | None = None,
     ) -> None:
         self.robot = robot
         self.cameras = list(cameras)
@@ -92,7 +93,7 @@ class VideoStreamer:
         self._publish = publish
         self._now = now
         self._quality = int(jpeg_quality)
-        self._sid = new_session_id()
+        self._sid = new_session_id() if sid is None else int(sid)  # the node's: the leader shows its bound peer's only
         self._seq = 0
         self._next = {cam: -float("inf") for cam in self.cameras}
         self._slot: tuple[str, np.ndarray, float] | None = None

@@ -3,7 +3,8 @@
 Video frames (real JPEGs) and telemetry are published from a thread as the leader loop
 would; the page, opened at the printed address with its token, must show the frames, move
 its plots and drive the server-side joystick. Without the token the browser gets 403; the
-cookie set by the first load lets the page reload without it. A screenshot is kept in
+cookie set by the first load lets the page reload without it; with no frame for longer than
+the video age bound the page hides the last one and says so. A screenshot is kept in
 ``artifacts/cockpit.png``.
 """
 
@@ -66,8 +67,12 @@ def _wait_for(page: Any, expression: str, timeout_ms: float) -> None:
         page.wait_for_timeout(50)
 
 
+VIDEO_PAUSED = threading.Event()  # the feeder publishes no frame while set
+
+
 @pytest.fixture
 def fed_server() -> Iterator[CockpitServer]:
+    VIDEO_PAUSED.clear()
     server = CockpitServer(telemetry_hz=25.0).start()
     stop = threading.Event()
 
@@ -77,7 +82,7 @@ def fed_server() -> Iterator[CockpitServer]:
         while not stop.is_set() and time.monotonic() < deadline:
             t = time.time()
             server.publish_sample(_sample(t, i))
-            if i % 13 == 0:
+            if i % 13 == 0 and not VIDEO_PAUSED.is_set():
                 server.publish_video("head", _jpeg(i), t)
             i += 1
             time.sleep(0.005)
@@ -200,6 +205,17 @@ def test_cockpit_in_headless_chromium(fed_server: CockpitServer) -> None:
             page.goto(server.base_url)
             _wait_for(page, "window.cockpit.wsOpen && window.cockpit.framesShown >= 1", 20_000)
             assert server.stats["connections"] > connections
+
+            # No frame younger than the bound (3 s): the old one is not left up as live.
+            img = "document.querySelector('img[data-camera=head]')"
+            assert page.evaluate(f"!{img}.hidden")
+            VIDEO_PAUSED.set()
+            t_pause = time.monotonic()
+            _wait_for(page, f"{img}.hidden", 10_000)
+            assert time.monotonic() - t_pause > 2.5  # not before the bound
+            assert "no live video" in page.locator("figure figcaption").inner_text()
+            VIDEO_PAUSED.clear()
+            _wait_for(page, f"!{img}.hidden", 10_000)
         finally:
             browser.close()
     assert errors == []

@@ -271,3 +271,32 @@ def test_a_second_leader_names_the_robots_feedback_to_the_first_other_leader_not
     with pytest.raises(MacError) as got:
         bob.open(fb, FB)
     assert got.value.reason == "bad_mac"
+
+
+def test_the_leaders_video_passes_only_the_bound_follower_session() -> None:
+    """Issue 32, item 4: an earlier follower session's frames (replayed) never reach the screen."""
+    from types import SimpleNamespace
+
+    from bipedtele.messages import VideoFrame
+    from bipedtele.session import LIVE_MAX_AGE_S, PeerBound, live_checks
+    from bipedtele.transport import Keys
+
+    hs = SimpleNamespace(peer_sid=None)
+    node = SimpleNamespace(keys=Keys("nao1"), handshake=hs, role="leader")
+    gate, age = live_checks(node, node.keys.video, SequenceGate(), None)
+    assert isinstance(gate, PeerBound) and gate.strict and age == LIVE_MAX_AGE_S
+
+    def frame(sid: int, seq: int) -> VideoFrame:
+        return VideoFrame(sid=sid, seq=seq, t=1.0, camera="head", width=1, height=1, t_capture=1.0, jpeg=b"x")
+
+    assert gate.accept(frame(5, 1)) == "no_session"  # before the handshake: nothing is live
+    hs.peer_sid = 7
+    assert gate.accept(frame(5, 2)) == "old_session"  # another (earlier) follower session
+    assert gate.accept(frame(7, 1)) is None and gate.accept(frame(7, 1)) == "duplicate"
+    status_gate, _ = live_checks(node, node.keys.status, SequenceGate(), None)
+    assert isinstance(status_gate, PeerBound) and not status_gate.strict
+    # the follower's receivers: the age bound only; commands and feedback: left as given
+    follower = SimpleNamespace(keys=node.keys, handshake=hs, role="follower")
+    cmd_gate = SequenceGate()
+    assert live_checks(follower, node.keys.status, cmd_gate, None) == (cmd_gate, LIVE_MAX_AGE_S)
+    assert live_checks(node, node.keys.cmd, cmd_gate, None) == (cmd_gate, None)

@@ -10,7 +10,7 @@ const KNOWN = new Set(["t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w"
   "held_by", "hand", "me"]);
 
 const state = {
-  wsOpen: false, connects: 0, framesReceived: 0, framesShown: 0, samplesReceived: 0,
+  wsOpen: false, connects: 0, framesReceived: 0, framesShown: 0, samplesReceived: 0, videoStale: 0,
   plotPoints: 0, joy: { x: 0, y: 0, active: false }, joySent: 0, lastSample: null,
 };
 window.cockpit = state;
@@ -135,6 +135,9 @@ function onSamples(samples) {
 // ------------------------------------------------------------------ video
 
 const cams = new Map(); // camera -> {img, url, caption}
+// A frame is shown as live only this long after it arrived [s] (the leader's video age bound):
+// with no newer frame, the image is hidden and the caption says so.
+const LIVE_VIDEO_S = 3.0;
 
 function camera(name) {
   let cam = cams.get(name);
@@ -148,7 +151,7 @@ function camera(name) {
   const cap = document.createElement("figcaption");
   fig.append(img, cap);
   document.getElementById("video").append(fig);
-  cam = { img, url: null, caption: cap, t: 0, n: 0 };
+  cam = { img, url: null, caption: cap, t: 0, n: 0, recv: 0 };
   img.addEventListener("load", () => {
     state.framesShown += 1;
     document.getElementById("frame-count").textContent = String(state.framesShown);
@@ -172,10 +175,25 @@ function onFrame(buf) {
   if (old) URL.revokeObjectURL(old);
   cam.t = t;
   cam.n = n;
+  cam.recv = performance.now();
+  cam.img.hidden = false;
   const age = Date.now() / 1000 - t;
   cam.caption.textContent = `${name} #${n}  age ${isFinite(age) ? (age * 1000).toFixed(0) : "?"} ms`;
   state.framesReceived += 1;
 }
+
+// No frame younger than the bound: never leave an old one up as if it were live.
+setInterval(() => {
+  const now = performance.now();
+  for (const [name, cam] of cams) {
+    const silent = (now - cam.recv) / 1000;
+    if (silent > LIVE_VIDEO_S && !cam.img.hidden) {
+      cam.img.hidden = true;
+      state.videoStale += 1;
+    }
+    if (cam.img.hidden) cam.caption.textContent = `${name}: no live video for ${silent.toFixed(0)} s`;
+  }
+}, 250);
 
 // ------------------------------------------------------------------ websocket
 
