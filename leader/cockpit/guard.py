@@ -5,7 +5,8 @@ Everything here runs in the cockpit's asyncio loop (one thread), so nothing is l
 - :class:`Limits`: the figures (``docs/cockpit.md``).
 - :func:`descriptor_budget`: raise the soft descriptor limit to the hard one and size the
   total connection cap from what is left, keeping a reserve for everything else.
-- :class:`Guard`: connections per address and in total (refused at once beyond), failed
+- :class:`Guard`: connections per address and in total (beyond, the oldest connection that
+  has not shown the token yet is closed to make room, else the new one is refused), failed
   requests per address (after ``fail_max`` in ``fail_window_s`` an address gets 429 for
   ``lockout_s``) and a global budget of refusal answers per second (beyond it a refused
   request is closed without an answer).
@@ -97,8 +98,10 @@ class Guard:
         self._locked_until: dict[str, float] = {}
         self._budget = self.limits.refusals_per_s
         self._budget_t = time.monotonic()
+        # connections that have not shown the token yet, oldest first: the first to go at a cap
+        self.untrusted: dict[Any, str] = {}
         self.counters = {"refused_conn_address": 0, "refused_conn_total": 0, "closed_no_head": 0,
-                         "refused_rate": 0, "closed_unanswered": 0, "lockouts": 0}  # fmt: skip
+                         "refused_rate": 0, "closed_unanswered": 0, "lockouts": 0, "evicted_untrusted": 0}  # fmt: skip
 
     # -- connections
 
@@ -123,6 +126,19 @@ class Guard:
         else:
             self.per_address.pop(addr, None)
         self.total = max(0, self.total - 1)
+
+    def make_room(self, why: str, addr: str) -> bool:
+        """Close the oldest connection without the token (of ``addr`` at its cap); True when one went.
+
+        So the token holder always gets in, whatever connections without it hold: a cap
+        they fill is made room in by closing the oldest of them, not by refusing newcomers.
+        """
+        victim = next((h for h, a in self.untrusted.items() if why == "too_many_connections" or a == addr), None)
+        if victim is None:
+            return False
+        self.counters["evicted_untrusted"] += 1
+        victim.evict()
+        return True
 
     # -- refused requests
 
@@ -171,8 +187,9 @@ async def accept_loop(
 ) -> None:  # fmt: skip
     """Accept connections, applying the caps before any protocol or transport is made.
 
-    A connection over a cap is reset at once (``SO_LINGER`` 0: its descriptor is free
-    now). While more than ``refused_connections_per_s`` are refused in a second (or
+    At a cap, the oldest connection that has not shown the token is closed to make room
+    (:meth:`Guard.make_room`); when there is none, the new connection is reset at once
+    (``SO_LINGER`` 0: its descriptor is free now). While more than ``refused_connections_per_s`` are refused in a second (or
     ``refused_locked_per_s`` for a locked address), accepting pauses after each refusal:
     a connect flood then waits in the kernel's backlog, and its sender with it, instead of
     taking the machine's CPU.
@@ -189,6 +206,8 @@ async def accept_loop(
             continue
         addr = str(peer[0]) if isinstance(peer, tuple) and peer else "?"
         why = guard.admit(addr)
+        if why is not None and guard.make_room(why, addr):
+            why = guard.admit(addr)
         if why is None:
             conn.setblocking(False)
             try:
@@ -226,11 +245,13 @@ class GuardedHandler(RequestHandler):
         self._guard = guard
         self._addr = addr
         self._admitted = True
+        self._lost = False
         self._held = False
         self._head_timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:  # noqa: D102
         super().connection_made(transport)
+        self._guard.untrusted[self] = self._addr
         self._head_timer = self._loop.call_later(self._guard.limits.header_timeout_s, self._no_head)
 
     def data_received(self, data: bytes) -> None:  # noqa: D102
@@ -240,6 +261,16 @@ class GuardedHandler(RequestHandler):
         if self._head_timer is not None and self._request_count:
             self._head_timer.cancel()
             self._head_timer = None
+
+    def trust(self) -> None:
+        """Mark the connection as the token holder's: never closed to make room."""
+        self._guard.untrusted.pop(self, None)
+
+    def evict(self) -> None:
+        """Uncount this connection now and close it (room for one that may hold the token)."""
+        self._release()
+        if self.transport is not None:
+            self.transport.abort()
 
     def hold(self, seconds: float) -> None:
         """Ignore what this connection sends from now on; close it in ``seconds``."""
@@ -256,11 +287,17 @@ class GuardedHandler(RequestHandler):
             self._guard.counters["closed_no_head"] += 1
             self.transport.abort()
 
+    def _release(self) -> None:
+        self._guard.untrusted.pop(self, None)
+        if self._admitted:
+            self._admitted = False
+            self._guard.release(self._addr)
+
     def connection_lost(self, exc: BaseException | None) -> None:  # noqa: D102
-        if not self._admitted:
+        if self._lost:
             return
-        self._admitted = False
-        self._guard.release(self._addr)
+        self._lost = True
+        self._release()
         if self._head_timer is not None:
             self._head_timer.cancel()
             self._head_timer = None

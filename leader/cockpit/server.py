@@ -685,6 +685,8 @@ class CockpitServer:
                 "refused_token", "bad_token" if given else "no_token", f"{request.path} from {request.remote}",
                 "open the address the leader printed: http://HOST:PORT/?token=TOKEN",
             )  # fmt: skip
+        if isinstance(request.protocol, GuardedHandler):
+            request.protocol.trust()  # the token holder's connection is never closed to make room
         response = await handler(request)
         if in_query is not None and not response.prepared:
             response.set_cookie(self.cookie_name, self.token, httponly=True, samesite="Strict", path="/")

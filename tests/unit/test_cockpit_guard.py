@@ -70,6 +70,9 @@ def test_half_sent_heads_are_closed_and_idle_keep_alive_too() -> None:
 def test_connections_over_the_cap_are_refused_at_once() -> None:
     with CockpitServer(limits=Limits(per_address=4, header_timeout_s=5.0)) as server:
         held = [socket.create_connection(("127.0.0.1", server.port)) for _ in range(4)]
+        for s in held:  # keep-alive connections of the token holder: none closed to make room
+            s.sendall(f"GET /healthz?token={server.token} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+            assert s.recv(12).startswith(b"HTTP/1.1 200")
         time.sleep(0.2)
         extra = socket.create_connection(("127.0.0.1", server.port))
         assert (_closed_within(extra, 2.0) or 9) < 1.0  # reset at once
@@ -172,3 +175,24 @@ def test_demo_logs_are_private(tmp_path: Path) -> None:
         procs["leader"].popen.wait(10)
     assert stat.S_IMODE((run_dir / "leader.log").stat().st_mode) == 0o600
     assert "token=secret" in (run_dir / "leader.log").read_text()
+
+
+@pytest.mark.timeout(30)
+def test_the_token_holder_gets_in_whatever_connections_without_it_hold() -> None:
+    """Issue 32, item 6: slowloris connections filling the total cap (and the token holder's
+    own address's cap) do not keep the operator's page out: the oldest of them is closed to
+    make room. Before: the token holder's connection was reset at once."""
+    limits = Limits(per_address=6, total=6, header_timeout_s=10.0)
+    with CockpitServer(limits=limits) as server:
+        server.guard.total_cap = 6  # not lowered by the descriptor budget
+        slow = [socket.create_connection(("127.0.0.1", server.port)) for _ in range(6)]
+        for s in slow:
+            s.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # never finished
+        time.sleep(0.3)
+        assert server.stats["open_connections"] == 6
+        assert [_get(server.url) for _ in range(3)] == [200, 200, 200]
+        assert server.stats["evicted_untrusted"] >= 1
+        assert _closed_within(slow[0], 0.5) is not None  # the oldest slow one went
+        assert server.stats["open_connections"] <= 6
+        for s in slow:
+            s.close()
