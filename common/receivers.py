@@ -78,6 +78,12 @@ MAX_CONTROL_PAYLOAD = 16 * 1024
 MAX_VIDEO_PAYLOAD = MAX_JPEG_BYTES + 4 * 1024
 #: Largest message Zenoh reassembles [bytes] (its defragmentation buffer; Zenoh drops larger).
 MAX_ZENOH_MESSAGE = MAX_VIDEO_PAYLOAD + 64 * 1024
+#: Under attack (a payload on the key failed authentication within ``UNDER_ATTACK_S``), a
+#: payload larger than twice the largest authenticated one of the key plus ``ATTACK_SLACK``
+#: is dropped by its size (``too_large_under_attack``) before it is copied or opened: forged
+#: frames at the size bound cost neither memory nor the interpreter's lock.
+UNDER_ATTACK_S = 10.0
+ATTACK_SLACK = 64 * 1024
 
 
 def _const(value: float, _t: float) -> float:
@@ -135,6 +141,8 @@ class _Receiver(Generic[M]):
         self._mac_topic = None if any(c in key for c in "*$") else key
         self._clock = clock
         self._ignore_sid = ignore_sid
+        self._largest_good = 0  # the largest authenticated payload [bytes]
+        self._bad_t = -float("inf")  # when a payload last failed authentication (local clock)
         self._lock = threading.Lock()
         self.count = 0
         self._closed = False
@@ -151,20 +159,25 @@ class _Receiver(Generic[M]):
             if nbytes > self.max_bytes:  # before the copy, the MAC and the decoder
                 drops.drop("too_large", f"{self.key}: {nbytes} bytes (at most {self.max_bytes})")
                 return
+            if nbytes > 2 * self._largest_good + ATTACK_SLACK and t_recv - self._bad_t < UNDER_ATTACK_S:
+                drops.drop("too_large_under_attack", f"{self.key}: {nbytes} bytes while forged payloads arrive "
+                           f"(the largest authenticated: {self._largest_good})")  # fmt: skip
+                return
             payload = zbytes.to_bytes()
             skey = None
-            if self.handshake is not None:
+            if self.handshake is not None or self.auth is not None:
                 try:
-                    payload, skey = self.handshake.open(payload, self._mac_topic or str(sample.key_expr))
+                    if self.handshake is not None:
+                        payload, skey = self.handshake.open(payload, self._mac_topic or str(sample.key_expr))
+                    else:
+                        payload = self.auth.verify(payload, self._mac_topic or str(sample.key_expr))  # type: ignore[union-attr]
                 except MacError as exc:
+                    if exc.reason in ("bad_mac", "no_mac"):
+                        self._bad_t = t_recv
                     drops.drop(exc.reason, f"{self.key}: {exc.detail}")
                     return
-            elif self.auth is not None:
-                try:
-                    payload = self.auth.verify(payload, self._mac_topic or str(sample.key_expr))
-                except MacError as exc:
-                    drops.drop(exc.reason, f"{self.key}: {exc.detail}")
-                    return
+                if nbytes > self._largest_good:
+                    self._largest_good = nbytes
             elif is_signed(payload):  # not for the decoder: name the missing key, not msgpack
                 drops.drop("mac_unexpected", f"{self.key}: {UNEXPECTED_MAC_LINE}")
                 return
