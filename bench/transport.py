@@ -1,11 +1,12 @@
 """Benchmark: round trip of a Command leader -> follower -> leader over Zenoh (loopback,
-two processes) against a bare zenoh-python ping-pong of the same payload size, and the
-accuracy of `bipedtele delay-proxy`.
+two processes) against a bare zenoh-python ping-pong of the same payload size, unsealed and
+sealed (AES-256-GCM, ``bipedtele.auth``), the cost of sealing one message against the HMAC
+it replaced, and the accuracy of `bipedtele delay-proxy`.
 
     .venv/bin/python bench/transport.py [--quick] [--no-proxy]
 
-Prints p50/p99/max of the round trips at 100 Hz and 1 kHz for both, the p50 ratio
-(goal: ours within 1.3x of bare), and the proxy's measured-minus-configured delay per
+Prints p50/p99/max of the round trips at 100 Hz and 1 kHz for each, the p50 ratios
+(goal: ours within 1.3x of bare; sealed and unsealed in the same run), and the proxy's measured-minus-configured delay per
 direction (goal: p50 < 2 ms). Both ping-pongs use the same QoS (express, real-time
 priority, drop on congestion), reply in the subscriber callback and carry the same
 payload sizes (a Command out, a Feedback back), so the ratio is the cost of bipedtele's
@@ -21,6 +22,7 @@ in-process figures suggest.
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import socket
 import statistics
@@ -33,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+from bipedtele.auth import MessageAuth
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
@@ -43,6 +46,8 @@ from bipedtele.transport import Keys, Publishers, Stamper
 from bipedtele.zenohsession import open_session
 
 BARE_PING, BARE_PONG = "benchbare/ping", "benchbare/pong"
+#: The sealed runs' key (a benchmark's, not a secret) and robot id.
+SEAL_KEY, SEALED = bytes(range(32)), "benchsealed"
 QOS: dict[str, Any] = {
     "express": True,
     "priority": zenoh.Priority.REAL_TIME,
@@ -78,9 +83,28 @@ def echo(listen: str, seconds: float) -> None:
         def answer(rec: Received[Command]) -> None:
             pubs.feedback.put(st.make(Feedback, cmd_seq=rec.msg.seq, h1_s=0.0))
 
+        auth, skeys = MessageAuth(SEAL_KEY), Keys(SEALED)
+        sealed_pubs = Publishers(s, skeys, auth=auth)
+
+        def answer_sealed(rec: Received[Command]) -> None:
+            sealed_pubs.feedback.put(st.make(Feedback, cmd_seq=rec.msg.seq, h1_s=0.0))
+
         est = DelayEstimator(1.0)
-        with LatestReceiver(
-            s, keys.cmd, Command, DropCounter("bench/cmd"), SequenceGate(), estimator=est, on_message=answer
+        with (
+            LatestReceiver(
+                s, keys.cmd, Command, DropCounter("bench/cmd"), SequenceGate(), estimator=est, on_message=answer
+            ),
+            LatestReceiver(
+                s,
+                skeys.cmd,
+                Command,
+                DropCounter("bench/scmd"),
+                SequenceGate(),
+                estimator=est,
+                on_message=answer_sealed,
+                auth=auth,
+            ),  # fmt: skip
+            sealed_pubs,
         ):
             print("ready", flush=True)
             time.sleep(seconds)
@@ -91,10 +115,11 @@ def echo(listen: str, seconds: float) -> None:
 # --------------------------------------------------------------------------- leader side
 
 
-def run_pair(s: zenoh.Session, rate: float, n: int) -> tuple[list[float], list[float], int]:
+def run_pair(s: zenoh.Session, rate: float, n: int, sealed: bool) -> tuple[list[float], list[float], int]:
     """Interleaved ping-pongs: a bipedtele Command at each tick, a bare ping of the same
-    size half a period later, so both see the same machine load."""
-    keys = Keys("bench")
+    size half a period later, so both see the same machine load (``sealed``: under a key)."""
+    auth = MessageAuth(SEAL_KEY) if sealed else None
+    keys = Keys(SEALED if sealed else "bench")
     st = Stamper()
     sent_ours: dict[int, float] = {}
     sent_bare: dict[int, float] = {}
@@ -117,15 +142,22 @@ def run_pair(s: zenoh.Session, rate: float, n: int) -> tuple[list[float], list[f
     def command() -> Command:
         return st.make(Command, ref=[3.0, 1.5], x_m=[0.01, 0.002], dx_m=[0.0, 0.0], h2_s=0.05, alpha_m=[2.0, 2.0])
 
-    size = len(encode(command()))
+    size = len(encode(command())) + (36 if sealed else 0)
     pad = b"\0" * (size - 8)
     est = DelayEstimator(1.0)
     pub = s.declare_publisher(BARE_PING, **QOS)
     sub = s.declare_subscriber(BARE_PONG, got_bare)
     with (
-        Publishers(s, keys) as pubs,
+        Publishers(s, keys, auth=auth) as pubs,
         LatestReceiver(
-            s, keys.feedback, Feedback, DropCounter("bench/fb"), SequenceGate(), estimator=est, on_message=got_ours
+            s,
+            keys.feedback,
+            Feedback,
+            DropCounter("bench/fb"),
+            SequenceGate(),
+            estimator=est,
+            on_message=got_ours,
+            auth=auth,
         ),
     ):
         time.sleep(0.3)
@@ -155,7 +187,7 @@ def bench_roundtrip(quick: bool) -> None:
     ep = f"tcp/127.0.0.1:{port}"
     fb_size = len(encode(Stamper().make(Feedback, cmd_seq=1, h1_s=0.0)))
     runs = [(100.0, 300 if quick else 1000), (1000.0, 1000 if quick else 5000)]
-    total = sum(n / r for r, n in runs) * 2 + 10
+    total = sum(n / r for r, n in runs) * 4 + 20
     child = subprocess.Popen(
         [sys.executable, __file__, "--echo", ep, "--seconds", str(total)], stdout=subprocess.PIPE, text=True
     )
@@ -165,14 +197,71 @@ def bench_roundtrip(quick: bool) -> None:
         with open_session(NetworkConfig(connect=[ep])) as s:
             time.sleep(0.5)
             for rate, n in runs:
-                ours, bare, size = run_pair(s, rate, n)
-                print(f" {rate:.0f} Hz, payload {size} bytes out, {fb_size} bytes back:")
-                print(line("bare zenoh ping-pong", bare, n))
-                print(line("bipedtele Command/Feedback", ours, n))
-                print(f"  ratio p50 ours/bare = {statistics.median(ours) / statistics.median(bare):.2f} (goal <= 1.3)")
+                for sealed in (False, True):
+                    ours, bare, size = run_pair(s, rate, n, sealed)
+                    what = "sealed (AES-256-GCM)" if sealed else "unsealed"
+                    back = fb_size + (36 if sealed else 0)
+                    print(f" {rate:.0f} Hz, {what}, payload {size} bytes out, {back} bytes back:")
+                    print(line("bare zenoh ping-pong", bare, n))
+                    print(line("bipedtele Command/Feedback", ours, n))
+                    ratio = statistics.median(ours) / statistics.median(bare)
+                    print(f"  ratio p50 ours/bare = {ratio:.2f} (goal <= 1.3)")
     finally:
         child.send_signal(signal.SIGTERM)
         child.wait(10)
+
+
+# --------------------------------------------------------------------------- sealing, per message
+
+
+def _hmac_sign(key: bytes, topic: str) -> Any:
+    """The HMAC-SHA256 framing sealing replaced (its precomputed inner and outer states)."""
+    import hashlib
+
+    block = key.ljust(64, b"\0")
+    inner = hashlib.sha256(bytes(b ^ 0x36 for b in block))
+    inner.update(b"\xc1BT\x01" + topic.encode() + b"\0")
+    outer = hashlib.sha256(bytes(b ^ 0x5C for b in block))
+
+    def sign(body: bytes) -> bytes:
+        i = inner.copy()
+        i.update(body)
+        o = outer.copy()
+        o.update(i.digest())
+        return b"\xc1BT\x01" + o.digest() + body
+
+    return sign
+
+
+def bench_seal(quick: bool) -> None:
+    """Per-message cost of sealing and opening a Command, a Feedback and a video frame, side by side."""
+    import hmac as _hmac
+
+    st, topic, n = Stamper(), "bipedtele/nao1/cmd", 2000 if quick else 20000
+    auth, sign = MessageAuth(SEAL_KEY), _hmac_sign(SEAL_KEY, topic)
+    bodies = {
+        "Command": encode(st.make(Command, ref=[3.0, 1.5], x_m=[0.01, 0.002], alpha_m=[2.0, 2.0])),
+        "Feedback": encode(st.make(Feedback, cmd_seq=1, h1_s=0.0)),
+        "video 40 kB": bytes(40_000),
+    }
+    print(f"Per message, in a loop of {n} (us): HMAC-SHA256 sign / verify  vs  AES-256-GCM seal / open")
+    for name, body in bodies.items():
+        signed, sealed = sign(body), auth.sign(body, topic)
+
+        def verify(p: bytes = signed, b: bytes = body) -> bool:
+            return _hmac.compare_digest(sign(b)[4:36], p[4:36])
+
+        fns = (
+            functools.partial(sign, body), verify,
+            functools.partial(auth.sign, body, topic), functools.partial(auth.verify, sealed, topic),
+        )  # fmt: skip
+        t = []
+        for fn in fns:
+            t0 = time.perf_counter()
+            for _ in range(n):
+                fn()
+            t.append((time.perf_counter() - t0) / n * 1e6)
+        print(f"  {name:<12} {len(body):6d} bytes:  HMAC {t[0]:6.2f} / {t[1]:6.2f}   AES-GCM {t[2]:6.2f} / {t[3]:6.2f}")
 
 
 # --------------------------------------------------------------------------- proxy accuracy
@@ -277,6 +366,7 @@ def main() -> int:
         echo(args.echo, args.seconds)
         return 0
     print(f"bench/transport.py  (python {sys.version.split()[0]}, zenoh {Path(zenoh.__file__).parent.name})")
+    bench_seal(args.quick)
     bench_roundtrip(args.quick)
     if not args.no_proxy:
         bench_proxy(args.quick)

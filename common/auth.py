@@ -1,43 +1,54 @@
-r"""End-to-end message authentication: HMAC-SHA256 with a key the router never sees.
+r"""End-to-end message sealing: AES-256-GCM with a key the router never sees.
 
 Leader and follower share a 32-byte key (``[network] message_key_file``: 64 hex
-characters, mode 0600). Every payload a process sends is framed as::
+characters, mode 0600). Every payload a process sends is sealed (encrypted and
+authenticated, an AEAD) and framed as::
 
-    MAGIC (4 bytes: c1 'B' 'T' 01) | tag (32 bytes) | body (the msgpack message)
+    MAGIC (4 bytes: c1 'B' 'T' 03) | key id (4) | nonce (12) | AES-256-GCM(key, nonce, body, aad) (len(body) + 16)
 
-with ``tag = HMAC-SHA256(key, MAGIC | key expression | 0x00 | body)``: the tag covers the
-whole encoded message (envelope ``sid``, ``seq``, ``t`` and every field) and the key
-expression it was published on, so a message cannot be altered, forged, or moved to
-another key or robot by anyone without the key (a compromised router included). Replays
-of whole valid messages are stopped by the receivers' sequence gate and send-time
-checks, not by the tag.
+with ``aad = MAGIC | key id | key expression | 0x00``: the ciphertext hides the whole
+encoded message (envelope ``sid``, ``seq``, ``t`` and every field: a router or an on-path
+observer reads nothing of it), and its 16-byte tag covers it and the key expression it was
+published on, so a message cannot be altered, forged, read, or moved to another key or
+robot by anyone without the key (a compromised router included). The key id
+(``HMAC-SHA256(key, "bipedtele key id")[:4]``) names the key, not the message: a receiver
+tells a payload under another key (``bad_mac``: the two sides hold different keys; or, for
+a session key, an earlier session's, :mod:`bipedtele.session`) from an altered one. Nonces
+are 8 random bytes per sealer and a 4-byte counter (the random part is drawn again before
+the counter wraps), so two processes sealing under one key never reuse a nonce. Replays
+of whole valid messages are stopped by the receivers' sequence gate and send-time checks,
+not by the seal.
 
-The first byte 0xc1 is the one byte msgpack never uses, so a signed payload is never
+The first byte 0xc1 is the one byte msgpack never uses, so a sealed payload is never
 taken for a message by a receiver without the key (it is dropped as ``mac_unexpected``,
-whose line says that the peer has a key and this side none) and an unsigned one is never
-taken for a signed one (``no_mac``: the peer has no key). A wrong tag (``bad_mac``) says
-the two sides hold different keys. Tags are checked in constant
-time (:func:`hmac.compare_digest`) before anything is decoded. See docs/network.md.
+whose line says that the peer has a key and this side none) and an unsealed one is never
+taken for a sealed one (``no_mac``: the peer has no key). The names (``MessageAuth``,
+``sign``, ``verify``, the ``*_mac`` reasons) are those of the HMAC this replaced. See
+docs/network.md.
 
 Examples
 --------
 >>> auth = MessageAuth(bytes(32))
->>> signed = auth.sign(b"\x80", "bipedtele/nao1/cmd")
->>> auth.verify(signed, "bipedtele/nao1/cmd")
-b'\x80'
+>>> sealed = auth.sign(b"\x80", "bipedtele/nao1/cmd")
+>>> b"\x80" in sealed[4:], auth.verify(sealed, "bipedtele/nao1/cmd")
+(False, b'\x80')
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
+import itertools
 import os
 import stat
+import threading
 from pathlib import Path
-from typing import Any, Final
+from typing import Final
 
 from bipedtele.config import ConfigError
 from bipedtele.sections import NetworkConfig
+from cryptography.exceptions import InvalidTag
+from cryptography.hazmat.primitives.ciphers.aead import AESGCM
 
 __all__ = [
     "BAD_MAC_LINE",
@@ -59,14 +70,16 @@ __all__ = [
     "write_message_key",
 ]
 
-MAC_MAGIC: Final = b"\xc1BT\x01"
-#: Magic of a payload signed with a session key (:mod:`bipedtele.session`), not the master key.
-SESSION_MAGIC: Final = b"\xc1BT\x02"
-TAG_BYTES: Final = 32
-MAC_OVERHEAD: Final = len(MAC_MAGIC) + TAG_BYTES
+MAC_MAGIC: Final = b"\xc1BT\x03"
+#: Magic of a payload sealed with a session key (:mod:`bipedtele.session`), not the master key.
+SESSION_MAGIC: Final = b"\xc1BT\x04"
+KID_BYTES: Final = 4
+NONCE_BYTES: Final = 12
+TAG_BYTES: Final = 16
+HEADER_BYTES: Final = len(MAC_MAGIC) + KID_BYTES + NONCE_BYTES
+MAC_OVERHEAD: Final = HEADER_BYTES + TAG_BYTES
 KEY_BYTES: Final = 32
-_MAX_TOPICS: Final = 256  # cached per-key-expression HMAC states (a robot uses about 5)
-_BLOCK: Final = 64  # SHA-256 block size [bytes]
+_COUNTER_MAX: Final = 1 << 32
 
 
 #: What each side says when the two ends do not hold the same key (one line, both sides).
@@ -83,7 +96,7 @@ KEY_REASONS: Final = ("no_mac", "bad_mac", "mac_unexpected")
 
 
 def is_signed(payload: bytes) -> bool:
-    """Return whether ``payload`` is framed as a signed message (a keyless receiver refuses it by name)."""
+    """Return whether ``payload`` is framed as a sealed message (a keyless receiver refuses it by name)."""
     return payload[:4] in (MAC_MAGIC, SESSION_MAGIC) and len(payload) >= MAC_OVERHEAD
 
 
@@ -109,14 +122,19 @@ def hkdf_sha256(ikm: bytes, salt: bytes, info: bytes, length: int = 32) -> bytes
     return out[:length]
 
 
+def key_id(key: bytes) -> bytes:
+    """Return the 4-byte id of ``key`` (``HMAC-SHA256(key, "bipedtele key id")[:4]``): names it, hides it."""
+    return hmac.new(bytes(key), b"bipedtele key id", hashlib.sha256).digest()[:KID_BYTES]
+
+
 class MacError(ValueError):
     """A payload failed authentication.
 
     Attributes
     ----------
     reason : str
-        ``no_mac`` (not a signed payload) or ``bad_mac`` (signed, but the tag is wrong:
-        another key, another key expression, or altered bytes).
+        ``no_mac`` (not a sealed payload) or ``bad_mac`` (sealed, but under another key,
+        for another key expression, or altered).
     """
 
     def __init__(self, reason: str, detail: str) -> None:
@@ -126,20 +144,21 @@ class MacError(ValueError):
 
 
 class MessageAuth:
-    """Signs and verifies payloads with one shared key.
+    """Seals and opens payloads with one shared key (AES-256-GCM).
 
     Parameters
     ----------
     key : bytes
         The 32-byte shared key.
+    magic : bytes
+        :data:`MAC_MAGIC` (the message key, the watch key) or :data:`SESSION_MAGIC`.
 
     Notes
     -----
-    Thread-safe: the precomputed hash states are only copied, never updated.
-    ``repr`` never shows the key.
+    Thread-safe (the nonce counter is taken under a lock). ``repr`` never shows the key.
     """
 
-    __slots__ = ("_inner", "_key", "_outer", "_topics", "magic")
+    __slots__ = ("_aead", "_counter", "_key", "_lock", "_prefix", "kid", "magic")
 
     def __init__(self, key: bytes, magic: bytes = MAC_MAGIC) -> None:
         if not isinstance(key, bytes | bytearray) or len(key) != KEY_BYTES:
@@ -148,57 +167,62 @@ class MessageAuth:
             raise ValueError("magic: allowed: MAC_MAGIC or SESSION_MAGIC")
         self.magic = magic
         self._key = bytes(key)
-        # HMAC (RFC 2104) from its two precomputed SHA-256 states: the same tags as
-        # hmac.new(key, msg, "sha256"), at a third of hmac.HMAC.copy()'s cost per message
-        block = bytes(key).ljust(_BLOCK, b"\0")
-        self._inner = hashlib.sha256(bytes(b ^ 0x36 for b in block))
-        self._inner.update(magic)
-        self._outer = hashlib.sha256(bytes(b ^ 0x5C for b in block))
-        self._topics: dict[str, Any] = {}
+        self.kid = key_id(self._key)
+        self._aead = AESGCM(self._key)
+        self._lock = threading.Lock()
+        self._prefix = os.urandom(8)
+        self._counter = itertools.count()
 
-    def _state(self, topic: str) -> Any:
-        h = self._topics.get(topic)
-        if h is None:
-            h = self._inner.copy()
-            h.update(topic.encode("utf-8") + b"\0")
-            if len(self._topics) < _MAX_TOPICS:
-                self._topics[topic] = h
-        return h
+    def _nonce(self) -> bytes:
+        with self._lock:
+            n = next(self._counter)
+            if n >= _COUNTER_MAX:  # never reached in practice (2^32 messages): a new random part
+                self._prefix, self._counter, n = os.urandom(8), itertools.count(1), 0
+            return self._prefix + n.to_bytes(4, "big")
 
-    def tag(self, body: bytes | memoryview, topic: str) -> bytes:
-        """Return the 32-byte tag of ``body`` published on key expression ``topic``.
-
-        The tag is ``HMAC-SHA256(key, magic | topic | 0x00 | body)`` (``magic``: :data:`MAC_MAGIC`,
-        or :data:`SESSION_MAGIC` for a session key).
-        """
-        inner = self._state(topic).copy()
-        inner.update(body)
-        outer = self._outer.copy()
-        outer.update(inner.digest())
-        return outer.digest()
+    def _aad(self, topic: str) -> bytes:
+        return self.magic + self.kid + topic.encode("utf-8") + b"\0"
 
     def sign(self, body: bytes, topic: str) -> bytes:
-        """Return the framed payload ``MAGIC | tag | body`` to publish on ``topic``."""
-        return self.magic + self.tag(body, topic) + body
+        """Return ``body`` sealed and framed (``MAGIC | key id | nonce | ciphertext | tag``) for ``topic``."""
+        nonce = self._nonce()
+        return self.magic + self.kid + nonce + self._aead.encrypt(nonce, body, self._aad(topic))
 
     def derive(self, salt: bytes, info: bytes) -> MessageAuth:
         """Return the session key ``HKDF-SHA256(this key, salt, info)`` (framed with :data:`SESSION_MAGIC`)."""
         return MessageAuth(hkdf_sha256(self._key, salt, info), SESSION_MAGIC)
 
+    def holds(self, payload: bytes) -> bool:
+        """Return whether ``payload`` is framed under this key (its magic and key id; not yet opened)."""
+        return payload[:4] == self.magic and payload[4:8] == self.kid and len(payload) >= MAC_OVERHEAD
+
     def verify(self, payload: bytes, topic: str) -> bytes:
-        """Return the body of a framed payload received on ``topic``, if its tag is right.
+        """Return the body of a sealed payload received on ``topic``, if it opens.
 
         Raises
         ------
         MacError
-            ``no_mac`` if the payload is not framed, ``bad_mac`` if the tag is wrong.
+            ``no_mac`` if the payload is not framed, ``bad_mac`` if it is under another
+            key or does not open (altered, or sealed for another key expression).
         """
         if payload[:4] != self.magic or len(payload) < MAC_OVERHEAD:
-            raise MacError("no_mac", f"{NO_MAC_LINE} (unsigned payload of {len(payload)} bytes on {topic})")
-        body = payload[MAC_OVERHEAD:]
-        if not hmac.compare_digest(self.tag(body, topic), payload[4:MAC_OVERHEAD]):
-            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong tag on {topic})")
-        return body
+            raise MacError("no_mac", f"{NO_MAC_LINE} (unsealed payload of {len(payload)} bytes on {topic})")
+        if payload[4:8] != self.kid:
+            raise MacError("bad_mac", f"{BAD_MAC_LINE} (sealed under another key on {topic})")
+        return self.open_framed(payload, topic)
+
+    def open_framed(self, payload: bytes, topic: str) -> bytes:
+        """Open a payload already known to be framed under this key (:meth:`holds`).
+
+        Raises
+        ------
+        MacError
+            ``bad_mac``: it does not open (altered, or sealed for another key expression).
+        """
+        try:
+            return self._aead.decrypt(payload[8:HEADER_BYTES], payload[HEADER_BYTES:], self._aad(topic))
+        except InvalidTag:
+            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong tag on {topic})") from None
 
     def watch(self) -> MessageAuth:
         """Return the :class:`MessageAuth` of this key's watch key (:func:`watch_key`)."""
@@ -264,11 +288,11 @@ def load_message_auth(net: NetworkConfig) -> MessageAuth | None:
 def watch_key(master: bytes) -> bytes:
     """Return a robot's watch key: HKDF-SHA256 of its message key (``info`` ``bipedtele watch v1``).
 
-    Video and status are signed with the watch key (leader and follower derive it from the
-    message key). An observer holds only the watch key: it verifies what it watches, and
-    since HKDF is one-way it can neither complete a session handshake nor sign a command,
-    feedback or clock message (the master key signs those, or session keys derived from
-    it). The router's ACL keeps it from putting anything at all.
+    Video and status are sealed with the watch key (leader and follower derive it from the
+    message key). An observer holds only the watch key: it opens what it watches, and
+    since HKDF is one-way it can neither complete a session handshake nor open or seal a
+    command, feedback or clock message (the master key seals those, or session keys
+    derived from it). The router's ACL keeps it from putting anything at all.
     """
     return hkdf_sha256(bytes(master), b"bipedtele", b"bipedtele watch v1")
 

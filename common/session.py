@@ -1,8 +1,9 @@
 r"""The session handshake (message key only): per-session keys that earlier sessions cannot replay.
 
 With ``[network] message_key_file`` set, leader and follower bind with a handshake of
-:class:`~bipedtele.messages.Hello` messages (signed with the shared *master* key, sent on
-the clock key), and Commands and Feedback are then MAC'd with a *session key*::
+:class:`~bipedtele.messages.Hello` messages (sealed with the shared *master* key, sent on
+the clock key), and Commands and Feedback are then sealed (AES-256-GCM,
+:mod:`bipedtele.auth`) with a *session key*::
 
     K = HKDF-SHA256(master, salt = nonce_leader | nonce_follower,
                     info = b"bipedtele session v1" | sid_leader | sid_follower)   (4 bytes each, big-endian)
@@ -44,14 +45,13 @@ from collections.abc import Callable
 from typing import Any, Final
 
 from bipedtele.auth import (
-    BAD_MAC_LINE,
     MAC_MAGIC,
     MAC_OVERHEAD,
     SESSION_MAGIC,
     MacError,
     MessageAuth,
 )
-from bipedtele.messages import NONCE_BYTES, ZERO_NONCE, Hello, MessageError, decode
+from bipedtele.messages import NONCE_BYTES, ZERO_NONCE, Hello
 
 __all__ = [
     "INFO",
@@ -325,18 +325,19 @@ class Handshake:
         return None if cur is None else cur.auth.sign(body, topic)
 
     def open(self, payload: bytes, topic: str) -> tuple[bytes, SessionKey]:
-        """Return the body of a session-framed payload and the session it verified under.
+        """Return the body of a session-sealed payload and the session it opened under.
 
-        The bound session's key first, then (follower) the keys of the leader sessions
-        answered.
+        The payload's key id picks the key: the bound session's, or (follower) one of
+        the leader sessions answered.
 
         Raises
         ------
         MacError
-            ``no_session`` (framed with the master key, not a session key), ``no_mac``
-            (not signed), ``bad_mac`` (no key verifies it but it names the bound
-            session, or its body is no message: altered) or ``old_session`` (a whole
-            message of an earlier session's or another pair's).
+            ``no_session`` (sealed with the message key, not a session key), ``no_mac``
+            (not sealed), ``bad_mac`` (under a key this side holds, but it does not open:
+            altered), ``other_leader`` (leader: a session key it does not hold while the
+            bound follower names another leader session) or ``old_session`` (under a
+            session key this side does not hold: an earlier session's or another pair's).
         """
         if payload[:4] != SESSION_MAGIC or len(payload) < MAC_OVERHEAD:
             if payload[:4] == MAC_MAGIC:
@@ -349,21 +350,12 @@ class Handshake:
         with self._lock:
             keys = ([self._current] if self._current is not None else []) + list(reversed(self._candidates.values()))
         for s in keys:
-            try:
-                return s.auth.verify(payload, topic), s
-            except MacError:
-                continue
-        # Error path only, to name the drop: a payload that claims the bound session, or whose body is no message at
-        # all, was altered (bad_mac, as before the handshake); a whole message of another sid is an earlier session's
-        # or another pair's (old_session). The body is not trusted beyond this.
-        try:
-            sid = decode(payload[MAC_OVERHEAD:]).sid
-        except MessageError:
-            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, body not a message)") from None
-        if keys and keys[0] is self._current and keys[0].peer_sid == sid:
-            if self.role == "leader" and self._clock() - self._elsewhere_t < ELSEWHERE_S:
-                raise MacError("other_leader", f"{OTHER_LEADER_LINE} ({topic})")
-            raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong session tag on {topic}, sid={sid})")
+            if s.auth.holds(payload):
+                return s.auth.open_framed(payload, topic), s  # bad_mac if it does not open
+        # Sealed, the plaintext hidden: a session key this side does not hold. The leader
+        # whose follower lately named another leader session: the robot's traffic to it.
+        if self.role == "leader" and keys and self._clock() - self._elsewhere_t < ELSEWHERE_S:
+            raise MacError("other_leader", f"{OTHER_LEADER_LINE} ({topic})")
         raise MacError("old_session", f"{OLD_SESSION_LINE} ({topic})")
 
     def answers(self, peer_sid: int) -> bool:

@@ -18,7 +18,8 @@ Run as a program, one attack per sub-command (every loop bounded in count and ti
 ``flood``        ClockPings at ``--rate`` per second for ``--seconds``; counts who answered.
 ``compromised``  What a compromised router can do to a run protected by a message key:
                  replays recorded command and feedback payloads verbatim, sends copies with a
-                 fresh time patched into the signed bytes, and unsigned forged commands.
+                 fresh time patched into the signed bytes (sealed: none readable, a bit flipped
+                 instead), and unsigned forged commands (the leader's sid, or sealed, a guess).
 
 Each prints one JSON line with what it sent (and saw). Imported, the module gives the tests
 their helpers: profiles with users, a message key file, status counters from recordings.
@@ -439,6 +440,10 @@ def cmd_clock_forge(a: argparse.Namespace) -> dict[str, Any]:
         t2 = t_recv + a.offset
         pong(msg.sid, msg.seq, msg.t, t2, t2 + hold, "matching")
 
+    if a.pingers:  # sids known beforehand (sealed traffic shows none): answers to pings never seen
+        leader_sid, follower_sid = (int(x) for x in a.pingers.split(","))
+        sids.update(leader=leader_sid, follower=follower_sid)
+        last_ping.update({leader_sid: (0, 0.0), follower_sid: (0, 0.0)})
     end = time.monotonic() + _bounded(a.seconds)
     with att.session():
         att.subscribe(att.key("cmd"), learn("leader", Command))
@@ -504,6 +509,14 @@ def _patch_time(payload: bytes, t: float) -> bytes | None:
     return payload[: i + 3] + struct.pack(">d", t) + payload[i + 11 :]
 
 
+def _flip(payload: bytes) -> bytes | None:
+    """``payload`` with one bit of its middle flipped (an on-path change to a sealed payload)."""
+    if len(payload) < 2:
+        return None
+    i = len(payload) // 2
+    return payload[:i] + bytes([payload[i] ^ 0x01]) + payload[i + 1 :]
+
+
 def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
     """Replays, re-stamped copies of signed payloads and unsigned forgeries, on cmd and feedback."""
     import msgspec
@@ -549,17 +562,17 @@ def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
                 own.add(replay)
                 att.put(att.key(name), replay, via=put_via[name])
                 sent[f"replay_{name}"] += 1
-                patched = _patch_time(old[-1], now)
+                patched = _patch_time(old[-1], now) or _flip(old[-1])  # sealed: no time to find, a bit flipped
                 if patched is not None:
                     own.add(patched)
                     att.put(att.key(name), patched, via=put_via[name])
                     sent[f"restamped_{name}"] += 1
-            if last_cmd:
-                real = last_cmd[0]
-                forged = encode(msgspec.structs.replace(real, seq=real.seq + 1, t=now, ref=[a.forward, a.turn]))
-                own.add(forged)
-                att.put(att.key("cmd"), forged)
-                sent["unsigned_cmd"] += 1
+            # the leader's last command, or (sealed: none readable) one with a guessed sid
+            real = last_cmd[0] if last_cmd else Command(sid=att.sid, seq=n, t=now)
+            forged = encode(msgspec.structs.replace(real, seq=real.seq + 1, t=now, ref=[a.forward, a.turn]))
+            own.add(forged)
+            att.put(att.key("cmd"), forged)
+            sent["unsigned_cmd"] += 1
             if len(own) > 50_000:
                 own.clear()
     att.out["sent"] = dict(sent)
@@ -602,6 +615,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--offset", type=float, default=5.0, help="clock-forge: forged clock offset [s]")
     ap.add_argument("--back-s", type=float, default=0.0, help="clock-forge: delay of answers to the leader [s]")
     ap.add_argument("--shave-s", type=float, default=0.004, help="clock-forge: round trip left [s]")
+    ap.add_argument("--pingers", default="", help="clock-forge: LEADER_SID,FOLLOWER_SID known beforehand")
     ap.add_argument("--replay-after-s", type=float, default=0.5, help="compromised: replay payloads this old [s]")
     a = ap.parse_args(argv)
     if not 0 < a.rate <= 20_000 or not math.isfinite(a.rate):

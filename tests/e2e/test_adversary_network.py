@@ -239,6 +239,10 @@ def _status_at(recs: list[Any], t: float) -> dict[str, int]:
     return before[-1] if before else {}
 
 
+def _first_sid(path: Path, topic: str) -> int:
+    return int(next(r.data["sid"] for r in records(path, topic)))
+
+
 @pytest.mark.e2e
 @pytest.mark.slow
 @pytest.mark.timeout(200)
@@ -254,7 +258,9 @@ def test_forged_clock_answers_change_neither_damping_nor_offset(procs: Procs, tm
     to pings never sent (the next seq, and one far ahead) with its own t1, same forgery.
     ``own_sid``: the answers carry the attacker's own session id. ``spoofed_sid_signed_run``:
     they carry the real peer's sid, in a run where leader and follower share a message key
-    (``network.message_key_file``), which the attacker does not have.
+    (``network.message_key_file``), which the attacker does not have; the messages being
+    sealed, it reads no ping and no sid there, so it is given the two sids and answers pings
+    it never saw.
 
     Before (measured, own sid): the leader took the forged round trip and its damping
     alpha_m fell from 24.3/30.4 to 0.49/0.61 N s/m within a second, far below the
@@ -283,10 +289,13 @@ def test_forged_clock_answers_change_neither_damping_nor_offset(procs: Procs, tm
     follower = start_follower(procs, r_ep, [*extra, *NO_VIDEO], record=f_rec)
     leader = start_leader(procs, p_ep, [*extra, *NO_VIDEO, *walking_script(5.0)], record=l_rec)
     wait_recorded_state(f_rec, "walking", time.time() - 60, timeout_s=40.0, hold_s=3.0)
+    # Signed run: the messages are sealed, their sids unreadable; the attacker is given them
+    # (as if leaked) and answers pings it cannot see.
+    known = [] if not spoof else ["--pingers", f"{_first_sid(l_rec, 'cmd/sent')},{_first_sid(f_rec, 'feedback/sent')}"]
     t_attack = time.time()
     rep = _attack(procs, "clock-forger", [
         "clock-forge", "--connect", r_ep, "--as", "peer" if spoof else "own", "--offset", "5",
-        "--back-s", f"{BWD_S:g}", "--seconds", "6", "--rate", "4",
+        "--back-s", f"{BWD_S:g}", "--seconds", "6", "--rate", "4", *known,
     ])  # fmt: skip
     time.sleep(2.5)  # effects of the last forged answers, and the status that counts them
     t_end = time.time()
@@ -294,7 +303,9 @@ def test_forged_clock_answers_change_neither_damping_nor_offset(procs: Procs, tm
     assert leader.stop() == 0, leader.tail()
     assert follower.stop() == 0, follower.tail()
 
-    assert rep["sent"].get("matching", 0) >= 10 and rep["sent"].get("unsolicited", 0) >= 10, rep
+    # sealed pings (signed run): the attacker reads none, so it answers none of them
+    assert (rep["sent"].get("matching", 0) == 0) if spoof else (rep["sent"].get("matching", 0) >= 10), rep
+    assert rep["sent"].get("unsolicited", 0) >= 10, rep
     assert len(rep["pingers"]) == 2, rep  # it answered both the leader's and the follower's pings
     l_recs, f_recs = list(records(l_rec)), list(records(f_rec))
     leader_sid = next(r.data["sid"] for r in l_recs if r.topic == "cmd/sent")
@@ -495,8 +506,9 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
       role) and ``relay_f`` (the follower's role), so that between them it receives and
       puts on every key, as a router can (a user may hold only one role). It replays
       recorded command and feedback payloads verbatim (valid MACs, old sequence numbers),
-      sends copies of them with a fresh time patched in (MAC no longer valid) and unsigned
-      forged commands with the leader's sid, 20 Hz each;
+      sends copies of them with a fresh time patched in (MAC no longer valid; sealed
+      payloads have no readable time: a bit flipped instead) and unsigned forged commands
+      with the leader's sid (sealed: unreadable, a guessed one), 20 Hz each;
     - ``garbage.py`` puts 900 invalid payloads on each of the five keys (as ``relay_l`` on
       cmd, clock and status, as ``relay_f`` on feedback and video).
 

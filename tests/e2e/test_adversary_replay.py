@@ -10,8 +10,10 @@ and the last test here.)
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
+import struct
 import textwrap
 import time
 from pathlib import Path
@@ -21,6 +23,7 @@ import pytest
 from adversary_support import make_key_file, recorded_feedback, wait_recorded_state
 from bipedtele.auth import BAD_MAC_LINE, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.leader.reach import KEY_MISMATCH
+from bipedtele.messages import MessageError, decode
 from e2e_support import (
     NO_VIDEO,
     Procs,
@@ -62,6 +65,27 @@ CAPTURE_REPLAY = textwrap.dedent(
         print(json.dumps({"replayed": n}), flush=True)
     """
 )
+
+
+def _nothing_readable(payloads: list[bytes], sent: list[dict[str, Any]]) -> None:
+    """Issue 32, item 3: the sniffed command datagrams hold no field of the commands in plain.
+
+    No payload decodes as a message at any offset, and no command's send time, speeds,
+    handle position or session id (the bytes msgpack writes for them) occurs in any.
+    """
+    assert payloads
+    for p in payloads:
+        for i in range(min(len(p), 80)):
+            with contextlib.suppress(MessageError):
+                msg = decode(p[i:])
+                raise AssertionError(f"a sniffed payload reads as {msg!r} at byte {i}")
+    blob = b"".join(payloads)
+    for d in sent[-50:]:
+        fields = {"t": struct.pack(">d", d["t"]), "sid": struct.pack(">I", d["sid"])}
+        fields.update({f"ref[{i}]": struct.pack(">d", v) for i, v in enumerate(d["ref"]) if v})
+        fields.update({f"x_m[{i}]": struct.pack(">d", v) for i, v in enumerate(d["x_m"]) if v})
+        seen = [k for k, b in fields.items() if b in blob]
+        assert not seen, f"command seq={d['seq']}: {seen} readable in the sniffed datagrams"
 
 
 def _json_lines(text: str) -> dict[str, Any]:
@@ -121,7 +145,7 @@ def test_a_new_leader_walks_within_2_s_while_an_earlier_sessions_signed_commands
 # TRIGGER file, then republishes them verbatim at 5 Hz for REPLAY_S.
 CAPTURE_TRIGGER_REPLAY = textwrap.dedent(
     """
-    import json, os, sys, time, msgspec, zenoh
+    import json, os, sys, time, zenoh
     ep, key, trigger, capture_s, replay_s = sys.argv[1], sys.argv[2], sys.argv[3], *map(float, sys.argv[4:6])
     c = zenoh.Config()
     c.insert_json5("mode", '"client"')
@@ -132,8 +156,9 @@ CAPTURE_TRIGGER_REPLAY = textwrap.dedent(
         sub = s.declare_subscriber(key, lambda sample: got.append(sample.payload.to_bytes()))
         time.sleep(capture_s)
         sub.undeclare()
-        sids = sorted({msgspec.msgpack.decode(p[36:])["sid"] for p in got})
-        print(json.dumps({"captured": len(got), "sids": sids, "t_captured": time.time()}), flush=True)
+        with open(sys.argv[6], "w") as f:  # what an on-path observer keeps
+            f.write("\\n".join(p.hex() for p in got))
+        print(json.dumps({"captured": len(got), "t_captured": time.time()}), flush=True)
         while not os.path.exists(trigger):
             time.sleep(0.02)
         pub = s.declare_publisher(key)
@@ -155,6 +180,10 @@ def test_an_earlier_sessions_commands_never_bind_the_follower_while_the_new_lead
     procs: Procs, tmp_path: Path
 ) -> None:
     """Issue 20 step 2: traffic of an earlier session fails authentication whatever the clocks say.
+
+    On the way, the captured datagrams are what an on-path observer keeps: none holds a
+    field of the commands in plain (issue 32, item 3: sealed; before, every command read
+    whole after its 36-byte tag).
 
     Setup: message key on both ends, ``clock.mode = "synced"``, the follower's command age
     bound raised to 20 s (the same hole as at the default 1.5 s, with a window wide enough
@@ -181,12 +210,19 @@ def test_an_earlier_sessions_commands_never_bind_the_follower_while_the_new_lead
     wait_recorded_state(f_rec, "walking", time.time() - 60, timeout_s=30.0, hold_s=1.0)
     script, trigger = tmp_path / "capture_replay.py", tmp_path / "replay.now"
     script.write_text(CAPTURE_TRIGGER_REPLAY)
-    attacker = procs.start("attacker", [str(script), ep, "bipedtele/nao1/cmd", str(trigger), "2.0", "8.0"], raw=True)
+    sniffed = tmp_path / "sniffed.hex"
+    attacker = procs.start("attacker", [str(script), ep, "bipedtele/nao1/cmd", str(trigger), "2.0", "8.0",
+                                        str(sniffed)], raw=True)  # fmt: skip
     attacker.wait_log(r'"captured"', 15.0)
     assert leader1.stop() in (0, 3), leader1.tail()
     rep = _json_lines(attacker.log())
-    assert rep["captured"] >= 50 and len(rep["sids"]) == 1, rep
-    sid1 = rep["sids"][0]
+    assert rep["captured"] >= 50, rep
+    time.sleep(1.2)  # the follower's recording is flushed about every second
+    leader1_cmds = [r.data for r in records(f_rec, "cmd/recv")]
+    sids = {d["sid"] for d in leader1_cmds}
+    assert len(sids) == 1, sids
+    sid1 = sids.pop()
+    _nothing_readable([bytes.fromhex(h) for h in sniffed.read_text().split()], leader1_cmds)
     leader2 = start_leader(procs, ep, [*keyed, *walking_script(5.0)], name="leader2")
     t_ready = time.time()
     t_walk = wait_recorded_state(f_rec, "walking", t_ready, timeout_s=15.0, hold_s=0.5)

@@ -72,8 +72,15 @@ def test_forged_frames_at_the_size_bound_cost_no_copy_once_one_failed() -> None:
     got: list[int] = []
     with (
         open_session(NetworkConfig(mode="peer", listen=[endpoint])) as session,
-        LatestReceiver(session, keys.video, VideoFrame, drops, SequenceGate(), auth=MessageAuth(KEY),
-                       on_message=lambda r: got.append(r.msg.seq)),  # fmt: skip
+        LatestReceiver(
+            session,
+            keys.video,
+            VideoFrame,
+            drops,
+            SequenceGate(),
+            auth=MessageAuth(KEY),
+            on_message=lambda r: got.append(r.msg.seq),
+        ),  # fmt: skip
     ):
         sender = subprocess.run([sys.executable, "-c", SENDER, endpoint, keys.video],
                                 capture_output=True, text=True, timeout=40)  # fmt: skip

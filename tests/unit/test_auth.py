@@ -1,4 +1,4 @@
-"""Message authentication: framing, tags over every byte, the key file's checks."""
+"""Message sealing (AES-256-GCM): framing, tags over every byte, hidden fields, the key file's checks."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import hashlib
 import hmac
 import os
 import stat
+import struct
 from pathlib import Path
 
 import pytest
@@ -20,6 +21,7 @@ from bipedtele.auth import (
 from bipedtele.config import ConfigError
 from bipedtele.messages import Command, MessageError, decode, encode
 from bipedtele.sections import NetworkConfig
+from cryptography.hazmat.primitives.ciphers.aead import AESGCM
 
 KEY = bytes(range(32))
 TOPIC = "bipedtele/nao1/cmd"
@@ -66,14 +68,37 @@ def test_tag_covers_every_byte_the_topic_and_the_key() -> None:
     assert _reason(lambda: auth.verify(MAC_MAGIC + os.urandom(100), TOPIC)) == "bad_mac"
 
 
-def test_tag_is_hmac_sha256_of_magic_topic_and_body() -> None:
+def test_seal_is_aes_gcm_of_the_body_under_magic_key_id_and_topic() -> None:
+    """The frame: MAGIC | key id | nonce | AES-256-GCM(key, nonce, body, MAGIC | key id | topic | 0)."""
     for key in (KEY, os.urandom(32)):
         auth = MessageAuth(key)
+        kid = hmac.new(key, b"bipedtele key id", hashlib.sha256).digest()[:4]
         for body in (b"", b"\x80", os.urandom(317), os.urandom(70_000)):
             for topic in (TOPIC, "bipedtele/nao1/video", "bipedtele/\u00e9t\u00e9/status"):
-                want = hmac.new(key, MAC_MAGIC + topic.encode() + b"\0" + body, hashlib.sha256).digest()
-                assert auth.tag(body, topic) == want
-                assert auth.sign(body, topic) == MAC_MAGIC + want + body
+                sealed = auth.sign(body, topic)
+                assert sealed[:8] == MAC_MAGIC + kid and len(sealed) == len(body) + MAC_OVERHEAD
+                aad = MAC_MAGIC + kid + topic.encode() + b"\0"
+                assert AESGCM(key).decrypt(sealed[8:20], sealed[20:], aad) == body
+
+
+def test_the_seal_hides_every_field_and_never_repeats_a_nonce() -> None:
+    """Issue 32, item 3: what a router or an on-path observer sees holds no field of the message."""
+    auth, twin = MessageAuth(KEY), MessageAuth(KEY)  # two processes under one key (leader and follower)
+    cmd = Command(sid=0x5EC2E7, seq=4242, t=1.5e9 + 0.123, ref=[0.0525, -0.0317], x_m=[0.011, 0.022])
+    body = encode(cmd)
+    # every field of 4 bytes or more as msgpack writes it (shorter ones occur in any random bytes)
+    fields = [struct.pack(">d", v) for v in (cmd.t, *cmd.ref, *cmd.x_m)] + [b"\xa3ref", struct.pack(">I", cmd.sid)]
+    assert all(f in body for f in fields)
+    nonces = set()
+    for a in (auth, twin):
+        for _ in range(500):
+            sealed = a.sign(body, TOPIC)
+            assert not any(f in sealed for f in fields), sealed.hex()
+            nonces.add(sealed[8:20])
+    assert len(nonces) == 1000
+    with pytest.raises(MessageError):
+        decode(sealed)
+    assert decode(twin.verify(sealed, TOPIC)) == cmd
 
 
 def test_key_never_shown_and_length_checked() -> None:
