@@ -11,14 +11,16 @@ plain Zenoh client of the router (no login: the router has no ACL), started by t
 
 1. **baseline** (``--baseline-s``): no attack;
 2. **flood** (``--flood-s``): the attacker puts ``--flood-rate`` payloads per second on each
-   of ``bipedtele/nao1/cmd`` and ``bipedtele/nao1/feedback``, each ``--size`` bytes long and
-   framed as a signed message (the magic of a session key where the code has one, else
-   ``MAC_MAGIC``; a random 32-byte tag; random bytes).
+   of ``bipedtele/nao1/cmd`` and ``bipedtele/nao1/feedback`` (``--target video``: on
+   ``bipedtele/nao1/video``, with ``--video-fps`` genuine frames beside), each ``--size``
+   bytes long and framed as a genuine payload of its key: the 8 bytes in clear (magic, key
+   id) of one seen on the wire, else a session key's magic and a random key id; then random
+   bytes.
 
 Printed per phase, side by side: the genuine command age at the follower (its ``cmd/recv``
 records: receive time minus the command's send stamp ``t``, one clock) and the genuine
 feedback age at the leader (``feedback/recv``), p50/p99/max [ms]; the commands the follower
-accepted per second; the largest resident memory (VmRSS, sampled every 0.5 s) of the
+accepted per second; the leader's haptic ticks missed per second; the largest resident memory (VmRSS, sampled every 0.5 s) of the
 follower, the leader and the router [MB]; the drop counters that grew during the phase, by
 reason, from each side's ``status/sent`` records. A second useful run is ``--size 100000``:
 a payload Zenoh delivers, which the receivers should drop by size (``too_large``) before
@@ -54,8 +56,23 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def attack(endpoint: str, size: int, rate: float, seconds: float) -> dict[str, Any]:
-    """The attacker: fake-signed payloads of ``size`` bytes on cmd and feedback (bounded)."""
+def _sniff_prefix(session: Any, key: str, seconds: float) -> bytes | None:
+    """The first 8 bytes (magic and key id, in clear) of a genuine payload on ``key``, or None."""
+    got: list[bytes] = []
+    sub = session.declare_subscriber(key, lambda sample: got.append(sample.payload.to_bytes()[:8]))
+    end = time.monotonic() + seconds
+    while not got and time.monotonic() < end:
+        time.sleep(0.05)
+    sub.undeclare()
+    return got[0] if got else None
+
+
+def attack(endpoint: str, size: int, rate: float, seconds: float, target: str = "cmd,feedback") -> dict[str, Any]:
+    """The attacker: fake-signed payloads of ``size`` bytes on the ``target`` keys (bounded).
+
+    Each is framed as a genuine payload of its key: the magic and key id of one seen on the
+    wire (they are in clear), else a session key's magic and a random key id; then random bytes.
+    """
     import zenoh
     from bipedtele import auth
 
@@ -66,9 +83,10 @@ def attack(endpoint: str, size: int, rate: float, seconds: float) -> dict[str, A
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     body = os.urandom(max(0, size - auth.MAC_OVERHEAD))
-    keys = [f"bipedtele/{ROBOT}/cmd", f"bipedtele/{ROBOT}/feedback"]
+    keys = [f"bipedtele/{ROBOT}/{k}" for k in target.split(",")]
     n_max, sent = math.ceil(rate * seconds), 0
     with zenoh.open(conf) as session:
+        heads = {k: _sniff_prefix(session, k, 3.0) for k in keys}
         pubs = [session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK) for k in keys]
         time.sleep(0.5)  # let the publishers' routes settle
         t_first = time.time()
@@ -76,8 +94,9 @@ def attack(endpoint: str, size: int, rate: float, seconds: float) -> dict[str, A
         for i in range(n_max):
             if time.monotonic() > t0 + seconds + 5.0:  # a put that blocks cannot stretch the flood
                 break
-            for pub in pubs:
-                pub.put(magic + os.urandom(32) + body)
+            for k, pub in zip(keys, pubs, strict=True):
+                head = heads[k] or magic + os.urandom(4)
+                pub.put(head + os.urandom(auth.MAC_OVERHEAD - 8) + body)
                 sent += 1
             time.sleep(max(0.0, t0 + (i + 1) / rate - time.monotonic()))
         t_last = time.time()
@@ -160,6 +179,14 @@ def _drops(records: list[Any], t0: float, t1: float) -> dict[str, int]:
     return {k: v for k, v in grew.items() if v}
 
 
+def _grew(records: list[Any], counter: str, t0: float, t1: float) -> int:
+    """Growth of one counter of the ``status/sent`` records from t0 to t1."""
+    st = [(r.t_recv, r.data["counters"]) for r in records if r.topic == "status/sent"]
+    before = next((c for t, c in reversed(st) if t <= t0), {})
+    after = next((c for t, c in reversed(st) if t <= t1), {})
+    return int(after.get(counter, 0) - before.get(counter, 0))
+
+
 def sample(run: Run, until: float, peak: dict[str, float]) -> None:
     """Sample the resident memory every 0.5 s until ``until`` (time.monotonic()), keeping each max."""
     while time.monotonic() < until:
@@ -174,6 +201,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--flood-rate", type=float, default=4.0, help="payloads per second on each key")
     ap.add_argument("--flood-s", type=float, default=10.0)
     ap.add_argument("--baseline-s", type=float, default=10.0)
+    ap.add_argument("--target", choices=["cmd,feedback", "video"], default="cmd,feedback", help="keys flooded")
+    ap.add_argument("--video-fps", type=float, default=0.0, help="the follower's genuine video (head camera) [fps]")
     ap.add_argument("--json", type=Path, help="write the figures to this file")
     ap.add_argument("--keep", action="store_true", help="keep the run folder (logs, recordings)")
     ap.add_argument("--attack", metavar="ENDPOINT", help=argparse.SUPPRESS)  # the attacker process
@@ -199,7 +228,8 @@ def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) ->
         subprocess.run([*CLI, "setup", "message-key", str(key)], check=True, capture_output=True, timeout=30)
         run.start("router", [*CLI, "router", "--listen", ep])
         run.wait_log("router", "listening on", 30)
-        run.start("follower", [*CLI, "follower", *common, "--set", "follower.camera_fps=0", "--record", str(f_rec)])
+        run.start("follower", [*CLI, "follower", *common, "--set", f"follower.camera_fps={a.video_fps:g}",
+                               "--set", 'follower.cameras=["head"]', "--record", str(f_rec)])  # fmt: skip
         run.start("leader", [*CLI, "leader", *common, "--operator", "scripted",
                              "--set", "leader.script=[[0, 5, 0], [600, 5, 0]]", "--set", 'leader.script_interp="step"',
                              "--set", "leader.cockpit=false", "--record", str(l_rec)])  # fmt: skip
@@ -216,7 +246,8 @@ def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) ->
         marks["baseline_end"] = time.time()
         peaks["flood"] = dict.fromkeys(names, 0.0)
         attacker = run.start("attacker", [sys.executable, __file__, "--attack", ep, "--size", str(a.size),
-                                          "--flood-rate", f"{a.flood_rate:g}", "--flood-s", f"{a.flood_s:g}"])  # fmt: skip
+                                          "--flood-rate", f"{a.flood_rate:g}", "--flood-s", f"{a.flood_s:g}",
+                                          "--target", a.target])  # fmt: skip
         end = time.monotonic() + a.flood_s + 30.0
         while attacker.poll() is None and time.monotonic() < end:
             sample(run, time.monotonic() + 0.5, peaks["flood"])
@@ -243,6 +274,7 @@ def _figures(a: argparse.Namespace, f_rec: Path, l_rec: Path, got: dict[str, Any
             "s": t1 - t0, "cmd_age_ms": cmd, "fb_age_ms": _ages(l_recs, "feedback/recv", t0, t1),
             "cmd_accepted_per_s": cmd["n"] / (t1 - t0) if t1 > t0 else math.nan, "rss_max_mb": peaks[name],
             "drops": {"follower": _drops(f_recs, t0, t_drops), "leader": _drops(l_recs, t0, t_drops)},
+            "leader_missed_ticks": _grew(l_recs, "missed_ticks", t0, t1),
         }  # fmt: skip
     return out
 
@@ -250,7 +282,7 @@ def _figures(a: argparse.Namespace, f_rec: Path, l_rec: Path, got: dict[str, Any
 def _print_figures(a: argparse.Namespace, out: dict[str, Any], folder: Path) -> None:
     report, phases = out["attacker"], ("baseline", "flood")
     sent_mb = report.get("bytes", 0) / 2**20
-    print(f"flood: {report.get('sent', 0)} payloads of {a.size} bytes ({sent_mb:.0f} MiB) on cmd + feedback, "
+    print(f"flood: {report.get('sent', 0)} payloads of {a.size} bytes ({sent_mb:.0f} MiB) on {a.target}, "
           f"{a.flood_rate:g}/s per key; run folder {folder}")  # fmt: skip
     print(f"{'':40s} {'baseline':>24s} {'flood':>24s}")
     for label, key_ in (
@@ -260,6 +292,8 @@ def _print_figures(a: argparse.Namespace, out: dict[str, Any], folder: Path) -> 
         cells = [f"{out[p][key_]['p50']:.1f}/{out[p][key_]['p99']:.1f}/{out[p][key_]['max']:.1f}" for p in phases]
         print(f"{label + ' [ms]':40s} {cells[0]:>24s} {cells[1]:>24s}")
     print(f"{'commands accepted [1/s]':40s} " + " ".join(f"{out[p]['cmd_accepted_per_s']:>24.1f}" for p in phases))
+    ticks = " ".join(f"{out[p]['leader_missed_ticks'] / max(out[p]['s'], 1e-9):>24.1f}" for p in phases)
+    print(f"{'leader haptic ticks missed [1/s]':40s} {ticks}")
     for who in ("follower", "leader", "router"):
         print(f"{f'{who} VmRSS max [MB]':40s} " + " ".join(f"{out[p]['rss_max_mb'][who]:>24.0f}" for p in phases))
     for who in ("follower", "leader"):
@@ -271,7 +305,7 @@ def _print_figures(a: argparse.Namespace, out: dict[str, Any], folder: Path) -> 
 def main(argv: list[str] | None = None) -> int:
     a = _parse(argv)
     if a.attack:
-        print(json.dumps(attack(a.attack, a.size, a.flood_rate, a.flood_s)), flush=True)
+        print(json.dumps(attack(a.attack, a.size, a.flood_rate, a.flood_s, a.target)), flush=True)
         return 0
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a kill tears the processes down too
     folder = Path(tempfile.mkdtemp(prefix="bench-flood-"))
