@@ -34,7 +34,7 @@ from bipedtele.linklayout import MAX_LINKS, client_endpoints, router_listen_endp
 from bipedtele.receivers import MAX_ZENOH_MESSAGE
 from bipedtele.sections import NetworkConfig
 
-__all__ = ["open_session", "zenoh_config"]
+__all__ = ["open_raw", "open_session", "zenoh_config"]
 
 LOG = logging.getLogger("bipedtele.transport")  # the name these log lines always had
 
@@ -305,6 +305,33 @@ def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> 
     raise _refusal(net, checked, spent, first)
 
 
+def open_raw(
+    net: NetworkConfig,
+    *,
+    mode: str | None = None,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+) -> zenoh.Session:
+    """Open a Zenoh session from the ``[network]`` section; the caller closes it.
+
+    As :func:`open_session`, without the ``with`` block (a session that may be reopened:
+    :class:`bipedtele.relink.RelinkSession`).
+    """
+    mode = mode or net.mode
+    connect = list(net.connect if connect is None else connect)
+    conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
+    client = mode == "client" and bool(connect)
+    if not client:
+        try:
+            session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            raise ConfigError(f"network: cannot open the Zenoh session: {_zenoh_reason(exc)}") from None
+    else:
+        session = _open_client(net, connect, conf)
+    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
+    return session
+
+
 @contextmanager
 def open_session(
     net: NetworkConfig,
@@ -328,18 +355,7 @@ def open_session(
     LinkError
         A client cannot reach or is refused by its router: one line saying which.
     """
-    mode = mode or net.mode
-    connect = list(net.connect if connect is None else connect)
-    conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
-    client = mode == "client" and bool(connect)
-    if not client:
-        try:
-            session = zenoh.open(conf)
-        except zenoh.ZError as exc:
-            raise ConfigError(f"network: cannot open the Zenoh session: {_zenoh_reason(exc)}") from None
-    else:
-        session = _open_client(net, connect, conf)
-    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
+    session = open_raw(net, mode=mode, listen=listen, connect=connect)
     try:
         yield session
     finally:
