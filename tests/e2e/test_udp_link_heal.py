@@ -118,7 +118,9 @@ def _lines(p: Proc, pattern: str) -> list[str]:
 
 def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs: dict[str, Proc]) -> dict[str, Any]:
     """One forged datagram (``close`` to the robot, ``garbage`` to the router); when the robot walked again."""
-    (local, peer), *_ = _udp_peer_ports(hosts.robot_ns, hosts.router_ip)
+    found = _udp_peer_ports(hosts.robot_ns, hosts.router_ip)
+    assert found, f"before the {which} attack: the follower has no UDP link to the router (control not on UDP)"
+    (local, peer), *_ = found
     before = {name: len(_lines(p, LINE[name])) for name, p in logs.items()}
     t_attack = time.time()
     if which == "close":  # to the follower's UDP port, as if from the router
@@ -153,9 +155,10 @@ def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tm
     wait_recorded_state(f_rec, "walking", 0.0, timeout_s=40.0, hold_s=1.5)
     pids = {p.name: p.pid for p in (router, follower, leader)}
     logs = {"follower": follower, "router": router}
-    results = {which: _attack_and_recover(procs, hosts, f_rec, which, logs) for which in ("close", "garbage")}
-    print(json.dumps(results, indent=1))
-    for which, res in results.items():
+    results: dict[str, Any] = {}
+    for which in ("close", "garbage"):
+        results[which] = res = _attack_and_recover(procs, hosts, f_rec, which, logs)
+        print(which, json.dumps(res, indent=1))
         assert res["walk_again_s"] <= WALK_AGAIN_S, (which, res)
         # one line each side naming the cause
         assert len(res["follower"]) == 1, (which, res["follower"])
