@@ -364,7 +364,11 @@ class Node:
             Called with each message refused as too old, instead of counting it.
         """
         record, recorder = self.record, self.recorder
-        heard = self._heard if key in (self.keys.cmd, self.keys.feedback) and self._relink is not None else None
+        heard = None
+        if self._relink is not None and key in (self.keys.cmd, self.keys.feedback):
+            heard = self._relink.heard
+        elif self._relink is not None and key == self.keys.status:
+            heard = self._relink.heard_status
 
         def accepted(got: Received[M]) -> None:
             if heard is not None:

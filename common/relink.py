@@ -43,7 +43,16 @@ import zenoh
 from bipedtele.linklayout import CONTROL_PRIORITIES
 from bipedtele.sections import NetworkConfig
 
-__all__ = ["RELINK_SILENCE_S", "RelinkSession", "control_link", "describe_control", "relink_control"]
+__all__ = [
+    "CONTROL_CODES",
+    "RELINK_SILENCE_S",
+    "RelinkSession",
+    "control_code",
+    "control_link",
+    "control_name",
+    "describe_control",
+    "relink_control",
+]
 
 LOG = logging.getLogger("bipedtele.relink")
 
@@ -55,6 +64,22 @@ RELINK_SILENCE_S = 1.5
 _CONTROL_PRIORITY = 1
 #: The priority range of the control link of the split layouts.
 _CONTROL_RANGE = tuple(int(p) for p in CONTROL_PRIORITIES.split("-"))
+
+
+#: The control link in a Status counter (``control_link``): 0 no router, 1 its own UDP link,
+#: 2 its own TCP/TLS link (``split-tcp``), 3 a link shared with other traffic (``single``, or
+#: control moved onto the status link).
+CONTROL_CODES: dict[str, int] = {"none": 0, "udp": 1, "tls": 2, "tcp": 2, "shared": 3}
+
+
+def control_code(described: str) -> int:
+    """Return the ``control_link`` counter of a :func:`describe_control` text."""
+    return CONTROL_CODES["shared"] if described.endswith("(shared)") else CONTROL_CODES.get(described, 3)
+
+
+def control_name(code: int) -> str:
+    """Return the words of a ``control_link`` counter (the fleet view)."""
+    return {0: "no router", 1: "udp", 2: "tcp/tls", 3: "shared link"}.get(code, "?")
 
 
 def relink_control(net: NetworkConfig) -> str:
@@ -242,6 +267,8 @@ class RelinkSession:
         self._done = threading.Event()
         self.reopens = 0
         self._heard_at: float | None = None
+        self._status_first: float | None = None  # the peer's status since the last control message
+        self._status_last = -float("inf")
         self._wrong_since: float | None = None
         self._base_s = max(1.0, silence_s)
         self._wait_s = self._base_s
@@ -300,6 +327,14 @@ class RelinkSession:
     def heard(self) -> None:
         """Note an authenticated control message (called from Zenoh callbacks: cheap)."""
         self._heard_at = self._mono()
+        self._status_first = None
+
+    def heard_status(self) -> None:
+        """Note an authenticated status message of the peer (it travels on the status link)."""
+        now = self._mono()
+        if self._status_first is None:
+            self._status_first = now
+        self._status_last = now
 
     def control_now(self) -> str:
         """Return the protocol of the link that carries control now (``none``: no session to the router)."""
@@ -361,14 +396,19 @@ class RelinkSession:
         heard = self._heard_at
         if heard is not None and heard > self._last_reopen:
             self._wait_s = self._base_s  # traffic resumed after the last reopen
-        if (
-            self.silence_s > 0
-            and heard is not None
-            and now - heard >= self._wait_s
-            and (self.peer_present is None or self.peer_present())
-        ):
-            return f"control link silent for {now - heard:.1f} s while the peer is present"
+        if self.silence_s > 0 and heard is not None and now - heard >= self._wait_s and self._status_flows(now):
+            return f"control link silent for {now - heard:.1f} s while the peer's status arrives"
         return ""
+
+    def _status_flows(self, now: float) -> bool:
+        """Whether the peer is present and its status kept arriving over the last second.
+
+        A path that is down carries neither (nothing to reopen); after an outage the status
+        link's backlog arrives in one burst, before the control link's first datagram.
+        """
+        first, last = self._status_first, self._status_last
+        present = self.peer_present is None or self.peer_present()
+        return present and first is not None and last - first >= 1.0 and now - last < 1.0
 
     def _has_router(self) -> bool:
         try:

@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from adversary_support import recorded_feedback, wait_recorded_state
+from adversary_support import counters, recorded_feedback, wait_recorded_state
+from bipedtele.recordformat import read_records
 from e2e_support import CLI, HERE, NO_VIDEO, Proc, Procs, walking_script
 
 SPOOF = str(HERE / "udp_spoof.py")
@@ -166,6 +167,10 @@ def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tm
     assert "closed" in results["close"]["follower"][0], results["close"]
     assert "udp" in results["garbage"]["follower"][0] and "closed" in results["garbage"]["follower"][0]
     assert "lost its udp link" in results["garbage"]["router"][0]
+    # the follower's Status says where control travels: its own UDP link again, reopened twice
+    time.sleep(1.5)
+    last = counters(list(read_records(f_rec)))[-1][1]
+    assert last["control_link"] == 1 and last["relinks"] == 2, last
     # nobody was restarted, nothing crashed
     for p in (router, follower, leader):
         assert p.alive() and p.pid == pids[p.name], p.tail()
