@@ -17,7 +17,10 @@ Roles (``[network]`` on the router; see docs/network.md):
   ``bipedtele/**`` both ways. Each site's router applies its own clients' roles; the
   robots' message keys keep a site's router from forging for another site's robots;
 - every other session (another user of ``credentials_file``, or one matching no
-  subject) may do nothing: Zenoh's ``default_permission`` is ``deny``.
+  subject) may do nothing: Zenoh's ``default_permission`` is ``deny``. That includes a
+  session opened over the router's UDP listener (``links = "split"``): the roles hold
+  only for sessions opened on a stream link (TLS, where mutual TLS asks for the
+  certificate; :func:`stream_protocols`), so a password alone over UDP gets nothing.
 
 Zenoh checks a message's key expression against a rule with "the rule's key expression
 *includes* the message's": an allow rule on ``bipedtele/*/cmd`` does not include a put on
@@ -44,7 +47,7 @@ from typing import Any
 from bipedtele.config import ConfigError
 from bipedtele.sections import NetworkConfig
 
-__all__ = ["ROLE_KEYS", "access_control_json", "credential_users"]
+__all__ = ["ROLE_KEYS", "access_control_json", "credential_users", "stream_protocols"]
 
 _ROOT = "bipedtele/*"
 
@@ -128,13 +131,29 @@ def _bindings(entries: list[str]) -> dict[str, tuple[str, ...]]:
     return {u: ("*",) if "*" in rs else tuple(sorted(rs)) for u, rs in found.items()}
 
 
-def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
+def stream_protocols(listen: list[str]) -> list[str]:
+    """Return the protocols of ``listen`` a session must open on to hold a role (all but ``udp``).
+
+    Zenoh has no TLS on UDP: a session opened over the router's UDP listener (``links =
+    "split"``) shows a password and never a certificate. Zenoh gives a session its ACL
+    subject from the link that opened it, and a client of the split layouts opens on its
+    TLS status link first (:func:`bipedtele.linklayout.client_endpoints`; later links join
+    only by proving the session's own multi-link key), so the roles are given to sessions
+    opened on these protocols only. Empty (only UDP listeners): no restriction.
+    """
+    return sorted({ep.partition("/")[0] for ep in listen} - {"udp"})
+
+
+def access_control_json(net: NetworkConfig, listen: list[str] | None = None) -> dict[str, Any] | None:
     """Return the Zenoh ``access_control`` section for a router, or None if no role is set.
 
     When ``publishers_allowed`` or ``followers_allowed`` is set, the ACL is deny by
     default with the per-role allow rules of this module's docstring. Users must
     authenticate (user/password) for roles to mean anything, so a credentials file naming
-    every user of the lists is required.
+    every user of the lists is required. A role holds only for sessions opened on a
+    stream link (:func:`stream_protocols` of ``listen``, default ``net.listen``): a session
+    over the UDP listener alone (a password without the certificate of mutual TLS) matches
+    no subject and may do nothing.
 
     Raises
     ------
@@ -164,6 +183,8 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
+    protocols = stream_protocols(list(net.listen if listen is None else listen))
+    on_link = {"link_protocols": protocols} if protocols else {}
     for role, bound in roles.items():
         groups: dict[tuple[str, ...], list[str]] = {}
         for user, robots in bound.items():
@@ -172,7 +193,7 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
             tag = role if robots == ("*",) and len(groups) == 1 else f"{role}{i}"
             role_rules = _rules(role, robots, tag)
             rules += role_rules
-            subjects.append({"id": f"{tag}s", "usernames": names})
+            subjects.append({"id": f"{tag}s", "usernames": names, **on_link})
             policies.append({"id": f"{tag}_role", "rules": [r["id"] for r in role_rules], "subjects": [f"{tag}s"]})
     if net.routers_allowed:
         rules.append({

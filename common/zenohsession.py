@@ -99,7 +99,7 @@ def zenoh_config(
     conf = zenoh.Config()
     _put_links(conf, net, mode, listen, connect)
     _put_tls(conf, net, mode)
-    _put_login(conf, net, router=mode == "router")
+    _put_login(conf, net, router=mode == "router", listen=listen)
     return conf
 
 
@@ -158,7 +158,7 @@ def _put_tls(conf: zenoh.Config, net: NetworkConfig, mode: str) -> None:
         _put(conf, f"transport/link/tls/{k}", v)
 
 
-def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool) -> None:
+def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool, listen: list[str]) -> None:
     """Set a client's or peer's user/password, or a router's credentials file and ACL."""
     if not router:
         password = _read_password(net)
@@ -181,7 +181,7 @@ def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool) -> None:
                 )
             _put(conf, "transport/auth/usrpwd/user", net.router_user)
             _put(conf, "transport/auth/usrpwd/password", _read_secret("router_password_file", net.router_password_file))
-        acl = access_control_json(net)
+        acl = access_control_json(net, listen)
         if acl is not None:
             _put(conf, "access_control", acl)
 

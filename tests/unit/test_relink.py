@@ -1,14 +1,16 @@
-"""Which link carries control, which layouts are watched, and how the fleet view says it (bipedtele.relink).
+"""Which link carries control, which layouts are watched, how the fleet view says it; no role over UDP alone.
 
 The reopening itself runs against real processes in tests/e2e/test_udp_link_heal.py.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 import zenoh
+from bipedtele.acl import access_control_json, stream_protocols
 from bipedtele.relink import control_code, control_link, control_name, describe_control, relink_control
 from bipedtele.sections import NetworkConfig
 from bipedtele.tools.fleetstatus import RobotView, format_table
@@ -74,3 +76,21 @@ def test_the_fleet_view_names_the_followers_control_link() -> None:
     view.follower["counters"]["control_link"] = 1  # type: ignore[index]
     assert "walking, control udp" in format_table([view])
     assert control_name(2) == "tcp/tls"
+
+
+def test_roles_hold_only_for_sessions_opened_on_a_stream_link(tmp_path: Path) -> None:
+    """A session over the router's UDP listener alone (no certificate possible) matches no role."""
+    creds = tmp_path / "creds.txt"
+    creds.write_text("alice:a\nnao1:n\n")
+    net = NetworkConfig(mode="router", listen=["tls/0.0.0.0:7447"], links="split", credentials_file=str(creds),
+                        publishers_allowed=["alice"], followers_allowed=["nao1"], routers_allowed=["router-b"])  # fmt: skip
+    acl = access_control_json(net)
+    assert acl is not None
+    roles = [s for s in acl["subjects"] if "usernames" in s]
+    assert roles and all(s["link_protocols"] == ["tls"] for s in roles), roles
+    routers = [s for s in acl["subjects"] if "cert_common_names" in s]
+    assert routers == [{"id": "routers", "cert_common_names": ["router-b"]}]
+    assert stream_protocols(["tls/0.0.0.0:7447", "udp/0.0.0.0:7447"]) == ["tls"]
+    assert stream_protocols(["udp/0.0.0.0:7447"]) == []  # nothing else to ask for
+    plain = access_control_json(net, ["udp/0.0.0.0:7447"])
+    assert plain is not None and all("link_protocols" not in s for s in plain["subjects"])
