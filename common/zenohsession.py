@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from bipedtele.acl import access_control_json, credential_users
+from bipedtele.acl import access_control_json, credential_users, login_file
 from bipedtele.config import ConfigError
 from bipedtele.linkcheck import STEP_TIMEOUT_S, LinkError, check_endpoint
 from bipedtele.linklayout import MAX_LINKS, client_endpoints, router_listen_endpoints
@@ -172,7 +172,7 @@ def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool, listen: 
     else:
         if net.credentials_file:
             credential_users(net.credentials_file)
-            _put(conf, "transport/auth/usrpwd/dictionary_file", net.credentials_file)
+            _put(conf, "transport/auth/usrpwd/dictionary_file", login_file(net))
         if net.router_user or net.router_password_file:  # the login to the other sites' routers
             if not (net.router_user and net.router_password_file):
                 raise ConfigError(

@@ -101,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
                 ", ".join(net.followers_allowed) or "(none)",
                 ", ".join(net.observers_allowed) or "(none)",
             )
+            if net.tls_user_certs:
+                LOG.info("a role only with the certificate named after its user (tls_user_certs)")
+            if net.revoked:
+                LOG.info("revoked (login and every right refused): %s", ", ".join(net.revoked))
             if net.routers_allowed:  # a site's router: its robots or operators may be elsewhere
                 LOG.info("linked routers (by certificate): %s", ", ".join(net.routers_allowed))
             else:
