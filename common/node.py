@@ -364,6 +364,7 @@ class Node:
             Called with each message refused as too old, instead of counting it.
         """
         record, recorder = self.record, self.recorder
+        authentic = self.drops.authentic if self.auth is not None else None
         heard = None
         if self._relink is not None and key in (self.keys.cmd, self.keys.feedback):
             heard = self._relink.heard
@@ -371,6 +372,8 @@ class Node:
             heard = self._relink.heard_status
 
         def accepted(got: Received[M]) -> None:
+            if authentic is not None:
+                authentic()
             if heard is not None:
                 heard()
             if topic is not None and recorder is not None:
@@ -378,7 +381,8 @@ class Node:
             if on_message is not None:
                 on_message(got)
 
-        wants = (topic is not None and recorder is not None) or on_message is not None or heard is not None
+        wants = (topic is not None and recorder is not None) or on_message is not None
+        wants = wants or authentic is not None or heard is not None
         # commands and feedback: under the session key only (with the message key)
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
         auth = self.watch_auth if key in (self.keys.video, self.keys.status) else self.auth
