@@ -274,6 +274,7 @@ class RelinkSession:
         self._wait_s = self._base_s
         self._not_before = 0.0
         self._last_reopen = -float("inf")
+        self._backoff_s = 0.0
         self._listeners: list[Any] = []
         self._listen(self.current)
         self._thread = threading.Thread(target=self._run, name="relink", daemon=True)
@@ -443,11 +444,15 @@ class RelinkSession:
         # silence counts from now; another silence reopen only after twice as long, unless
         # traffic resumes in between
         self._heard_at = now if self._heard_at is not None else None
+        # reopens in a row (a path that will not carry UDP): each waits twice as long, up to 30 s
+        self._backoff_s = min(30.0, max(1.0, 2.0 * self._backoff_s)) if now - self._last_reopen < 30.0 else 0.0
         self._last_reopen = now
         self._wait_s = min(30.0, self._wait_s * 2.0)
-        self._not_before = now + self.grace_s
+        self._not_before = now + max(self.grace_s, self._backoff_s)
         LOG.warning("%s: session reopened (reopen %d), control on %s", cause, self.reopens, self.control_now())
-        threading.Timer(1.0, self._settle).start()
+        settle = threading.Timer(1.0, self._settle)
+        settle.daemon = True
+        settle.start()
         return True
 
     def _settle(self) -> None:
