@@ -143,7 +143,7 @@ class _Declared:
     def __init__(self, owner: RelinkSession, make: Callable[[zenoh.Session], Any]) -> None:
         self._owner = owner
         self._make = make
-        self.obj: Any = make(owner.current)
+        self.obj: Any = None  # made by RelinkSession.add, on the current session
         self.closed = False
 
     def redeclare(self, session: zenoh.Session) -> None:
@@ -261,7 +261,7 @@ class RelinkSession:
         self.peer_present = peer_present
         self._mono = monotonic
         self._decls: list[_Declared] = []
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # the declarations, and the swap of sessions
         self._cause = ""  # set by a link event, taken by the watcher
         self._wake = threading.Event()
         self._done = threading.Event()
@@ -314,8 +314,9 @@ class RelinkSession:
     # ------------------------------------------------------------------ bookkeeping
 
     def add(self, decl: Any) -> Any:
-        """Keep ``decl`` to declare it again on the next session; return it."""
-        with self._lock:
+        """Declare ``decl`` on the current session and keep it to declare again on the next; return it."""
+        with self._lock:  # not while a reopen swaps the sessions
+            decl.redeclare(self.current)
             self._decls.append(decl)
         return decl
 
@@ -427,16 +428,19 @@ class RelinkSession:
             LOG.warning("%s: cannot reopen the session yet (%s); retrying in %.0f s", cause, exc, self._wait_s)
             self._wait_s = min(30.0, self._wait_s * 2.0)
             return False
-        self._close_session(old)
-        self.current = new
+        if self._done.is_set():  # closed meanwhile
+            with contextlib.suppress(zenoh.ZError):
+                new.close()
+            return False
         with self._lock:
-            decls = list(self._decls)
-        for d in decls:
-            try:
-                d.redeclare(new)
-            except zenoh.ZError as exc:
-                LOG.warning("relink: cannot declare again on the new session: %s", exc)
-        self._listen(new)
+            self._close_session(old)
+            self.current = new
+            for d in list(self._decls):
+                try:
+                    d.redeclare(new)
+                except zenoh.ZError as exc:
+                    LOG.warning("relink: cannot declare again on the new session: %s", exc)
+            self._listen(new)
         self.reopens += 1
         self._cause = ""
         self._wrong_since = None
