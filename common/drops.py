@@ -19,12 +19,15 @@ import threading
 import time
 from collections.abc import Callable
 
-__all__ = ["ATTACK_WINDOW_S", "UNAUTHENTIC", "DropCounter"]
+__all__ = ["ATTACK_WINDOW_S", "LIVE_REFUSED", "UNAUTHENTIC", "DropCounter"]
 
 LOG = logging.getLogger("bipedtele.drops")
 
 #: Reasons of messages that failed authentication (a MAC, a session key, a signature).
 UNAUTHENTIC = frozenset({"no_mac", "bad_mac", "mac_unexpected", "no_session", "old_session", "not_msgpack"})
+#: Reasons of messages refused by policy after they arrived intact (another operator holds the
+#: robot, feedback of another leader's session): the link that carried them is alive.
+LIVE_REFUSED = frozenset({"held", "released", "other_leader"})
 #: A genuine message accepted this recently [s]: an unauthentic one is an attack, not a key mismatch.
 ATTACK_WINDOW_S = 5.0
 
@@ -63,6 +66,8 @@ class DropCounter:
         self._unlogged: dict[str, int] = {}
         self._last_log: dict[str, float] = {}
         self._authentic_at = -float("inf")
+        #: Called for each message of :data:`LIVE_REFUSED` (the node's link watch: traffic arrives).
+        self.on_live: Callable[[], None] | None = None
 
     def authentic(self) -> None:
         """Note one accepted, authenticated message of the peer (cheap: Zenoh callbacks call it)."""
@@ -79,6 +84,8 @@ class DropCounter:
             Human-readable detail for the log line (the last one is shown).
         """
         now = self._clock()
+        if reason in LIVE_REFUSED and self.on_live is not None:
+            self.on_live()
         with self._lock:
             self._counts[reason] = self._counts.get(reason, 0) + 1
             pending = self._unlogged.get(reason, 0) + 1

@@ -177,6 +177,7 @@ class Node:
         self._relink = RelinkSession(lambda: open_raw(net), control=control, silence_s=RELINK_SILENCE_S,
                                      peer_present=lambda: self._peer is not None and self._peer.alive)  # fmt: skip
         stack.callback(self._relink.close)
+        self.drops.on_live = self._relink.heard  # refused by policy (held robot...): the link carries traffic
         session = cast(zenoh.Session, self._relink)  # the declarations' surface of a session
         peer = "leader" if self.role == "follower" else "follower"
         self._peer = stack.enter_context(PresenceWatcher(session, self.keys, peer))

@@ -58,7 +58,7 @@ LOG = logging.getLogger("bipedtele.relink")
 
 #: The peer present and no authenticated control message for this long [s]: the session is
 #: reopened (the leader commands and the follower answers at tens of Hz; clock pings at 4 Hz).
-RELINK_SILENCE_S = 1.5
+RELINK_SILENCE_S = 1.0
 
 #: Zenoh's real-time priority: the control traffic's (commands, feedback, clock).
 _CONTROL_PRIORITY = 1
@@ -403,14 +403,14 @@ class RelinkSession:
         return ""
 
     def _status_flows(self, now: float) -> bool:
-        """Whether the peer is present and its status kept arriving over the last second.
+        """Whether the peer is present and its status kept arriving for about a second (2 Hz: three of them).
 
         A path that is down carries neither (nothing to reopen); after an outage the status
         link's backlog arrives in one burst, before the control link's first datagram.
         """
         first, last = self._status_first, self._status_last
         present = self.peer_present is None or self.peer_present()
-        return present and first is not None and last - first >= 1.0 and now - last < 1.0
+        return present and first is not None and last - first >= 0.9 and now - last < 1.0
 
     def _has_router(self) -> bool:
         try:

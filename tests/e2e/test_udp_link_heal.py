@@ -12,7 +12,9 @@ addresses of the real UDP link (a raw socket: the receiving kernel cannot tell t
 the peer's):
 
 - to the follower's UDP port, from the router's address and port: a Zenoh Close (``23 00``);
-- to the router's UDP port, from the follower's address and port: random bytes.
+- to the router's UDP port, from the follower's address and port: random bytes;
+- then the router's datagrams to the follower's UDP port are dropped in the robot's host
+  (a NAT that rebound the port, a filter): the link is dead at one end, TLS still passes.
 
 Each may cost a stop and a reconnect, never the robot: it walks again within 3 s, with
 one log line on each side naming what happened, and nobody is restarted.
@@ -126,8 +128,12 @@ def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs:
     t_attack = time.time()
     if which == "close":  # to the follower's UDP port, as if from the router
         _spoof(procs, hosts.router_ns, f"{hosts.router_ip}:{peer}", f"{hosts.robot_ip}:{local}", ["--hex", "2300"])
-    else:  # to the router's UDP port, as if from the follower's control link
+    elif which == "garbage":  # to the router's UDP port, as if from the follower's control link
         _spoof(procs, hosts.robot_ns, f"{hosts.robot_ip}:{local}", f"{hosts.router_ip}:{peer}", ["--random", "40"])
+    else:  # dead: the router's datagrams to that port vanish (a NAT that rebound it), TLS still passes
+        r = subprocess.run(["ip", "netns", "exec", hosts.robot_ns, "iptables", "-A", "INPUT", "-p", "udp",
+                            "--dport", str(local), "-j", "DROP"], capture_output=True, text=True, timeout=20)  # fmt: skip
+        assert r.returncode == 0, r.stderr
     t_walk = wait_recorded_state(rec, "walking", t_attack, timeout_s=20.0, hold_s=1.0)
     time.sleep(1.0)  # the log lines of the recovery
     out: dict[str, Any] = {"walk_again_s": round(t_walk - t_attack, 2)}
@@ -157,20 +163,21 @@ def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tm
     pids = {p.name: p.pid for p in (router, follower, leader)}
     logs = {"follower": follower, "router": router}
     results: dict[str, Any] = {}
-    for which in ("close", "garbage"):
+    for which in ("close", "garbage", "dead"):
         results[which] = res = _attack_and_recover(procs, hosts, f_rec, which, logs)
         print(which, json.dumps(res, indent=1))
         assert res["walk_again_s"] <= WALK_AGAIN_S, (which, res)
-        # one line each side naming the cause
+        # one line each side naming the cause (a link dead at the robot's end: the router sees nothing)
         assert len(res["follower"]) == 1, (which, res["follower"])
-        assert len(res["router"]) == 1, (which, res["router"])
+        assert len(res["router"]) == (0 if which == "dead" else 1), (which, res["router"])
     assert "closed" in results["close"]["follower"][0], results["close"]
     assert "udp" in results["garbage"]["follower"][0] and "closed" in results["garbage"]["follower"][0]
     assert "lost its udp link" in results["garbage"]["router"][0]
+    assert "control link silent" in results["dead"]["follower"][0], results["dead"]
     # the follower's Status says where control travels: its own UDP link again, reopened twice
     time.sleep(1.5)
     last = counters(list(read_records(f_rec)))[-1][1]
-    assert last["control_link"] == 1 and last["relinks"] == 2, last
+    assert last["control_link"] == 1 and last["relinks"] == 3, last
     # nobody was restarted, nothing crashed
     for p in (router, follower, leader):
         assert p.alive() and p.pid == pids[p.name], p.tail()
