@@ -48,7 +48,7 @@ class RouterLinkLog:
         self,
         session: zenoh.Session,
         *,
-        settle_s: float = 0.3,
+        settle_s: float = 1.0,
         log_every_s: float = 5.0,
         monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
