@@ -38,8 +38,9 @@ class RouterLinkLog:
     session : zenoh.Session
         The router's session.
     settle_s : float
-        How long after a link closes its client's other links are looked at [s] (a
-        session that ends closes all of them within it).
+        How long after a link closes its client's other links are looked at [s]: a
+        session that ends closes all of them within it, and a client that lost a link
+        reopens its session not much later (then nothing is left to see).
     log_every_s : float
         At most one line per client per this long [s].
     """
@@ -48,7 +49,7 @@ class RouterLinkLog:
         self,
         session: zenoh.Session,
         *,
-        settle_s: float = 1.0,
+        settle_s: float = 0.3,
         log_every_s: float = 5.0,
         monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
