@@ -135,7 +135,7 @@ def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs:
                             "--dport", str(local), "-j", "DROP"], capture_output=True, text=True, timeout=20)  # fmt: skip
         assert r.returncode == 0, r.stderr
     t_walk = wait_recorded_state(rec, "walking", t_attack, timeout_s=20.0, hold_s=1.0)
-    time.sleep(2.0)  # the log lines of the recovery (the router judges a loss after 1 s)
+    time.sleep(2.0)  # the log lines of the recovery (the router judges a loss after 0.3 s)
     out: dict[str, Any] = {"walk_again_s": round(t_walk - t_attack, 2)}
     out.update({name: _lines(p, LINE[name])[before[name] :] for name, p in logs.items()})
     out["stopped"] = any(s != "walking" for t, s in recorded_feedback(rec) if t_attack <= t <= t_walk)
