@@ -14,7 +14,8 @@ the peer's):
 - to the follower's UDP port, from the router's address and port: a Zenoh Close (``23 00``);
 - to the router's UDP port, from the follower's address and port: random bytes;
 - then the router's datagrams to the follower's UDP port are dropped in the robot's host
-  (a NAT that rebound the port, a filter): the link is dead at one end, TLS still passes.
+  (a NAT that rebound the port, a filter): the link is dead at one end, TLS still passes;
+- last, a Zenoh Close to the leader's UDP port, from the router's address.
 
 Each may cost a stop and a reconnect, never the robot: it walks again within 3 s, with
 one log line on each side naming what happened, and nobody is restarted.
@@ -41,7 +42,11 @@ from e2e_support import CLI, HERE, NO_VIDEO, Proc, Procs, walking_script
 SPOOF = str(HERE / "udp_spoof.py")
 PORT = 7447
 #: The log line of each side naming the cause of a lost link.
-LINE = {"follower": r"WARNING bipedtele\.relink", "router": r"WARNING bipedtele\.tools\.router: client \S+ lost"}
+LINE = {
+    "follower": r"WARNING bipedtele\.relink",
+    "leader": r"WARNING bipedtele\.relink",
+    "router": r"WARNING bipedtele\.tools\.router: client \S+ lost",
+}
 #: The robot must walk again within this long of the attack [s] (the leader commands all along).
 WALK_AGAIN_S = 3.0
 
@@ -99,13 +104,13 @@ def hosts() -> Iterator[Hosts]:
 
 
 def _udp_peer_ports(ns: str, peer_ip: str) -> list[tuple[int, int]]:
-    """(local port, peer port) of the UDP sockets in ``ns`` connected to ``peer_ip``."""
+    """(local port, peer port) of the UDP sockets in ``ns`` connected to ``peer_ip``'s router port."""
     out = subprocess.run(["ip", "netns", "exec", ns, "ss", "-Hun"], capture_output=True, text=True, timeout=20).stdout
     found = []
     for line in out.splitlines():
         cols = line.split()
         local, peer = cols[-2], cols[-1]
-        if peer.rpartition(":")[0] == peer_ip:
+        if peer == f"{peer_ip}:{PORT}" and not local.endswith(f":{PORT}"):
             found.append((int(local.rpartition(":")[2]), int(peer.rpartition(":")[2])))
     return found
 
@@ -120,14 +125,15 @@ def _lines(p: Proc, pattern: str) -> list[str]:
 
 
 def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs: dict[str, Proc]) -> dict[str, Any]:
-    """One forged datagram (``close`` to the robot, ``garbage`` to the router); when the robot walked again."""
-    found = _udp_peer_ports(hosts.robot_ns, hosts.router_ip)
-    assert found, f"before the {which} attack: the follower has no UDP link to the router (control not on UDP)"
+    """One attack on a UDP link (module docstring); when the robot walked again, the log lines."""
+    ns, ip = (hosts.router_ns, hosts.router_ip) if which == "close-leader" else (hosts.robot_ns, hosts.robot_ip)
+    found = _udp_peer_ports(ns, hosts.router_ip)
+    assert found, f"before the {which} attack: no UDP link to the router in {ns} (control not on UDP)"
     (local, peer), *_ = found
     before = {name: len(_lines(p, LINE[name])) for name, p in logs.items()}
     t_attack = time.time()
-    if which == "close":  # to the follower's UDP port, as if from the router
-        _spoof(procs, hosts.router_ns, f"{hosts.router_ip}:{peer}", f"{hosts.robot_ip}:{local}", ["--hex", "2300"])
+    if which in ("close", "close-leader"):  # to the client's UDP port, as if from the router
+        _spoof(procs, hosts.router_ns, f"{hosts.router_ip}:{peer}", f"{ip}:{local}", ["--hex", "2300"])
     elif which == "garbage":  # to the router's UDP port, as if from the follower's control link
         _spoof(procs, hosts.robot_ns, f"{hosts.robot_ip}:{local}", f"{hosts.router_ip}:{peer}", ["--random", "40"])
     else:  # dead: the router's datagrams to that port vanish (a NAT that rebound it), TLS still passes
@@ -161,20 +167,23 @@ def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tm
     leader.wait_log(r"leader ready", 60.0)
     wait_recorded_state(f_rec, "walking", 0.0, timeout_s=40.0, hold_s=1.5)
     pids = {p.name: p.pid for p in (router, follower, leader)}
-    logs = {"follower": follower, "router": router}
+    logs = {"follower": follower, "leader": leader, "router": router}
     results: dict[str, Any] = {}
-    for which in ("close", "garbage", "dead"):
+    for which in ("close", "garbage", "dead", "close-leader"):
         results[which] = res = _attack_and_recover(procs, hosts, f_rec, which, logs)
         print(which, json.dumps(res, indent=1))
         assert res["walk_again_s"] <= WALK_AGAIN_S, (which, res)
-        # one line each side naming the cause (a link dead at the robot's end: the router sees nothing)
-        assert len(res["follower"]) == 1, (which, res["follower"])
+        # one line on each side naming the cause: the client attacked, and the router (a link dead at
+        # the robot's end is invisible to the router)
+        client = "leader" if which == "close-leader" else "follower"
+        assert len(res[client]) == 1, (which, res[client])
         assert len(res["router"]) == (0 if which == "dead" else 1), (which, res["router"])
     assert "closed" in results["close"]["follower"][0], results["close"]
     assert "udp" in results["garbage"]["follower"][0] and "closed" in results["garbage"]["follower"][0]
     assert "lost its udp link" in results["garbage"]["router"][0]
     assert "control link silent" in results["dead"]["follower"][0], results["dead"]
-    # the follower's Status says where control travels: its own UDP link again, reopened twice
+    assert "closed" in results["close-leader"]["leader"][0], results["close-leader"]
+    # the follower's Status says where control travels: its own UDP link again, reopened three times
     time.sleep(1.5)
     last = counters(list(read_records(f_rec)))[-1][1]
     assert last["control_link"] == 1 and last["relinks"] == 3, last
