@@ -424,7 +424,8 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
         f"# file's folder. Run:  bipedtele {cmd} --config {host}/bipedtele.toml\n\n"
     )
     if host == "router":
-        return router_profile(head, router_name, port, robot_id, [LEADER_USER], [FOLLOWER_USER])
+        # the certificates leader and follower name the users leader and follower
+        return router_profile(head, router_name, port, robot_id, [LEADER_USER], [FOLLOWER_USER], user_certs=True)
     user = FOLLOWER_USER if host == "robot" else LEADER_USER
     return client_profile(head, host, router_name, port, robot_id, user, user, "secrets/message.key")
 
