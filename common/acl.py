@@ -17,7 +17,10 @@ Roles (``[network]`` on the router; see docs/network.md):
   ``bipedtele/**`` both ways. Each site's router applies its own clients' roles; the
   robots' message keys keep a site's router from forging for another site's robots;
 - every other session (another user of ``credentials_file``, or one matching no
-  subject) may do nothing: Zenoh's ``default_permission`` is ``deny``.
+  subject) may do nothing: Zenoh's ``default_permission`` is ``deny``. That includes a
+  session opened over the router's UDP listener (``links = "split"``): the roles hold
+  only for sessions opened on a stream link (TLS, where mutual TLS asks for the
+  certificate; :func:`stream_protocols`), so a password alone over UDP gets nothing.
 
 Zenoh checks a message's key expression against a rule with "the rule's key expression
 *includes* the message's": an allow rule on ``bipedtele/*/cmd`` does not include a put on
@@ -38,13 +41,16 @@ nor see its presence, a follower bound to ``nao1`` cannot publish as ``nao2``.
 
 from __future__ import annotations
 
+import atexit
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
 from bipedtele.config import ConfigError
 from bipedtele.sections import NetworkConfig
 
-__all__ = ["ROLE_KEYS", "access_control_json", "credential_users"]
+__all__ = ["ROLE_KEYS", "access_control_json", "credential_users", "login_file", "stream_protocols"]
 
 _ROOT = "bipedtele/*"
 
@@ -88,6 +94,28 @@ def credential_users(path: str) -> list[str]:
     return users
 
 
+def login_file(net: NetworkConfig) -> str:
+    """Return the credentials file the router's Zenoh reads: ``credentials_file`` without the ``revoked`` people.
+
+    Without ``revoked``: ``credentials_file`` itself. Otherwise a private copy (mode 0600
+    in a 0700 folder, removed when the process exits) without their lines, so their
+    login is refused before any session exists.
+    """
+    path = net.credentials_file
+    gone = set(net.revoked)
+    if not gone or not path:
+        return path
+    credential_users(path)  # the same checks and errors as the original
+    lines = Path(path).read_text(encoding="utf-8").splitlines()
+    kept = [ln for ln in lines if ln.partition(":")[0].strip() not in gone or ln.lstrip().startswith("#")]
+    folder = Path(tempfile.mkdtemp(prefix="bipedtele-logins-"))
+    atexit.register(shutil.rmtree, folder, True)
+    copy = folder / "credentials.txt"
+    copy.touch(mode=0o600)
+    copy.write_text("".join(f"{ln}\n" for ln in kept), encoding="utf-8")
+    return str(copy)
+
+
 def _rules(role: str, robots: tuple[str, ...], tag: str) -> list[dict[str, Any]]:
     """Return the allow rules of ``role`` on the keys of ``robots`` (``("*",)``: every robot), ids prefixed ``tag``."""
     pub, sub = ROLE_KEYS[role]
@@ -128,13 +156,62 @@ def _bindings(entries: list[str]) -> dict[str, tuple[str, ...]]:
     return {u: ("*",) if "*" in rs else tuple(sorted(rs)) for u, rs in found.items()}
 
 
-def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
+def stream_protocols(listen: list[str]) -> list[str]:
+    """Return the protocols of ``listen`` a session must open on to hold a role (all but ``udp``).
+
+    Zenoh has no TLS on UDP: a session opened over the router's UDP listener (``links =
+    "split"``) shows a password and never a certificate. Zenoh gives a session its ACL
+    subject from the link that opened it, and a client of the split layouts opens on its
+    TLS status link first (:func:`bipedtele.linklayout.client_endpoints`; later links join
+    only by proving the session's own multi-link key), so the roles are given to sessions
+    opened on these protocols only. Empty (only UDP listeners): no restriction.
+    """
+    return sorted({ep.partition("/")[0] for ep in listen} - {"udp"})
+
+
+def _role_entries(
+    roles: dict[str, dict[str, tuple[str, ...]]], on_link: dict[str, Any], *, per_user: bool
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
+    """Return the rules, subjects and policies of the roles (users bound to robots).
+
+    ``per_user``: one subject per user that also asks for a certificate named after the
+    user (``tls_user_certs``): a person's certificate with another person's password
+    matches no subject.
+    """
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for role, bound in roles.items():
+        groups: dict[tuple[str, ...], list[str]] = {}
+        for user, robots in bound.items():
+            groups.setdefault(robots, []).append(user)
+        for i, (robots, names) in enumerate(sorted(groups.items())):
+            tag = role if robots == ("*",) and len(groups) == 1 else f"{role}{i}"
+            role_rules = _rules(role, robots, tag)
+            rules += role_rules
+            if per_user:
+                mine = [{"id": f"{tag}s{j}", "usernames": [n], "cert_common_names": [n], **on_link}
+                        for j, n in enumerate(names)]  # fmt: skip
+            else:
+                mine = [{"id": f"{tag}s", "usernames": names, **on_link}]
+            subjects += mine
+            policies.append({"id": f"{tag}_role", "rules": [r["id"] for r in role_rules],
+                             "subjects": [m["id"] for m in mine]})  # fmt: skip
+    return rules, subjects, policies
+
+
+def access_control_json(net: NetworkConfig, listen: list[str] | None = None) -> dict[str, Any] | None:
     """Return the Zenoh ``access_control`` section for a router, or None if no role is set.
 
     When ``publishers_allowed`` or ``followers_allowed`` is set, the ACL is deny by
     default with the per-role allow rules of this module's docstring. Users must
     authenticate (user/password) for roles to mean anything, so a credentials file naming
-    every user of the lists is required.
+    every user of the lists is required. A role holds only for sessions opened on a
+    stream link (:func:`stream_protocols` of ``listen``, default ``net.listen``): a session
+    over the UDP listener alone (a password without the certificate of mutual TLS) matches
+    no subject and may do nothing. With ``tls_user_certs`` a role also asks for the
+    certificate named after its user; the people of ``revoked`` get no role (and
+    :func:`login_file` leaves them out of the logins).
 
     Raises
     ------
@@ -161,19 +238,11 @@ def access_control_json(net: NetworkConfig) -> dict[str, Any] | None:
             raise ConfigError(
                 f"network.{key} = {unknown[0]!r}: not a user of {net.credentials_file}; allowed: {', '.join(users)}"
             )
-    rules: list[dict[str, Any]] = []
-    subjects: list[dict[str, Any]] = []
-    policies: list[dict[str, Any]] = []
-    for role, bound in roles.items():
-        groups: dict[tuple[str, ...], list[str]] = {}
-        for user, robots in bound.items():
-            groups.setdefault(robots, []).append(user)
-        for i, (robots, names) in enumerate(sorted(groups.items())):
-            tag = role if robots == ("*",) and len(groups) == 1 else f"{role}{i}"
-            role_rules = _rules(role, robots, tag)
-            rules += role_rules
-            subjects.append({"id": f"{tag}s", "usernames": names})
-            policies.append({"id": f"{tag}_role", "rules": [r["id"] for r in role_rules], "subjects": [f"{tag}s"]})
+    protocols = stream_protocols(list(net.listen if listen is None else listen))
+    gone = set(net.revoked)
+    kept = {role: {u: r for u, r in bound.items() if u not in gone} for role, bound in roles.items()}
+    rules, subjects, policies = _role_entries(kept, {"link_protocols": protocols} if protocols else {},
+                                              per_user=net.tls_user_certs)  # fmt: skip
     if net.routers_allowed:
         rules.append({
             "id": "routers_all", "permission": "allow", "flows": ["ingress", "egress"],

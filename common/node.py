@@ -34,7 +34,7 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import zenoh
 from bipedtele.auth import MessageAuth, load_message_auth
@@ -49,11 +49,12 @@ from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session
 from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.recordfiles import recording_for_run
 from bipedtele.recording import Recorder
+from bipedtele.relink import RELINK_SILENCE_S, RelinkSession, describe_control, relink_control
 from bipedtele.sections import ClockConfig, NetworkConfig, RecordConfig, RobotConfig
 from bipedtele.session import Handshake, live_checks
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.transport import Keys, MessagePublisher, PresenceWatcher, Publishers, declare_presence
-from bipedtele.zenohsession import open_session
+from bipedtele.zenohsession import open_raw, open_session
 
 __all__ = ["Node", "StepClock"]
 
@@ -145,6 +146,8 @@ class Node:
         self._stop: threading.Event | None = None
         self._session: zenoh.Session | None = None
         self._pubs: Publishers | None = None
+        self._relink: RelinkSession | None = None
+        self._peer: PresenceWatcher | None = None
 
     # ------------------------------------------------------------------ lifetime
 
@@ -152,7 +155,7 @@ class Node:
         """Install the signal handlers, open the session and the publishers."""
         with contextlib.ExitStack() as stack:
             self._stop = stack.enter_context(shutdown_on_signals())
-            self._session = stack.enter_context(open_session(self.cfg.get(NetworkConfig)))
+            self._session = self._open(stack)
             self._pubs = stack.enter_context(
                 Publishers(self._session, self.keys, auth=self.auth, handshake=self.handshake)
             )
@@ -164,6 +167,43 @@ class Node:
     ) -> None:
         """Close every part entered, newest first, then the session."""
         self._stack.close()
+
+    def _open(self, stack: contextlib.ExitStack) -> zenoh.Session:
+        """Open the session: one that reopens itself when its control link is lost (split layouts)."""
+        net = self.cfg.get(NetworkConfig)
+        control = relink_control(net)
+        if not control:
+            return stack.enter_context(open_session(net))
+        self._relink = RelinkSession(lambda: open_raw(net), control=control, silence_s=RELINK_SILENCE_S,
+                                     peer_present=lambda: self._peer is not None and self._peer.alive)  # fmt: skip
+        stack.callback(self._relink.close)
+        self.drops.on_live = self._relink.heard  # refused by policy (held robot...): the link carries traffic
+        session = cast(zenoh.Session, self._relink)  # the declarations' surface of a session
+        peer = "leader" if self.role == "follower" else "follower"
+        self._peer = stack.enter_context(PresenceWatcher(session, self.keys, peer))
+        LOG.info("control link: %s (network.links = %r)", self._relink.control_now(), net.links)
+        return session
+
+    @property
+    def control_link(self) -> str:
+        """The protocol of the link that carries control now (``udp``, ``tls``...; ``none``: no router)."""
+        if self._relink is not None:
+            return self._relink.control_now()
+        if self._session is None:
+            return "none"
+        try:
+            return describe_control(list(self._session.info.links()))
+        except zenoh.ZError:
+            return "none"
+
+    @property
+    def reopens(self) -> int:
+        """How many times the session was reopened (a lost or silent control link)."""
+        return 0 if self._relink is None else self._relink.reopens
+
+    def _heard(self) -> None:
+        if self._relink is not None:
+            self._relink.heard()
 
     def enter(self, part: AbstractContextManager[T]) -> T:
         """Enter ``part`` (a robot, a device, a receiver...) for the node's lifetime."""
@@ -326,8 +366,18 @@ class Node:
             Called with each message refused as too old, instead of counting it.
         """
         record, recorder = self.record, self.recorder
+        authentic = self.drops.authentic if self.auth is not None else None
+        heard = None
+        if self._relink is not None and key in (self.keys.cmd, self.keys.feedback):
+            heard = self._relink.heard
+        elif self._relink is not None and key == self.keys.status:
+            heard = self._relink.heard_status
 
         def accepted(got: Received[M]) -> None:
+            if authentic is not None:
+                authentic()
+            if heard is not None:
+                heard()
             if topic is not None and recorder is not None:
                 record(topic, got.msg, got.t_recv)
             if on_message is not None:
@@ -335,6 +385,7 @@ class Node:
 
         wants = (topic is not None and recorder is not None) or on_message is not None
         gate, max_age_s = live_checks(self, key, gate, max_age_s)  # video and status: bound, never old
+        wants = wants or authentic is not None or heard is not None
         # commands and feedback: under the session key only (with the message key)
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
         auth = self.watch_auth if key in (self.keys.video, self.keys.status) else self.auth
@@ -364,6 +415,7 @@ class Node:
         if hs is not None:
 
             def hello_or_clock(got: Received[Any], _link: Callable[[Received[Any]], None] = link.on_message) -> None:
+                self._heard()
                 if isinstance(got.msg, Hello):
                     hs.on_hello(got.msg)
                 else:

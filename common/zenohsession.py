@@ -27,14 +27,14 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from bipedtele.acl import access_control_json, credential_users
+from bipedtele.acl import access_control_json, credential_users, login_file
 from bipedtele.config import ConfigError
 from bipedtele.linkcheck import STEP_TIMEOUT_S, LinkError, check_endpoint
 from bipedtele.linklayout import MAX_LINKS, client_endpoints, router_listen_endpoints
 from bipedtele.receivers import MAX_ZENOH_MESSAGE
 from bipedtele.sections import NetworkConfig
 
-__all__ = ["open_session", "zenoh_config"]
+__all__ = ["open_raw", "open_session", "zenoh_config"]
 
 LOG = logging.getLogger("bipedtele.transport")  # the name these log lines always had
 
@@ -99,7 +99,7 @@ def zenoh_config(
     conf = zenoh.Config()
     _put_links(conf, net, mode, listen, connect)
     _put_tls(conf, net, mode)
-    _put_login(conf, net, router=mode == "router")
+    _put_login(conf, net, router=mode == "router", listen=listen)
     return conf
 
 
@@ -158,7 +158,7 @@ def _put_tls(conf: zenoh.Config, net: NetworkConfig, mode: str) -> None:
         _put(conf, f"transport/link/tls/{k}", v)
 
 
-def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool) -> None:
+def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool, listen: list[str]) -> None:
     """Set a client's or peer's user/password, or a router's credentials file and ACL."""
     if not router:
         password = _read_password(net)
@@ -172,7 +172,7 @@ def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool) -> None:
     else:
         if net.credentials_file:
             credential_users(net.credentials_file)
-            _put(conf, "transport/auth/usrpwd/dictionary_file", net.credentials_file)
+            _put(conf, "transport/auth/usrpwd/dictionary_file", login_file(net))
         if net.router_user or net.router_password_file:  # the login to the other sites' routers
             if not (net.router_user and net.router_password_file):
                 raise ConfigError(
@@ -181,7 +181,7 @@ def _put_login(conf: zenoh.Config, net: NetworkConfig, *, router: bool) -> None:
                 )
             _put(conf, "transport/auth/usrpwd/user", net.router_user)
             _put(conf, "transport/auth/usrpwd/password", _read_secret("router_password_file", net.router_password_file))
-        acl = access_control_json(net)
+        acl = access_control_json(net, listen)
         if acl is not None:
             _put(conf, "access_control", acl)
 
@@ -305,6 +305,33 @@ def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> 
     raise _refusal(net, checked, spent, first)
 
 
+def open_raw(
+    net: NetworkConfig,
+    *,
+    mode: str | None = None,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+) -> zenoh.Session:
+    """Open a Zenoh session from the ``[network]`` section; the caller closes it.
+
+    As :func:`open_session`, without the ``with`` block (a session that may be reopened:
+    :class:`bipedtele.relink.RelinkSession`).
+    """
+    mode = mode or net.mode
+    connect = list(net.connect if connect is None else connect)
+    conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
+    client = mode == "client" and bool(connect)
+    if not client:
+        try:
+            session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            raise ConfigError(f"network: cannot open the Zenoh session: {_zenoh_reason(exc)}") from None
+    else:
+        session = _open_client(net, connect, conf)
+    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
+    return session
+
+
 @contextmanager
 def open_session(
     net: NetworkConfig,
@@ -328,18 +355,7 @@ def open_session(
     LinkError
         A client cannot reach or is refused by its router: one line saying which.
     """
-    mode = mode or net.mode
-    connect = list(net.connect if connect is None else connect)
-    conf = zenoh_config(net, mode=mode, listen=listen, connect=connect)
-    client = mode == "client" and bool(connect)
-    if not client:
-        try:
-            session = zenoh.open(conf)
-        except zenoh.ZError as exc:
-            raise ConfigError(f"network: cannot open the Zenoh session: {_zenoh_reason(exc)}") from None
-    else:
-        session = _open_client(net, connect, conf)
-    LOG.debug("zenoh session %s open (mode %s)", session.zid(), mode)
+    session = open_raw(net, mode=mode, listen=listen, connect=connect)
     try:
         yield session
     finally:

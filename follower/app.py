@@ -40,6 +40,7 @@ from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, e
 from bipedtele.node import Node, StepClock
 from bipedtele.pacer import Pacer
 from bipedtele.receivers import LatestReceiver, Received
+from bipedtele.relink import control_code
 from bipedtele.sections import ClockConfig, RobotConfig
 from bipedtele.transport import MessagePublisher
 
@@ -191,6 +192,8 @@ class FollowerApp:
         else:
             out["video_budget_bps"] = 0
         out.update(takes=self.gate.takes, releases=self.gate.releases)
+        # which link carries control (the split layout's UDP one?), and how often it was reopened
+        out.update(control_link=control_code(self.node.control_link), relinks=self.node.reopens)
         if self._stepper is not None:  # real time: does the robot keep pace with the wall clock?
             st = self._stepper
             out.update(ticks=st.ticks, steps_caught_up=st.caught_up_steps, steps_dropped=st.dropped_steps)

@@ -35,6 +35,7 @@ from bipedtele.drops import DropCounter
 from bipedtele.linkcheck import LinkError
 from bipedtele.messages import Status
 from bipedtele.receivers import MessageReceiver
+from bipedtele.relink import control_name
 from bipedtele.sections import NetworkConfig, RobotConfig
 from bipedtele.transport import Keys
 from bipedtele.zenohsession import open_session
@@ -158,12 +159,14 @@ def _fmt_leader(lead: dict[str, Any]) -> str:
 
 def format_table(views: list[RobotView]) -> str:
     """Return the views as a table: one line per robot (and one per extra leader)."""
-    lines = [f"{'robot':<12} {'follower':<30} leaders (state; link)"]
+    lines = [f"{'robot':<12} {'follower':<44} leaders (state; link)"]
     for v in views:
         n_f = len(v.present.get("follower", []))
         fol = "absent" if not n_f else (v.follower["state"] if v.follower else "present, no status")
         if v.follower and v.follower.get("held_by"):
             fol += f", held by {v.follower['held_by']}"
+        if v.follower and "control_link" in v.follower["counters"]:
+            fol += f", control {control_name(v.follower['counters']['control_link'])}"
         leaders = [_fmt_leader(lead) for lead in v.leaders.values()] or (
             ["nobody"] if not v.present.get("leader") else [f"{len(v.present['leader'])} leader(s), no status"]
         )
@@ -171,8 +174,8 @@ def format_table(views: list[RobotView]) -> str:
         bad = {k: n for k, n in v.dropped.items() if n}
         if bad:
             note += f"  [status dropped: {', '.join(f'{k} {n}' for k, n in sorted(bad.items()))}]"
-        lines.append(f"{v.robot:<12} {fol:<30} {leaders[0]}{note}")
-        lines += [f"{'':<12} {'':<30} {extra}" for extra in leaders[1:]]
+        lines.append(f"{v.robot:<12} {fol:<44} {leaders[0]}{note}")
+        lines += [f"{'':<12} {'':<44} {extra}" for extra in leaders[1:]]
     return "\n".join(lines) + "\n"
 
 

@@ -24,6 +24,7 @@ from typing import Any
 from bipedtele.cli import add_config_args, config_from_args
 from bipedtele.config import ConfigError
 from bipedtele.linkcheck import split_endpoint
+from bipedtele.linkevents import RouterLinkLog
 from bipedtele.sections import NetworkConfig
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.zenohlog import ZenohLogBridge
@@ -83,7 +84,11 @@ def run(args: argparse.Namespace) -> int:
     for text in exposure_warnings(net, listen):
         LOG.warning("%s", text)
     bridge = ZenohLogBridge().start()
-    with shutdown_on_signals() as stop, open_session(net, mode="router", listen=listen, connect=connect) as s:
+    with (
+        shutdown_on_signals() as stop,
+        open_session(net, mode="router", listen=listen, connect=connect) as s,
+        RouterLinkLog(s),
+    ):
         where = ", ".join(listen)
         if not args.listen and not net.listen:
             where += " (the default: this host only; --listen tcp/0.0.0.0:7447 for every interface)"
@@ -96,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
                 ", ".join(net.followers_allowed) or "(none)",
                 ", ".join(net.observers_allowed) or "(none)",
             )
+            if net.tls_user_certs:
+                LOG.info("a role only with the certificate named after its user (tls_user_certs)")
+            if net.revoked:
+                LOG.info("revoked (login and every right refused): %s", ", ".join(net.revoked))
             if net.routers_allowed:  # a site's router: its robots or operators may be elsewhere
                 LOG.info("linked routers (by certificate): %s", ", ".join(net.routers_allowed))
             else:

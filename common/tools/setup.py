@@ -319,14 +319,16 @@ _WORLD_NOTE = (
 
 def router_profile(head: str, router_name: str, port: int, robot_id: str,
                    publishers: Sequence[str], followers: Sequence[str], observers: Sequence[str] = (),
-                   *, cert: str = "router", mesh: Mapping[str, Any] | None = None) -> str:  # fmt: skip
+                   *, cert: str = "router", mesh: Mapping[str, Any] | None = None,
+                   user_certs: bool = False) -> str:  # fmt: skip
     """Return the router's profile: TLS listener, credentials and the ACL's roles.
 
     ``publishers``, ``followers`` and ``observers`` are ``publishers_allowed`` /
     ``followers_allowed`` / ``observers_allowed`` entries (a user, or ``user@robot_id`` for
     one robot); ``cert`` names ``certs/<cert>.pem``; ``mesh`` adds the links to other
     sites' routers (``connect``, ``router_user``, ``router_password_file``,
-    ``routers_allowed``).
+    ``routers_allowed``); ``user_certs``: every client holds a certificate named after its
+    user (``tls_user_certs``).
     """
     net = _toml_table("network", {
         "mode": "router",
@@ -336,7 +338,9 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
         "tls_cert": f"certs/{cert}.pem",
         "tls_key": f"certs/{cert}.key",
         "tls_mutual": True,
+        **({"tls_user_certs": True} if user_certs else {}),
         "credentials_file": "secrets/router-credentials.txt",
+        **({"revoked": []} if user_certs else {}),
         "publishers_allowed": list(publishers),
         "followers_allowed": list(followers),
         **({"observers_allowed": list(observers)} if observers else {}),
@@ -346,6 +350,8 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
     }, {
         "links": "also listens on UDP at the same port: the clients' control link",
         "tls_mutual": "clients must show a certificate of this CA",
+        "tls_user_certs": "each person's certificate names its user: a role only with one's own",
+        "revoked": "people refused (login and certificate name): add one, restart the router",
         "credentials_file": "user:password lines (leaders, followers)",
         "publishers_allowed": "users with the leader's role (commands); user@robot: that robot only",
         "followers_allowed": "users with the follower's role (feedback, video); user@robot: as that robot only",
@@ -354,6 +360,15 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
         "routers_allowed": "the other sites' routers, by certificate name",
     })  # fmt: skip
     return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
+
+
+def issue_person_cert(out: Path, user: str, ca_pem: Path, ca_key: Path) -> tuple[Path, Path]:
+    """Issue ``out/<user>.pem`` and ``.key``: one person's (or robot's) client certificate, named ``user``.
+
+    With ``[network] tls_user_certs`` the router gives a role only to a session whose
+    certificate names its user, so each person can be revoked alone (``[network] revoked``).
+    """
+    return _issue(out, user, f"DNS:{user}", "clientAuth,serverAuth", ca_pem, ca_key)
 
 
 def issue_router_cert(out: Path, cn: str, names: Sequence[str], ca_pem: Path, ca_key: Path) -> tuple[Path, Path]:
@@ -409,7 +424,8 @@ def _profile_text(host: str, router_name: str, port: int, robot_id: str) -> str:
         f"# file's folder. Run:  bipedtele {cmd} --config {host}/bipedtele.toml\n\n"
     )
     if host == "router":
-        return router_profile(head, router_name, port, robot_id, [LEADER_USER], [FOLLOWER_USER])
+        # the certificates leader and follower name the users leader and follower
+        return router_profile(head, router_name, port, robot_id, [LEADER_USER], [FOLLOWER_USER], user_certs=True)
     user = FOLLOWER_USER if host == "robot" else LEADER_USER
     return client_profile(head, host, router_name, port, robot_id, user, user, "secrets/message.key")
 

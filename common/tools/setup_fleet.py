@@ -26,8 +26,11 @@ and the CA in ``DIR/ca-private/`` (keep it off the hosts). What it sets up:
   robot obeys. ``bipedtele observe --config observer-carol/bipedtele.toml``: their video
   and status in the cockpit; ``bipedtele status --config ...``: the fleet view.
 - One profile per operator and robot: ``operator-alice/nao1.toml``. Every user has its own
-  password; the TLS certificates are per role (``leader``, ``follower``), as in
-  ``setup two-hosts``.
+  password and its own certificate, named after the user (``certs/alice.pem``); the router
+  gives a role only to a session whose certificate names its user (``tls_user_certs``), so
+  one person is revoked alone: add the name to the router's ``[network] revoked`` and
+  restart it (their login and every right are refused; Zenoh's TLS reads no revocation
+  list, so the router's own list is the revocation).
 
 See docs/fleet.md.
 """
@@ -54,6 +57,7 @@ from bipedtele.tools.setup import (
     check_router_name,
     client_profile,
     host_folder,
+    issue_person_cert,
     issue_router_cert,
     keep_ca_only,
     make_certs,
@@ -287,6 +291,10 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
     sites = list(plan.routers)
     robots = list(plan.robot_site)
     users = [*robots, *plan.operators, *plan.observers]
+    # one certificate per person and robot, named after its user: revoked one by one
+    issued = root / "ca-private" / "issued" / "people"
+    issued.mkdir()
+    person = {u: issue_person_cert(issued, u, certs.ca_pem, root / "ca-private" / "ca.key") for u in users}
     links = {s: f"site-{s}" for s in sites[1:]}  # a later site's router logs in to the earlier ones
     passwords = {u: make_password() for u in [*users, *links.values()]}
     keys = {r: secrets.token_hex(32) + "\n" for r in robots}
@@ -300,18 +308,18 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
 
     for r in robots:
         name, router = f"robot-{r}", plan.routers[plan.robot_site[r]]
-        folder = host_folder(root, name, certs.ca_pem, certs.pairs[FOLLOWER_USER])
+        folder = host_folder(root, name, certs.ca_pem, person[r])
         write_private(folder / "secrets" / f"{r}.pw", passwords[r] + "\n")
         write_private(folder / "secrets" / "message.key", keys[r])
         cmd = f"bipedtele follower --config {name}/bipedtele.toml"
         write_profile(folder / "bipedtele.toml", client_profile(
             head(f"robot {r}", router, cmd), "robot", router, port, r,
-            r, FOLLOWER_USER, "secrets/message.key"))  # fmt: skip
+            r, r, "secrets/message.key"))  # fmt: skip
         commands[name] = (cmd,)
 
     for op, (site, ids) in plan.operators.items():
         name, router = f"operator-{op}", plan.routers[site]
-        folder = host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
+        folder = host_folder(root, name, certs.ca_pem, person[op])
         write_private(folder / "secrets" / f"{op}.pw", passwords[op] + "\n")
         cmds = []
         for r in ids:
@@ -319,13 +327,13 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
             cmd = f"bipedtele leader --config {name}/{r}.toml"
             write_profile(folder / f"{r}.toml", client_profile(
                 head(f"operator {op} driving robot {r}", router, cmd), "operator",
-                router, port, r, op, LEADER_USER, f"secrets/{r}.key"))  # fmt: skip
+                router, port, r, op, op, f"secrets/{r}.key"))  # fmt: skip
             cmds.append(cmd)
         commands[name] = tuple(cmds)
 
     for obs, (site, ids) in plan.observers.items():
         name, router = f"observer-{obs}", plan.routers[site]
-        folder = host_folder(root, name, certs.ca_pem, certs.pairs[LEADER_USER])
+        folder = host_folder(root, name, certs.ca_pem, person[obs])
         write_private(folder / "secrets" / f"{obs}.pw", passwords[obs] + "\n")
         for r in ids:
             write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
@@ -333,7 +341,7 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
         fleet = f"bipedtele status --config {name}/bipedtele.toml"
         write_profile(folder / "bipedtele.toml", client_profile(
             head(f"observer {obs} watching {', '.join(ids)}", router, cmd), "observer",
-            router, port, ids[0], obs, LEADER_USER, "secrets"))  # fmt: skip
+            router, port, ids[0], obs, obs, "secrets"))  # fmt: skip
         commands[name] = (cmd, fleet)
 
     keep_ca_only(root, certs, "fleet")
@@ -372,7 +380,7 @@ def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwor
             head(f"the router of site {site}" if site else "the fleet's router", plan.routers[site], cmd),
             plan.routers[site], port, next((r for r in robots if plan.robot_site[r] == site), robots[0]),
             leaders_here, [f"{r}@{r}" for r in robots if plan.robot_site[r] == site], observers_here,
-            cert=cn, mesh=mesh))  # fmt: skip
+            cert=cn, mesh=mesh, user_certs=True))  # fmt: skip
         commands[name] = (cmd,)
     return commands
 

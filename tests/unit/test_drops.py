@@ -51,3 +51,26 @@ def test_logs_once_per_reason_per_interval(caplog: pytest.LogCaptureFixture) -> 
 def test_negative_interval_rejected() -> None:
     with pytest.raises(ValueError):
         DropCounter("x", log_interval_s=-1)
+
+
+def test_unauthentic_messages_amid_genuine_ones_read_as_an_attack_not_a_key_mismatch(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    clock = FakeClock()
+    d = DropCounter("follower", log_interval_s=0.0, clock=clock)
+    key_line = "bipedtele/nao1/cmd: MAC mismatch: the two sides hold different message keys (wrong tag)"
+    with caplog.at_level(logging.WARNING, logger="bipedtele.drops"):
+        d.drop("bad_mac", key_line)  # nothing genuine yet: the keys may well differ
+        d.authentic()
+        clock.t = 1.0
+        for reason in ("bad_mac", "no_mac", "no_session", "stale"):
+            d.drop(reason, key_line)
+        clock.t = 1.0 + 5.0  # nothing genuine for the window: a mismatch again
+        d.drop("bad_mac", key_line)
+    lines = [r.getMessage() for r in caplog.records]
+    assert "different message keys" in lines[0] and "under attack" not in lines[0]
+    for line in lines[1:4]:
+        assert "under attack? bipedtele/nao1/cmd" in line and "different message keys" not in line, line
+        assert "not a key mismatch" in line and "ACL" not in line
+    assert "under attack" not in lines[4]  # stale: not an authentication failure
+    assert "different message keys" in lines[5] and "under attack" not in lines[5]

@@ -9,7 +9,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from bipedtele.acl import access_control_json
+from bipedtele.acl import access_control_json, login_file
 from bipedtele.auth import load_message_auth
 from bipedtele.config import ConfigError, load_config
 from bipedtele.sections import NetworkConfig, RobotConfig
@@ -48,13 +48,13 @@ def test_each_host_folder_holds_its_own_files_only(fleet: Path) -> None:
     }  # fmt: skip
     for r in ROBOTS:
         assert _files(fleet / f"robot-{r}") == certs | {
-            "certs/follower.pem", "certs/follower.key", f"secrets/{r}.pw", "secrets/message.key", "bipedtele.toml"
+            f"certs/{r}.pem", f"certs/{r}.key", f"secrets/{r}.pw", "secrets/message.key", "bipedtele.toml"
         }  # fmt: skip
     assert _files(fleet / "operator-alice") == certs | {
-        "certs/leader.pem", "certs/leader.key", "secrets/alice.pw", "secrets/nao1.key", "nao1.toml"
+        "certs/alice.pem", "certs/alice.key", "secrets/alice.pw", "secrets/nao1.key", "nao1.toml"
     }  # fmt: skip
     assert _files(fleet / "operator-bob") == certs | {
-        "certs/leader.pem", "certs/leader.key", "secrets/bob.pw", "secrets/nao1.key", "secrets/nao2.key",
+        "certs/bob.pem", "certs/bob.key", "secrets/bob.pw", "secrets/nao1.key", "secrets/nao2.key",
         "nao1.toml", "nao2.toml",
     }  # fmt: skip
     assert _files(fleet / "ca-private") == {"ca.key", "ca.pem", "README.txt"}
@@ -166,7 +166,7 @@ def test_observers_get_watch_keys_only(tmp_path: Path) -> None:
     out = write_fleet(tmp_path / "f", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"carol": ("nao1", "nao2")}).out
     folder = out / "observer-carol"
     assert _files(folder) == {
-        "certs/ca.pem", "certs/leader.pem", "certs/leader.key", "secrets/carol.pw",
+        "certs/ca.pem", "certs/carol.pem", "certs/carol.key", "secrets/carol.pw",
         "secrets/nao1.watch", "secrets/nao2.watch", "bipedtele.toml",
     }  # fmt: skip
     for r in ROBOTS:
@@ -233,3 +233,36 @@ def test_sites_refusals(tmp_path: Path) -> None:
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "NAME@SITE" in res.stderr
     with pytest.raises(ConfigError, match="router_user/router_password_file: allowed: both"):
         zenoh_config(NetworkConfig(mode="router", router_user="site-lab2"))
+
+
+def _subject(pem: Path) -> str:
+    out = subprocess.run(["openssl", "x509", "-in", str(pem), "-noout", "-subject", "-fingerprint"],
+                         capture_output=True, text=True, check=True, timeout=30).stdout  # fmt: skip
+    return out.strip()
+
+
+def test_a_certificate_per_person_and_one_revoked_alone(tmp_path: Path) -> None:
+    """People, not roles: alice and dave get certificates of their own; dave's revocation leaves alice hers."""
+    out = tmp_path / "fleet"
+    write_fleet(out, NAME, ["nao1"], {"alice": ("nao1",), "dave": ("nao1",)}, 7451)
+    alice, dave = _subject(out / "operator-alice/certs/alice.pem"), _subject(out / "operator-dave/certs/dave.pem")
+    assert "CN = alice" in alice and "CN = dave" in dave and alice.splitlines()[1] != dave.splitlines()[1]
+    assert "CN = nao1" in _subject(out / "robot-nao1/certs/nao1.pem")
+    router = load_config(out / "router" / "bipedtele.toml").get(NetworkConfig)
+    assert router.tls_user_certs and router.revoked == []
+    for who in ("alice", "dave"):
+        net = load_config(out / f"operator-{who}" / "nao1.toml").get(NetworkConfig)
+        assert Path(net.tls_cert).name == f"{who}.pem" and net.user == who
+
+    # each role asks for the certificate named after its user: dave's with alice's password matches nothing
+    acl = access_control_json(router)
+    assert acl is not None
+    subjects = [s for s in acl["subjects"] if "usernames" in s]
+    assert all(s["usernames"] == s["cert_common_names"] for s in subjects), subjects
+    revoked = NetworkConfig(**{**vars(router), "revoked": ["dave"]})
+    acl = access_control_json(revoked)
+    assert acl is not None
+    named = {n for s in acl["subjects"] for n in s.get("usernames", []) + s.get("cert_common_names", [])}
+    assert "dave" not in named and "alice" in named
+    logins = Path(login_file(revoked)).read_text().splitlines()
+    assert [ln.split(":")[0] for ln in logins] == ["nao1", "alice"]
