@@ -197,6 +197,19 @@ async def accept_loop(
     loop = asyncio.get_running_loop()
     linger0 = struct.pack("ii", 1, 0)
     window_t, refused = loop.time(), 0
+
+    async def pace(addr: str) -> None:
+        """Count one refusal (or one eviction) and pause accepting when they come too fast."""
+        nonlocal window_t, refused
+        now = loop.time()
+        if now - window_t >= 1.0:
+            window_t, refused = now, 0
+        refused += 1
+        # A guesser's (locked address) reconnect storm waits in the backlog sooner.
+        rate = guard.limits.refused_locked_per_s if guard.locked(addr) else guard.limits.refused_connections_per_s
+        if refused > rate:
+            await asyncio.sleep(1.0 / rate)
+
     while True:
         try:
             conn, peer = await loop.sock_accept(listener)
@@ -206,7 +219,8 @@ async def accept_loop(
             continue
         addr = str(peer[0]) if isinstance(peer, tuple) and peer else "?"
         why = guard.admit(addr)
-        if why is not None and guard.make_room(why, addr):
+        evicted = why is not None and guard.make_room(why, addr)
+        if evicted:
             why = guard.admit(addr)
         if why is None:
             conn.setblocking(False)
@@ -215,19 +229,14 @@ async def accept_loop(
             except OSError:
                 guard.release(addr)
                 conn.close()
+            if evicted:  # room made by closing another: paced as a refusal, or a flood cycles at full speed
+                await pace(addr)
             continue
         with contextlib.suppress(OSError):
             conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger0)
         conn.close()
         on_refuse(why, addr)
-        now = loop.time()
-        if now - window_t >= 1.0:
-            window_t, refused = now, 0
-        refused += 1
-        # A guesser's (locked address) reconnect storm waits in the backlog sooner.
-        rate = guard.limits.refused_locked_per_s if guard.locked(addr) else guard.limits.refused_connections_per_s
-        if refused > rate:
-            await asyncio.sleep(1.0 / rate)
+        await pace(addr)
 
 
 class GuardedHandler(RequestHandler):

@@ -63,6 +63,10 @@ def walking_script(forward_cm_s: float = 5.0, turn_deg_s: float = 0.0, until_s: 
 
 
 NO_VIDEO = ["--set", "follower.camera_fps=0"]
+# The leader's blind stop off (60 s): after feedback older than blind_stop_s the robot walks
+# again only when the operator moves the handle (tests/e2e/test_uplink_gap.py), which a
+# constant script never does; for tests whose subject is elsewhere (a restart, a freeze).
+NO_BLIND_STOP = ["--set", "leader.blind_stop_s=60"]
 SLOW_VIDEO = ["--set", "follower.camera_fps=2", "--set", 'follower.cameras=["scene"]']
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from e2e_support import (
+    NO_BLIND_STOP,
     NO_VIDEO,
     Monitor,
     Procs,
@@ -38,7 +39,8 @@ def test_router_restart_both_sides_reconnect(procs: Procs, tmp_path: Path) -> No
     f_rec, l_rec = tmp_path / "follower.mcap", tmp_path / "leader.mcap"
     router = start_router(procs, ep)
     follower = start_follower(procs, ep, NO_VIDEO, record=f_rec)
-    leader = start_leader(procs, ep, walking_script(5.0), record=l_rec)
+    # the outage stops the robot by the leader's blind stop too, which waits for a handle move
+    leader = start_leader(procs, ep, [*walking_script(5.0), *NO_BLIND_STOP], record=l_rec)
     with Monitor(ep) as mon:
         mon.wait_state("walking", time.time() - 60, timeout_s=30.0, hold_s=2.0)
         t_kill = time.time()
