@@ -73,8 +73,11 @@ class ServerLimits:
     log_interval_s: float = 10.0  #: one refusal line per reason per interval
 
 
-def _hostname(value: str) -> tuple[str, int | None] | None:
-    """Return ``(name, port)`` of a Host header or URL netloc (lower case, IPv6 unbracketed), or None."""
+def parse_host(value: str) -> tuple[str, int | None] | None:
+    """Return ``(name, port)`` of a Host header or URL netloc (lower case, IPv6 unbracketed), or None.
+
+    Shared by the live view's and the cockpit's Host and Origin checks.
+    """
     try:
         parts = urlsplit("//" + value)
         name, port = parts.hostname, parts.port
@@ -247,7 +250,7 @@ class LiveServer:
         return bool(data) and hmac.compare_digest(data, self._token)
 
     def _host_ok(self, host: str | None) -> bool:
-        parsed = _hostname(host) if host else None
+        parsed = parse_host(host) if host else None
         if parsed is None:
             return False
         return parsed[0] in self.allowed_hosts or (self.host in _WILDCARDS and _is_ip(parsed[0]))
@@ -261,7 +264,7 @@ class LiveServer:
             parts = urlsplit(origin)
         except ValueError:
             return False
-        got, want = _hostname(parts.netloc), _hostname(host or "")
+        got, want = parse_host(parts.netloc), parse_host(host or "")
         return parts.scheme in ("http", "https") and got is not None and got == want and self._host_ok(host)
 
     def _locked_out(self, addr: str, bad_token: bool) -> bool:

@@ -84,6 +84,7 @@ from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 from bipedtele.drops import DropCounter
+from bipedtele.foxglovews import parse_host
 from bipedtele.leader.cockpit.guard import (
     ERR_LOG,
     Guard,
@@ -146,21 +147,6 @@ def _throttle_logs(interval_s: float) -> None:
         logger = logging.getLogger(name)
         if not any(isinstance(f, Throttle) for f in logger.filters):
             logger.addFilter(Throttle(interval_s))
-
-
-def _hostname(value: str) -> tuple[str, int | None] | None:
-    """Parse a ``Host`` header or URL netloc into ``(name, port)``.
-
-    The name is lower case, IPv6 without brackets; None when it does not parse.
-    """
-    try:
-        parts = urlsplit("//" + value)
-        name, port = parts.hostname, parts.port
-    except ValueError:
-        return None
-    if not name or parts.username is not None or parts.path or parts.query:
-        return None
-    return name.lower(), port
 
 
 def check_token(token: str) -> str:
@@ -352,7 +338,7 @@ class CockpitServer:
         names = {host.strip("[]").lower()} - set(_WILDCARDS)
         names.update(LOCAL_HOSTS)
         for name in allowed_hosts:
-            parsed = _hostname(name.strip())
+            parsed = parse_host(name.strip())
             if parsed is None:
                 raise ValueError(f"allowed_hosts: {name!r} is not a host name or address")
             names.add(parsed[0])
@@ -618,7 +604,7 @@ class CockpitServer:
         return web.HTTPForbidden(text=f"bipedtele cockpit: {text}\n")
 
     def _host_ok(self, host: str | None) -> bool:
-        parsed = _hostname(host) if host else None
+        parsed = parse_host(host) if host else None
         return parsed is not None and parsed[0] in self.allowed_hosts
 
     def _token_ok(self, given: str) -> bool:
@@ -711,7 +697,7 @@ class CockpitServer:
             return False
         if parts.scheme not in ("http", "https") or parts.path not in ("", "/") or parts.query:
             return False
-        got, want = _hostname(parts.netloc), _hostname(request.headers.get("Host", ""))
+        got, want = parse_host(parts.netloc), parse_host(request.headers.get("Host", ""))
         if got is None or want is None or got[0] not in self.allowed_hosts:
             return False
         default = 443 if parts.scheme == "https" else 80
