@@ -42,6 +42,8 @@ import itertools
 import os
 import stat
 import threading
+from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
 from typing import Final
 
@@ -59,13 +61,16 @@ __all__ = [
     "NO_MAC_LINE",
     "SESSION_MAGIC",
     "UNEXPECTED_MAC_LINE",
+    "WATCH_MAGIC",
     "MacError",
     "MessageAuth",
+    "WatchAuth",
     "hkdf_sha256",
     "is_signed",
     "load_message_auth",
     "load_watch_auths",
     "read_key_file",
+    "session_watch_key",
     "watch_key",
     "write_message_key",
 ]
@@ -73,6 +78,13 @@ __all__ = [
 MAC_MAGIC: Final = b"\xc1BT\x03"
 #: Magic of a payload sealed with a session key (:mod:`bipedtele.session`), not the master key.
 SESSION_MAGIC: Final = b"\xc1BT\x04"
+#: Magic of a payload sealed with a session's watch key (:class:`WatchAuth`); its key id
+#: field carries the sealing session's watch epoch.
+WATCH_MAGIC: Final = b"\xc1BT\x05"
+#: HKDF ``info`` of a session's watch key (:func:`session_watch_key`).
+WATCH_SESSION_INFO: Final = b"bipedtele watch session v1"
+#: Watch epochs a receiver keeps derived keys for (the ones that opened a payload).
+WATCH_EPOCHS_KEPT: Final = 8
 KID_BYTES: Final = 4
 NONCE_BYTES: Final = 12
 TAG_BYTES: Final = 16
@@ -97,7 +109,7 @@ KEY_REASONS: Final = ("no_mac", "bad_mac", "mac_unexpected")
 
 def is_signed(payload: bytes) -> bool:
     """Return whether ``payload`` is framed as a sealed message (a keyless receiver refuses it by name)."""
-    return payload[:4] in (MAC_MAGIC, SESSION_MAGIC) and len(payload) >= MAC_OVERHEAD
+    return payload[:4] in (MAC_MAGIC, SESSION_MAGIC, WATCH_MAGIC) and len(payload) >= MAC_OVERHEAD
 
 
 def hkdf_sha256(ikm: bytes, salt: bytes, info: bytes, length: int = 32) -> bytes:
@@ -151,7 +163,11 @@ class MessageAuth:
     key : bytes
         The 32-byte shared key.
     magic : bytes
-        :data:`MAC_MAGIC` (the message key, the watch key) or :data:`SESSION_MAGIC`.
+        :data:`MAC_MAGIC` (the message key), :data:`SESSION_MAGIC` (a session key) or
+        :data:`WATCH_MAGIC` (a session's watch key, :class:`WatchAuth`).
+    kid : bytes, optional
+        The 4-byte key id field; default :func:`key_id` of ``key`` (a :class:`WatchAuth`
+        puts its watch epoch there).
 
     Notes
     -----
@@ -160,14 +176,16 @@ class MessageAuth:
 
     __slots__ = ("_aead", "_counter", "_key", "_lock", "_prefix", "kid", "magic")
 
-    def __init__(self, key: bytes, magic: bytes = MAC_MAGIC) -> None:
+    def __init__(self, key: bytes, magic: bytes = MAC_MAGIC, kid: bytes | None = None) -> None:
         if not isinstance(key, bytes | bytearray) or len(key) != KEY_BYTES:
             raise ValueError(f"key: allowed: {KEY_BYTES} bytes")
-        if magic not in (MAC_MAGIC, SESSION_MAGIC):
-            raise ValueError("magic: allowed: MAC_MAGIC or SESSION_MAGIC")
+        if magic not in (MAC_MAGIC, SESSION_MAGIC, WATCH_MAGIC):
+            raise ValueError("magic: allowed: MAC_MAGIC, SESSION_MAGIC or WATCH_MAGIC")
+        if kid is not None and len(kid) != KID_BYTES:
+            raise ValueError(f"kid: allowed: {KID_BYTES} bytes")
         self.magic = magic
         self._key = bytes(key)
-        self.kid = key_id(self._key)
+        self.kid = key_id(self._key) if kid is None else bytes(kid)
         self._aead = AESGCM(self._key)
         self._lock = threading.Lock()
         self._prefix = os.urandom(8)
@@ -224,12 +242,119 @@ class MessageAuth:
         except InvalidTag:
             raise MacError("bad_mac", f"{BAD_MAC_LINE} (wrong tag on {topic})") from None
 
-    def watch(self) -> MessageAuth:
-        """Return the :class:`MessageAuth` of this key's watch key (:func:`watch_key`)."""
-        return MessageAuth(watch_key(self._key))
+    def watch(self) -> WatchAuth:
+        """Return a :class:`WatchAuth` of this key's watch key (:func:`watch_key`), with a fresh epoch."""
+        return WatchAuth(watch_key(self._key))
 
     def __repr__(self) -> str:
         return "MessageAuth(<key hidden>)" if self.magic == MAC_MAGIC else "MessageAuth(<session key hidden>)"
+
+
+def session_watch_key(watch: bytes, epoch: bytes) -> bytes:
+    """Return a session's watch key: HKDF-SHA256 of the robot's watch key, salt = the session's epoch.
+
+    ``info`` is :data:`WATCH_SESSION_INFO`. Each process that seals video or status draws a
+    4-byte random *epoch* at start and seals under this key; the epoch travels in clear in
+    the frame's key id field, so a holder of the robot's watch key (an observer) derives the
+    key of any session it sees, and a holder of one session's key reads that session only.
+    """
+    if len(epoch) != KID_BYTES:
+        raise ValueError(f"epoch: allowed: {KID_BYTES} bytes")
+    return hkdf_sha256(bytes(watch), bytes(epoch), WATCH_SESSION_INFO)
+
+
+class WatchAuth(MessageAuth):
+    """Video and status: sealed under a watch key per session, opened under any (or one) session's.
+
+    The key schedule (docs/network.md, Watch keys): the robot's watch key ``W`` is
+    :func:`watch_key` of the message key; a process seals under
+    :func:`session_watch_key` ``(W, epoch)`` with its own random ``epoch`` (framed with
+    :data:`WATCH_MAGIC`, the epoch in the key id field). A receiver holding ``W`` derives
+    the key of the epoch a frame names. ``pin`` narrows that: the leader pins its video to
+    the epoch its bound follower announced in the session handshake (sealed under the
+    message key), so an earlier session's frames, replayed, do not open there
+    (``old_session``) whatever their age.
+
+    Parameters
+    ----------
+    watch : bytes
+        The robot's 32-byte watch key ``W``.
+    epoch : bytes, optional
+        This session's 4-byte epoch (default: 4 random bytes).
+    pin : callable, optional
+        ``pin()``: the one epoch (besides this session's own) whose frames open, or None
+        for any epoch.
+    """
+
+    __slots__ = ("_epochs", "_pin", "_watch", "epoch")
+
+    def __init__(self, watch: bytes, epoch: bytes | None = None, pin: Callable[[], bytes | None] | None = None) -> None:
+        if not isinstance(watch, bytes | bytearray) or len(watch) != KEY_BYTES:
+            raise ValueError(f"watch: allowed: {KEY_BYTES} bytes")
+        epoch = os.urandom(KID_BYTES) if epoch is None else bytes(epoch)
+        super().__init__(session_watch_key(watch, epoch), WATCH_MAGIC, kid=epoch)
+        self._watch = bytes(watch)
+        self.epoch = epoch
+        self._pin = pin
+        self._epochs: OrderedDict[bytes, MessageAuth] = OrderedDict()
+
+    def pinned(self, pin: Callable[[], bytes | None]) -> WatchAuth:
+        """Return an opener of the same session that takes, besides its own, only the epoch ``pin()`` names."""
+        return WatchAuth(self._watch, self.epoch, pin)
+
+    def _opener(self, epoch: bytes) -> MessageAuth:
+        if epoch == self.epoch:
+            return self
+        with self._lock:
+            got = self._epochs.get(epoch)
+            if got is not None:
+                self._epochs.move_to_end(epoch)
+                return got
+        return MessageAuth(session_watch_key(self._watch, epoch), WATCH_MAGIC, kid=epoch)
+
+    def _kept(self, epoch: bytes, opener: MessageAuth) -> None:
+        with self._lock:  # only epochs that opened a payload: forged ones never evict a live one
+            self._epochs[epoch] = opener
+            self._epochs.move_to_end(epoch)
+            while len(self._epochs) > WATCH_EPOCHS_KEPT:
+                self._epochs.popitem(last=False)
+
+    def holds(self, payload: bytes) -> bool:
+        """Return whether ``payload`` is framed under a session watch key (any epoch)."""
+        return payload[:4] == WATCH_MAGIC and len(payload) >= MAC_OVERHEAD
+
+    def verify(self, payload: bytes, topic: str) -> bytes:
+        """Return the body of a payload sealed under a session's watch key, if it opens.
+
+        Raises
+        ------
+        MacError
+            ``no_mac`` (not sealed), ``bad_mac`` (sealed under another key kind, or it
+            does not open: another robot's watch key, altered) or ``old_session``
+            (pinned: another session's epoch than the pinned one).
+        """
+        if not self.holds(payload):
+            if payload[:4] in (MAC_MAGIC, SESSION_MAGIC) and len(payload) >= MAC_OVERHEAD:
+                raise MacError("bad_mac", f"{BAD_MAC_LINE} (sealed under a message or session key on {topic})")
+            raise MacError("no_mac", f"{NO_MAC_LINE} (unsealed payload of {len(payload)} bytes on {topic})")
+        epoch = payload[4:8]
+        if self._pin is not None and epoch != self.epoch:
+            want = self._pin()
+            if want is not None and epoch != want:
+                raise MacError("old_session", f"{topic}: sealed under another session's watch key than the "
+                                              "bound peer's (an earlier session's frames replayed?)")  # fmt: skip
+        opener = self._opener(epoch)
+        body = opener.open_framed(payload, topic)
+        if opener is not self:
+            self._kept(epoch, opener)
+        return body
+
+    def watch(self) -> WatchAuth:
+        """Return a :class:`WatchAuth` of the same watch key with a fresh epoch."""
+        return WatchAuth(self._watch)
+
+    def __repr__(self) -> str:
+        return f"WatchAuth(<key hidden>, epoch {self.epoch.hex()})"
 
 
 def _key_error(field: str, path: str, why: str) -> ConfigError:
@@ -288,8 +413,9 @@ def load_message_auth(net: NetworkConfig) -> MessageAuth | None:
 def watch_key(master: bytes) -> bytes:
     """Return a robot's watch key: HKDF-SHA256 of its message key (``info`` ``bipedtele watch v1``).
 
-    Video and status are sealed with the watch key (leader and follower derive it from the
-    message key). An observer holds only the watch key: it opens what it watches, and
+    Video and status are sealed under a key per session derived from the watch key
+    (:func:`session_watch_key`, :class:`WatchAuth`; leader and follower derive the watch key
+    from the message key). An observer holds only the watch key: it opens what it watches, and
     since HKDF is one-way it can neither complete a session handshake nor open or seal a
     command, feedback or clock message (the master key seals those, or session keys
     derived from it). The router's ACL keeps it from putting anything at all.
@@ -298,7 +424,7 @@ def watch_key(master: bytes) -> bytes:
 
 
 def load_watch_auths(net: NetworkConfig, robots: list[str]) -> dict[str, MessageAuth]:
-    """Return each robot's watch :class:`MessageAuth`, for an observer (``bipedtele status``).
+    """Return each robot's :class:`WatchAuth`, for an observer (``bipedtele status``): it opens every session's.
 
     From ``[network] watch_key_dir`` (files ``<robot_id>.watch``, as ``setup fleet`` writes
     them); a robot without a file there, or without ``watch_key_dir``, is left out.
@@ -313,7 +439,7 @@ def load_watch_auths(net: NetworkConfig, robots: list[str]) -> dict[str, Message
         for robot in robots:
             path = Path(net.watch_key_dir) / f"{robot}.watch"
             if path.exists():
-                out[robot] = MessageAuth(read_key_file(str(path), "watch_key_dir"))
+                out[robot] = WatchAuth(read_key_file(str(path), "watch_key_dir"))
     return out
 
 

@@ -132,6 +132,10 @@ OperatorName: TypeAlias = Annotated[str, Meta(max_length=64, pattern=r"^[A-Za-z0
 NONCE_BYTES: Final = 32
 Nonce: TypeAlias = Annotated[bytes, Meta(min_length=NONCE_BYTES, max_length=NONCE_BYTES)]
 ZERO_NONCE: Final = bytes(NONCE_BYTES)
+#: A session's watch epoch (:class:`bipedtele.auth.WatchAuth`): 4 bytes; zeros: none announced.
+EPOCH_BYTES: Final = 4
+Epoch: TypeAlias = Annotated[bytes, Meta(min_length=EPOCH_BYTES, max_length=EPOCH_BYTES)]
+ZERO_EPOCH: Final = bytes(EPOCH_BYTES)
 Counters: TypeAlias = Annotated[
     dict[Annotated[str, Meta(max_length=64)], Annotated[int, Meta(ge=0, le=MAX_SEQ)]],
     Meta(max_length=MAX_COUNTERS),
@@ -368,6 +372,9 @@ class Hello(Message, frozen=True, gc=False, tag="hello"):
         The peer session this Hello answers or is bound to (0: none).
     peer_nonce : bytes
         The peer's nonce echoed (32 zero bytes: none).
+    watch : bytes
+        The sender's watch epoch: its video and status are sealed under that session's
+        watch key (:func:`bipedtele.auth.session_watch_key`; 4 zero bytes: none announced).
     """
 
     KIND: ClassVar[str] = "hello"
@@ -375,6 +382,7 @@ class Hello(Message, frozen=True, gc=False, tag="hello"):
     nonce: Nonce = ZERO_NONCE
     peer_sid: SessionId = 0
     peer_nonce: Nonce = ZERO_NONCE
+    watch: Epoch = ZERO_EPOCH
 
 
 MESSAGE_TYPES: Final[dict[str, type[Message]]] = {

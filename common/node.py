@@ -37,7 +37,7 @@ from types import TracebackType
 from typing import Any, TypeVar, cast
 
 import zenoh
-from bipedtele.auth import MessageAuth, load_message_auth
+from bipedtele.auth import MessageAuth, WatchAuth, load_message_auth
 from bipedtele.clock import ClockSync
 from bipedtele.clocklink import ClockLink
 from bipedtele.config import Config, ConfigError
@@ -132,13 +132,19 @@ class Node:
         self._conservative_split = bool(ck.conservative_split)  # read in round_trip, a tick's call
         self.auth: MessageAuth | None = load_message_auth(cfg.get(NetworkConfig))
         # Video and status under the watch key (an observer holds only that one).
-        self.watch_auth: MessageAuth | None = self.auth.watch() if self.auth is not None else None
+        # (a key of this session's own, :class:`bipedtele.auth.WatchAuth`, its epoch in the Hellos)
+        self.watch_auth: WatchAuth | None = self.auth.watch() if self.auth is not None else None
         # With the key: the session handshake (commands and feedback under a per-session key).
         # The leader leaves a silent follower session after its feedback timeout; the
         # follower's takeover rule is its command gate's (watchdog).
         self.handshake: Handshake | None = None
-        if self.auth is not None:
-            self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover_after_s)
+        # Video opens only under the bound follower session's watch epoch (leader).
+        self.video_auth: WatchAuth | None = self.watch_auth
+        if self.auth is not None and self.watch_auth is not None:
+            hs = self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover_after_s,
+                                            watch_epoch=self.watch_auth.epoch)  # fmt: skip
+            if role == "leader":
+                self.video_auth = self.watch_auth.pinned(lambda: hs.peer_watch_epoch)
         self.drops = DropCounter(role)
         self.recorder: Recorder | None = None
         self._record_path = record
@@ -157,7 +163,9 @@ class Node:
             self._stop = stack.enter_context(shutdown_on_signals())
             self._session = self._open(stack)
             self._pubs = stack.enter_context(
-                Publishers(self._session, self.keys, auth=self.auth, handshake=self.handshake)
+                Publishers(
+                    self._session, self.keys, auth=self.auth, handshake=self.handshake, watch_auth=self.watch_auth
+                )
             )
             self._stack = stack.pop_all()
         return self
@@ -388,7 +396,7 @@ class Node:
         wants = wants or authentic is not None or heard is not None
         # commands and feedback: under the session key only (with the message key)
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
-        auth = self.watch_auth if key in (self.keys.video, self.keys.status) else self.auth
+        auth = self.video_auth if key == self.keys.video else self.watch_auth if key == self.keys.status else self.auth
         rx: LatestReceiver[M] = LatestReceiver(
             self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
             auth=auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,

@@ -28,11 +28,14 @@ binds to one follower session (the first that echoes its nonce) and leaves it on
 ``takeover_after_s`` of silence when another echoes (then with a new nonce and a new
 handshake). A side with no session sends nothing on cmd/feedback (the robot stands).
 
-Status and Video travel under the robot's watch key (:func:`bipedtele.auth.watch_key`, so an
-observer can read them) and the clock pings under the master key (docs/network.md). A
-replay of an earlier session's video or status is refused by the receivers' age bound and,
-for what the leader shows as live, by :class:`PeerBound`: only the follower session this
-handshake bound (a fresh nonce of its own) is shown.
+Status and Video travel under a watch key per session (:class:`bipedtele.auth.WatchAuth`:
+derived from the robot's watch key and the sender's random *watch epoch*, so an observer
+holding the robot's watch key can read them) and the clock pings under the master key
+(docs/network.md). Each Hello announces its sender's watch epoch; the leader opens video
+only under the epoch of the follower session this handshake bound. A replay of an earlier
+session's video or status is refused by that (``old_session``), by the receivers' age bound
+and, for what the leader shows as live, by :class:`PeerBound`: only the follower session
+this handshake bound (a fresh nonce of its own) is shown.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from bipedtele.auth import (
     MacError,
     MessageAuth,
 )
-from bipedtele.messages import NONCE_BYTES, ZERO_NONCE, Hello
+from bipedtele.messages import NONCE_BYTES, ZERO_EPOCH, ZERO_NONCE, Hello
 
 __all__ = [
     "INFO",
@@ -105,9 +108,11 @@ class SessionKey:
         Monotonic time of the last message accepted under this key [s].
     confirmed : bool
         The peer showed it holds the key (an echo of our nonce, or a message under the key).
+    peer_watch : bytes
+        The peer's watch epoch, as its Hello announced it (zeros: none).
     """
 
-    __slots__ = ("auth", "confirmed", "nonce", "peer_nonce", "peer_sid", "t_heard")
+    __slots__ = ("auth", "confirmed", "nonce", "peer_nonce", "peer_sid", "peer_watch", "t_heard")
 
     def __init__(self, auth: MessageAuth, peer_sid: int, peer_nonce: bytes, nonce: bytes, now: float) -> None:
         self.auth = auth
@@ -116,6 +121,7 @@ class SessionKey:
         self.nonce = nonce
         self.t_heard = now
         self.confirmed = False
+        self.peer_watch = ZERO_EPOCH
 
     @property
     def peer(self) -> tuple[int, bytes]:
@@ -143,6 +149,9 @@ class Handshake:
         Send-time source for the Hellos [s].
     rand : callable
         ``rand(n)``: n random bytes (``os.urandom``).
+    watch_epoch : bytes
+        This process's watch epoch (:class:`bipedtele.auth.WatchAuth`), announced in its
+        Hellos; zeros: none.
 
     Notes
     -----
@@ -160,6 +169,7 @@ class Handshake:
         clock: Callable[[], float] = time.monotonic,
         wall: Callable[[], float] = time.time,
         rand: Callable[[int], bytes] = os.urandom,
+        watch_epoch: bytes = ZERO_EPOCH,
     ) -> None:
         if role not in ("leader", "follower"):
             raise ValueError(f"role = {role!r}: allowed: leader, follower")
@@ -169,6 +179,7 @@ class Handshake:
         self._master = master
         self.takeover_after_s = float(takeover_after_s)
         self._clock, self._wall, self._rand = clock, wall, rand
+        self.watch_epoch = bytes(watch_epoch)
         self._lock = threading.Lock()
         self._seq = 0
         self._nonce = self._fresh()  # the leader's current nonce; the follower's unsolicited Hellos'
@@ -202,6 +213,13 @@ class Handshake:
             return None if self._current is None else self._current.peer_sid
 
     @property
+    def peer_watch_epoch(self) -> bytes | None:
+        """The bound peer's watch epoch (None: no peer bound, or it announced none)."""
+        with self._lock:
+            cur = self._current
+            return None if cur is None or cur.peer_watch == ZERO_EPOCH else cur.peer_watch
+
+    @property
     def nonce(self) -> bytes:
         """The leader's current nonce (the follower's: that of its bound session, else of its unsolicited Hellos)."""
         with self._lock:
@@ -220,7 +238,7 @@ class Handshake:
     def _hello(self, nonce: bytes, peer_sid: int, peer_nonce: bytes) -> Hello:
         self._seq += 1
         return Hello(sid=self.sid, seq=self._seq, t=self._wall(), role=self.role, nonce=nonce,
-                     peer_sid=peer_sid, peer_nonce=peer_nonce)  # fmt: skip
+                     peer_sid=peer_sid, peer_nonce=peer_nonce, watch=self.watch_epoch)  # fmt: skip
 
     def _own_hello(self) -> Hello:
         cur = self._current
@@ -281,6 +299,7 @@ class Handshake:
         if cur is None:
             s = self._derive(h.sid, h.nonce, self._nonce, now)
             s.confirmed = True
+            s.peer_watch = h.watch  # authenticated (master key) and an answer to our nonce
             self._current = s
             self.completed += 1
             self._next_hello = now  # tell the follower at once that we hold its nonce

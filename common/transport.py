@@ -295,18 +295,27 @@ class Publishers:
     handshake : Handshake, optional
         Commands and feedback are MAC'd with its session key instead, and not sent while
         it has none (:mod:`bipedtele.session`).
+    watch_auth : MessageAuth, optional
+        Seals video and status (default: a fresh :meth:`~bipedtele.auth.MessageAuth.watch`
+        of ``auth``, a watch key of this session's own; a node passes the one whose epoch
+        its Hellos announce).
     """
 
     _CONTROL = ("cmd", "feedback", "clock")
     _SESSION = ("cmd", "feedback")
 
     def __init__(
-        self, session: zenoh.Session, keys: Keys, auth: MessageAuth | None = None, handshake: Handshake | None = None
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        auth: MessageAuth | None = None,
+        handshake: Handshake | None = None,
+        watch_auth: MessageAuth | None = None,
     ) -> None:
         self._session = session
         self.keys = keys
         self.auth = auth
-        self.watch_auth = auth.watch() if auth is not None else None
+        self.watch_auth = watch_auth if watch_auth is not None or auth is None else auth.watch()
         self.handshake = handshake
         self._pubs: dict[str, MessagePublisher] = {}
         self._lock = threading.Lock()

@@ -169,7 +169,7 @@ def test_missing_or_unreadable_key_file_is_refused(tmp_path: Path) -> None:
 def test_the_watch_key_verifies_video_and_status_and_signs_nothing_the_robot_obeys(tmp_path: Path) -> None:
     """An observer's key (issue 23): derived one-way from the message key, different from it;
     what it signs fails the master key's check, and a leader's and a follower's derivations agree."""
-    from bipedtele.auth import load_watch_auths, read_key_file, watch_key
+    from bipedtele.auth import WatchAuth, load_watch_auths, read_key_file, watch_key
 
     master = MessageAuth(KEY)
     wk = watch_key(KEY)
@@ -177,7 +177,7 @@ def test_the_watch_key_verifies_video_and_status_and_signs_nothing_the_robot_obe
     assert watch_key(bytes(KEY)) == wk  # deterministic: both ends derive the same
     body = encode(Command(sid=1, seq=1, t=1.0))
     watch = master.watch()
-    assert MessageAuth(wk).verify(watch.sign(body, "bipedtele/nao1/status"), "bipedtele/nao1/status") == body
+    assert WatchAuth(wk).verify(watch.sign(body, "bipedtele/nao1/status"), "bipedtele/nao1/status") == body
     assert _reason(lambda: master.verify(MessageAuth(wk).sign(body, TOPIC), TOPIC)) == "bad_mac"
     assert _reason(lambda: watch.verify(master.sign(body, TOPIC), TOPIC)) == "bad_mac"
     assert "hidden" in repr(watch)
@@ -190,3 +190,38 @@ def test_the_watch_key_verifies_video_and_status_and_signs_nothing_the_robot_obe
     os.chmod(d / "nao1.watch", 0o644)
     with pytest.raises(ConfigError, match=r"network\.watch_key_dir = .*nao1\.watch.*chmod 600"):
         load_watch_auths(NetworkConfig(watch_key_dir=str(d)), ["nao1"])
+
+
+def test_each_session_seals_video_under_a_watch_key_of_its_own() -> None:
+    """Per-session watch keys (key schedule in docs/network.md): a session's frames name its
+    epoch in clear and open under HKDF(watch key, epoch); the watch key's holder (an observer)
+    opens every session's, one session's key opens that session's only, and a leader pinned
+    to its bound follower's epoch refuses an earlier session's frames as ``old_session``."""
+    from bipedtele.auth import WATCH_MAGIC, WatchAuth, session_watch_key, watch_key
+
+    topic = "bipedtele/nao1/video"
+    master = MessageAuth(KEY)
+    earlier, now = master.watch(), master.watch()  # two follower processes
+    assert earlier.epoch != now.epoch
+    body = encode(Command(sid=1, seq=1, t=1.0))
+    old_frame, new_frame = earlier.sign(body, topic), now.sign(body, topic)
+    assert old_frame[:8] == WATCH_MAGIC + earlier.epoch and body not in old_frame
+    observer = WatchAuth(watch_key(KEY))
+    assert observer.verify(old_frame, topic) == body and observer.verify(new_frame, topic) == body
+    one_session = MessageAuth(session_watch_key(watch_key(KEY), now.epoch), WATCH_MAGIC, kid=now.epoch)
+    assert one_session.verify(new_frame, topic) == body
+    assert _reason(lambda: one_session.verify(old_frame, topic)) == "bad_mac"
+    leader = master.watch()
+    bound: list[bytes | None] = [None]
+    video = leader.pinned(lambda: bound[0])
+    assert video.verify(old_frame, topic) == body  # no follower bound yet: the age bound and the gate decide
+    bound[0] = now.epoch
+    assert video.verify(new_frame, topic) == body
+    assert _reason(lambda: video.verify(old_frame, topic)) == "old_session"
+    assert video.verify(leader.sign(body, topic), topic) == body  # its own session's (status on a shared key)
+    assert _reason(lambda: video.verify(master.sign(body, topic), topic)) == "bad_mac"  # another kind of key
+    forged = bytearray(new_frame)
+    forged[-1] ^= 1
+    assert _reason(lambda: video.verify(bytes(forged), topic)) == "bad_mac"
+    other_robot = WatchAuth(watch_key(bytes(32)), now.epoch)
+    assert _reason(lambda: other_robot.verify(new_frame, topic)) == "bad_mac"

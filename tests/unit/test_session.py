@@ -302,3 +302,19 @@ def test_the_leaders_video_passes_only_the_bound_follower_session() -> None:
     cmd_gate = SequenceGate()
     assert live_checks(follower, node.keys.status, cmd_gate, None) == (cmd_gate, LIVE_MAX_AGE_S)
     assert live_checks(node, node.keys.cmd, cmd_gate, None) == (cmd_gate, None)
+
+
+def test_the_leader_learns_its_follower_sessions_watch_epoch_from_the_handshake() -> None:
+    """The follower's Hellos announce its watch epoch (sealed under the master key); the leader
+    keeps the one of the follower session it binds, and a replayed Hello of an earlier
+    follower session, with its own epoch, changes nothing."""
+    clock = Clock()
+    leader = Handshake("leader", 11, MASTER, clock=clock, wall=lambda: 1e9, watch_epoch=b"LEAD")
+    follower = Handshake("follower", 22, MASTER, clock=clock, wall=lambda: 1e9, watch_epoch=b"FOL1")
+    assert leader.peer_watch_epoch is None
+    _exchange(leader, follower)
+    assert leader.complete and leader.peer_watch_epoch == b"FOL1"
+    old = Hello(sid=21, seq=9, t=1e9, role="follower", nonce=bytes(32 * [5]), peer_sid=11,
+                peer_nonce=leader.nonce, watch=b"OLD!")  # fmt: skip
+    leader.on_hello(old)
+    assert leader.peer_sid == 22 and leader.peer_watch_epoch == b"FOL1"
