@@ -153,6 +153,7 @@ class Node:
         self._session: zenoh.Session | None = None
         self._pubs: Publishers | None = None
         self._relink: RelinkSession | None = None
+        self._control_next, self._control_words = -float("inf"), "none"
         self._peer: PresenceWatcher | None = None
 
     # ------------------------------------------------------------------ lifetime
@@ -203,6 +204,19 @@ class Node:
             return describe_control(list(self._session.info.links()))
         except zenoh.ZError:
             return "none"
+
+    def control_words(self, now: float) -> str | None:
+        """Return :attr:`control_link` for a status line, looked up at most once a second.
+
+        ``now`` is any clock in seconds; None where the session does not watch a control
+        link of its own (not a split layout).
+        """
+        if self._relink is None:
+            return None
+        if now >= self._control_next:
+            self._control_next = now + 1.0
+            self._control_words = self._relink.control_now()
+        return self._control_words
 
     @property
     def reopens(self) -> int:

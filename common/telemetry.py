@@ -73,6 +73,10 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
         How many times the robot was stopped for old feedback.
     link_lost_s : float or None
         State ``lost``: time since the last feedback arrived [s].
+    control_link : str or None
+        The link that carries control from this leader (:func:`bipedtele.relink.describe_control`:
+        ``udp``, ``tls``, ``tcp``, ``PROTO (shared)`` when control moved onto another link,
+        ``none``); unset without a router (peer mode) or before the session opened.
     fb_age_ms : float or None
         Age of the newest feedback accepted: now minus its send time on the leader's clock [ms].
     loss_pct : float or None
@@ -166,6 +170,9 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     blind: Annotated[str | None, _d("why the robot is stopped for old feedback (unset: it is not)")] = None
     blind_stops: Annotated[int | None, _d("times the robot was stopped for old feedback")] = None
     link_lost_s: Annotated[float | None, _d("state lost: time since the last feedback arrived [s]")] = None
+    control_link: Annotated[str | None, _d("the link that carries control (udp, tls, tcp, PROTO (shared), none)")] = (
+        None
+    )
     fb_age_ms: Annotated[float | None, _d("age of the newest feedback accepted, since it was sent [ms]")] = None
     loss_pct: Annotated[float | None, _d("feedback lost over the last 2 s [%]")] = None
     rx_kbps: Annotated[float | None, _d("payload received over the last 2 s (goodput) [kbit/s]")] = None

@@ -452,6 +452,7 @@ class LeaderApp:
                 sample.ahead_dt = ahead.t - now.t
         if self.aux is not None:
             self.aux.fill(sample)
+        sample.control_link = self.node.control_words(sample.t)  # split layouts: which link carries control
         if self.cockpit is not None:
             self.cockpit.publish_sample(sample)
         self.node.record("leader/state", sample, sample.t)

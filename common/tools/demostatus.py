@@ -5,7 +5,7 @@ The leader's recorder closes an MCAP chunk and flushes the file about once a sec
 since its last call (no re-reading, no seeking back), :class:`LiveStatus` folds them into
 the figures of one line and :func:`format_status` writes it::
 
-    passes 3/10 | 64 s | h1+h2 372 ms | falls 0 | contacts 0 | err fwd 0.71 cm/s, turn 5.20 deg/s | link ok: fb age 312 ms, loss 0.0 %, 850 kbit/s, video 9.8 fps q60
+    passes 3/10 | 64 s | h1+h2 372 ms | falls 0 | contacts 0 | err fwd 0.71 cm/s, turn 5.20 deg/s | link ok: fb age 312 ms, loss 0.0 %, 850 kbit/s, video 9.8 fps q60, control udp
 
 Figures (all from the leader's recording):
 
@@ -21,8 +21,9 @@ Figures (all from the leader's recording):
   at ``err``): the latest sample's link state in words (``ok``, ``lossy``,
   ``capacity-limited``, ``stale``, ``link lost for 3.2 s``, ``no follower``, ``waiting``),
   the age of the newest feedback [ms], the feedback loss over the last 2 s [%], the goodput
-  received [kbit/s] and the video frames per second received with the follower's JPEG
-  quality; an unknown figure shows as ``-``.
+  received [kbit/s], the video frames per second received with the follower's JPEG
+  quality and, with a router, the link that carries control (``control udp``; ``tls
+  (shared)`` when control moved onto the status link); an unknown figure shows as ``-``.
 """
 
 from __future__ import annotations
@@ -134,6 +135,7 @@ class LiveStatus:
     rx_kbps: float | None = None
     video_fps: float | None = None
     video_quality: int | None = None
+    control_link: str | None = None
     _err_sum: tuple[float, float] = (0.0, 0.0)
     _err_n: int = 0
 
@@ -174,6 +176,7 @@ class LiveStatus:
             self.fb_age_ms, self.loss_pct = _num(sample.fb_age_ms), _num(sample.loss_pct)
             self.rx_kbps, self.video_fps = _num(sample.rx_kbps), _num(sample.video_fps)
             self.video_quality = sample.video_quality
+            self.control_link = sample.control_link
 
     @property
     def errors(self) -> tuple[float, float] | None:
@@ -203,7 +206,8 @@ def format_status(st: LiveStatus, elapsed_s: float) -> str:
         video += f" q{st.video_quality}"
     words = link_words(st.link, st.link_lost_s)
     words = words if words.startswith("link ") else f"link {words}"
-    return f"{line} | {words}: fb age {age}, loss {loss}, {rx}, video {video}"
+    control = "" if st.control_link is None else f", control {st.control_link}"
+    return f"{line} | {words}: fb age {age}, loss {loss}, {rx}, video {video}{control}"
 
 
 class StatusPrinter:

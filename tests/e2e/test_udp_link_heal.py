@@ -161,8 +161,9 @@ def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tm
     router.wait_log(r"router: \S+ listening on", 30.0)
     follower = procs.start("follower", ["follower", "--config", f"{setup}/robot/bipedtele.toml", *NO_VIDEO,
                                        "--record", str(f_rec)], netns=hosts.robot_ns)  # fmt: skip
-    leader = procs.start("leader", ["leader", "--config", f"{setup}/operator/bipedtele.toml", *walking_script(5.0)],
-                         netns=hosts.router_ns)  # fmt: skip
+    l_rec = tmp_path / "leader.mcap"
+    leader = procs.start("leader", ["leader", "--config", f"{setup}/operator/bipedtele.toml", *walking_script(5.0),
+                                    "--record", str(l_rec)], netns=hosts.router_ns)  # fmt: skip
     follower.wait_log(r"follower \S+ ready", 60.0)
     leader.wait_log(r"leader ready", 60.0)
     wait_recorded_state(f_rec, "walking", 0.0, timeout_s=40.0, hold_s=1.5)
@@ -187,6 +188,9 @@ def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tm
     time.sleep(1.5)
     last = counters(list(read_records(f_rec)))[-1][1]
     assert last["control_link"] == 1 and last["relinks"] == 3, last
+    # and so does the leader's status line (its recorded samples): control on its own UDP link
+    controls = [r.data.get("control_link") for r in read_records(l_rec) if r.topic == "leader/state"]
+    assert controls and controls[-1] == "udp", controls[-5:]
     # nobody was restarted, nothing crashed
     for p in (router, follower, leader):
         assert p.alive() and p.pid == pids[p.name], p.tail()

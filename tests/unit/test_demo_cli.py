@@ -81,6 +81,10 @@ def test_status_line_tells_the_link_in_words() -> None:
     assert "| link capacity-limited: fb age -, loss -, 400 kbit/s, video -" in format_status(st, 7.0)
     st.add("leader/state", {"t": 4.0, "h1_ms": 100.0})  # a sample without the link keeps the last one
     assert "capacity-limited" in format_status(st, 8.0)
+    st.add("leader/state", {"t": 5.0, "link": "ok", "control_link": "udp"})  # split layout: control on UDP
+    assert format_status(st, 9.0).endswith("video -, control udp")
+    st.add("leader/state", {"t": 6.0, "link": "ok", "control_link": "tls (shared)"})
+    assert format_status(st, 10.0).endswith(", control tls (shared)")
 
 
 def _wait_records(tail: RecordingTail, n: int, timeout_s: float = 10.0) -> list[tuple[str, dict]]:
