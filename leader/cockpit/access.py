@@ -134,9 +134,10 @@ class Access:
             if isinstance(protocol, GuardedHandler):
                 protocol.hold(self.limits.hold_s)  # this answer, then nothing more for a while
             return web.Response(
-                status=429, text="bipedtele cockpit: too many refused requests; try again later\n",
+                status=429,
+                text="bipedtele cockpit: too many refused requests; try again later\n",
                 headers={"Retry-After": str(round(self.limits.lockout_s))},
-            )  # fmt: skip
+            )
         if bad_token and guard.failed(addr, now):
             self._refusals.drop("locked_out", f"{addr} for {self.limits.lockout_s:g} s")
         return None
@@ -158,15 +159,19 @@ class Access:
                 return limited
         if not host_ok:
             raise self._refuse(
-                "refused_host", "bad_host", f"Host {str(host)[:80]!r} from {request.remote}",
+                "refused_host",
+                "bad_host",
+                f"Host {str(host)[:80]!r} from {request.remote}",
                 "this Host is not allowed (allowed: the listen address, localhost, 127.0.0.1, [::1] "
                 "and leader.cockpit_allowed_hosts)",
-            )  # fmt: skip
+            )
         if not token_ok:
             raise self._refuse(
-                "refused_token", "bad_token" if given else "no_token", f"{request.path} from {request.remote}",
+                "refused_token",
+                "bad_token" if given else "no_token",
+                f"{request.path} from {request.remote}",
                 "open the address the leader printed: http://HOST:PORT/?token=TOKEN",
-            )  # fmt: skip
+            )
         if isinstance(request.protocol, GuardedHandler):
             request.protocol.trust()  # the token holder's connection is never closed to make room
         response = await handler(request)

@@ -77,9 +77,11 @@ class Feed(Access):
                 return limited
             origin = request.headers.get("Origin")
             raise self._refuse(
-                "refused_origin", "bad_origin" if origin else "no_origin", f"Origin {str(origin)[:80]!r}",
+                "refused_origin",
+                "bad_origin" if origin else "no_origin",
+                f"Origin {str(origin)[:80]!r}",
                 "websocket refused: it needs the Origin of this page (a browser sends it)",
-            )  # fmt: skip
+            )
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=64 * 1024)
         client = _Client(ws)
         if len(self._clients) >= self.max_clients:

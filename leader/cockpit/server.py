@@ -66,6 +66,19 @@ LOG = logging.getLogger("bipedtele.leader.cockpit")
 
 #: Listen addresses that are not a name a browser uses.
 _WILDCARDS = ("", "0.0.0.0", "::")
+#: The server's own counters (:attr:`CockpitServer.stats`), each from 0.
+_COUNTERS = (
+    "frames_pushed",
+    "samples_pushed",
+    "joystick_messages",
+    "hand_messages",
+    "pad_messages",
+    "connections",
+    "refused_host",
+    "refused_token",
+    "refused_origin",
+    "refused_full",
+)
 _STATIC = ("index.html", "app.js", "plot.js", "map.js", "pad.js", "style.css")
 _CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
 
@@ -193,16 +206,14 @@ class CockpitServer(Feed):
         self._clients: set[_Client] = set()
         self._drops = DropCounter("cockpit/ws")
         self._refusals = DropCounter("cockpit/http")
-        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "hand_messages": 0, "pad_messages": 0, "connections": 0,
-                          "refused_host": 0, "refused_token": 0, "refused_origin": 0, "refused_full": 0}  # fmt: skip
+        self._counters = dict.fromkeys(_COUNTERS, 0)
         self._descriptors: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
         self._stopping: asyncio.Event | None = None
         self._port = 0
-        self._static = {name: resources.files(__package__).joinpath("static", name).read_bytes()
-                        for name in _STATIC}  # fmt: skip
+        self._static = {name: resources.files(__package__).joinpath("static", name).read_bytes() for name in _STATIC}
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -369,8 +380,13 @@ class CockpitServer(Feed):
         app.router.add_get("/healthz", self._healthz)
         app.router.add_get("/favicon.ico", self._no_content)
         app.router.add_get("/video/{camera}.jpg", self._video_jpeg)
-        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=1.0,
-                               keepalive_timeout=self.limits.idle_timeout_s)  # fmt: skip
+        runner = web.AppRunner(
+            app,
+            handle_signals=False,
+            access_log=None,
+            shutdown_timeout=1.0,
+            keepalive_timeout=self.limits.idle_timeout_s,
+        )
         await runner.setup()
         self._runner = runner
         listener: socket.socket | None = None
@@ -383,8 +399,9 @@ class CockpitServer(Feed):
             def connection(addr: str) -> GuardedHandler:
                 return GuardedHandler(manager, guard=guard, addr=addr, loop=loop, **kwargs)
 
-            infos = await loop.getaddrinfo(self.host or None, self._req_port, type=socket.SOCK_STREAM,
-                                           flags=socket.AI_PASSIVE)  # fmt: skip
+            infos = await loop.getaddrinfo(
+                self.host or None, self._req_port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+            )
             family, _, _, _, address = infos[0]
             listener = socket.socket(family, socket.SOCK_STREAM)
             listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

@@ -18,6 +18,21 @@ from bipedtele.follower.sim.poincare.sweep import operating_point
 LOG = logging.getLogger(__name__)
 
 
+#: The table's fields, each a nested list ``[sigma][tau][T]`` (:func:`walker_table`).
+_FIELDS = (
+    "rho",
+    "limit_cycle",
+    "fallen",
+    "forward_std",
+    "turn_std",
+    "speed",
+    "turn_rate",
+    "residual",
+    "spread",
+    "contraction",
+)
+
+
 def _table_point(args: tuple[float, float, float, float, ControlConfig, SimConfig, MapSettings]) -> dict[str, Any]:
     sigma, tau, T, eps, control, sim, settings = args
     r = walker_rho([sigma, tau], T, eps, control=control, sim=sim, settings=settings)
@@ -95,15 +110,13 @@ def walker_table(
     def field(key: str) -> list[list[list[Any]]]:
         return [[[rows[(i * nt + j) * n_t + k][key] for k in range(n_t)] for j in range(nt)] for i in range(ns)]
 
-    keys = ("rho", "limit_cycle", "fallen", "forward_std", "turn_std", "speed", "turn_rate", "residual", "spread",
-            "contraction")  # fmt: skip
     return {
         "format": TABLE_FORMAT,
         "sigma": axes[0],
         "tau": axes[1],
         "T": axes[2],
         "eps": float(eps),
-        **{k: field(k) for k in keys},
+        **{k: field(k) for k in _FIELDS},
         "settings": _table_settings(st, sim, control),
         "wall_s": time.perf_counter() - t0,
     }
@@ -118,8 +131,12 @@ def _table_rows(tasks: list[Any], order: list[int], jobs: int) -> list[dict[str,
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             for k, row in zip(order, pool.map(_table_point, [tasks[i] for i in order]), strict=True):
                 rows[k] = row
-                LOG.info("table: sigma %.2f tau %.2f T %.2f: rho %.3f%s", *tasks[k][:3], row["rho"],
-                         " limit cycle" if row["limit_cycle"] else "")  # fmt: skip
+                LOG.info(
+                    "table: sigma %.2f tau %.2f T %.2f: rho %.3f%s",
+                    *tasks[k][:3],
+                    row["rho"],
+                    " limit cycle" if row["limit_cycle"] else "",
+                )
     else:
         for k in order:
             rows[k] = _table_point(tasks[k])
