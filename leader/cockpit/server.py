@@ -16,75 +16,36 @@ Endpoints
 ``/video/NAME.jpg``  the latest JPEG of a camera (404 before the first frame)
 ``/healthz``     ``{"ok": true, "clients": n, ...}``
 
-Websocket protocol
-------------------
-Server to browser:
-
-- text ``{"type": "hello", "telemetry_hz": f, "keys": [...], "course": [[x, y, r], ...]}``
-  on connect (``course``: the task's obstacles for the map, metres; empty when unknown);
-- text ``{"type": "samples", "samples": [sample, ...]}``: new telemetry samples (a late
-  client first gets the last ``history_s`` seconds); non-finite numbers are sent as null;
-- binary video frame: ``b"VF"``, u8 name length, camera name (ASCII), f64 capture time [s]
-  (little endian), u32 frame number, then the JPEG bytes.
-
-Browser to server: text ``{"type": "joy", "x": x, "y": y}`` with x, y in [-1, 1]; x is
-right-positive, y is up-positive (up = forward). The page re-sends the held position every
-100 ms and sends (0, 0) on release. Text ``{"type": "hand", "release": true|false}``: the
-buttons Release (give the robot up: another operator may take it) and Take (drive it
-again, once it is free; docs/fleet.md, Hand-over). Anything else (binary, not JSON, unknown type, bad or
-out-of-range numbers, over 1 KiB) is dropped and counted (:attr:`CockpitServer.stats`).
-
-Access
-------
-The cockpit shows the robot's camera and, with the browser operator, drives the robot, so
-every request is checked (``docs/cockpit.md``):
-
-- **Host allow-list.** The ``Host`` header must name this server: the listen address,
-  ``localhost``, ``127.0.0.1``, ``[::1]`` or one of ``allowed_hosts``. A web page whose
-  name an attacker re-points at this machine (DNS rebinding) sends its own name as Host
-  and is refused (403).
-- **Per-run token.** A random token (``secrets.token_urlsafe``) is part of the printed
-  address, ``http://HOST:PORT/?token=TOKEN``, as notebook servers do. Every request must
-  carry it: the ``token`` query parameter, else the cookie the first page load sets
-  (``HttpOnly``, ``SameSite=Strict``; the page's scripts, style sheet and websocket then
-  carry it). Compared in constant time (:func:`hmac.compare_digest`); missing or wrong: 403.
-- **Origin.** A websocket upgrade must carry an ``Origin`` (every browser sends one) whose
-  scheme is http(s) and whose host and port are the request's (allowed) ``Host``; no Origin,
-  ``null`` or another site's: 403.
-- **Client cap.** At most ``max_clients`` websockets at once (each gets every frame, in
-  the process that runs the haptic loop); the next one is accepted only to be told
-  ``{"type": "refused", "reason": ...}`` and closed with code 1013 ("try again later").
-- **Framing and headers.** Every response carries ``Content-Security-Policy`` (same-origin
-  scripts, styles and connections, ``frame-ancestors 'none'``), ``X-Frame-Options: DENY``,
-  ``X-Content-Type-Options: nosniff`` and ``Referrer-Policy: no-referrer``.
-
-Refusals are counted (:attr:`CockpitServer.stats`) and logged at most once per reason
-per 5 s.
+Modules
+-------
+The websocket protocol and the checks of a browser's messages are
+:mod:`bipedtele.leader.cockpit.protocol`'s, who may connect (Host, token, Origin, headers)
+:mod:`bipedtele.leader.cockpit.access`'s, the websocket feed
+:mod:`bipedtele.leader.cockpit.feed`'s; this module starts, stops and publishes, wires the
+guard, the routes and the listening socket, and serves the page's files. Every name these
+modules export is importable from here.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import hmac
 import itertools
-import json
 import logging
 import math
 import secrets
 import socket
-import struct
 import threading
-import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from importlib import resources
 from typing import Any
-from urllib.parse import urlsplit
 
-from aiohttp import WSMsgType, web
+from aiohttp import web
 from bipedtele.drops import DropCounter
 from bipedtele.foxglovews import parse_host
+from bipedtele.leader.cockpit.access import LOCAL_HOSTS, check_token
+from bipedtele.leader.cockpit.feed import Feed, _Client
 from bipedtele.leader.cockpit.guard import (
     ERR_LOG,
     Guard,
@@ -94,44 +55,32 @@ from bipedtele.leader.cockpit.guard import (
     accept_loop,
     descriptor_budget,
 )
-from bipedtele.telemetry import LeaderSample, sample_to_json
+from bipedtele.leader.cockpit.protocol import PAD_SOURCES, SAMPLE_KEYS, EncodedSample
+from bipedtele.leader.cockpit.protocol import _parse_in as _parse_in
+from bipedtele.leader.cockpit.protocol import _sample_json as _sample_json
+from bipedtele.telemetry import LeaderSample
 
-__all__ = ["LOCAL_HOSTS", "SAMPLE_KEYS", "CockpitServer", "EncodedSample"]
+__all__ = ["LOCAL_HOSTS", "PAD_SOURCES", "SAMPLE_KEYS", "CockpitServer", "EncodedSample", "check_token"]
 
 LOG = logging.getLogger("bipedtele.leader.cockpit")
 
-#: Telemetry keys the page plots or shows (others are shown as text). Units in docs/cockpit.md.
-SAMPLE_KEYS: tuple[str, ...] = (
-    "t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v", "force_w",
-    "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
-    "state", "link", "link_lost_s", "fb_age_ms", "loss_pct", "rx_kbps", "tx_kbps", "video_fps", "video_quality",
-    "watchdog", "falls", "passes_done",
-    "pose_x", "pose_y", "pose_yaw", "pred_x", "pred_y", "pred_yaw", "ahead_x", "ahead_y", "ahead_yaw", "ahead_dt",
-)  # fmt: skip
-
-_MAX_IN_TEXT = 1024
-_VIDEO_MAGIC = b"VF"
-_STATIC = ("index.html", "app.js", "plot.js", "map.js", "pad.js", "style.css")
-_CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
-
-#: Host names always allowed in the ``Host`` header (loopback).
-LOCAL_HOSTS: tuple[str, ...] = ("localhost", "127.0.0.1", "::1")
 #: Listen addresses that are not a name a browser uses.
 _WILDCARDS = ("", "0.0.0.0", "::")
-#: Sent with every response: the page may load only its own files and talk only to this
-#: server, and no other site may frame it (clickjacking the joystick).
-_SECURITY_HEADERS = {
-    "Content-Security-Policy": (
-        "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob:; "
-        "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
-    ),
-    "X-Frame-Options": "DENY",
-    "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
-}
-_MIN_TOKEN_LEN = 16
-_TOKEN_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
-_Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+#: The server's own counters (:attr:`CockpitServer.stats`), each from 0.
+_COUNTERS = (
+    "frames_pushed",
+    "samples_pushed",
+    "joystick_messages",
+    "hand_messages",
+    "pad_messages",
+    "connections",
+    "refused_host",
+    "refused_token",
+    "refused_origin",
+    "refused_full",
+)
+_STATIC = ("index.html", "app.js", "plot.js", "map.js", "pad.js", "style.css")
+_CONTENT_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
 
 
 def _loop_error(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
@@ -149,98 +98,6 @@ def _throttle_logs(interval_s: float) -> None:
             logger.addFilter(Throttle(interval_s))
 
 
-def check_token(token: str) -> str:
-    """Return ``token`` if it can be a cockpit token (URL-safe characters, at least 16).
-
-    Raises ValueError naming what is allowed otherwise.
-    """
-    if len(token) < _MIN_TOKEN_LEN or not set(token) <= _TOKEN_CHARS:
-        raise ValueError(f"allowed: at least {_MIN_TOKEN_LEN} characters of A-Z a-z 0-9 - _")
-    return token
-
-
-def _clean(value: Any) -> Any:
-    """Copy a telemetry value into JSON-safe form (non-finite -> None, unknown -> str)."""
-    if isinstance(value, bool) or value is None or isinstance(value, str):
-        return value
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if hasattr(value, "tolist"):
-        return _clean(value.tolist())
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value[:64]]
-    if isinstance(value, Mapping):
-        return {str(k): _clean(v) for k, v in list(value.items())[:64]}
-    return str(value)[:200]
-
-
-class EncodedSample(str):
-    """A telemetry sample already encoded as JSON text (the cockpit process is fed these)."""
-
-
-def _sample_json(sample: LeaderSample | EncodedSample | dict[str, Any]) -> str:
-    """Return one telemetry sample as JSON text (non-finite numbers as null)."""
-    if isinstance(sample, EncodedSample):
-        return str(sample)
-    if isinstance(sample, LeaderSample):
-        return sample_to_json(sample).decode()
-    return json.dumps({str(k): _clean(v) for k, v in sample.items()}, allow_nan=False)
-
-
-#: Where a ``pad`` message comes from (the page's Gamepad API, or its keyboard).
-PAD_SOURCES = ("gamepad", "keyboard")
-
-
-def _parse_pad(msg: dict[str, Any]) -> tuple[str, float, float, bool]:
-    """Validate a ``pad`` message's fields: ``(src, x, y, held)``; ValueError(reason) when bad."""
-    src = msg.get("src")
-    if src not in PAD_SOURCES:
-        raise ValueError("bad_pad")
-    held = msg.get("held")
-    if not isinstance(held, bool):
-        raise ValueError("bad_pad")
-    x, y = _numbers(msg)
-    return str(src), x, y, held
-
-
-def _numbers(msg: dict[str, Any]) -> tuple[float, float]:
-    out = []
-    for key in ("x", "y"):
-        v = msg.get(key)
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise ValueError("bad_number")
-        if not -1.0 <= v <= 1.0:
-            raise ValueError("out_of_range")
-        out.append(float(v))
-    return out[0], out[1]
-
-
-def _parse_in(text: str) -> tuple[float, float] | bool | tuple[str, float, float, bool]:
-    """Validate one browser message.
-
-    Returns ``(x, y)`` of a joystick one, the flag of a hand one, ``(src, x, y, held)`` of a
-    pad one. Raises ValueError(reason) when it is bad.
-    """
-    if len(text) > _MAX_IN_TEXT:
-        raise ValueError("too_long")
-    try:
-        msg = json.loads(text)
-    except (ValueError, RecursionError):
-        raise ValueError("not_json") from None
-    if isinstance(msg, dict) and msg.get("type") == "pad":
-        return _parse_pad(msg)
-    if isinstance(msg, dict) and msg.get("type") == "hand":
-        release = msg.get("release")
-        if not isinstance(release, bool):
-            raise ValueError("bad_hand")
-        return release
-    if not isinstance(msg, dict) or msg.get("type") != "joy":
-        raise ValueError("unknown_type")
-    return _numbers(msg)
-
-
 def _check_figures(telemetry_hz: float, history_s: float, port: int, max_clients: int, force_max_n: float) -> None:
     """Raise ValueError naming the first of the server's figures out of its range."""
     if not (math.isfinite(telemetry_hz) and 1.0 <= telemetry_hz <= 100.0):
@@ -255,17 +112,7 @@ def _check_figures(telemetry_hz: float, history_s: float, port: int, max_clients
         raise ValueError(f"force_max_n must be > 0 N, got {force_max_n!r}")
 
 
-class _Client:
-    """One browser connection: what it has already been sent."""
-
-    def __init__(self, ws: web.WebSocketResponse) -> None:
-        self.ws = ws
-        self.last_sample = -1
-        self.last_frame: dict[str, int] = {}
-        self.wake = asyncio.Event()  # set when a new video frame is there
-
-
-class CockpitServer:
+class CockpitServer(Feed):
     """The leader's browser cockpit, served from a background thread.
 
     Parameters
@@ -359,16 +206,14 @@ class CockpitServer:
         self._clients: set[_Client] = set()
         self._drops = DropCounter("cockpit/ws")
         self._refusals = DropCounter("cockpit/http")
-        self._counters = {"frames_pushed": 0, "samples_pushed": 0, "joystick_messages": 0, "hand_messages": 0, "pad_messages": 0, "connections": 0,
-                          "refused_host": 0, "refused_token": 0, "refused_origin": 0, "refused_full": 0}  # fmt: skip
+        self._counters = dict.fromkeys(_COUNTERS, 0)
         self._descriptors: dict[str, int] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._runner: web.AppRunner | None = None
         self._stopping: asyncio.Event | None = None
         self._port = 0
-        self._static = {name: resources.files(__package__).joinpath("static", name).read_bytes()
-                        for name in _STATIC}  # fmt: skip
+        self._static = {name: resources.files(__package__).joinpath("static", name).read_bytes() for name in _STATIC}
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -391,11 +236,6 @@ class CockpitServer:
     def url(self) -> str:
         """The address to open: ``http://host:port/?token=TOKEN``."""
         return f"{self.base_url}?token={self.token}"
-
-    @property
-    def cookie_name(self) -> str:
-        """Name of the token cookie (per port: cookies do not tell ports apart)."""
-        return f"bipedtele_cockpit_{self._port}"
 
     def start(self, timeout_s: float = 10.0) -> CockpitServer:
         """Start the server thread and wait until it listens.
@@ -471,10 +311,6 @@ class CockpitServer:
             with contextlib.suppress(RuntimeError):  # the loop closed while stopping
                 loop.call_soon_threadsafe(self._wake_clients)
 
-    def _wake_clients(self) -> None:
-        for client in list(self._clients):
-            client.wake.set()
-
     def joystick(self) -> tuple[float, float, float] | None:
         """Return ``(x, y, t)``: the virtual joystick and when it last changed.
 
@@ -544,8 +380,13 @@ class CockpitServer:
         app.router.add_get("/healthz", self._healthz)
         app.router.add_get("/favicon.ico", self._no_content)
         app.router.add_get("/video/{camera}.jpg", self._video_jpeg)
-        runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=1.0,
-                               keepalive_timeout=self.limits.idle_timeout_s)  # fmt: skip
+        runner = web.AppRunner(
+            app,
+            handle_signals=False,
+            access_log=None,
+            shutdown_timeout=1.0,
+            keepalive_timeout=self.limits.idle_timeout_s,
+        )
         await runner.setup()
         self._runner = runner
         listener: socket.socket | None = None
@@ -558,8 +399,9 @@ class CockpitServer:
             def connection(addr: str) -> GuardedHandler:
                 return GuardedHandler(manager, guard=guard, addr=addr, loop=loop, **kwargs)
 
-            infos = await loop.getaddrinfo(self.host or None, self._req_port, type=socket.SOCK_STREAM,
-                                           flags=socket.AI_PASSIVE)  # fmt: skip
+            infos = await loop.getaddrinfo(
+                self.host or None, self._req_port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+            )
             family, _, _, _, address = infos[0]
             listener = socket.socket(family, socket.SOCK_STREAM)
             listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -585,123 +427,6 @@ class CockpitServer:
 
     def _conn_refused(self, reason: str, addr: str) -> None:
         self._refusals.drop(reason, addr)
-
-    async def _sampler(self) -> None:
-        """Take the latest sample every telemetry period into the history."""
-        last = 0
-        while True:
-            await asyncio.sleep(self._period)
-            latest = self._sample
-            if latest is not None and latest[0] != last:
-                last = latest[0]
-                self._history.append((last, _sample_json(latest[1])))
-
-    # ------------------------------------------------------------------ access
-
-    def _refuse(self, counter: str, reason: str, detail: str, text: str) -> web.HTTPForbidden:
-        self._counters[counter] += 1
-        self._refusals.drop(reason, detail)
-        return web.HTTPForbidden(text=f"bipedtele cockpit: {text}\n")
-
-    def _host_ok(self, host: str | None) -> bool:
-        parsed = parse_host(host) if host else None
-        return parsed is not None and parsed[0] in self.allowed_hosts
-
-    def _token_ok(self, given: str) -> bool:
-        try:
-            data = given.encode("ascii")
-        except UnicodeEncodeError:
-            return False
-        return hmac.compare_digest(data, self._token_bytes)
-
-    async def _limited(self, request: web.Request, *, bad_token: bool) -> web.StreamResponse | None:
-        """Count a refused request (against its address if ``bad_token``); its answer when limited.
-
-        An address locked out by failed tokens (``fail_max`` in ``fail_window_s``) gets 429
-        for ``lockout_s`` instead of the reason; beyond the global budget of refusal answers
-        the connection is aborted unanswered. None: not limited, the caller refuses with
-        the reason.
-        """
-        guard, addr = self.guard, request.remote or "?"
-        if guard is None:
-            return None
-        now = time.monotonic()
-        protocol = request.protocol
-        if not guard.may_answer(now):
-            if isinstance(protocol, GuardedHandler):
-                protocol.hold(self.limits.hold_s)  # no answer: it waits, and guesses no more
-            await asyncio.sleep(self.limits.hold_s + 1.0)  # closed before: never answered
-            return web.Response(status=429)
-        if bad_token and guard.locked(addr, now):
-            guard.counters["refused_rate"] += 1
-            self._refusals.drop("rate_limited", addr)
-            if isinstance(protocol, GuardedHandler):
-                protocol.hold(self.limits.hold_s)  # this answer, then nothing more for a while
-            return web.Response(
-                status=429, text="bipedtele cockpit: too many refused requests; try again later\n",
-                headers={"Retry-After": str(round(self.limits.lockout_s))},
-            )  # fmt: skip
-        if bad_token and guard.failed(addr, now):
-            self._refusals.drop("locked_out", f"{addr} for {self.limits.lockout_s:g} s")
-        return None
-
-    @web.middleware
-    async def _guard(self, request: web.Request, handler: _Handler) -> web.StreamResponse:
-        """Host allow-list and token on every request; sets the token cookie.
-
-        A request with the right Host and token is always served; the others count against
-        their address (:meth:`_limited`).
-        """
-        host = request.headers.get("Host")
-        in_query = request.query.get("token")
-        given = in_query if in_query is not None else request.cookies.get(self.cookie_name)
-        host_ok, token_ok = self._host_ok(host), bool(given) and self._token_ok(given or "")
-        if not (host_ok and token_ok):
-            limited = await self._limited(request, bad_token=not token_ok)
-            if limited is not None:
-                return limited
-        if not host_ok:
-            raise self._refuse(
-                "refused_host", "bad_host", f"Host {str(host)[:80]!r} from {request.remote}",
-                "this Host is not allowed (allowed: the listen address, localhost, 127.0.0.1, [::1] "
-                "and leader.cockpit_allowed_hosts)",
-            )  # fmt: skip
-        if not token_ok:
-            raise self._refuse(
-                "refused_token", "bad_token" if given else "no_token", f"{request.path} from {request.remote}",
-                "open the address the leader printed: http://HOST:PORT/?token=TOKEN",
-            )  # fmt: skip
-        if isinstance(request.protocol, GuardedHandler):
-            request.protocol.trust()  # the token holder's connection is never closed to make room
-        response = await handler(request)
-        if in_query is not None and not response.prepared:
-            response.set_cookie(self.cookie_name, self.token, httponly=True, samesite="Strict", path="/")
-        return response
-
-    async def _add_headers(self, request: web.Request, response: web.StreamResponse) -> None:
-        for key, value in _SECURITY_HEADERS.items():
-            response.headers.setdefault(key, value)
-
-    def _origin_ok(self, request: web.Request) -> bool:
-        """Tell whether the websocket's Origin is this very server as the browser reached it.
-
-        That is the Host header, already on the allow-list: scheme http(s), same host
-        and port.
-        """
-        origin = request.headers.get("Origin")
-        if not origin:
-            return False
-        try:
-            parts = urlsplit(origin)
-        except ValueError:
-            return False
-        if parts.scheme not in ("http", "https") or parts.path not in ("", "/") or parts.query:
-            return False
-        got, want = parse_host(parts.netloc), parse_host(request.headers.get("Host", ""))
-        if got is None or want is None or got[0] not in self.allowed_hosts:
-            return False
-        default = 443 if parts.scheme == "https" else 80
-        return got[0] == want[0] and (got[1] or default) == (want[1] or default)
 
     # ------------------------------------------------------------------ handlers
 
@@ -734,121 +459,3 @@ class CockpitServer:
         if frame is None:
             raise web.HTTPNotFound(text="no frame yet")
         return web.Response(body=frame[2], content_type="image/jpeg", headers={"Cache-Control": "no-store"})
-
-    async def _websocket(self, request: web.Request) -> web.StreamResponse:
-        if not self._origin_ok(request):
-            limited = await self._limited(request, bad_token=False)
-            if limited is not None:
-                return limited
-            origin = request.headers.get("Origin")
-            raise self._refuse(
-                "refused_origin", "bad_origin" if origin else "no_origin", f"Origin {str(origin)[:80]!r}",
-                "websocket refused: it needs the Origin of this page (a browser sends it)",
-            )  # fmt: skip
-        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=64 * 1024)
-        client = _Client(ws)
-        if len(self._clients) >= self.max_clients:
-            self._counters["refused_full"] += 1
-            self._refusals.drop("too_many_clients", f"{request.remote}")
-            reason = f"too many cockpit clients (at most {self.max_clients}); close another tab and reload"
-            await ws.prepare(request)
-            await ws.send_str(json.dumps({"type": "refused", "reason": reason}))
-            await ws.close(code=1013, message=reason.encode()[:120])
-            return ws
-        self._clients.add(client)  # before any await: the cap holds for concurrent upgrades
-        try:
-            await ws.prepare(request)
-        except BaseException:
-            self._clients.discard(client)
-            raise
-        self._counters["connections"] += 1
-        pusher: asyncio.Task[None] | None = None
-        moved_joystick = False
-        try:
-            await ws.send_str(
-                json.dumps(
-                    {
-                        "type": "hello",
-                        "telemetry_hz": self.telemetry_hz,
-                        "keys": SAMPLE_KEYS,
-                        "course": self.course,
-                        "force_max_n": self.force_max_n,
-                    }
-                )
-            )
-            pusher = asyncio.create_task(self._push(client))
-            async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
-                    moved_joystick |= self._on_text(msg.data)
-                elif msg.type == WSMsgType.BINARY:
-                    self._drops.drop("binary", f"{len(msg.data)} bytes")
-                elif msg.type == WSMsgType.ERROR:
-                    self._drops.drop("ws_error", str(ws.exception()))
-        finally:
-            if pusher is not None:
-                pusher.cancel()
-            self._clients.discard(client)
-            if moved_joystick and not any(True for _ in self._clients):
-                self._set_joy((0.0, 0.0, time.time()))  # the driver left: centre the stick
-        return ws
-
-    def _on_text(self, text: str) -> bool:
-        try:
-            got = _parse_in(text)
-        except ValueError as exc:
-            self._drops.drop(str(exc), text[:80])
-            return False
-        if isinstance(got, tuple) and len(got) == 4:
-            src, x, y, held = got
-            self._pad = (src, x, y, held, time.time())
-            self._counters["pad_messages"] += 1
-            if self._on_pad is not None:
-                self._on_pad(self._pad)
-            return False
-        if isinstance(got, bool):
-            self._counters["hand_messages"] += 1
-            if got != self._released:
-                self._released = got
-                if self._on_hand is not None:
-                    self._on_hand(got)
-            return False
-        x, y = got  # type: ignore[misc]
-        self._set_joy((x, y, time.time()))
-        self._counters["joystick_messages"] += 1
-        return True
-
-    def _set_joy(self, joy: tuple[float, float, float]) -> None:
-        self._joy = joy
-        if self._on_joystick is not None:
-            self._on_joystick(joy)
-
-    async def _push(self, client: _Client) -> None:
-        """Send a browser what is new.
-
-        Telemetry once per telemetry period, video frames as soon as they arrive (latest
-        only per camera).
-        """
-        ws = client.ws
-        loop = asyncio.get_running_loop()
-        next_samples = loop.time()
-        try:
-            while not ws.closed:
-                if loop.time() >= next_samples:
-                    next_samples = loop.time() + self._period
-                    new = [s for n, s in self._history if n > client.last_sample]
-                    if new:
-                        client.last_sample = self._history[-1][0]
-                        await ws.send_str('{"type":"samples","samples":[' + ",".join(new) + "]}")
-                        self._counters["samples_pushed"] += len(new)
-                client.wake.clear()
-                for camera, (n, t, jpeg) in list(self._frames.items()):
-                    if n > client.last_frame.get(camera, 0):
-                        client.last_frame[camera] = n
-                        name = camera.encode("ascii", "replace")[:255]
-                        head = _VIDEO_MAGIC + bytes([len(name)]) + name
-                        await ws.send_bytes(head + struct.pack("<dI", t, n & 0xFFFFFFFF) + jpeg)
-                        self._counters["frames_pushed"] += 1
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(client.wake.wait(), max(0.0, next_samples - loop.time()))
-        except (ConnectionError, RuntimeError) as exc:  # client went away mid-send
-            LOG.debug("cockpit: client push ended: %s", exc)

@@ -1,5 +1,5 @@
 // bipedtele cockpit page: websocket client, video, plots, status and the virtual joystick.
-// Protocol: see bipedtele/leader/cockpit/server.py. Page state for tests: window.cockpit.
+// Protocol: see bipedtele/leader/cockpit/protocol.py. Page state for tests: window.cockpit.
 "use strict";
 
 const KNOWN = new Set(["t", "ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v",
