@@ -1,0 +1,41 @@
+"""Time-domain passivity at both ports, as a mixin a scheme composes.
+
+A scheme that lists :class:`Passivity` before its coupling (``class Tdpa(Passivity,
+MeasuredSpeed)``) gets the impedance-type controller at the leader
+(:func:`~bipedtele.control.schemes.ports.leader_passivity`), the admittance-type controller
+at the follower (:func:`~bipedtele.control.schemes.ports.follower_passivity`), and sends its
+port's input energy with every message so that the other side's observer can run. The
+runners count each port's energy (:class:`~bipedtele.control.schemes.ports.EnergyCounter`)
+for every scheme; only a passivity scheme acts on it. Units as in
+:mod:`~bipedtele.control.schemes.ports`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from bipedtele.control.schemes.base import LeaderLaw, Scheme
+from bipedtele.control.schemes.ports import follower_passivity, leader_passivity
+from bipedtele.messages import MAX_ENERGY
+
+__all__ = ["Passivity"]
+
+
+class Passivity(Scheme):
+    """Passivity observers and controllers at both ports (Ryu, Artigas and Preusche; docs/schemes.md)."""
+
+    def limit_leader(
+        self, law: LeaderLaw, r_m: np.ndarray, observer: np.ndarray, k_m: np.ndarray, dt: float
+    ) -> LeaderLaw:
+        """Cut the force where the port would give out more than ``observer`` [N cm] this period."""
+        force = leader_passivity(law.force, r_m, observer, dt)
+        return LeaderLaw(force, np.asarray(r_m - force / k_m), law.received)
+
+    def limit_follower(
+        self, c: np.ndarray, eta: np.ndarray, observer: np.ndarray, k_m: np.ndarray, dt: float
+    ) -> np.ndarray:
+        """Clip the command so the port gives the robot at most ``observer`` [N cm] this period."""
+        return follower_passivity(c, eta, observer, k_m, dt)
+
+    def energy_sent(self, e_in: np.ndarray) -> list[float] | None:
+        """Return the port's input energy [N cm] as sent: bounded by what a message may carry."""
+        return [min(float(x), MAX_ENERGY) for x in e_in]
