@@ -1,8 +1,8 @@
 """The real loops' ports and the comparison's many-run wiring give the same outputs, for every scheme.
 
 ``LeaderPort`` / ``FollowerPort`` (one run, shape ``(2,)``) against the same scheme methods
-called the way :mod:`bipedtele.control.compare` calls them on all runs at once (shape
-``(n, 2)``, one :class:`EnergyCounter` for the runs), over a seeded sequence of messages:
+called on all runs at once as :mod:`bipedtele.control.compare` calls them (shape ``(n,
+2)``, one :class:`EnergyCounter` for the runs, counted by the scheme as the loops count it), over a seeded sequence of messages:
 the speed the handle follows, the robot's command, and every field the next messages carry
 agree to 1e-12 on every period.
 """
@@ -44,8 +44,8 @@ def test_the_leader_port_is_the_many_run_law_run_by_run(name: str) -> None:
         gain = ports[0].wave_gain.gain
         signal = np.stack([scheme.read_feedback(z_e[i], eta[i], wave[i]) for i in range(RUNS)])
         law = scheme.leader_force(r, signal, gain, K_M)
-        law = scheme.limit_leader(law, r, many.observer(energy), K_M, DT)
-        many.add(law.force * r, DT, energy)
+        law = scheme.limit_leader(law, r, many, energy, K_M, DT)
+        scheme.count_leader(many, law, r, energy, DT)
         assert _close(np.stack(follow), law.follow), f"period {k}"
         r_next = r + 0.1
         sent = [p.outgoing(r_next[i]) for i, p in enumerate(ports)]
@@ -69,8 +69,8 @@ def test_the_follower_port_is_the_many_run_law_run_by_run(name: str) -> None:
         c_one = [p.command(ref[i], eta[i], wave[i], energy[i], t_sent, t_recv, DT) for i, p in enumerate(ports)]
         gain = ports[0].wave_gain.gain
         c = scheme.follower_command(ref, wave, gain, eta, K_M)
-        c = scheme.limit_follower(c, eta, many.observer(energy), K_M, DT)
-        many.add(-K_M * (c - eta) * c, DT, energy)
+        c = scheme.limit_follower(c, eta, many, energy, K_M, DT)
+        scheme.count_follower(many, c, eta, energy, K_M, DT)
         assert _close(np.stack(c_one), c), f"period {k}"
         for i, p in enumerate(ports):
             w, e = p.outgoing(eta[i])

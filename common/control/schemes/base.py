@@ -12,9 +12,10 @@ A scheme decides, and nothing else differs between schemes:
   the robot from what arrived, and what the follower sends back (:meth:`Scheme.feedback_signal`
   in the reduced comparison, the Feedback message's fields in the real loops:
   :meth:`Scheme.feedback_wave`, :meth:`Scheme.read_feedback`);
-* **the passivity controllers** at both ports (:meth:`Scheme.limit_leader`,
-  :meth:`Scheme.limit_follower`, :meth:`Scheme.energy_sent`; identity and nothing sent by
-  default, :class:`~bipedtele.control.schemes.passivity.Passivity` composes them).
+* **the passivity observers and controllers** at both ports (:meth:`Scheme.limit_leader`,
+  :meth:`Scheme.limit_follower`, :meth:`Scheme.count_leader`, :meth:`Scheme.count_follower`,
+  :meth:`Scheme.energy_sent`; identity, nothing counted and nothing sent by default,
+  :class:`~bipedtele.control.schemes.passivity.Passivity` composes them).
 
 Every law is written once with numpy broadcasting: the real loops call it on one run
 (arrays of shape ``(2,)``, ``[forward, turn]``), the reduced-model comparison on many runs
@@ -34,7 +35,7 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping_array
-from bipedtele.control.schemes.ports import WaveGain, wave_gain
+from bipedtele.control.schemes.ports import EnergyCounter, WaveGain, wave_gain
 
 __all__ = ["LeaderLaw", "Scheme", "held", "scheduled", "zero_delay"]
 
@@ -166,18 +167,34 @@ class Scheme(ABC):
         """Return the command's ``wave`` field for commanded speed ``r_m`` (None: no wave)."""
         return None
 
-    # -- passivity controllers (identity unless the scheme composes them) -----------------
+    # -- passivity observers and controllers (none unless the scheme composes them) --------
     def limit_leader(
-        self, law: LeaderLaw, r_m: np.ndarray, observer: np.ndarray, k_m: np.ndarray, dt: float
+        self, law: LeaderLaw, r_m: np.ndarray, port: EnergyCounter, other_in: np.ndarray, k_m: np.ndarray, dt: float
     ) -> LeaderLaw:
-        """Return the leader's law after its passivity controller (``observer`` [N cm], period ``dt`` [s])."""
+        """Return the leader's law after its passivity controller.
+
+        ``port`` counts this port's energy, ``other_in`` [N cm] is the follower's input energy
+        as received, ``dt`` [s] the period. By default: the law unchanged.
+        """
         return law
 
     def limit_follower(
-        self, c: np.ndarray, eta: np.ndarray, observer: np.ndarray, k_m: np.ndarray, dt: float
+        self, c: np.ndarray, eta: np.ndarray, port: EnergyCounter, other_in: np.ndarray, k_m: np.ndarray, dt: float
     ) -> np.ndarray:
-        """Return the follower's command after its passivity controller (``observer`` [N cm], ``dt`` [s])."""
+        """Return the follower's command after its passivity controller (as :meth:`limit_leader`; default: ``c``)."""
         return c
+
+    def count_leader(
+        self, port: EnergyCounter, law: LeaderLaw, r_m: np.ndarray, other_in: np.ndarray, dt: float
+    ) -> None:
+        """Count this period's leader port energy for the scheme's observer (default: no observer, nothing)."""
+        return None
+
+    def count_follower(
+        self, port: EnergyCounter, c: np.ndarray, eta: np.ndarray, other_in: np.ndarray, k_m: np.ndarray, dt: float
+    ) -> None:
+        """Count this period's follower port energy for the scheme's observer (default: nothing)."""
+        return None
 
     def energy_sent(self, e_in: np.ndarray) -> list[float] | None:
         """Return the ``energy`` field a message carries for port input ``e_in`` [N cm] (None: none)."""

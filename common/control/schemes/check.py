@@ -9,6 +9,7 @@ rely on (:class:`~bipedtele.control.schemes.base.Scheme`):
 - every port law gives finite arrays of the input's shape for one run (``(2,)``) and for
   many (``(n, 2)``), and row ``i`` of the many-run result is the one-run result of run ``i``
   (to 1e-12): the real loops and the comparison run the same law;
+- counting a port's energy for many runs at once counts each run as counting it alone;
 - the leader's ``follow`` is ``r_m - F_m / k_m`` (to rounding), before and after the
   passivity controller;
 - what the comparison's follower sends back (:meth:`~Scheme.feedback_signal`) is what the
@@ -30,6 +31,7 @@ import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.schemes import scheme_class
 from bipedtele.control.schemes.base import LeaderLaw, Scheme
+from bipedtele.control.schemes.ports import EnergyCounter
 
 __all__ = ["SchemeContractError", "check_scheme"]
 
@@ -68,6 +70,23 @@ def _per_run(
         _expect(_same(one, out[i]), f"{name}: run {i} alone differs from run {i} of {RUNS}")
 
 
+def _fresh(other_in: np.ndarray) -> EnergyCounter:
+    """Return a port that has given out nothing yet: its observer is ``other_in`` itself."""
+    return EnergyCounter(np.shape(other_in))
+
+
+def _check_counts(count: Callable[[EnergyCounter, int | None], None], what: str) -> None:
+    """Check that counting all runs at once counts each run as counting it alone does."""
+    many = EnergyCounter((RUNS, 2))
+    count(many, None)
+    for i in range(RUNS):
+        one = EnergyCounter((2,))
+        count(one, i)
+        for field in ("e_in", "e_out", "min_observer"):
+            got, want = getattr(one, field), getattr(many, field)[i]
+            _expect(_same(got, want), f"{what}: run {i} alone counts {field} {got}, of {RUNS}: {want}")
+
+
 def _check_damping(scheme: Scheme, cfg: ControlConfig) -> None:
     low, high = np.zeros(50), np.full(50, 3.0)
     for h1, h2 in ((low, low), (high, high), (np.linspace(0, 3, 50), np.linspace(3, 0, 50))):
@@ -99,7 +118,7 @@ def _check_leader(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -> 
         return scheme.leader_force(r_m, s, g, k_m).follow
 
     def limited(r_m: np.ndarray, s: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
-        return scheme.limit_leader(scheme.leader_force(r_m, s, g, k_m), r_m, w, k_m, DT_S).force
+        return scheme.limit_leader(scheme.leader_force(r_m, s, g, k_m), r_m, _fresh(w), w, k_m, DT_S).force
 
     _per_run("leader_force().force", force, (r, signal), (gain,))
     _per_run("leader_force().follow", follow, (r, signal), (gain,))
@@ -114,9 +133,19 @@ def _check_leader(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -> 
                 one = scheme.command_wave(r[i], LeaderLaw(*(f[i] for f in law)), k_m)
                 _expect(one is not None and _same(np.asarray(one), wave[i]), "command_wave: run alone differs")
 
+    law = _limit(scheme, r, signal, observer, gain, k_m)
+
+    def count(port: EnergyCounter, i: int | None) -> None:
+        if i is None:
+            scheme.count_leader(port, law, r, observer, DT_S)
+        else:
+            scheme.count_leader(port, LeaderLaw(*(f[i] for f in law)), r[i], observer[i], DT_S)
+
+    _check_counts(count, "count_leader")
+
 
 def _limit(scheme: Scheme, r: np.ndarray, s: np.ndarray, w: np.ndarray, g: float, k_m: np.ndarray) -> LeaderLaw:
-    return scheme.limit_leader(scheme.leader_force(r, s, g, k_m), r, w, k_m, DT_S)
+    return scheme.limit_leader(scheme.leader_force(r, s, g, k_m), r, _fresh(w), w, k_m, DT_S)
 
 
 def _check_follower(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -> None:
@@ -126,7 +155,7 @@ def _check_follower(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -
 
     def command(ref_: np.ndarray, wave_: np.ndarray, eta_: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
         c = scheme.follower_command(ref_, wave_, g, eta_, k_m)
-        return scheme.limit_follower(c, eta_, w, k_m, DT_S)
+        return scheme.limit_follower(c, eta_, _fresh(w), w, k_m, DT_S)
 
     def sent(z: np.ndarray, eta_: np.ndarray) -> np.ndarray:
         return scheme.feedback_signal(lambda: z, eta_, k_m)
@@ -136,6 +165,15 @@ def _check_follower(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -
     )
     _per_run("limit_follower(follower_command())", command, (ref, wave, eta, observer), (gain,))
     _per_run("feedback_signal()", sent, (z_e, eta), ())
+    c = command(ref, wave, eta, observer, gain)
+
+    def count(port: EnergyCounter, i: int | None) -> None:
+        if i is None:
+            scheme.count_follower(port, c, eta, observer, k_m, DT_S)
+        else:
+            scheme.count_follower(port, c[i], eta[i], observer[i], k_m, DT_S)
+
+    _check_counts(count, "count_follower")
     for i in range(RUNS):  # the real follower's message, read by the real leader, is what the comparison sends
         fb_wave = scheme.feedback_wave(eta[i], k_m)
         _pair_or_none(fb_wave, "feedback_wave")

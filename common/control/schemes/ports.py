@@ -24,7 +24,9 @@ __all__ = [
     "EnergyCounter",
     "WaveGain",
     "follower_passivity",
+    "follower_power",
     "leader_passivity",
+    "leader_power",
     "wave_follower",
     "wave_gain",
     "wave_leader",
@@ -114,6 +116,16 @@ class WaveGain:
         if r1 - r0 > 1e-6:
             self.gain = float(np.sqrt(np.clip((s1 - s0) / (r1 - r0), 0.0, 1.0)))
         return self.gain
+
+
+def leader_power(f_m: np.ndarray, r_m: np.ndarray) -> np.ndarray:
+    """Leader port power ``P_m = F_m r_m`` [N cm/s] (positive: the operator puts energy in)."""
+    return np.asarray(f_m * r_m)
+
+
+def follower_power(c: np.ndarray, eta: np.ndarray, k_m: np.ndarray) -> np.ndarray:
+    """Follower port power into the channel ``-k_m (c - eta) c`` [N cm/s] (negative: it drives the robot)."""
+    return np.asarray(-k_m * (c - eta) * c)
 
 
 def leader_passivity(f_m: np.ndarray, r_m: np.ndarray, observer: np.ndarray, dt: float) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 The leader loop (1 kHz) and the follower loop (its control rate) keep one of these each. They
 call the scheme's port laws (:class:`~bipedtele.control.schemes.base.Scheme`: one run, arrays
-of shape ``(2,)``) on the newest message, count the energy at their port, and say what their
-next message carries (a wave variable and the port's input energy, fields ``wave`` and
+of shape ``(2,)``) on the newest message, let the scheme count the energy at their port
+(a scheme with a passivity observer does), and say what their next message carries (a wave variable and the port's input energy, fields ``wave`` and
 ``energy`` of Command and Feedback, as the scheme decides). Units as in
 :mod:`~bipedtele.control.schemes.ports`; times in s on the receiver's clock.
 """
@@ -70,8 +70,8 @@ class LeaderPort:
         scheme, other_in = self.scheme, np.asarray(energy, dtype=float)
         signal = scheme.read_feedback(z_e, eta, wave)
         law = scheme.leader_force(r_m, signal, self.wave_gain.gain, self.k_m)
-        law = scheme.limit_leader(law, r_m, self.port.observer(other_in), self.k_m, dt)
-        self.port.add(law.force * r_m, dt, other_in)
+        law = scheme.limit_leader(law, r_m, self.port, other_in, self.k_m, dt)
+        scheme.count_leader(self.port, law, r_m, other_in, dt)
         self._law = law
         return law.follow
 
@@ -121,8 +121,8 @@ class FollowerPort:
         eta = np.asarray(eta, dtype=float)
         other_in = np.asarray(energy, dtype=float)
         c = scheme.follower_command(ref, wave, self.wave_gain.gain, eta, k_m)
-        c = scheme.limit_follower(c, eta, self.port.observer(other_in), k_m, dt)
-        self.port.add(-k_m * (c - eta) * c, dt, other_in)
+        c = scheme.limit_follower(c, eta, self.port, other_in, k_m, dt)
+        scheme.count_follower(self.port, c, eta, other_in, k_m, dt)
         return np.asarray(c)
 
     def outgoing(self, eta: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
