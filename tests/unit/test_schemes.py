@@ -20,6 +20,7 @@ from bipedtele.control.schemes.ports import (
     wave_gain,
     wave_leader,
 )
+from bipedtele.control.schemes.tdpa import Tdpa
 
 CFG = ControlConfig()
 EXPECTED = {"paper", "paper-constant", "pd-worst-case", "pd-measured", "wave", "tdpa"}
@@ -76,6 +77,18 @@ class _ReadsTheOtherField(Paper):
         return eta
 
 
+class _CountsTheMean(Tdpa):
+    """Broken on purpose: its leader observer counts the mean power of all runs for each."""
+
+    name = "tdpa"
+
+    def count_leader(
+        self, port: EnergyCounter, law: LeaderLaw, r_m: np.ndarray, other_in: np.ndarray, dt: float
+    ) -> None:
+        power = np.atleast_2d(law.force * r_m).mean(axis=0)
+        port.add(np.broadcast_to(power, np.shape(r_m)), dt, other_in)
+
+
 @pytest.mark.timeout(30)
 @pytest.mark.parametrize(
     ("broken", "why"),
@@ -83,6 +96,7 @@ class _ReadsTheOtherField(Paper):
         (_RowsMix, "run 0 alone differs"),
         (_FollowsWrong, "follow != r_m - F_m/k_m"),
         (_ReadsTheOtherField, "read_feedback"),
+        (_CountsTheMean, "count_leader: run 0 alone counts e_in"),
     ],
 )
 def test_the_contract_checker_catches_a_broken_law(broken: type[Scheme], why: str) -> None:
