@@ -52,7 +52,7 @@ from bipedtele.control.linalg import zoh2
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, ci95, hybrid_zoh
 from bipedtele.control.schemes import Scheme, scheme_class, scheme_names
-from bipedtele.control.schemes.ports import EnergyCounter, follower_power, leader_power
+from bipedtele.control.schemes.ports import EnergyCounter
 from bipedtele.control.study import DelayCase, case_inputs
 
 __all__ = [
@@ -228,10 +228,10 @@ class _Loop:
         ein_s_rx = self._received(self.ein_s_buf, i2, ring2)
         law = scheme.limit_leader(law, r_now, self.port_m, ein_s_rx, k_m, self.dt)
         f_m = law.force
-        self.port_m.add(leader_power(f_m, r_now), self.dt, ein_s_rx)  # every scheme's port, for its observer metric
+        self.port_m.add(f_m * r_now, self.dt, ein_s_rx)  # every scheme's port, for its observer metric (P_m)
         eta = self.hy[..., 0]
         self.sums["force2"] += (f_m - k_m * (r_now - eta)) ** 2
-        # the simulated handle renders the force: it follows r - F/k_m (law.follow, to rounding)
+        # the simulated handle renders the force: it follows r - F/k_m (law.followed(), to rounding)
         x = self.leader.step(t, r_now - f_m / k_m, self.alpha_k[k])
         self.sums["effort"] += np.abs(self.leader.f_h)
         if k >= self.late_from:
@@ -259,7 +259,7 @@ class _Loop:
         c = scheme.follower_command(ref, self._received(self.wave_buf, i1, ring1), self.gain1[k], eta, k_m)
         ein_m_rx = self._received(self.ein_m_buf, i1, ring1)
         c = scheme.limit_follower(c, eta, self.port_s, ein_m_rx, k_m, self.dt)
-        self.port_s.add(follower_power(c, eta, k_m), self.dt, ein_m_rx)
+        self.port_s.add(-k_m * (c - eta) * c, self.dt, ein_m_rx)  # P_s (ports.follower_power)
         phi_h, gam_h = hybrid
         h0 = phi_h[..., 0, 0] * self.hy[..., 0] + phi_h[..., 0, 1] * self.hy[..., 1] + gam_h[..., 0] * c
         h1 = phi_h[..., 1, 0] * self.hy[..., 0] + phi_h[..., 1, 1] * self.hy[..., 1] + gam_h[..., 1] * c

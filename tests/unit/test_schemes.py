@@ -65,7 +65,7 @@ class _FollowsWrong(Paper):
         self, r_m: np.ndarray, signal: np.ndarray, gain: float | np.floating, k_m: np.ndarray
     ) -> LeaderLaw:
         law = super().leader_force(r_m, signal, gain, k_m)
-        return LeaderLaw(law.force, law.follow + 1.0, law.received)
+        return LeaderLaw(law.force, law.followed(r_m, k_m) + 1.0, law.received)
 
 
 class _ReadsTheOtherField(Paper):

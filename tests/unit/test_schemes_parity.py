@@ -46,7 +46,7 @@ def test_the_leader_port_is_the_many_run_law_run_by_run(name: str) -> None:
         law = scheme.leader_force(r, signal, gain, K_M)
         law = scheme.limit_leader(law, r, many, energy, K_M, DT)
         scheme.count_leader(many, law, r, energy, DT)
-        assert _close(np.stack(follow), law.follow), f"period {k}"
+        assert _close(np.stack(follow), law.followed(r, K_M)), f"period {k}"
         r_next = r + 0.1
         sent = [p.outgoing(r_next[i]) for i, p in enumerate(ports)]
         wave_many = scheme.command_wave(r_next, law, K_M)

@@ -47,17 +47,22 @@ class LeaderLaw(NamedTuple):
     ----------
     force : numpy.ndarray
         Coupling force ``F_m`` the handle renders [N], without the damping ``alpha_m dx_m``.
-    follow : numpy.ndarray
-        The speed the force (31) follows [cm/s, deg/s]: ``r_m - F_m / k_m`` (to rounding; a
-        law that feels a speed directly gives that speed itself).
+    follow : numpy.ndarray or None
+        The speed the force (31) follows [cm/s, deg/s] when the law feels a speed directly
+        (that speed itself); None when it is ``r_m - F_m / k_m`` (:meth:`followed` computes
+        it only for the runner that needs it).
     received : numpy.ndarray
         The fed-back signal as the law used it (a wave: already scaled by the gain); what the
         next command's wave is made from (:meth:`Scheme.command_wave`).
     """
 
     force: np.ndarray
-    follow: np.ndarray
+    follow: np.ndarray | None
     received: np.ndarray
+
+    def followed(self, r_m: np.ndarray, k_m: np.ndarray) -> np.ndarray:
+        """Return the speed the force follows [cm/s, deg/s]: ``follow``, or ``r_m - F_m / k_m``."""
+        return self.follow if self.follow is not None else np.asarray(r_m - self.force / k_m)
 
 
 class Scheme(ABC):

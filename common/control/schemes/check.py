@@ -115,22 +115,23 @@ def _check_leader(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -> 
         return scheme.leader_force(r_m, s, g, k_m).force
 
     def follow(r_m: np.ndarray, s: np.ndarray, g: float) -> np.ndarray:
-        return scheme.leader_force(r_m, s, g, k_m).follow
+        return scheme.leader_force(r_m, s, g, k_m).followed(r_m, k_m)
 
     def limited(r_m: np.ndarray, s: np.ndarray, w: np.ndarray, g: float) -> np.ndarray:
         return scheme.limit_leader(scheme.leader_force(r_m, s, g, k_m), r_m, _fresh(w), w, k_m, DT_S).force
 
     _per_run("leader_force().force", force, (r, signal), (gain,))
-    _per_run("leader_force().follow", follow, (r, signal), (gain,))
+    _per_run("leader_force().followed()", follow, (r, signal), (gain,))
     _per_run("limit_leader().force", limited, (r, signal, observer), (gain,))
     for law in (scheme.leader_force(r, signal, gain, k_m), _limit(scheme, r, signal, observer, gain, k_m)):
         _expect(isinstance(law, LeaderLaw), "leader_force/limit_leader: expected a LeaderLaw")
-        _expect(bool(np.allclose(law.follow, r - law.force / k_m, rtol=1e-9, atol=1e-9)), "follow != r_m - F_m/k_m")
+        followed = law.followed(r, k_m)
+        _expect(bool(np.allclose(followed, r - law.force / k_m, rtol=1e-9, atol=1e-9)), "follow != r_m - F_m/k_m")
         wave = scheme.command_wave(r, law, k_m)
         if wave is not None:
             _array(wave, (RUNS, 2), f"command_wave on {RUNS} runs")
             for i in range(RUNS):
-                one = scheme.command_wave(r[i], LeaderLaw(*(f[i] for f in law)), k_m)
+                one = scheme.command_wave(r[i], _row(law, i), k_m)
                 _expect(one is not None and _same(np.asarray(one), wave[i]), "command_wave: run alone differs")
 
     law = _limit(scheme, r, signal, observer, gain, k_m)
@@ -139,9 +140,14 @@ def _check_leader(scheme: Scheme, k_m: np.ndarray, rng: np.random.Generator) -> 
         if i is None:
             scheme.count_leader(port, law, r, observer, DT_S)
         else:
-            scheme.count_leader(port, LeaderLaw(*(f[i] for f in law)), r[i], observer[i], DT_S)
+            scheme.count_leader(port, _row(law, i), r[i], observer[i], DT_S)
 
     _check_counts(count, "count_leader")
+
+
+def _row(law: LeaderLaw, i: int) -> LeaderLaw:
+    """Return run ``i`` of a many-run law."""
+    return LeaderLaw(law.force[i], None if law.follow is None else law.follow[i], law.received[i])
 
 
 def _limit(scheme: Scheme, r: np.ndarray, s: np.ndarray, w: np.ndarray, g: float, k_m: np.ndarray) -> LeaderLaw:

@@ -36,7 +36,7 @@ class Passivity(Scheme):
     ) -> LeaderLaw:
         """Cut the force where the port would give out more than its observer [N cm] this period."""
         force = leader_passivity(law.force, r_m, port.observer(other_in), dt)
-        return LeaderLaw(force, np.asarray(r_m - force / k_m), law.received)
+        return LeaderLaw(force, None, law.received)  # the handle follows r_m - F_m / k_m
 
     def limit_follower(
         self, c: np.ndarray, eta: np.ndarray, port: EnergyCounter, other_in: np.ndarray, k_m: np.ndarray, dt: float

@@ -37,7 +37,7 @@ class LeaderPort:
         self.k_m = np.asarray(k_m, dtype=float)
         self.port = EnergyCounter((2,))
         self.wave_gain = scheme.gain_meter(LOOP_WAVE_WINDOW_S)
-        self._law = LeaderLaw(np.zeros(2), np.zeros(2), np.zeros(2))
+        self._law = LeaderLaw(np.zeros(2), None, np.zeros(2))
         self._fb_key: tuple[float, float] | None = None
 
     def felt_speed(
@@ -73,7 +73,7 @@ class LeaderPort:
         law = scheme.limit_leader(law, r_m, self.port, other_in, self.k_m, dt)
         scheme.count_leader(self.port, law, r_m, other_in, dt)
         self._law = law
-        return law.follow
+        return law.followed(r_m, self.k_m)
 
     def outgoing(self, r_m: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
         """Return the command's ``wave`` (``u_m``) and ``energy``, each None where the scheme has no use for it."""

@@ -63,7 +63,7 @@ class Wave(Scheme):
         """Return ``F_m = b r_m - sqrt(2b) g v_s`` [N]; the handle follows ``r_m - F_m / b``."""
         v_rx = gain * np.asarray(signal, dtype=float)
         force, _ = wave_leader(r_m, v_rx, k_m)
-        return LeaderLaw(force, np.asarray(r_m - force / k_m), v_rx)
+        return LeaderLaw(force, None, v_rx)
 
     def command_wave(self, r_m: np.ndarray, law: LeaderLaw, k_m: np.ndarray) -> np.ndarray | None:
         """Return ``u_m = sqrt(2b) r_m - g v_s`` for the command's ``wave`` field."""
