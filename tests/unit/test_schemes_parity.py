@@ -9,10 +9,16 @@ agree to 1e-12 on every period.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
+from bipedtele.control.compare import REGIMES, CompareParams, regime_inputs, simulate
 from bipedtele.control.config import ControlConfig
+from bipedtele.control.online import OnlineChooser
+from bipedtele.control.reduced import StudyParams
 from bipedtele.control.schemes import scheme_class, scheme_names
+from bipedtele.control.schemes.paper import Paper
 from bipedtele.control.schemes.ports import EnergyCounter
 from bipedtele.control.schemes.runtime import FollowerPort, LeaderPort
 
@@ -76,3 +82,22 @@ def test_the_follower_port_is_the_many_run_law_run_by_run(name: str) -> None:
             w, e = p.outgoing(eta[i])
             assert _close(w, scheme.feedback_wave(eta[i], K_M)), f"period {k}: wave"
             assert _close(e, scheme.energy_sent(many.e_in[i])), f"period {k}: energy"
+
+
+class _AsksTwice(Paper):
+    """The paper's law, asking the comparison for z_e twice per period."""
+
+    def feedback_signal(self, z_e: Callable[[], np.ndarray], eta: np.ndarray, k_m: np.ndarray) -> np.ndarray:
+        z_e()
+        return z_e()
+
+
+@pytest.mark.timeout(60)
+def test_the_comparison_advances_the_equivalent_follower_once_per_period_however_often_asked() -> None:
+    cp = CompareParams(study=StudyParams(duration_s=3.0))
+    inp = regime_inputs(REGIMES[0], 3, 0, CFG, cp.study)
+    chooser = OnlineChooser(CFG)
+    once = simulate(Paper(CFG), inp, CFG, cp, chooser)
+    twice = simulate(_AsksTwice(CFG), inp, CFG, cp, chooser)
+    assert all(np.array_equal(once[m], twice[m]) for m in once)
+    assert np.all(once["forward_error"] > 0.0)  # the runs moved
