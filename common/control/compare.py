@@ -6,8 +6,11 @@ and run ``i`` of another differ only by the scheme: the differences are paired. 
 the study's (:mod:`bipedtele.control.study`: simulated operator and handle (1), (31)-(32);
 one message per period each way, the newest kept; the real follower's reduced hybrid model
 (20), (22), (12) with the impact reset and ``(sigma_r, T)`` changed only at impacts), with
-the three places a scheme acts made explicit: the damping both sides use, what the follower
-sends back (``z_e``, the robot's speed, or a wave), and the passivity controllers.
+the scheme's own port laws (:class:`~bipedtele.control.schemes.base.Scheme`, called on all
+runs at once, arrays of shape ``(runs, 2)``): the damping both sides use, the leader's force
+and the follower's command from what arrived, what each side sends (``z_e`` of the reduced
+model's equivalent follower, the robot's speed, or a wave: the scheme picks), and the
+passivity controllers.
 
 Metrics per run (channels ``forward`` [cm/s] and ``turn`` [deg/s]):
 
@@ -49,14 +52,7 @@ from bipedtele.control.linalg import zoh2
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, ci95, hybrid_zoh
 from bipedtele.control.schemes import Scheme, scheme_class, scheme_names
-from bipedtele.control.schemes.ports import (
-    EnergyCounter,
-    follower_passivity,
-    leader_passivity,
-    wave_follower,
-    wave_gain,
-    wave_leader,
-)
+from bipedtele.control.schemes.ports import EnergyCounter
 from bipedtele.control.study import DelayCase, case_inputs
 
 __all__ = [
@@ -136,7 +132,10 @@ class CompareParams:
     unstable_factor : float
         A run is unstable when the robot's speed exceeds this times the largest intended one.
     wave_window_s : float
-        Window over which the wave gain measures the delay's rate [s].
+        Window over which the wave gain measures the delay's rate [s], passed to the scheme
+        (:meth:`~bipedtele.control.schemes.base.Scheme.received_gains`); the real loops use
+        0.5 s (:data:`~bipedtele.control.schemes.runtime.LOOP_WAVE_WINDOW_S`) until one value
+        is chosen by measurement.
     release_fraction : float
         In the margin runs, the operator lets go of the handle at this fraction of the run.
     oscillation_m_s : float
@@ -197,13 +196,14 @@ class _Loop:
         self.ch2 = channel(inp.h2, p.dt, p.window_s, inp.lost2)
         self.alpha_k, self.s_e_k = scheme.damping(self.ch1.estimate, self.ch2.estimate)
         self.phi_eq, self.gam_eq, self.eq_index = _equivalent_steps(self.s_e_k, cfg, p.dt)
-        w = round(cp.wave_window_s / p.dt)
-        self.gain1, self.gain2 = wave_gain(self.ch1.idx, w), wave_gain(self.ch2.idx, w)
+        w = round(cp.wave_window_s / p.dt)  # this runner's window, passed to the scheme (docs/schemes.md)
+        self.gain1, self.gain2 = scheme.received_gains(self.ch1.idx, w), scheme.received_gains(self.ch2.idx, w)
         self.leader = SimulatedLeader(inp.switch, inp.intent, cfg, p)
         self.k_g = np.asarray(cfg.k_g, dtype=float)
         self.k_m = np.asarray(cfg.k_m, dtype=float)
         self.dp = np.array([cfg.dp, cfg.dp_turn])
         self.eq = np.zeros((n, 2, 2))  # [eta_e, z_e] per channel
+        self.eq_k = -1  # the period eq was last advanced to
         self.hy = np.zeros((n, 2, 2))  # [eta, z_r] per channel
         self.phase = 0.0
         self.cmd_buf = np.zeros((self.ch1.ring, n, 2))  # k_g x_m sent
@@ -221,23 +221,19 @@ class _Loop:
         return buf[idx % ring] if idx >= 0 else np.zeros((self.n, 2))
 
     def leader_tick(self, k: int, t: float) -> None:
-        """Advance the leader: feel what arrived, move the handle, send the command."""
+        """Advance the leader: feel what arrived, move the handle, send the command (the scheme's laws)."""
         i2, ring2 = int(self.ch2.idx[k]), self.ch2.ring
-        fb = self._received(self.fb_buf, i2, ring2)
+        scheme, k_m = self.scheme, self.k_m
         r_now = self.k_g * self.leader.x
-        if self.scheme.feedback == "wave":
-            v_rx = self.gain2[k] * fb
-            f_m, _ = wave_leader(r_now, v_rx, self.k_m)
-        else:
-            v_rx = fb
-            f_m = self.k_m * (r_now - fb)
+        law = scheme.leader_force(r_now, self._received(self.fb_buf, i2, ring2), self.gain2[k], k_m)
         ein_s_rx = self._received(self.ein_s_buf, i2, ring2)
-        if self.scheme.passivity:
-            f_m = leader_passivity(f_m, r_now, self.port_m.observer(ein_s_rx), self.dt)
-        self.port_m.add(f_m * r_now, self.dt, ein_s_rx)
+        law = scheme.limit_leader(law, r_now, self.port_m, ein_s_rx, k_m, self.dt)
+        f_m = law.force
+        self.port_m.add(f_m * r_now, self.dt, ein_s_rx)  # every scheme's port, for its observer metric (P_m)
         eta = self.hy[..., 0]
-        self.sums["force2"] += (f_m - self.k_m * (r_now - eta)) ** 2
-        x = self.leader.step(t, r_now - f_m / self.k_m, self.alpha_k[k])
+        self.sums["force2"] += (f_m - k_m * (r_now - eta)) ** 2
+        # the simulated handle renders the force: it follows r - F/k_m (law.followed(), to rounding)
+        x = self.leader.step(t, r_now - f_m / k_m, self.alpha_k[k])
         self.sums["effort"] += np.abs(self.leader.f_h)
         if k >= self.late_from:
             self.late_v2 += self.leader.v**2
@@ -245,38 +241,40 @@ class _Loop:
         slot = k % self.ch1.ring
         self.cmd_buf[slot] = r_m
         self.ein_m_buf[slot] = self.port_m.e_in
-        if self.scheme.feedback == "wave":
-            self.wave_buf[slot] = wave_leader(r_m, v_rx, self.k_m)[1]
+        wave = scheme.command_wave(r_m, law, k_m)
+        if wave is not None:
+            self.wave_buf[slot] = wave
 
-    def follower_tick(self, k: int, hybrid: tuple[np.ndarray, np.ndarray]) -> None:
-        """Advance the follower: take the newest command, drive the robot, send the feedback."""
-        i1, ring1 = int(self.ch1.idx[k]), self.ch1.ring
-        ref = self._received(self.cmd_buf, i1, ring1)
-        eta = self.hy[..., 0]
-        if self.scheme.feedback == "wave":
-            c, _ = wave_follower(self.gain1[k] * self._received(self.wave_buf, i1, ring1), eta, self.k_m)
-        else:
-            c = ref
-        ein_m_rx = self._received(self.ein_m_buf, i1, ring1)
-        if self.scheme.passivity:
-            c = follower_passivity(c, eta, self.port_s.observer(ein_m_rx), self.k_m, self.dt)
-        self.port_s.add(-self.k_m * (c - eta) * c, self.dt, ein_m_rx)
-        phi_h, gam_h = hybrid
-        h0 = phi_h[..., 0, 0] * self.hy[..., 0] + phi_h[..., 0, 1] * self.hy[..., 1] + gam_h[..., 0] * c
-        h1 = phi_h[..., 1, 0] * self.hy[..., 0] + phi_h[..., 1, 1] * self.hy[..., 1] + gam_h[..., 1] * c
-        self.hy = np.stack([h0, h1], -1)
-        slot = k % self.ch2.ring
-        if self.scheme.feedback == "equivalent":
+    def _equivalent(self, k: int, ref: np.ndarray) -> np.ndarray:
+        """Advance the reduced model's equivalent follower (29) to period ``k`` on ``ref``; return ``z_e``.
+
+        Advanced once per period however often the scheme asks (and never for a scheme that
+        does not ask: it is the comparison's costliest step).
+        """
+        if self.eq_k != k:
+            self.eq_k = k
             j = self.eq_index[k]
             self.eq = (
                 np.einsum("cij,ncj->nci", self.phi_eq[j], self.eq) + self.gam_eq[j][None, :, :, 0] * ref[:, :, None]
             )
-            self.fb_buf[slot] = self.eq[:, :, 1]
-        elif self.scheme.feedback == "wave":
-            self.fb_buf[slot] = wave_follower(np.zeros_like(c), self.hy[..., 0], self.k_m)[1]
-        else:
-            self.fb_buf[slot] = self.hy[..., 0]
-        self.ein_s_buf[slot] = self.port_s.e_in
+        return np.asarray(self.eq[:, :, 1])
+
+    def follower_tick(self, k: int, hybrid: tuple[np.ndarray, np.ndarray]) -> None:
+        """Advance the follower: take the newest command, drive the robot, send the feedback (the scheme's laws)."""
+        i1, ring1 = int(self.ch1.idx[k]), self.ch1.ring
+        scheme, k_m = self.scheme, self.k_m
+        ref = self._received(self.cmd_buf, i1, ring1)
+        eta = self.hy[..., 0]
+        c = scheme.follower_command(ref, self._received(self.wave_buf, i1, ring1), self.gain1[k], eta, k_m)
+        ein_m_rx = self._received(self.ein_m_buf, i1, ring1)
+        c = scheme.limit_follower(c, eta, self.port_s, ein_m_rx, k_m, self.dt)
+        self.port_s.add(-k_m * (c - eta) * c, self.dt, ein_m_rx)  # P_s (ports.follower_power)
+        phi_h, gam_h = hybrid
+        h0 = phi_h[..., 0, 0] * self.hy[..., 0] + phi_h[..., 0, 1] * self.hy[..., 1] + gam_h[..., 0] * c
+        h1 = phi_h[..., 1, 0] * self.hy[..., 0] + phi_h[..., 1, 1] * self.hy[..., 1] + gam_h[..., 1] * c
+        self.hy = np.stack([h0, h1], -1)
+        self.fb_buf[k % self.ch2.ring] = scheme.feedback_signal(lambda: self._equivalent(k, ref), self.hy[..., 0], k_m)
+        self.ein_s_buf[k % self.ch2.ring] = self.port_s.e_in
         self.sums["error"] += np.abs(ref - self.hy[..., 0])
         lead = self.leader
         self.sums["intent"] += np.abs(lead.intent[lead.rows, lead.seg] - self.hy[..., 0])

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.schemes import Scheme, scheme_class, scheme_names
+from bipedtele.control.schemes.base import LeaderLaw
+from bipedtele.control.schemes.check import SchemeContractError, check_scheme
+from bipedtele.control.schemes.paper import Paper
 from bipedtele.control.schemes.ports import (
     EnergyCounter,
     follower_passivity,
@@ -16,6 +20,7 @@ from bipedtele.control.schemes.ports import (
     wave_gain,
     wave_leader,
 )
+from bipedtele.control.schemes.tdpa import Tdpa
 
 CFG = ControlConfig()
 EXPECTED = {"paper", "paper-constant", "pd-worst-case", "pd-measured", "wave", "tdpa"}
@@ -35,20 +40,68 @@ def test_an_unknown_scheme_names_the_allowed_ones() -> None:
 @pytest.mark.timeout(30)
 @pytest.mark.parametrize("name", scheme_names())
 def test_every_registered_scheme_keeps_the_contract(name: str) -> None:
-    cls = scheme_class(name)
-    assert issubclass(cls, Scheme) and cls.name == name and cls.title
-    assert cls.feedback in ("equivalent", "measured", "wave")
-    scheme = cls(CFG, (0.4, 0.3))
-    low = np.zeros(50)
-    high = np.full(50, 3.0)
-    for h1, h2 in ((low, low), (high, high), (np.linspace(0, 3, 50), np.linspace(3, 0, 50))):
-        alpha, s_e = scheme.damping(h1, h2)
-        assert alpha.shape == (50, 2) and s_e.shape == (50, 2)
-        assert np.all(np.isfinite(alpha)) and np.all(np.isfinite(s_e))
-        assert np.all(alpha >= CFG.alpha_m_min) and np.all(s_e >= CFG.s_e_min)
-    # a scheme that says it adapts changes its damping with the delay; one that does not, does not
-    changes = not np.allclose(scheme.damping(low, low)[0], scheme.damping(high, high)[0])
-    assert changes == cls.adapts
+    check_scheme(name)  # damping, and every port law on (2,) and (n, 2), run by run as vectorised
+
+
+class _RowsMix(Paper):
+    """Broken on purpose: its leader force mixes the runs (each run feels the mean of all)."""
+
+    name = "paper"
+
+    def leader_force(
+        self, r_m: np.ndarray, signal: np.ndarray, gain: float | np.floating, k_m: np.ndarray
+    ) -> LeaderLaw:
+        law = super().leader_force(r_m, signal, gain, k_m)
+        mixed = np.broadcast_to(np.mean(np.atleast_2d(law.force), axis=0), law.force.shape)
+        return LeaderLaw(mixed, r_m - mixed / k_m, law.received)
+
+
+class _FollowsWrong(Paper):
+    """Broken on purpose: the speed it says the handle follows is not the force's."""
+
+    name = "paper"
+
+    def leader_force(
+        self, r_m: np.ndarray, signal: np.ndarray, gain: float | np.floating, k_m: np.ndarray
+    ) -> LeaderLaw:
+        law = super().leader_force(r_m, signal, gain, k_m)
+        return LeaderLaw(law.force, law.followed(r_m, k_m) + 1.0, law.received)
+
+
+class _ReadsTheOtherField(Paper):
+    """Broken on purpose: sends z_e back in the comparison but reads eta from a real message."""
+
+    name = "paper"
+
+    def read_feedback(self, z_e: np.ndarray, eta: np.ndarray, wave: np.ndarray) -> np.ndarray:
+        return eta
+
+
+class _CountsTheMean(Tdpa):
+    """Broken on purpose: its leader observer counts the mean power of all runs for each."""
+
+    name = "tdpa"
+
+    def count_leader(
+        self, port: EnergyCounter, law: LeaderLaw, r_m: np.ndarray, other_in: np.ndarray, dt: float
+    ) -> None:
+        power = np.atleast_2d(law.force * r_m).mean(axis=0)
+        port.add(np.broadcast_to(power, np.shape(r_m)), dt, other_in)
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize(
+    ("broken", "why"),
+    [
+        (_RowsMix, "run 0 alone differs"),
+        (_FollowsWrong, "follow != r_m - F_m/k_m"),
+        (_ReadsTheOtherField, "read_feedback"),
+        (_CountsTheMean, "count_leader: run 0 alone counts e_in"),
+    ],
+)
+def test_the_contract_checker_catches_a_broken_law(broken: type[Scheme], why: str) -> None:
+    with pytest.raises(SchemeContractError, match=re.escape(why)):
+        check_scheme(broken)
 
 
 def test_worst_case_damping_is_the_papers_at_the_worst_delay() -> None:

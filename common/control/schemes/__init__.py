@@ -1,10 +1,12 @@
 """Bilateral control schemes, one module each, registered as entry points.
 
-The registry is the entry-point group ``bipedtele.schemes``: a new scheme is one module and
-one entry in its package's ``pyproject.toml``.
+The registry is the entry-point group ``bipedtele.schemes``: a new scheme is one module (its
+class holds its damping and its port laws) and one entry in its distribution's entry points;
+nothing else names it (docs/schemes.md, "Where a scheme acts, and how one is written").
 
 ``paper`` (the default), ``paper-constant``, ``pd-worst-case``, ``pd-measured``, ``wave``,
-``tdpa``; the contract is :class:`~bipedtele.control.schemes.base.Scheme`.
+``tdpa``; the contract is :class:`~bipedtele.control.schemes.base.Scheme`, checked by
+:func:`~bipedtele.control.schemes.check.check_scheme`.
 """
 
 from __future__ import annotations

@@ -9,22 +9,38 @@ with ``eta`` the robot's measured speed. The damping is sized by (40):
 * ``pd-measured``: on the measured delays, as the paper schedules it.
 
 The follower side is the paper's: ``sigma_e`` from (40) feeds the online choice (30).
+Port laws: :class:`MeasuredSpeed`, the speed coupling
+(:class:`~bipedtele.control.schemes.speed.SpeedFeedback`) on the Feedback message's ``eta``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
-from bipedtele.control.schemes.base import Scheme, held, scheduled
+from bipedtele.control.schemes.base import held, scheduled
+from bipedtele.control.schemes.speed import SpeedFeedback
 
-__all__ = ["PdMeasured", "PdWorstCase"]
+__all__ = ["MeasuredSpeed", "PdMeasured", "PdWorstCase"]
 
 
-class PdWorstCase(Scheme):
+class MeasuredSpeed(SpeedFeedback):
+    """The speed coupling on the robot's measured speed ``eta``."""
+
+    def feedback_signal(self, z_e: Callable[[], np.ndarray], eta: np.ndarray, k_m: np.ndarray) -> np.ndarray:
+        """Return ``eta`` [cm/s, deg/s] (``z_e`` is not asked for)."""
+        return eta
+
+    def read_feedback(self, z_e: np.ndarray, eta: np.ndarray, wave: np.ndarray) -> np.ndarray:
+        """Return the message's ``eta``."""
+        return eta
+
+
+class PdWorstCase(MeasuredSpeed):
     """P+d on the observed speed, damping (40) for the run's worst delays, held."""
 
     name = "pd-worst-case"
     title = "P+d on the robot's speed, (40) sized for the worst delay, held"
-    feedback = "measured"
 
     def damping(self, h1_s: np.ndarray, h2_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(40) at the run's largest delays, held."""
@@ -32,12 +48,11 @@ class PdWorstCase(Scheme):
         return held(w1, w2, self.cfg, int(np.asarray(h1_s).shape[0]))
 
 
-class PdMeasured(Scheme):
+class PdMeasured(MeasuredSpeed):
     """P+d on the observed speed, damping (40) scheduled on the measured delays."""
 
     name = "pd-measured"
     title = "P+d on the robot's speed, (40) on the measured delay"
-    feedback = "measured"
     adapts = True
 
     def damping(self, h1_s: np.ndarray, h2_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

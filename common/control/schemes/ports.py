@@ -16,12 +16,17 @@ Port powers, the same for every scheme so that their observers compare:
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 __all__ = [
     "EnergyCounter",
+    "WaveGain",
     "follower_passivity",
+    "follower_power",
     "leader_passivity",
+    "leader_power",
     "wave_follower",
     "wave_gain",
     "wave_leader",
@@ -79,6 +84,48 @@ def wave_gain(newest: np.ndarray, window: int) -> np.ndarray:
     before = np.concatenate([np.zeros(w), idx[:-w]]) if idx.size > w else np.zeros_like(idx)
     rate = (idx - before) / w
     return np.asarray(np.sqrt(np.clip(rate, 0.0, 1.0)))
+
+
+class WaveGain:
+    """``sqrt(1 - dh/dt)``, at most 1, from the messages received over the last ``window_s``.
+
+    The running form of :func:`wave_gain` for a loop that sees one message at a time:
+    ``1 - dh/dt`` is the time between the send stamps of the oldest and the newest message of
+    the window over the time between their arrivals: a growing delay spreads the arrivals.
+
+    Parameters
+    ----------
+    window_s : float
+        Window [s].
+    """
+
+    def __init__(self, window_s: float = 0.5) -> None:
+        self.window_s = float(window_s)
+        self._seen: deque[tuple[float, float]] = deque()
+        self.gain = 1.0
+
+    def update(self, t_sent: float, t_recv: float) -> float:
+        """Take a new message sent at ``t_sent`` and received at ``t_recv`` [s]; return the gain."""
+        seen = self._seen
+        if seen and t_sent <= seen[-1][0]:
+            return self.gain  # not newer: no information on the rate
+        seen.append((t_sent, t_recv))
+        while len(seen) > 2 and seen[-1][1] - seen[0][1] > self.window_s:
+            seen.popleft()
+        (s0, r0), (s1, r1) = seen[0], seen[-1]
+        if r1 - r0 > 1e-6:
+            self.gain = float(np.sqrt(np.clip((s1 - s0) / (r1 - r0), 0.0, 1.0)))
+        return self.gain
+
+
+def leader_power(f_m: np.ndarray, r_m: np.ndarray) -> np.ndarray:
+    """Leader port power ``P_m = F_m r_m`` [N cm/s] (positive: the operator puts energy in)."""
+    return np.asarray(f_m * r_m)
+
+
+def follower_power(c: np.ndarray, eta: np.ndarray, k_m: np.ndarray) -> np.ndarray:
+    """Follower port power into the channel ``-k_m (c - eta) c`` [N cm/s] (negative: it drives the robot)."""
+    return np.asarray(-k_m * (c - eta) * c)
 
 
 def leader_passivity(f_m: np.ndarray, r_m: np.ndarray, observer: np.ndarray, dt: float) -> np.ndarray:

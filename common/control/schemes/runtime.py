@@ -1,59 +1,24 @@
 """A scheme's two sides in a running loop: what the leader feels, what the follower commands.
 
 The leader loop (1 kHz) and the follower loop (its control rate) keep one of these each. They
-apply the scheme's port laws (:mod:`bipedtele.control.schemes.ports`) to the newest message,
-count the energy at their port, and say what their next message carries (a wave variable and
-the port's input energy, fields ``wave`` and ``energy`` of Command and Feedback). Units as in
+call the scheme's port laws (:class:`~bipedtele.control.schemes.base.Scheme`: one run, arrays
+of shape ``(2,)``) on the newest message, let the scheme count the energy at their port
+(a scheme with a passivity observer does), and say what their next message carries (a wave variable and the port's input energy, fields ``wave`` and
+``energy`` of Command and Feedback, as the scheme decides). Units as in
 :mod:`~bipedtele.control.schemes.ports`; times in s on the receiver's clock.
 """
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
-from bipedtele.control.schemes.base import Scheme
-from bipedtele.control.schemes.ports import (
-    EnergyCounter,
-    follower_passivity,
-    leader_passivity,
-    wave_follower,
-    wave_leader,
-)
-from bipedtele.messages import MAX_ENERGY
+from bipedtele.control.schemes.base import LeaderLaw, Scheme
+from bipedtele.control.schemes.ports import EnergyCounter, WaveGain
 
-__all__ = ["FollowerPort", "LeaderPort", "WaveGain", "received"]
+__all__ = ["LOOP_WAVE_WINDOW_S", "FollowerPort", "LeaderPort", "WaveGain", "received"]
 
-
-class WaveGain:
-    """``sqrt(1 - dh/dt)``, at most 1, from the messages received over the last ``window_s``.
-
-    ``1 - dh/dt`` is the time between the send stamps of the oldest and the newest message of
-    the window over the time between their arrivals: a growing delay spreads the arrivals.
-
-    Parameters
-    ----------
-    window_s : float
-        Window [s].
-    """
-
-    def __init__(self, window_s: float = 0.5) -> None:
-        self.window_s = float(window_s)
-        self._seen: deque[tuple[float, float]] = deque()
-        self.gain = 1.0
-
-    def update(self, t_sent: float, t_recv: float) -> float:
-        """Take a new message sent at ``t_sent`` and received at ``t_recv`` [s]; return the gain."""
-        seen = self._seen
-        if seen and t_sent <= seen[-1][0]:
-            return self.gain  # not newer: no information on the rate
-        seen.append((t_sent, t_recv))
-        while len(seen) > 2 and seen[-1][1] - seen[0][1] > self.window_s:
-            seen.popleft()
-        (s0, r0), (s1, r1) = seen[0], seen[-1]
-        if r1 - r0 > 1e-6:
-            self.gain = float(np.sqrt(np.clip((s1 - s0) / (r1 - r0), 0.0, 1.0)))
-        return self.gain
+#: Window over which the real loops measure the received-wave gain ``sqrt(1 - dh/dt)`` [s]
+#: (the reduced comparison uses its own, ``CompareParams.wave_window_s``; docs/schemes.md).
+LOOP_WAVE_WINDOW_S = 0.5
 
 
 class LeaderPort:
@@ -71,8 +36,8 @@ class LeaderPort:
         self.scheme = scheme
         self.k_m = np.asarray(k_m, dtype=float)
         self.port = EnergyCounter((2,))
-        self.wave_gain = WaveGain()
-        self._v_rx = np.zeros(2)
+        self.wave_gain = scheme.gain_meter(LOOP_WAVE_WINDOW_S)
+        self._law = LeaderLaw(np.zeros(2), None, np.zeros(2))
         self._fb_key: tuple[float, float] | None = None
 
     def felt_speed(
@@ -102,24 +67,18 @@ class LeaderPort:
         if self._fb_key != (t_sent, t_recv):
             self._fb_key = (t_sent, t_recv)
             self.wave_gain.update(t_sent, t_recv)
-        other_in = np.asarray(energy, dtype=float)
-        if self.scheme.feedback == "wave":
-            self._v_rx = self.wave_gain.gain * np.asarray(wave, dtype=float)
-            f_m, _ = wave_leader(r_m, self._v_rx, self.k_m)
-        else:
-            follow = np.asarray(z_e if self.scheme.feedback == "equivalent" else eta, dtype=float)
-            f_m = self.k_m * (r_m - follow)
-            if not self.scheme.passivity:
-                return follow  # exactly what arrived: (31) as written; no energy to count (none is sent)
-        if self.scheme.passivity:
-            f_m = leader_passivity(f_m, r_m, self.port.observer(other_in), dt)
-            self.port.add(f_m * r_m, dt, other_in)
-        return np.asarray(r_m - f_m / self.k_m)
+        scheme, other_in = self.scheme, np.asarray(energy, dtype=float)
+        signal = scheme.read_feedback(z_e, eta, wave)
+        law = scheme.leader_force(r_m, signal, self.wave_gain.gain, self.k_m)
+        law = scheme.limit_leader(law, r_m, self.port, other_in, self.k_m, dt)
+        scheme.count_leader(self.port, law, r_m, other_in, dt)
+        self._law = law
+        return law.followed(r_m, self.k_m)
 
     def outgoing(self, r_m: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
         """Return the command's ``wave`` (``u_m``) and ``energy``, each None where the scheme has no use for it."""
-        wave = _pair(wave_leader(r_m, self._v_rx, self.k_m)[1]) if self.scheme.feedback == "wave" else None
-        return wave, (_energy(self.port.e_in) if self.scheme.passivity else None)
+        wave = self.scheme.command_wave(r_m, self._law, self.k_m)
+        return (None if wave is None else _pair(wave)), self.scheme.energy_sent(self.port.e_in)
 
 
 class FollowerPort:
@@ -137,7 +96,7 @@ class FollowerPort:
         self.scheme = scheme
         self.k_m = np.asarray(k_m, dtype=float)
         self.port = EnergyCounter((2,))
-        self.wave_gain = WaveGain()
+        self.wave_gain = scheme.gain_meter(LOOP_WAVE_WINDOW_S)
         self._cmd_key: tuple[float, float] | None = None
 
     def command(
@@ -158,32 +117,22 @@ class FollowerPort:
         if self._cmd_key != (t_sent, t_recv):
             self._cmd_key = (t_sent, t_recv)
             self.wave_gain.update(t_sent, t_recv)
+        scheme, k_m = self.scheme, self.k_m
         eta = np.asarray(eta, dtype=float)
-        if self.scheme.feedback == "wave":
-            c, _ = wave_follower(self.wave_gain.gain * np.asarray(wave, dtype=float), eta, self.k_m)
-        else:
-            c = np.asarray(ref, dtype=float)
         other_in = np.asarray(energy, dtype=float)
-        if self.scheme.passivity:  # the counters are sent only by a passivity scheme
-            c = follower_passivity(c, eta, self.port.observer(other_in), self.k_m, dt)
-            self.port.add(-self.k_m * (c - eta) * c, dt, other_in)
+        c = scheme.follower_command(ref, wave, self.wave_gain.gain, eta, k_m)
+        c = scheme.limit_follower(c, eta, self.port, other_in, k_m, dt)
+        scheme.count_follower(self.port, c, eta, other_in, k_m, dt)
         return np.asarray(c)
 
     def outgoing(self, eta: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
         """Return the feedback's ``wave`` (``v_s``) and ``energy``, each None where the scheme has no use for it."""
-        wave = None
-        if self.scheme.feedback == "wave":
-            wave = _pair(wave_follower(np.zeros(2), np.asarray(eta, dtype=float), self.k_m)[1])
-        return wave, (_energy(self.port.e_in) if self.scheme.passivity else None)
+        wave = self.scheme.feedback_wave(np.asarray(eta, dtype=float), self.k_m)
+        return (None if wave is None else _pair(wave)), self.scheme.energy_sent(self.port.e_in)
 
 
 def _pair(v: np.ndarray) -> list[float]:
     return [float(v[0]), float(v[1])]
-
-
-def _energy(e: np.ndarray) -> list[float]:
-    """Return the energy counters as sent: bounded by what a message may carry."""
-    return [min(float(x), MAX_ENERGY) for x in e]
 
 
 def received(value: list[float] | None) -> np.ndarray:
