@@ -1,7 +1,8 @@
 """A robot, a device and an operator from another distribution: one module and one entry point each.
 
-``tests/plugins/toy`` is what a third party would install: three modules (``toy_walker``,
-``toy_handle``, ``toy_cruise``: settings, class and part in each) and one ``.dist-info``
+``tests/plugins/toy`` is what a third party would install: four modules (``toy_walker``,
+``toy_handle``, ``toy_cruise``: settings, class and part in each; ``toy_scheme``, a control
+scheme: tests/e2e/test_toy_scheme_demo.py) and one ``.dist-info``
 whose ``entry_points.txt`` holds one line per part. Nothing in bipedtele names them. With
 that folder on ``PYTHONPATH``:
 
