@@ -36,8 +36,24 @@ def test_the_demo_drives_the_robot_with_the_toy_scheme(tmp_path: Path) -> None:
         sys.path.remove(str(PLUGIN))
     run_dir, out_json = tmp_path / "run", tmp_path / "report.json"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(PLUGIN), os.environ.get("PYTHONPATH", "")) if p)}
-    demo = [sys.executable, "-m", "bipedtele.cli", "demo", "--scheme", "toy-damped", "--headless", "--quiet",
-            "--duration", "12", "--run-dir", str(run_dir), "--json", str(out_json), "--set", "follower.camera_fps=0"]  # fmt: skip
+    demo = [
+        sys.executable,
+        "-m",
+        "bipedtele.cli",
+        "demo",
+        "--scheme",
+        "toy-damped",
+        "--headless",
+        "--quiet",
+        "--duration",
+        "12",
+        "--run-dir",
+        str(run_dir),
+        "--json",
+        str(out_json),
+        "--set",
+        "follower.camera_fps=0",
+    ]
     proc = subprocess.run(demo, capture_output=True, text=True, timeout=140, env=env)
     logs = {p.name: p.read_text(errors="replace")[-2000:] for p in run_dir.glob("*.log")}
     assert proc.returncode == 0, f"demo failed: {proc.stderr[-2000:]}\n{logs}"

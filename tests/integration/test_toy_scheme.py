@@ -58,8 +58,22 @@ def test_the_contract_checker_passes_over_every_registered_scheme_the_toy_includ
 
 @pytest.mark.timeout(120)
 def test_compare_runs_the_toy_scheme_on_the_reduced_model() -> None:
-    args = ["compare", "--walker-runs", "0", "--runs", "3", "--duration", "5", "--schemes", "toy-damped",
-            "--regimes", "trace", "--no-margin", "--json", "-"]  # fmt: skip
+    args = [
+        "compare",
+        "--walker-runs",
+        "0",
+        "--runs",
+        "3",
+        "--duration",
+        "5",
+        "--schemes",
+        "toy-damped",
+        "--regimes",
+        "trace",
+        "--no-margin",
+        "--json",
+        "-",
+    ]
     res = _run([*CLI, *args])
     assert res.returncode == 0, res.stderr[-3000:]
     out = json.loads(res.stdout)
