@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 from bipedtele.config import load_config
+from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.app import COCKPIT_TOKEN_ENV, LeaderApp
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
@@ -124,7 +125,7 @@ def run_alone(seconds: float) -> dict:
         now = time.time()
         return Feedback(t=now - 0.05, z_e=list(z), h1_s=0.05), now
 
-    loop = LeaderLoop(dev, op, cfg.control, lambda c: None, latest, cfg=cfg.leader)
+    loop = LeaderLoop(dev, op, cfg.control, lambda c: None, FeedbackInbox(source=latest), cfg=cfg.leader)
     loop.run(duration_s=seconds)
     dev.disconnect()
     return {**loop.period_stats.summary(loop.dt), "missed_ticks": loop.missed_ticks}

@@ -45,6 +45,7 @@ from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.foxglovelive import LiveView, parse_address
 from bipedtele.gate import MessageGate
+from bipedtele.inbox import LatestInbox
 from bipedtele.messages import ClockPing, ClockPong, Hello, Message, new_session_id
 from bipedtele.receivers import LatestReceiver, Received
 from bipedtele.recordfiles import recording_for_run
@@ -362,6 +363,7 @@ class Node:
         ignore_sid: int | None = None,
         max_age_s: float | Callable[[float], float] | None = None,
         on_too_old: Callable[[Received[M]], None] | None = None,
+        inbox: Callable[..., LatestInbox[M]] | None = None,
     ) -> LatestReceiver[M]:
         """Declare a receiver of ``key`` with the node's checks; it lives as long as the node.
 
@@ -386,6 +388,9 @@ class Node:
             estimator see them (a callable gets the receive time and returns the bound).
         on_too_old : callable, optional
             Called with each message refused as too old, instead of counting it.
+        inbox : callable, optional
+            Builds the inbox that admits the messages (a command or feedback inbox, with
+            the node's checks; :class:`~bipedtele.receivers.LatestReceiver`).
         """
         record, recorder = self.record, self.recorder
         authentic = self.drops.authentic if self.auth is not None else None
@@ -415,6 +420,7 @@ class Node:
             self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
             auth=auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
             on_message=accepted if wants else None, max_age_s=max_age_s, on_too_old=on_too_old, handshake=hs,
+            inbox=inbox,
         )  # fmt: skip
         return self.enter(rx)
 

@@ -16,6 +16,7 @@ Nothing is written (recording) before the configuration is valid.
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import math
 import time
@@ -27,15 +28,16 @@ from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, add_foxglove_arg, config_from_args
 from bipedtele.config import Config, ConfigError
 from bipedtele.control.config import ControlConfig
-from bipedtele.follower.capacity import UplinkBudget
+from bipedtele.follower.capacity import FeedbackPlan, UplinkBudget
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.custody import CustodyGate
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.realtime import RealtimeStepper
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot, robot_names, robot_part
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.gate import SequenceGate
+from bipedtele.inbox import CommandInbox
 from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.node import Node, StepClock
 from bipedtele.pacer import Pacer
@@ -123,23 +125,19 @@ class FollowerApp:
         # Woken by the command receiver: a fresh command is applied at once (pickup).
         self.pacer: Pacer | None = None
         self._stepper: RealtimeStepper | None = None
-        self._cmd_rx: LatestReceiver[Command] | None = None
         self._outlets: dict[type[Message], tuple[MessagePublisher, str]] = {}
         # The uplink: bytes sent counted at the publish call, the leader's rx_bps in.
         self.budget = UplinkBudget(self.clock)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
         self._fb_times: list[float] = []
+        self._plan = FeedbackPlan(True, float(self.fcfg.feedback_rate_hz), math.inf)
         self._status_rx: LatestReceiver[Status] | None = None
         self._video: VideoStreamer | None = None
 
     # ------------------------------------------------------------------ wiring
 
-    def _take_command(self) -> tuple[Command, float] | None:
-        got = self._cmd_rx.take() if self._cmd_rx is not None else None
-        if got is None:
-            return None
-        self.budget.on_h2(got.msg.h2_s)  # the leader's feedback-path delay
-        return got.msg, got.t_recv
+    def _on_take(self, cmd: Command) -> None:
+        self.budget.on_h2(cmd.h2_s)  # the leader's feedback-path delay, from every command taken
 
     def _on_command(self, got: Received[Command]) -> None:  # Zenoh's thread: wake the loop
         if self.pacer is not None:
@@ -157,15 +155,13 @@ class FollowerApp:
         self.node.pubs.video.put(frame)
         self.budget.sent(len(encode(frame)) + self._mac_bytes, video=True)
 
-    def _adapt(self, loop: FollowerLoop) -> None:
+    def _adapt(self) -> None:
         """Once per tick: the leader's figures in, the feedback plan and video's budget out."""
         got = self._status_rx.take() if self._status_rx is not None else None
         if got is not None and got.msg.role == "leader":
             self.budget.on_leader_status(got.msg.counters, self.node.to_local(got.msg.t))
         self.budget.update()
-        plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz)
-        loop.ack_each_command, loop.feedback_rate_hz = plan.ack_each_command, plan.rate_hz
-        loop.min_fb_interval_s = plan.min_interval_s
+        self._plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz)  # the loop reads it
         if self._video is not None:
             b = self.budget
             self._video.set_budget(b.video_budget_bps(), b.frame_bits_max(), b.part_bits_max())
@@ -208,13 +204,13 @@ class FollowerApp:
         reset()
         return True
 
-    def _make_loop(self, robot: FollowerRobot) -> FollowerLoop:
+    def _make_loop(self, robot: FollowerRobot, inbox: CommandInbox) -> FollowerLoop:
         node = self.node
         return FollowerLoop(
-            robot, self.cfg.get(ControlConfig), self.fcfg, self._take_command, self._publish,
-            now=self.clock, to_local=node.to_local, drops=node.drops, sid=node.sid,
-            delay_window_s=self.cfg.get(ClockConfig).delay_window_s, on_event=node.event, conservative_rtt=node.round_trip,
+            robot, self.cfg.get(ControlConfig), self.fcfg, inbox, self._publish,
+            now=self.clock, drops=node.drops, sid=node.sid, on_event=node.event, conservative_rtt=node.round_trip,
             on_new_leader=self._reset_robot if self.reset_on_leader else None,
+            feedback_plan=lambda: self._plan, extra_counters=self._status_counters, held_by=lambda: self.gate.held_by,
         )  # fmt: skip
 
     # ------------------------------------------------------------------ run
@@ -235,22 +231,24 @@ class FollowerApp:
             node.declare_presence()
             pubs = node.pubs
             self._outlets = {Feedback: (pubs.feedback, "feedback/sent"), Status: (pubs.status, "status/sent")}
-            loop = self._make_loop(robot)
-            loop.extra_counters = self._status_counters
-            loop.held_by = lambda: self.gate.held_by
             # The leader's Status: what it receives of ours (rx_bps) for the uplink budget.
             self._status_rx = node.receive(
                 node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid
             )
-            # Every accepted command: recorded once here; h1 is fed once, by the loop that takes it.
-            self._cmd_rx = node.receive(
+            # Every admitted command: recorded once here, into the inbox the loop takes from
+            # (every check on a command; h1, and the leader's h2 for the uplink budget).
+            cmd_rx = node.receive(
                 node.keys.cmd,
                 Command,
                 self.gate,
                 topic="cmd/recv",
                 on_message=self._on_command,
                 max_age_s=self.fcfg.max_cmd_age_s,  # before the gate: an old replay never binds it
-            )
+                inbox=functools.partial(command_inbox, self.fcfg, to_local=node.to_local, on_take=self._on_take,
+                                        delay_window_s=self.cfg.get(ClockConfig).delay_window_s),
+            )  # fmt: skip
+            assert isinstance(cmd_rx.inbox, CommandInbox)
+            loop = self._make_loop(robot, cmd_rx.inbox)
             backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
             video = node.enter(VideoStreamer(
@@ -279,7 +277,7 @@ class FollowerApp:
         start_t = clock()
 
         def step(t: float) -> bool:
-            self._adapt(supervisor.loop)
+            self._adapt()
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)
@@ -304,7 +302,7 @@ class FollowerApp:
         start_t = self.clock()
 
         def tick() -> None:
-            self._adapt(loop)
+            self._adapt()
             tel = supervisor.tick()
             if tel is not None:
                 video.maybe_capture(tel.t)

@@ -2,10 +2,10 @@
 
 Every control period ``dt`` the loop
 
-1. takes the newest command not taken before (dropping those older than
-   ``max_cmd_age_s``); the forward-delay estimator h1 (1 s moving average,
-   docs/method.md) is fed by the transport's receiver with every accepted command, or by
-   the loop itself when it was given none;
+1. takes the newest admitted command from its :class:`~bipedtele.inbox.CommandInbox`,
+   which owns every check on a command (too old, an outage's backlog, reordered, a new
+   leader session) and feeds the forward-delay estimator h1 (1 s moving average,
+   docs/method.md), whether the loop runs in the program or alone;
 2. recomputes, when h1 or h2 moved, the equivalent damping sigma_e from (40) and the
    walking parameters (sigma_r, T, eps) from (30) (V.2 and V.3 of the cascade);
 3. turns the sonar ranges into the fictitious force f_v (Sec. 3.2.1);
@@ -25,15 +25,16 @@ and ``ref`` the mean reference applied over the ticks since the previous footfal
 Safety: with no new command for ``watchdog_s`` (local receive time) the robot stops and
 stands (``watchdog_stops``, event ``watchdog_stop``); a command with ``enable`` false, the
 operator releasing, stops it as a normal end (``operator_stops``, event ``operator_stop``).
-No outage's backlog reaches the robot: after a silence longer than ``watchdog_s``, a command delayed more than ``watchdog_s`` beyond
-the path's baseline delay (the minimum h1 of the commands applied over the last
-``backlog_window_s``, :class:`~bipedtele.follower.backlog.DelayBaseline`) is dropped
-(``cmd_backlog``), and one sent before the command applied last (same leader session) is
-dropped too (``cmd_reordered``): after an outage walking resumes on fresh commands only. A fall (torso tilt) stops it, is counted (every fall) and
+No outage's backlog reaches the robot: the inbox refuses, after a silence longer than
+``watchdog_s``, a command delayed more than ``watchdog_s`` beyond the path's baseline delay
+(the minimum h1 of the commands applied over the last ``backlog_window_s``,
+:class:`~bipedtele.follower.backlog.DelayBaseline`; ``cmd_backlog``), and one sent before
+the command applied last (``cmd_reordered``): after an outage walking resumes on fresh
+commands only. A fall (torso tilt) stops it, is counted (every fall) and
 **latches**: the robot walks again only after the operator re-arms (a command with
 ``enable`` false, then true) once it stands again. A command stamped too far ahead of the
-local clock never reaches the loop (the node's receiver drops it as ``future``: the one
-check); a small lead (clock jitter) is a zero delay, and every delay is clamped at >= 0
+local clock never reaches the loop (the inbox drops it as ``future``: the one check); a
+small lead (clock jitter) is a zero delay, and every delay is clamped at >= 0
 before the estimators and control laws see it, so no timestamp can make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a tick or a
 robot call failed: the robot is stopped if it can be reached and the walk state is
 forgotten, so walking resumes smoothly once the robot answers again. What the walk is
@@ -48,8 +49,10 @@ publishes the feedback that acknowledges it. The discrete laws keep their period
 models step once per period (the newest command is the period's sample), (40) and (30)
 are recomputed under the same ``param_update_s`` rule.
 
-The loop is transport-agnostic: it gets callables for taking a new command and for
-publishing, so it runs in simulated time in tests and over Zenoh in the program.
+The loop is transport-agnostic: it gets an inbox (fed by a Zenoh receiver in the program,
+by a simulated transport in tests) and a callable for publishing. It is built in one call:
+what the program changes while it runs (the feedback plan, its Status figures, who holds
+the robot) it reads from callables given at construction, once per tick.
 """
 
 from __future__ import annotations
@@ -63,7 +66,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from bipedtele.clock import DelayEstimator, conservative_delays
+from bipedtele.clock import conservative_delays
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
@@ -72,20 +75,22 @@ from bipedtele.control.schemes import make_scheme
 from bipedtele.control.schemes.runtime import FollowerPort, received
 from bipedtele.drops import DropCounter
 from bipedtele.follower.backlog import DelayBaseline
+from bipedtele.follower.capacity import FeedbackPlan
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
+from bipedtele.inbox import COMMAND_COUNTERS, CommandInbox
 from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
 
-__all__ = ["FollowerLoop", "FollowerTelemetry"]
+__all__ = ["FollowerLoop", "FollowerTelemetry", "command_inbox"]
 
 LOG = logging.getLogger(__name__)
 
 CM = 100.0  # cm per m
 #: Largest delay the loop passes on to (40) and (30) [s] (as the messages allow).
 _MAX_DELAY_S = 60.0
-#: The loop's counters, in every Status (``FollowerLoop.counters``).
+#: The loop's counters and its inbox's, in every Status (``FollowerLoop.counters``).
 _COUNTERS = (
     "cmd_accepted",
     "cmd_too_old",
@@ -144,20 +149,14 @@ class FollowerLoop:
         The ``[control]`` section.
     cfg : FollowerConfig
         The ``[follower]`` section.
-    take_command : callable
-        Returns ``(Command, t_recv)`` of the newest valid command not taken before (t_recv
-        on the local clock [s]) or None. The transport's sequence gate is the only
-        de-duplication: a command given again is taken again.
+    inbox : CommandInbox
+        Where commands are admitted (:func:`command_inbox`); the loop takes from it and
+        checks nothing. Its counters and h1 are the loop's.
     publish : callable
         ``publish(msg)`` for Feedback and Status messages.
     now : callable
         Local clock [s] used for message times, delays and the watchdog (``time.time``;
         a simulated clock in tests).
-    to_local : callable
-        Converts a sender time to the local clock (identity with a synced clock; the
-        NTP offset otherwise).
-    delay_window_s : float
-        Window of the h1 moving average [s].
     on_event : callable, optional
         ``on_event(name, detail_dict)`` for falls, watchdog stops, collisions (recording).
     conservative_rtt : callable, optional
@@ -172,6 +171,17 @@ class FollowerLoop:
         The node's drop counter; its counts go into every Status as ``drop_<reason>``.
     sid : int, optional
         The follower's session id (default: a new random one).
+    feedback_plan : callable, optional
+        ``() -> FeedbackPlan``, read at every tick and pickup: whether each command picked
+        up between ticks is acknowledged at once, the periodic feedback rate, and the least
+        interval after which one is still acknowledged at once (the program's uplink
+        budget, docs/follower.md). Default: every command acknowledged, at
+        ``feedback_rate_hz``. A callable (not a tick argument): the supervisor runs the
+        tick and the real-time stepper the pickup, neither knows the plan.
+    extra_counters : callable, optional
+        ``() -> dict``: the program's figures, merged into every Status.
+    held_by : callable, optional
+        ``() -> str | None``: who holds the robot (follower/custody.py), for the Status.
     """
 
     def __init__(
@@ -179,32 +189,30 @@ class FollowerLoop:
         robot: FollowerRobot,
         control: ControlConfig,
         cfg: FollowerConfig,
-        take_command: Callable[[], tuple[Command, float] | None],
+        inbox: CommandInbox,
         publish: Callable[[Any], None],
         *,
         now: Callable[[], float] = time.time,
-        to_local: Callable[[float], float] = lambda t: t,
-        delay_window_s: float = 1.0,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
         conservative_rtt: Callable[[], float | None] | None = None,
         on_new_leader: Callable[[int], bool] | None = None,
         drops: DropCounter | None = None,
         sid: int | None = None,
+        feedback_plan: Callable[[], FeedbackPlan] | None = None,
+        extra_counters: Callable[[], dict[str, int]] | None = None,
+        held_by: Callable[[], str | None] | None = None,
     ) -> None:
         self.robot = robot
         self.control = control
         self.cfg = cfg
         self.dt = 1.0 / cfg.control_rate_hz
-        self._take = take_command
+        self.inbox = inbox
         self._publish = publish
         self._now = now
-        self._to_local = to_local
         self._on_event = on_event or (lambda name, detail: None)
         self._conservative_rtt = conservative_rtt
         self._on_new_leader = on_new_leader
         self.sid = new_session_id() if sid is None else int(sid)
-        #: The forward-delay (h1) estimator: fed here, once, with every command taken.
-        self.h1 = DelayEstimator(delay_window_s)
         self._drops = drops
         self.chooser = OnlineChooser(control)
         #: The control scheme (``[control] scheme``): the damping sigma_e that (29) and (30) use.
@@ -216,22 +224,12 @@ class FollowerLoop:
         lim = robot.limits
         self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
         self.telemetry = FollowerTelemetry()
-        self.counters: dict[str, int] = dict.fromkeys(_COUNTERS, 0)
-        #: Publish a Feedback for every command picked up between ticks (False: the next
-        #: periodic feedback acknowledges it; the program clears it on a full uplink).
-        self.ack_each_command = True
-        #: Without ``ack_each_command``, a command is still acknowledged at once when the
-        #: previous feedback left at least this long ago [s] (the uplink's feedback budget).
-        self.min_fb_interval_s = math.inf
+        self._counts: dict[str, int] = {k: 0 for k in _COUNTERS if k not in COMMAND_COUNTERS}
+        default_plan = FeedbackPlan(True, float(cfg.feedback_rate_hz), math.inf)
+        self._plan: Callable[[], FeedbackPlan] = feedback_plan or (lambda: default_plan)
         self._last_fb_t = -math.inf
-        #: Periodic feedback rate [Hz] (``feedback_rate_hz``; lowered on a full uplink).
-        self.feedback_rate_hz = float(cfg.feedback_rate_hz)
-        #: Extra Status counters (the program's uplink figures), merged into every Status.
-        self.extra_counters: Callable[[], dict[str, int]] | None = None
-        # who holds the robot (follower/custody.py), for the Status; None: free
-        self.held_by: Callable[[], str | None] = lambda: None
-        self.baseline = DelayBaseline(window_s=cfg.backlog_window_s, relearn_s=cfg.backlog_window_s)
-        self._next_backlog_log = -math.inf
+        self._extra_counters = extra_counters
+        self._held_by = held_by
         self._cmd: Command | None = None
         self._cmd_recv = -math.inf
         self._period: _PeriodStart | None = None
@@ -243,7 +241,6 @@ class FollowerLoop:
         self._T_sent, self._eps_sent = clamped.cycle_s, clamped.eps_s
         #: The walk's state (:mod:`bipedtele.follower.walkstate`): motion, fall latch, refusal.
         self.walk_state = WalkState.STANDING
-        self._leader_sid: int | None = None
         self._in_contact = False
         self._fb_seq = self._st_seq = 0
         self._next_fb = self._next_status = -math.inf
@@ -271,59 +268,24 @@ class FollowerLoop:
     # ------------------------------------------------------------------ command intake
 
     def _take_command(self, now: float) -> bool:
-        """Take a new command if there is one; True when one was accepted."""
-        rec = self._take()
-        if rec is None:
+        """Apply the inbox's next command if there is one (it checked it); True when one was taken."""
+        got = self.inbox.take_command(now)
+        if got is None:
             return False
-        msg, t_recv = rec
-        t_sent = self._to_local(msg.t)  # within [clock] max_future_s of the receive time: the receiver checked
-        # A send time a little after the receive time (clock jitter within the tolerance)
-        # is a zero delay, never a negative one.
-        self.h1.update(min(t_sent, t_recv), t_recv)
-        if now - t_sent > self.cfg.max_cmd_age_s:
-            self.counters["cmd_too_old"] += 1
-            return False
-        delay = max(0.0, t_recv - t_sent)
-        base = self.baseline.value(now)
-        if base is not None and delay > base + self.cfg.watchdog_s and t_recv - self._cmd_recv > self.cfg.watchdog_s:
-            # After a silence longer than the watchdog (an outage), a command delayed more
-            # than the watchdog beyond the path's usual delay was queued in the path: walking
-            # resumes on fresh commands only. While commands keep coming (no silence), a
-            # slow rise of the delay (the trace's peaks) is the path's and stays accepted.
-            self.counters["cmd_backlog"] += 1
-            if self.baseline.dropped(now, delay):
-                LOG.warning("every command for %.0f s came %.2f s or more late: the path's delay changed, "
-                            "baseline now %.3f s", self.baseline.relearn_s, delay, self.baseline.value(now))  # fmt: skip
-            elif now >= self._next_backlog_log:
-                self._next_backlog_log = now + 5.0
-                LOG.warning(
-                    "dropping a command queued in the path: delay %.3f s, baseline %.3f s, watchdog %.2f s (%d so far)",
-                    delay,
-                    base,
-                    self.cfg.watchdog_s,
-                    self.counters["cmd_backlog"],
-                )
-            return False
-        last = self._cmd
-        if last is not None and msg.sid == last.sid and msg.t < last.t:
-            # Never apply a command sent before one already applied (the gate orders by
-            # seq; this holds whatever the sender's seq and clock did).
-            self.counters["cmd_reordered"] += 1
-            return False
-        self.baseline.accepted(now, delay)
-        self._cmd = msg
-        self._cmd_recv = t_recv
-        self.counters["cmd_accepted"] += 1
-        if msg.sid != self._leader_sid:
-            self._leader_sid = msg.sid
-            self.counters["leader_sessions"] += 1
-            if self._on_new_leader is not None and self._on_new_leader(msg.sid):
-                self._after_reset(now)
+        self._cmd, self._cmd_recv = got.msg, got.t_recv
+        if got.new_session and self._on_new_leader is not None and self._on_new_leader(got.msg.sid):
+            self._after_reset(now)
         return True
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """The loop's counters and its inbox's, in one dict (a copy)."""
+        inbox = self.inbox.counters
+        return {k: inbox[k] if k in inbox else self._counts[k] for k in _COUNTERS}
 
     def _after_reset(self, now: float) -> None:
         """Forget the walk state and the latch: the robot was put back on its start pose."""
-        self.counters["resets"] += 1
+        self._counts["resets"] += 1
         self.reference.reset()
         self.equivalent.reset()
         self._fire(WalkEvent.RESET)
@@ -339,7 +301,7 @@ class FollowerLoop:
         Never raises. The next successful tick stops the robot again before anything else
         unless a fresh command makes it walk (the first stop may not have reached it).
         """
-        self.counters["robot_faults"] += 1
+        self._counts["robot_faults"] += 1
         self.reference.reset()
         self._fire(WalkEvent.FAULT)
         self.telemetry.state = "error"
@@ -373,7 +335,7 @@ class FollowerLoop:
         tel = self._control(now, obs)
         self._odometry(obs, now, tel.ref)
         if now >= self._next_fb:
-            self._next_fb = max(now, self._next_fb + 1.0 / self.feedback_rate_hz)
+            self._next_fb = max(now, self._next_fb + 1.0 / self._plan().rate_hz)
             self._publish(self._feedback(now, obs))
             self._last_fb_t = now
         if now >= self._next_status:
@@ -406,7 +368,8 @@ class FollowerLoop:
             old_ref = self.telemetry.ref
             tel = self._control(now, start.obs)
             self._ref_sum = self._ref_sum + (np.asarray(tel.ref, dtype=float) - np.asarray(old_ref, dtype=float))
-            if self.ack_each_command or now - self._last_fb_t >= self.min_fb_interval_s:
+            plan = self._plan()
+            if plan.ack_each_command or now - self._last_fb_t >= plan.min_interval_s:
                 # else the next periodic feedback acknowledges it
                 self._publish(self._feedback(now, start.obs))
                 self._last_fb_t = now
@@ -419,19 +382,19 @@ class FollowerLoop:
     def _watch(self, obs: RobotObservation, now: float) -> None:
         """Collisions and falls: count, report, and latch a fall (stopping the robot)."""
         if obs.in_contact and not self._in_contact:
-            self.counters["collisions"] += 1
+            self._counts["collisions"] += 1
             self._on_event("collision", {"t": now, "pose": list(obs.pose)})
         self._in_contact = obs.in_contact
 
         if obs.fallen and not self.walk_state.lying:  # every fall: stop, count, latch
-            self.counters["falls"] += 1
+            self._counts["falls"] += 1
             LOG.error(
                 "robot fell (tilt %.1f deg, fall %d): stopping; it walks again after it stands "
                 "and the operator re-arms (release, then enable)",
                 math.degrees(obs.tilt_rad),
-                self.counters["falls"],
+                self._counts["falls"],
             )
-            self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self.counters["falls"]})
+            self._on_event("fall", {"t": now, "tilt_rad": obs.tilt_rad, "n": self._counts["falls"]})
             self.robot.stop()
             self._fire(WalkEvent.FELL)
         elif not obs.fallen and self.walk_state.lying:
@@ -440,7 +403,7 @@ class FollowerLoop:
     def _control(self, now: float, obs: RobotObservation) -> FollowerTelemetry:
         """Run the period's control update: (40)/(30) when due, (28) and (29), the walk or stop."""
         tel = self.telemetry
-        h1_est = self.h1.value(now)
+        h1_est = self.inbox.h1.value(now)
         h1 = _delay(tel.h1_s if h1_est is None else h1_est)
         h2 = _delay(self._cmd.h2_s) if self._cmd is not None else 0.0
         rtt = self._conservative_rtt() if self._conservative_rtt is not None else None
@@ -474,11 +437,11 @@ class FollowerLoop:
                         self._cmd is not None and not self._cmd.enable and now - self._cmd_recv <= self.cfg.watchdog_s
                     )
                     if released:  # a normal end: the operator let go
-                        self.counters["operator_stops"] += 1
+                        self._counts["operator_stops"] += 1
                         LOG.info("stopping: operator released")
                         self._on_event("operator_stop", {"t": now, "why": "operator released"})
                     else:
-                        self.counters["watchdog_stops"] += 1
+                        self._counts["watchdog_stops"] += 1
                         LOG.warning("stopping: no fresh command")
                         self._on_event("watchdog_stop", {"t": now, "why": "no fresh command"})
                 self._fire(WalkEvent.NO_FRESH_COMMAND)
@@ -551,7 +514,7 @@ class FollowerLoop:
             self._fire(WalkEvent.WALK_REFUSED)
             if not reported:
                 self._on_event("walk_refused", {"t": now, "why": str(exc)})
-            self.counters["walk_refused"] += 1
+            self._counts["walk_refused"] += 1
             self.reference.reset()
             return None, "standing"
         self._fire(WalkEvent.WALK_SENT)
@@ -615,15 +578,15 @@ class FollowerLoop:
             state=self.telemetry.state,
             counters=self._counters(),
             text=f"robot={self.robot.name} T={self._T:.2f}s{self._status_note()}",
-            held_by=self.held_by() or "",
+            held_by=(self._held_by() if self._held_by is not None else None) or "",
         )
 
     def _counters(self) -> dict[str, int]:
-        counters = dict(self.counters)
+        counters = self.counters
         if self._drops is not None:
             counters.update({f"drop_{k}": v for k, v in self._drops.counts().items()})
-        if self.extra_counters is not None:
-            counters.update(self.extra_counters())
+        if self._extra_counters is not None:
+            counters.update(self._extra_counters())
         return counters
 
     def _status_note(self) -> str:
@@ -634,6 +597,17 @@ class FollowerLoop:
         if self.telemetry.state == "error":
             return " robot fault (see the follower log)"
         return ""
+
+
+def command_inbox(cfg: FollowerConfig, **kwargs: Any) -> CommandInbox:
+    """Return a command inbox with the ``[follower]`` section's take checks.
+
+    ``max_cmd_age_s``, ``watchdog_s`` and a :class:`~bipedtele.follower.backlog.DelayBaseline`
+    over ``backlog_window_s``; ``kwargs`` go to :class:`~bipedtele.inbox.CommandInbox`
+    (``source`` for a loop run alone; the admission checks).
+    """
+    baseline = DelayBaseline(window_s=cfg.backlog_window_s, relearn_s=cfg.backlog_window_s)
+    return CommandInbox(cfg.max_cmd_age_s, cfg.watchdog_s, baseline, **kwargs)
 
 
 def _fictitious_force(cfg: FollowerConfig) -> FictitiousForce:

@@ -18,8 +18,10 @@ router down?)``), and a run in which none ever got through ends with exit code
 :data:`EXIT_NOT_REACHED` (3).
 
 :class:`~bipedtele.leader.linkquality.LinkQuality` measures the link from what arrives
-(feedback age, loss, goodput, video rate); feedback older than its bound is refused
-(counted as the drop ``fb_too_old``) and never reaches the loop; the link state in the
+(feedback age, loss, goodput, video rate); it judges, for the feedback inbox
+(:class:`~bipedtele.inbox.FeedbackInbox`, where every check on feedback is made), whether a
+feedback is young enough: one older than its bound is refused (counted as the drop
+``fb_too_old``) and never reaches the loop; the link state in the
 sample (``link``) is its verdict, and the leader's Status carries ``rx_bps``,
 ``fb_loss_ppm`` and ``fb_age_ms`` for the follower to adapt its rates.
 """
@@ -43,9 +45,9 @@ from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, add_foxglove_arg, config_from_args
 from bipedtele.config import Config, ConfigError
 from bipedtele.control.config import ControlConfig
-from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
+from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import DeviceError, LeaderDevice, PadInput, device_names, make_device
 from bipedtele.leader.linkquality import LinkQuality, LinkReport
@@ -338,7 +340,6 @@ class LeaderApp:
         self.node = Node(
             cfg, "leader", takeover_after_s=cfg.get(LeaderConfig).feedback_timeout_s, record=record
         )  # a bad key file or --record fails here
-        self.estimator = DelayEstimator(cfg.get(ClockConfig).delay_window_s)
         # The feedback gate follows one follower session; its live sid binds the clock link.
         # Without the message key a forged high seq is rolled back after 3 real feedbacks.
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
@@ -348,7 +349,6 @@ class LeaderApp:
         self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
         self._frames = FrameAssembler(self.node.drops)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
-        self._fb_ok: Received[Feedback] | None = None  # the newest feedback young enough to use
         self.clock: Callable[[], float] = time.time if self.realtime else StepClock(1.0 / lc.haptic_rate_hz)
         # The predictive display's fields (docs/cockpit.md): the pilot's own predictor when
         # it steers on one, else one fed here from the same samples.
@@ -356,7 +356,6 @@ class LeaderApp:
         self.own_live = live is None
         self.live: LivePredictor = LivePredictor(DelayPredictor(tau_s=lc.pilot_predict_tau_s)) if live is None else live
         self.predict_every = max(1, round(lc.cmd_rate_hz / lc.cockpit_rate_hz))
-        self._fb_rx: LatestReceiver[Feedback] | None = None
 
     # ------------------------------------------------------------------ wiring
 
@@ -391,19 +390,16 @@ class LeaderApp:
         """
         return len(encode(msg)) + self._mac_bytes
 
-    def _on_feedback(self, got: Received[Feedback]) -> None:
-        """Every feedback the receiver accepted (Zenoh's thread): reach, link, age bound."""
+    def _judge_feedback(self, got: Received[Feedback], t_sent: float) -> bool:
+        """Tell the link of a feedback the inbox admitted or found too old; whether it is young enough.
+
+        ``t_sent`` is its send time on the local clock [s]. Zenoh's thread.
+        """
         msg = got.msg
-        t_sent = self.node.to_local(msg.t)
-        if self.link.on_feedback(msg.sid, msg.seq, t_sent, got.t_recv, self._size(msg)):
-            self._fb_ok = got
-            self.reach.on_feedback(msg, got.t_recv - t_sent)  # only young feedback acknowledges commands
-        else:
-            self.node.drops.drop(
-                "fb_too_old",
-                f"feedback sid={msg.sid} seq={msg.seq} sent {got.t_recv - t_sent:.1f} s ago "
-                f"(bound {self.link.max_age_s(got.t_recv):.1f} s): not shown as live",
-            )  # fmt: skip
+        if not self.link.on_feedback(msg.sid, msg.seq, t_sent, got.t_recv, self._size(msg)):
+            return False  # the inbox counts it (fb_too_old)
+        self.reach.on_feedback(msg, got.t_recv - t_sent)  # only young feedback acknowledges commands
+        return True
 
     def _on_video(self, got: Received[VideoFrame]) -> None:
         msg = got.msg
@@ -425,9 +421,10 @@ class LeaderApp:
             self.reach.on_heard(got.t_recv - self.node.to_local(got.msg.t))
             self.link.on_status(got.t_recv, self._size(got.msg))
 
-    def _latest_feedback(self) -> tuple[Feedback, float] | None:
-        got = self._fb_ok
-        return (got.msg, got.t_recv) if got is not None else None
+    def _feedback_inbox(self, **checks: Any) -> FeedbackInbox:
+        """Build the feedback inbox with the node's ``checks``: h2, the link's judgement."""
+        return FeedbackInbox(delay_window_s=self.cfg.get(ClockConfig).delay_window_s, judge=self._judge_feedback,
+                             **checks)  # fmt: skip
 
     def _send_command(self, cmd: Command) -> None:
         self.node.pubs.cmd.put(cmd)
@@ -502,17 +499,18 @@ class LeaderApp:
             if lc.cockpit:
                 self.cockpit = self._start_cockpit()
             recorder = node.start_recording({"operator": self.op_name, "device": self.dev_name}, jpeg_every=10)
-            self._fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
-                                       estimator=self.estimator, on_message=self._on_feedback,
-                                       # too old: refused before the gate binds and h2 moves
-                                       max_age_s=self.link.max_age_s, on_too_old=self._on_feedback)  # fmt: skip
+            # every check on feedback, h2 and the link's judgement in one inbox; too old:
+            # refused before the gate binds and h2 moves
+            fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
+                                 max_age_s=self.link.max_age_s, inbox=self._feedback_inbox)  # fmt: skip
+            assert isinstance(fb_rx.inbox, FeedbackInbox)
             node.receive(node.keys.video, VideoFrame, SequenceGate(), on_message=self._on_video)
             status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid,
                                      on_message=self._on_status)  # fmt: skip
             node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
             self.loop = loop = LeaderLoop(
-                self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, self._latest_feedback,
-                cfg=lc, clock=self.clock, estimator=self.estimator, conservative_rtt=node.round_trip,
+                self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, fb_rx.inbox,
+                cfg=lc, clock=self.clock, conservative_rtt=node.round_trip,
                 on_sample=self._on_sample, sid=node.sid, operator_name=self.cfg.get(NetworkConfig).user,
                 feedback_age=self.link.feedback_age if self.realtime else None, on_blind=node.event,
             )  # fmt: skip

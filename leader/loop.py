@@ -3,9 +3,11 @@
 Every haptic tick (1 kHz by default) the loop
 
 1. reads the handle (x_m, dx_m);
-2. takes the latest feedback; a new one feeds the backward-delay estimator h2 (1 s moving
-   average of ``t_recv - feedback.t``); h1 is the follower's own estimate
-   (``feedback.h1_s``); in ntp mode with the conservative split, ``h1 = h2 = rtt``;
+2. takes the newest admitted feedback from its :class:`~bipedtele.inbox.FeedbackInbox`,
+   which owns every check on it and feeds the backward-delay estimator h2 (1 s moving
+   average of ``t_recv - feedback.t``) with every feedback admitted, whether the loop runs
+   in the program or alone; h1 is the follower's own estimate (``feedback.h1_s``); in ntp
+   mode with the conservative split, ``h1 = h2 = rtt``;
 3. takes the damping alpha_m from the control scheme (``[control] scheme``,
    :mod:`bipedtele.control.schemes`) at the current (h1, h2): the paper's schedules (40)
    (:func:`bipedtele.control.damping.schedule_damping`);
@@ -27,8 +29,8 @@ Every haptic tick (1 kHz by default) the loop
    (:class:`bipedtele.telemetry.LeaderSample`) read by the operator model, the cockpit and
    the recorder.
 
-The loop is transport-agnostic: it gets ``send_command(Command)`` and
-``latest_feedback() -> (Feedback, t_recv) | None`` callables, so tests drive it in
+The loop is transport-agnostic: it gets a ``send_command(Command)`` callable and a
+feedback inbox (fed by a Zenoh receiver or by a simulated transport), so tests drive it in
 simulated time (:meth:`LeaderLoop.run_for`) and the program over Zenoh in real time
 (:meth:`LeaderLoop.run`, paced by :class:`bipedtele.pacer.Pacer`).
 
@@ -49,7 +51,8 @@ from bipedtele.control.config import ControlConfig
 from bipedtele.control.leader_law import leader_force
 from bipedtele.control.schemes import make_scheme
 from bipedtele.control.schemes.runtime import LeaderPort, received
-from bipedtele.delayestimate import DelayEstimator, conservative_delays
+from bipedtele.delayestimate import conservative_delays
+from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.blind import BlindGuard
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
@@ -84,19 +87,13 @@ class LeaderLoop:
         ``k_m``, ``k_g`` and the damping scheduler's parameters.
     send_command : callable
         ``send_command(Command)``: publish one command (never blocks).
-    latest_feedback : callable
-        ``latest_feedback() -> (Feedback, t_recv) | None``: the newest feedback and its
-        local receive time [s, ``clock``].
+    inbox : FeedbackInbox
+        Where feedback is admitted; the loop takes the newest not taken before (receive
+        time on ``clock``) and reads h2 from it.
     cfg : LeaderConfig, optional
         Rates, feedback timeout, fade and g_m (defaults if omitted).
     clock : callable
         Time for message stamps and staleness [s] (``time.time``).
-    estimator : DelayEstimator, optional
-        The h2 estimator. If given it is assumed to be fed by the receiver (which sees
-        every message, in ntp mode converted to the local clock); otherwise the loop makes
-        one (window ``delay_window_s``) and feeds it with each new feedback.
-    delay_window_s : float
-        Window of the loop's own estimator [s].
     conservative_rtt : callable, optional
         ntp mode: ``() -> rtt [s] | None``; when it gives a value, (40) uses
         ``h1 = h2 = rtt`` (the split of the round trip is unknown).
@@ -129,12 +126,10 @@ class LeaderLoop:
         operator: Operator | None,
         control: ControlConfig,
         send_command: Callable[[Command], None],
-        latest_feedback: Callable[[], tuple[Feedback, float] | None],
+        inbox: FeedbackInbox,
         *,
         cfg: LeaderConfig | None = None,
         clock: Callable[[], float] = time.time,
-        estimator: DelayEstimator | None = None,
-        delay_window_s: float = 1.0,
         conservative_rtt: Callable[[], float | None] | None = None,
         sid: int | None = None,
         on_sample: Callable[[LeaderSample], None] | None = None,
@@ -149,10 +144,8 @@ class LeaderLoop:
         self.control = control
         self.cfg = cfg or LeaderConfig()
         self._send = send_command
-        self._latest = latest_feedback
+        self.inbox = inbox
         self._clock = clock
-        self._feed_estimator = estimator is None
-        self.estimator = estimator or DelayEstimator(delay_window_s)
         self._conservative_rtt = conservative_rtt
         self.sid = sid if sid is not None else new_session_id()
         self._on_sample = on_sample
@@ -169,8 +162,6 @@ class LeaderLoop:
         self.now = math.nan
         self._fb: Feedback | None = None
         self._fb_recv = -math.inf
-        self._fb_key: tuple[int, int, float] | None = None
-        self.feedback_count = 0
         self.gain = 0.0
         self._gain_t: float | None = None
         self.h1: float | None = None
@@ -211,23 +202,18 @@ class LeaderLoop:
         """The latest feedback taken (None before the first)."""
         return self._fb
 
+    @property
+    def feedback_count(self) -> int:
+        """Feedback taken by the loop so far."""
+        return self.inbox.taken
+
     def _take_feedback(self) -> None:
-        got = self._latest()
-        if got is None:
-            return
-        fb, t_recv = got
-        key = (fb.sid, fb.seq, t_recv)
-        if key == self._fb_key:
-            return
-        self._fb_key = key
-        self._fb = fb
-        self._fb_recv = t_recv
-        self.feedback_count += 1
-        if self._feed_estimator:
-            self.estimator.update(fb.t, t_recv)
+        got = self.inbox.take_feedback()
+        if got is not None:
+            self._fb, self._fb_recv = got.msg, got.t_recv
 
     def _delays(self, now: float) -> tuple[float, float]:
-        self.h2 = self.estimator.value(now)
+        self.h2 = self.inbox.h2.value(now)
         self.h1 = self._fb.h1_s if self._fb is not None else None
         if self._conservative_rtt is not None:
             rtt = self._conservative_rtt()

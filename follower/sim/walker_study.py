@@ -47,7 +47,7 @@ from bipedtele.control.schemes.runtime import LeaderPort, received
 from bipedtele.control.study import CASES, DelayCase, case_inputs
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.follower.config import FollowerConfig
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.robot import SimNao
 from bipedtele.follower.sim.torque_config import TorqueConfig
@@ -222,9 +222,12 @@ def walker_run(
         kwargs: dict[str, Any] = {"now": lambda: clock[0]}
         loop: FollowerLoop
         if cp is None:
-            loop = FollowerLoop(robot, control, fcfg, lambda: latest_cmd[0], publish, **kwargs)
+            loop = FollowerLoop(
+                robot, control, fcfg, command_inbox(fcfg, source=lambda: latest_cmd[0]), publish, **kwargs
+            )
         else:
-            loop = _ConstantParameterLoop(robot, control, fcfg, lambda: latest_cmd[0], publish, cp=cp, **kwargs)
+            inbox = command_inbox(fcfg, source=lambda: latest_cmd[0])
+            loop = _ConstantParameterLoop(robot, control, fcfg, inbox, publish, cp=cp, **kwargs)
         acc = _Accumulator()
         newest_cmd_seq = -1
         for k in range(k_steps):

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 from bipedtele.config import load_config
-from bipedtele.follower.loop import FollowerLoop, FollowerTelemetry
+from bipedtele.follower.loop import FollowerLoop, FollowerTelemetry, command_inbox
 from bipedtele.follower.robot import make_robot
 from bipedtele.messages import Command
 
@@ -40,7 +40,7 @@ class SimRun:
             self.robot,
             cfg.section("control"),
             cfg.section("follower"),
-            lambda: (self.cmd, self.cmd_t) if self.cmd else None,
+            command_inbox(cfg.section("follower"), source=lambda: (self.cmd, self.cmd_t) if self.cmd else None),
             self.published.append,
             now=lambda: self.t,
         )

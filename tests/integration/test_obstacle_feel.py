@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 from bipedtele.config import load_config
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import make_robot
+from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators.scripted import ScriptedOperator
@@ -67,7 +68,8 @@ def drive(obstacle: bool) -> tuple[list[Sample], dict]:
 
     loop = FollowerLoop(
         robot, cfg.section("control"), cfg.section("follower"),
-        lambda: (cmd[-1], t[0]) if cmd else None, publish, now=lambda: t[0],
+        command_inbox(cfg.section("follower"), source=lambda: (cmd[-1], t[0]) if cmd else None), publish,
+        now=lambda: t[0],
     )  # fmt: skip
     control = cfg.section("control")
     lcfg = cfg.section("leader")
@@ -76,7 +78,7 @@ def drive(obstacle: bool) -> tuple[list[Sample], dict]:
     hand = ScriptedOperator([[0.0, REF, 0.0], [RUN_S + 10, REF, 0.0]], k_g=control.k_g, interp="step")
     leader = LeaderLoop(
         device, hand, control, lambda c: None,
-        lambda: feedback[-1] if feedback else None, cfg=lcfg, clock=lambda: t[0],
+        FeedbackInbox(source=lambda: feedback[-1] if feedback else None), cfg=lcfg, clock=lambda: t[0],
     )  # fmt: skip
     n_haptic = round(loop.dt / leader.dt)
     out: list[Sample] = []

@@ -129,6 +129,7 @@ def test_device_contract_and_registration():
 
 def test_fake_falcon_drives_a_full_leader_loop():
     from bipedtele.control.config import ControlConfig
+    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.config import LeaderConfig
     from bipedtele.leader.loop import LeaderLoop
     from bipedtele.messages import Feedback
@@ -141,7 +142,7 @@ def test_fake_falcon_drives_a_full_leader_loop():
             None,
             ControlConfig(),
             sent.append,
-            lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now),
+            FeedbackInbox(source=lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now)),
             cfg=LeaderConfig(haptic_rate_hz=1000.0, cmd_rate_hz=100.0),
         )
         lib.grip = fp.CENTER + np.array([0.0, 0.0, -0.04])  # the hand pushes the grip forward

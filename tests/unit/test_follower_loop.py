@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 from bipedtele.config import load_config
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import RobotError
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.messages import Command, Feedback, Status
@@ -39,7 +39,7 @@ class Harness:
             robot,
             cfg.section("control"),
             cfg.section("follower"),
-            self.latest,
+            command_inbox(cfg.section("follower"), source=self.latest),
             self.published.append,
             now=lambda: self.t,
             on_event=lambda n, d: self.events.append((n, d)),
@@ -166,7 +166,7 @@ def test_conservative_split_uses_the_round_trip_for_both_delays() -> None:
         robot,
         cfg.section("control"),
         cfg.section("follower"),
-        lambda: None,
+        command_inbox(cfg.section("follower")),
         lambda m: None,
         now=lambda: 0.0,
         conservative_rtt=lambda: 0.4,
@@ -306,8 +306,8 @@ def test_new_leader_sessions_call_the_hook_once_each() -> None:
     t = [0.0]
     cmds = [Command(sid=1, seq=1, t=0.0, ref=[5.0, 0.0])]
     seen: list[int] = []
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmds[-1], t[0]),
-                        lambda m: None, now=lambda: t[0], on_new_leader=lambda sid: seen.append(sid) or True)  # fmt: skip
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
+                        command_inbox(cfg.section("follower"), source=lambda: (cmds[-1], t[0])), lambda m: None, now=lambda: t[0], on_new_leader=lambda sid: seen.append(sid) or True)  # fmt: skip
     for k in range(2, 6):
         loop.tick()
         t[0] += loop.dt
@@ -401,8 +401,8 @@ def test_a_command_given_again_is_taken_again_the_gate_is_the_only_dedupe() -> N
     robot.connect()
     cfg = load_config("default")
     cmd = Command(sid=1, seq=1, t=100.0, ref=[5.0, 0.0])
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: (cmd, 100.0),
-                        lambda m: None, now=lambda: 100.0)  # fmt: skip
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
+                        command_inbox(cfg.section("follower"), source=lambda: (cmd, 100.0)), lambda m: None, now=lambda: 100.0)  # fmt: skip
     loop.tick()
     loop.tick()
     assert loop.counters["cmd_accepted"] == 2
@@ -416,8 +416,8 @@ def test_h1_is_fed_once_by_the_loop_with_every_command_it_takes() -> None:
     robot.connect()
     cfg = load_config("default")
     cmds = iter([(Command(sid=1, seq=1, t=99.7, ref=[5.0, 0.0]), 100.0), None])
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: next(cmds, None),
-                        lambda m: None, now=lambda: 100.0)  # fmt: skip
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
+                        command_inbox(cfg.section("follower"), source=lambda: next(cmds, None)), lambda m: None, now=lambda: 100.0)  # fmt: skip
     tel = loop.tick()
     assert tel.h1_s == pytest.approx(0.3)
     assert "estimator" not in inspect.signature(FollowerLoop).parameters
@@ -432,8 +432,8 @@ def test_status_carries_the_drop_counts_passed_in() -> None:
     drops = DropCounter("follower")
     drops.drop("bad_mac", "test")
     published: list[object] = []
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), lambda: None,
-                        published.append, now=lambda: 100.0, drops=drops, sid=1234)  # fmt: skip
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
+                        command_inbox(cfg.section("follower")), published.append, now=lambda: 100.0, drops=drops, sid=1234)  # fmt: skip
     loop.tick()
     st = [m for m in published if isinstance(m, Status)][-1]
     assert st.sid == 1234 and st.counters["drop_bad_mac"] == 1 and "cmd_accepted" in st.counters
@@ -558,8 +558,8 @@ def test_a_lasting_change_of_the_path_delay_is_learned_after_the_backlog_window(
     h.run(4.0, v=5.0)
     assert h.loop.counters["cmd_backlog"] > 100 and h.loop.telemetry.state == "standing"
     h.run(4.0, v=5.0)
-    assert h.loop.baseline.relearned == 1
-    assert h.loop.baseline.value(h.t) == pytest.approx(0.9, abs=0.02)
+    assert h.loop.inbox.baseline.relearned == 1
+    assert h.loop.inbox.baseline.value(h.t) == pytest.approx(0.9, abs=0.02)
     assert h.loop.telemetry.state == "walking" and h.robot.v > 0.01
 
 

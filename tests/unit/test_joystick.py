@@ -123,6 +123,7 @@ def test_registered_and_passes_the_device_contract():
 
 def test_fake_stream_drives_a_full_leader_loop():
     from bipedtele.control.config import ControlConfig
+    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.config import LeaderConfig
     from bipedtele.leader.loop import LeaderLoop
     from bipedtele.messages import Feedback
@@ -135,7 +136,7 @@ def test_fake_stream_drives_a_full_leader_loop():
             None,
             ControlConfig(),
             sent.append,
-            lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now),
+            FeedbackInbox(source=lambda: (Feedback(t=loop.now, z_e=[0.0, 0.0]), loop.now)),
             cfg=LeaderConfig(haptic_rate_hz=1000.0, cmd_rate_hz=100.0),
         )
         fake.move(ecodes.ABS_Y, 0)  # full forward: the robot is asked to walk, z_e = 0 pulls back

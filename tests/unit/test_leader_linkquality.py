@@ -179,17 +179,21 @@ def _fb(seq: int, t: float, cmd_seq: int = 0) -> Feedback:
 
 def test_the_program_hands_the_loop_only_feedback_young_enough(caplog: pytest.LogCaptureFixture) -> None:
     app = LeaderApp(load_config("default", ["leader.cockpit=false", "record.enabled=false"]))
+    inbox = app._feedback_inbox(drops=app.node.drops, max_age_s=app.link.max_age_s)  # as the node builds it
     now = T0 + 500.0
-    app._on_feedback(Received(_fb(1, now - 95.0), now))  # captured 95 s ago
-    assert app._latest_feedback() is None
+    assert inbox.put(_fb(1, now - 95.0), now) is None  # captured 95 s ago
+    assert inbox.take_feedback() is None
     assert app.node.drops.counts() == {"fb_too_old": 1}
     assert any("fb_too_old" in r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
-    app._on_feedback(Received(_fb(2, now - 0.2), now + 0.01))
-    got = app._latest_feedback()
-    assert got is not None and got[0].seq == 2 and got[1] == now + 0.01
-    app._on_feedback(Received(_fb(3, now - 90.0), now + 0.02))  # old again: the young one stays
-    got = app._latest_feedback()
-    assert got is not None and got[0].seq == 2
+    inbox.put(_fb(2, now - 0.2), now + 0.01)
+    got = inbox.take_feedback()
+    assert got is not None and got.msg.seq == 2 and got.t_recv == now + 0.01
+    assert inbox.put(_fb(3, now - 90.0), now + 0.02) is None  # old again: the young one stays
+    got = inbox.latest()
+    assert got is not None and got.msg.seq == 2 and inbox.take_feedback() is None
+    assert app.node.drops.counts() == {"fb_too_old": 2}
+    h2 = inbox.h2.value(now + 0.02)  # fed once, by the young one only
+    assert h2 is not None and abs(h2 - 0.21) < 1e-6  # float time stamps near 1.7e9 s
     # only the young one acknowledges commands (a replay older than the bound must not)
     assert (app.link.fb_arrived, app.link.fb_too_old, app.reach.feedback) == (3, 2, 1)
 
@@ -211,6 +215,7 @@ def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> No
     """Issue 19: the summary said "4486 feedback received" for a run in which 8281 arrived
     (the loop takes the newest at each tick; several can arrive between two)."""
     from bipedtele.drops import DropCounter
+    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.app import _summary
     from bipedtele.leader.devices.sim_falcon import SimFalcon
     from bipedtele.leader.loop import LeaderLoop
@@ -220,7 +225,8 @@ def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> No
     dev.connect()
     lq, clock = make()
     newest: list[tuple[Feedback, float]] = []
-    loop = LeaderLoop(dev, None, cfg.control, lambda c: None, lambda: newest[-1] if newest else None,
+    loop = LeaderLoop(dev, None, cfg.control, lambda c: None,
+                      FeedbackInbox(source=lambda: newest[-1] if newest else None),
                       cfg=cfg.leader, clock=clock)  # fmt: skip
     for k in range(1, 101):  # 100 ticks, two feedback arrive before each
         for j in (2 * k - 1, 2 * k):

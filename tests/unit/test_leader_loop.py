@@ -9,6 +9,7 @@ import pytest
 from bipedtele.config import load_config
 from bipedtele.control.damping import schedule_damping
 from bipedtele.control.leader_law import leader_force
+from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Hand
@@ -56,7 +57,9 @@ def make_loop(z_fn, h2_fn, *, operator=None, stop_at=None, h1=0.1, overrides=(),
     sent: list[Command] = []
     holder: dict = {}
     src = FeedbackSource(lambda: holder["loop"].now, z_fn, h2_fn, h1=h1, stop_at=stop_at)
-    loop = LeaderLoop(dev, operator, cfg.control, sent.append, src, cfg=cfg.leader, clock=lambda: T0)
+    loop = LeaderLoop(
+        dev, operator, cfg.control, sent.append, FeedbackInbox(source=src), cfg=cfg.leader, clock=lambda: T0
+    )
     holder["loop"] = loop
     return loop, sent, cfg
 

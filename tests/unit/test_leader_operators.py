@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from bipedtele.config import ConfigError, load_config
+from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Hand, make_operator
@@ -222,7 +223,7 @@ def test_pilot_drives_through_the_hand_device_and_force_feedback():
     def latest():
         return state["fb"]
 
-    loop = LeaderLoop(dev, op, cfg.control, send, latest, cfg=cfg.leader, clock=lambda: 0.0)
+    loop = LeaderLoop(dev, op, cfg.control, send, FeedbackInbox(source=latest), cfg=cfg.leader, clock=lambda: 0.0)
     t, forces = 0.0, []
     while t < 300.0 and not op.done:
         loop.run_for(0.02)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from bipedtele.cli import main
 from bipedtele.config import load_config
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.odometry import StepSampler
 from bipedtele.messages import Command, Feedback
 from bipedtele.recordformat import Record, read_records
@@ -179,7 +179,8 @@ def test_sim_nao_footfalls_reach_the_recording_through_the_loop() -> None:
         return Command(sid=7, seq=seq[0], t=clock[0], ref=[5.0, 10.0], h2_s=0.1), clock[0]
 
     with SimNao(cfg) as robot:
-        loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), latest, lambda m: None,
+        loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
+                            command_inbox(cfg.section("follower"), source=latest), lambda m: None,
                             now=lambda: clock[0], on_event=lambda n, d: events.append((n, d)))  # fmt: skip
         sent = []  # (time, turn rate sent to the robot [deg/s])
         for _ in range(round(12.0 / loop.dt)):

@@ -110,6 +110,7 @@ def test_cockpit_json_keeps_the_page_keys_and_nulls_non_finite_numbers() -> None
 
 def test_the_leader_loop_makes_one_sample_per_command() -> None:
     from bipedtele.config import load_config
+    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.devices.sim_falcon import SimFalcon
     from bipedtele.leader.loop import LeaderLoop
     from bipedtele.leader.operators.scripted import ScriptedOperator
@@ -123,7 +124,7 @@ def test_the_leader_loop_makes_one_sample_per_command() -> None:
     dev = SimFalcon()
     dev.connect()
     sent: list[Command] = []
-    loop = LeaderLoop(dev, op, cfg.control, sent.append, lambda: None, cfg=cfg.leader,
+    loop = LeaderLoop(dev, op, cfg.control, sent.append, FeedbackInbox(), cfg=cfg.leader,
                       clock=lambda: T, on_sample=seen.append)  # fmt: skip
     loop.run_for(0.5)
     assert len(seen) == len(sent) == 50 and observed == seen

@@ -12,7 +12,7 @@ import math
 
 import pytest
 from bipedtele.config import load_config
-from bipedtele.follower.loop import FollowerLoop
+from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import TRANSITIONS, WalkEvent, WalkState, next_state
 from bipedtele.messages import Command, Status
@@ -158,7 +158,7 @@ class Run:
             robot,
             cfg.section("control"),
             cfg.section("follower"),
-            self._take,
+            command_inbox(cfg.section("follower"), source=self._take),
             self.published.append,
             now=lambda: self.t,
             on_event=lambda n, d: self.events.append(n),
