@@ -610,3 +610,44 @@ def test_sigma_e_and_the_walk_parameters_come_from_the_configured_scheme(scheme:
     want = schedule_damping(*delays, cfg).s_e
     assert fb.s_e == pytest.approx(np.asarray(want).tolist(), rel=1e-9)
     assert pytest.approx(h.loop.chooser.choose(np.asarray(want)).T) == h.loop._T  # (30) at that sigma_e
+
+
+def test_the_feedback_plan_is_read_from_the_callable_given_at_construction() -> None:
+    """Nothing is set on the loop after it is built: the program's plan is read at each tick and pickup."""
+    from bipedtele.follower.capacity import FeedbackPlan
+
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    t = [100.0]
+    plan = [FeedbackPlan(True, 50.0, math.inf)]
+    published: list[object] = []
+    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), command_inbox(cfg.section("follower")),
+                        published.append, now=lambda: t[0], feedback_plan=lambda: plan[0])  # fmt: skip
+    seq = 0
+
+    def pickup() -> bool:
+        nonlocal seq
+        seq += 1
+        loop.inbox.put(Command(sid=1, seq=seq, t=t[0], ref=[5.0, 0.0]), t[0])
+        return loop.pickup()
+
+    def feedback() -> int:
+        return sum(isinstance(m, Feedback) for m in published)
+
+    loop.tick()
+    n = feedback()
+    t[0] += 0.005
+    assert pickup() and feedback() == n + 1  # acknowledged at once
+    plan[0] = FeedbackPlan(False, 10.0, math.inf)
+    t[0] += 0.005
+    assert pickup() and feedback() == n + 1  # the next periodic feedback acknowledges it
+    plan[0] = FeedbackPlan(False, 10.0, 0.005)
+    t[0] += 0.005
+    assert pickup() and feedback() == n + 2  # the previous feedback left long enough ago
+    t[0] += 0.005
+    loop.tick()  # the periodic feedback due since the first tick
+    assert feedback() == n + 3
+    t[0] += 0.02
+    loop.tick()  # at the plan's 10 Hz the next is due 0.1 s after the previous one (at 50 Hz: now)
+    assert feedback() == n + 3
