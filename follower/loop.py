@@ -16,38 +16,28 @@ Every control period ``dt`` the loop
    asked to walk), so z_e, what the leader feels, falls near an obstacle;
 6. publishes feedback, status and (at its own rate) camera frames.
 
-Odometry: when the robot reports a new touchdown (:meth:`FollowerRobot.footfall`), the
-loop emits a ``footfall`` event ``{t, robot_t, n, pose, step_s, ref}``: ``t`` the
-touchdown on the loop clock [s], ``pose`` [m, m, rad], ``step_s`` the step that ended [s]
-and ``ref`` the mean reference applied over the ticks since the previous footfall
-[cm/s, deg/s]. The report turns consecutive footfalls into the odometry speed error.
+Odometry: at a new touchdown (:meth:`FollowerRobot.footfall`) the loop emits a ``footfall``
+event ``{t, robot_t, n, pose, step_s, ref}`` (``t`` on the loop clock [s], ``pose`` [m, m,
+rad], ``step_s`` [s], ``ref`` the mean reference since the previous footfall [cm/s, deg/s]).
 
 Safety: with no new command for ``watchdog_s`` (local receive time) the robot stops and
 stands (``watchdog_stops``, event ``watchdog_stop``); a command with ``enable`` false, the
 operator releasing, stops it as a normal end (``operator_stops``, event ``operator_stop``).
-No outage's backlog reaches the robot: the inbox refuses, after a silence longer than
-``watchdog_s``, a command delayed more than ``watchdog_s`` beyond the path's baseline delay
-(the minimum h1 of the commands applied over the last ``backlog_window_s``,
-:class:`~bipedtele.follower.backlog.DelayBaseline`; ``cmd_backlog``), and one sent before
-the command applied last (``cmd_reordered``): after an outage walking resumes on fresh
-commands only. A fall (torso tilt) stops it, is counted (every fall) and
-**latches**: the robot walks again only after the operator re-arms (a command with
-``enable`` false, then true) once it stands again. A command stamped too far ahead of the
-local clock never reaches the loop (the inbox drops it as ``future``: the one check); a
-small lead (clock jitter) is a zero delay, and every delay is clamped at >= 0
-before the estimators and control laws see it, so no timestamp can make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when a tick or a
-robot call failed: the robot is stopped if it can be reached and the walk state is
-forgotten, so walking resumes smoothly once the robot answers again. What the walk is
-(standing, walking, a stop pending, a refusal reported, the fall latch's steps) is one
-:class:`~bipedtele.follower.walkstate.WalkState`, moved by the events of its table.
+No outage's backlog reaches the robot (the inbox refuses it: ``cmd_backlog``,
+``cmd_reordered``; :mod:`bipedtele.inbox`), nor a command stamped too far ahead (``future``).
+A fall (torso tilt) stops it, is counted (every fall) and **latches**: the robot walks again
+only after the operator re-arms (a command with ``enable`` false, then true) once it stands
+again. Every delay is clamped at >= 0 before the estimators and control laws see it, so no
+timestamp can make a tick raise. :meth:`FollowerLoop.fault` is what the program calls when
+a tick or a robot call failed: the robot is stopped if it can be reached and the walk state
+is forgotten, so walking resumes smoothly once the robot answers again. What the walk is is
+one :class:`~bipedtele.follower.walkstate.WalkState`, moved by the events of its table.
 
-Event-driven pickup: a command that arrives between two ticks need not wait for the next
-one. :meth:`FollowerLoop.pickup` (called by the program as soon as the receiver signals a
-new command) re-runs this period's control update from the state at the period's start
-with the fresher command, sends the result to the robot before its next physics step and
-publishes the feedback that acknowledges it. The discrete laws keep their period: the
-models step once per period (the newest command is the period's sample), (40) and (30)
-are recomputed under the same ``param_update_s`` rule.
+Event-driven pickup: :meth:`FollowerLoop.pickup` (called as soon as a new command arrives)
+re-runs this period's control update from the state at the period's start with the fresher
+command, sends the result to the robot before its next physics step and publishes the
+feedback that acknowledges it. The models still step once per period (the newest command is
+the period's sample); (40) and (30) are recomputed under the same ``param_update_s`` rule.
 
 The loop is transport-agnostic: it gets an inbox (fed by a Zenoh receiver in the program,
 by a simulated transport in tests) and a callable for publishing. It is built in one call:
@@ -62,7 +52,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -78,6 +68,7 @@ from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.capacity import FeedbackPlan
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.fictitious import FictitiousForce
+from bipedtele.follower.report import FollowerTelemetry, feedback_message, pair
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
 from bipedtele.inbox import COMMAND_COUNTERS, CommandInbox
@@ -105,28 +96,6 @@ _COUNTERS = (
     "cmd_backlog",
     "cmd_reordered",
 )
-
-
-@dataclass
-class FollowerTelemetry:
-    """What the loop did in its last tick (for feedback, recording and tests)."""
-
-    t: float = 0.0
-    state: str = "starting"
-    ref: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    eta_cmd: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    eta_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    z_r: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    z_e: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    f_v: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    h1_s: float = 0.0
-    h2_s: float = 0.0
-    s_e: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    s_r: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    T: float = 1.0
-    eps: float = 0.1
-    sent: WalkCommand | None = None
-    obs: RobotObservation | None = None
 
 
 @dataclass
@@ -160,24 +129,20 @@ class FollowerLoop:
     on_event : callable, optional
         ``on_event(name, detail_dict)`` for falls, watchdog stops, collisions (recording).
     conservative_rtt : callable, optional
-        ntp clock mode: ``() -> rtt [s] | None``. When it gives a value, (40) and (30) use
-        ``h1 = h2 = rtt``: across two clocks the round trip is exact but its split is not.
+        ntp clock mode: ``() -> rtt [s] | None``; with a value (40) and (30) use ``h1 = h2 = rtt``.
     on_new_leader : callable, optional
-        ``on_new_leader(sid) -> bool``, called when a command of a new leader session is
-        accepted (before the robot is observed in that tick). It returns True when it put
-        the robot back on its start pose (``--reset-on-leader``, simulator only): the
-        loop then forgets its walk state and any fall latch.
+        ``on_new_leader(sid) -> bool``, called with a new leader session's first command;
+        True: it put the robot back on its start pose (``--reset-on-leader``, simulator
+        only), and the loop forgets its walk state and any fall latch.
     drops : DropCounter, optional
         The node's drop counter; its counts go into every Status as ``drop_<reason>``.
     sid : int, optional
         The follower's session id (default: a new random one).
     feedback_plan : callable, optional
-        ``() -> FeedbackPlan``, read at every tick and pickup: whether each command picked
-        up between ticks is acknowledged at once, the periodic feedback rate, and the least
-        interval after which one is still acknowledged at once (the program's uplink
-        budget, docs/follower.md). Default: every command acknowledged, at
-        ``feedback_rate_hz``. A callable (not a tick argument): the supervisor runs the
-        tick and the real-time stepper the pickup, neither knows the plan.
+        ``() -> FeedbackPlan``, read at every tick and pickup (the program's uplink budget,
+        docs/follower.md; default: every command acknowledged, at ``feedback_rate_hz``). A
+        callable, not a tick argument: the supervisor runs the tick and the real-time
+        stepper the pickup, and neither knows the plan.
     extra_counters : callable, optional
         ``() -> dict``: the program's figures, merged into every Status.
     held_by : callable, optional
@@ -487,7 +452,7 @@ class FollowerLoop:
             self._on_event("footfall", {
                 "t": now - max(0.0, obs.t - ff.t), "robot_t": ff.t, "n": ff.n,
                 "pose": [float(v) for v in ff.pose], "step_s": ff.step_s,
-                "ref": _pair(mean, MAX_SPEED),
+                "ref": pair(mean, MAX_SPEED),
             })  # fmt: skip
             self._ref_sum, self._ref_n = np.zeros(2), 0
         # this tick's reference acts until the next observation
@@ -541,31 +506,10 @@ class FollowerLoop:
     # ------------------------------------------------------------------ messages
 
     def _feedback(self, now: float, obs: RobotObservation) -> Feedback:
-        tel = self.telemetry
         self._fb_seq += 1
-        lim = MAX_SPEED
-        wave, energy = self.port.outgoing(tel.eta_meas)
-        return Feedback(
-            sid=self.sid,
-            seq=self._fb_seq,
-            t=now,
-            z_e=_pair(tel.z_e, lim),
-            z_r=_pair(tel.z_r, lim),
-            eta=_pair(tel.eta_meas, lim),
-            ref=_pair(tel.ref, lim),
-            pose=[float(v) for v in obs.pose],
-            sonar=[float(min(max(v, 0.0), 100.0)) for v in obs.sonar_m],
-            f_v=_pair(tel.f_v, lim),
-            h1_s=float(min(max(tel.h1_s, 0.0), 60.0)),
-            s_e=[float(v) for v in tel.s_e],
-            s_r=[float(v) for v in tel.s_r],
-            T=float(tel.T),
-            eps=float(tel.eps),
-            state=tel.state,
-            cmd_seq=self._cmd.seq if self._cmd is not None else 0,
-            wave=wave,
-            energy=energy,
-        )
+        wave, energy = self.port.outgoing(self.telemetry.eta_meas)
+        cmd_seq = self._cmd.seq if self._cmd is not None else 0
+        return feedback_message(self.telemetry, obs, self.sid, self._fb_seq, now, cmd_seq, wave, energy)
 
     def status(self, now: float) -> Status:
         """Return a Status message with the loop's counters."""
@@ -625,8 +569,3 @@ def _delay(h: float | None) -> float:
     if h is None or not math.isfinite(h):
         return 0.0
     return min(max(float(h), 0.0), _MAX_DELAY_S)
-
-
-def _pair(v: np.ndarray, lim: float) -> list[float]:
-    a = np.nan_to_num(np.asarray(v, dtype=float), nan=0.0, posinf=lim, neginf=-lim)
-    return [float(x) for x in np.clip(a, -lim, lim)]

@@ -216,9 +216,9 @@ def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> No
     (the loop takes the newest at each tick; several can arrive between two)."""
     from bipedtele.drops import DropCounter
     from bipedtele.inbox import FeedbackInbox
-    from bipedtele.leader.app import _summary
     from bipedtele.leader.devices.sim_falcon import SimFalcon
     from bipedtele.leader.loop import LeaderLoop
+    from bipedtele.leader.report import summary as _summary
 
     cfg = load_config("default", [])
     dev = SimFalcon()
