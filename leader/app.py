@@ -106,6 +106,7 @@ class _Aux:
         self._status_seq = 0
         self._passes = 0
         self._progress_lock = threading.Lock()
+        self._released = False  # the hand last logged
 
     def record_progress(self, now: float) -> None:
         """Record a ``pass`` event for every pass the operator completed since the last call."""
@@ -150,12 +151,12 @@ class _Aux:
         fill_link(sample, self.report(), counters)
 
     def _take_hand(self) -> None:
-        """Pass the cockpit's Release / Take into the loop (docs/fleet.md, Hand-over)."""
+        """Log the cockpit's Release / Take (the loop reads the hand itself; docs/fleet.md, Hand-over)."""
         if self.hand is None:
             return
         released = self.hand()
-        if released != self.loop.released:
-            self.loop.released = released
+        if released != self._released:
+            self._released = released
             robot = self.cfg.get(RobotConfig).id
             if released:
                 LOG.info("robot %s released (cockpit): the robot stops; another operator may take it", robot)
@@ -463,6 +464,7 @@ class LeaderApp:
                 cfg=lc, clock=self.clock, conservative_rtt=node.round_trip,
                 on_sample=self._on_sample, sid=node.sid, operator_name=self.cfg.get(NetworkConfig).user,
                 feedback_age=self.link.feedback_age if self.realtime else None, on_blind=node.event,
+                hand=self._hand,
             )  # fmt: skip
             self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
                                              node.record, self.reach, self.link, hand=self._hand))  # fmt: skip

@@ -111,13 +111,17 @@ class LeaderLoop:
         send time on the local clock); default ``now - feedback.t`` (one clock).
     on_blind : callable, optional
         ``on_blind(event, data)``: the blind guard's ``blind_stop`` / ``blind_over`` events.
+    hand : callable, optional
+        ``hand() -> bool``, read at every command: True while the operator gives the robot
+        up (cockpit button Release), False after Take (docs/fleet.md, Hand-over). Default:
+        never released.
 
     Attributes
     ----------
     released : bool
-        True: the operator gave the robot up (cockpit button Release): commands are stops
-        with ``release`` set, and another operator may take the robot. False again (Take):
-        the loop drives, and takes the robot once it is free.
+        What ``hand`` said at the last command. True: commands are stops with ``release``
+        set, and another operator may take the robot; False: the loop drives, and takes
+        the robot once it is free.
     """
 
     def __init__(
@@ -136,10 +140,12 @@ class LeaderLoop:
         operator_name: str = "",
         feedback_age: Callable[[float], float | None] | None = None,
         on_blind: Callable[[str, dict[str, float]], None] | None = None,
+        hand: Callable[[], bool] | None = None,
     ) -> None:
         self.device = device
         self.operator_name = operator_name
         self.released = False
+        self._hand = hand
         self.operator = operator
         self.control = control
         self.cfg = cfg or LeaderConfig()
@@ -318,7 +324,7 @@ class LeaderLoop:
         if op is not None:
             op.update(t_dev, self._fb)
         let_go = bool(buttons) and not buttons[0]
-        hand_off = self.released
+        self.released = hand_off = bool(self._hand()) if self._hand is not None else False
         blind = self.blind.check(now, self._fb is not None, self.feedback_age(now), self.x_m)
         self.enable = not let_go and not hand_off and not (op is not None and op.done) and not blind
         ref = self._k_g * self.x_m if self.enable else np.zeros(2)

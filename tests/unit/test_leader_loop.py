@@ -288,3 +288,24 @@ def test_paper_constant_holds_the_zero_delay_damping_on_a_long_delay():
     floor = schedule_damping(0.0, 0.0, cfg.control).alpha_m
     assert loop.alpha_m.tolist() == pytest.approx(np.asarray(floor).tolist())
     assert np.all(paper.alpha_m > 5 * np.asarray(floor))  # the paper's (40) follows the 1.5 s delays
+
+
+def test_the_hand_is_read_from_the_callable_given_at_construction() -> None:
+    """Nothing is set on the loop after it is built: the cockpit's Release / Take is read at each command."""
+    cfg = load_config("default")
+    dev = SimFalcon(x0=(0.02, 0.0))
+    dev.connect()
+    sent: list[Command] = []
+    hand = [False]
+    loop = LeaderLoop(dev, None, cfg.control, sent.append, FeedbackInbox(), cfg=cfg.leader, clock=lambda: T0,
+                      hand=lambda: hand[0])  # fmt: skip
+    loop.run_for(0.05)
+    assert sent and not any(c.release for c in sent) and not loop.released
+    n = len(sent)
+    hand[0] = True
+    loop.run_for(0.05)
+    assert all(c.release and not c.enable for c in sent[n:]) and loop.released
+    n = len(sent)
+    hand[0] = False
+    loop.run_for(0.05)
+    assert not any(c.release for c in sent[n:]) and not loop.released
