@@ -16,7 +16,8 @@ a time (a follower follows one leader):
   with ``seq = 2**63 - 1`` is therefore dropped, instead of making every later message of
   the real sender stale (its stop included).
 
-The gate is generic: receivers of every kind (commands, feedback, video, status) use it.
+The gate is generic: the inboxes of every kind (commands, feedback, video, status) use it
+(:mod:`bipedtele.inbox`, where every check on an incoming message is made).
 
 Bounds (what a forger without the message key can still do, see docs on
 ``network.message_key_file``): a message carrying the bound sid and a seq within the
@@ -29,14 +30,14 @@ silent is not bound to a jump bound: its first newer message after more than
 losses). With the message key set none of this can be forged (sid and seq are MAC'd) and
 replays are dropped as ``stale``/``duplicate`` while the session is bound.
 
-Without the message key (``rollback_after > 0``, the receivers' setting then) a jump is
+Without the message key (``rollback_after > 0``, the inboxes' setting then) a jump is
 provisional: when ``rollback_after`` messages of the bound session in a row (consecutive
 seqs) arrive stale but newer than the seq accepted before the jump, the jump was not the
 sender's (a forged copy) and the gate rolls back to them (the last of them is accepted).
 So one forged message with a high seq blocks the real sender for at most
 ``rollback_after - 1`` of its messages (2 at the default 3: 20 ms at the leader's 100 Hz
 commands), whatever its seq, instead of up to ``elapsed * max_rate_hz + seq_margin``.
-The receivers drop messages older than their age bound before the gate, so an old copy
+The inboxes drop messages older than their age bound before the gate, so an old copy
 (finding 2: seq + 519 stamped 3,605 s old) never reaches it.
 """
 
@@ -57,7 +58,7 @@ DROP_REASONS = ("foreign_session", "seq_jump", "stale", "duplicate")
 
 
 class MessageGate(Protocol):
-    """What the receivers ask of a gate: accept one message or name why not."""
+    """What an inbox asks of a gate: accept one message or name why not."""
 
     def accept(self, msg: Message) -> str | None:
         """Return None if ``msg`` is accepted, else the drop reason."""

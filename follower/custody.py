@@ -62,7 +62,7 @@ class CustodyGate:
     Notes
     -----
     Thread-safe (Zenoh's callback thread calls :meth:`accept`, the loop reads
-    :attr:`held_by`). Same interface as :class:`SequenceGate` where the receivers and the
+    :attr:`held_by`). Same interface as :class:`SequenceGate` where the command inbox and the
     clock link use it (``accept``, ``live_sid``, ``bound_sid``, ``last``).
     """
 
