@@ -1,9 +1,8 @@
 """Inboxes: admit or drop each incoming message, every check in one place.
 
-An inbox is where a message of one key arrives (from a Zenoh receiver,
-:mod:`bipedtele.receivers`, or from a simulated transport) and is either admitted or
-dropped, each drop counted once under its reason. The receivers only move payloads off the
-wire into an inbox; the loops take admitted messages out of one and check nothing.
+A message of one key arrives in an inbox (from a receiver, :mod:`bipedtele.receivers`, or a
+simulated transport) and is admitted or dropped, each drop counted once under its reason;
+the loops take admitted messages out of it and check nothing.
 
 In order, a payload is dropped and counted in a :class:`~bipedtele.drops.DropCounter` when:
 it is larger than the bound of its kind (``too_large``, before it is copied; under attack,
@@ -13,7 +12,7 @@ session key ``old_session``, ``no_session``; without a key, a signed payload is
 :class:`~bipedtele.messages.MessageError` reason; ``unknown_kind``), the peer clock's
 offset is not known yet (``clock_not_synced``), its send time is more than
 ``max_future_s`` ahead of the local clock (``future``), it was sent longer ago than
-``max_age_s`` (``too_old``; ``fb_too_old`` at the leader), before the gate: an old replay
+``max_age_s`` (``too_old``, ``fb_too_old`` at the leader; before the gate: an old replay
 never binds it), or the gate refuses it (:class:`~bipedtele.gate.SequenceGate`:
 ``foreign_session``, ``seq_jump``, ``stale``, ``duplicate``; the follower's custody adds
 ``held``, ``released``). Delay estimators never see a negative delay.
@@ -28,8 +27,8 @@ Two inboxes carry the control loop's directions (docs/architecture.md):
 - :class:`FeedbackInbox` (the leader): h2 is fed with every feedback admitted, and
   feedback the link's judge finds too old is refused (``fb_too_old``).
 
-Both behave the same whether the loop runs in a program or alone (tests, studies): a loop
-built alone gets an inbox fed by ``put`` or polled from a ``source``.
+Both behave the same whether the loop runs in a program or alone (tests, studies: an inbox
+fed by ``put`` or polled from a ``source``).
 """
 
 from __future__ import annotations
@@ -131,8 +130,7 @@ class Inbox(Generic[M]):
     estimator : DelayEstimator, optional
         Fed with every admitted message (send time on the local clock, receive time).
     clock_sync : ClockSync, optional
-        ntp mode: converts send times to the local clock; until it is ready every message
-        is dropped as ``clock_not_synced``.
+        ntp mode: send times to the local clock; not ready yet: ``clock_not_synced``.
     ignore_sid : int, optional
         Messages of this session (our own on a shared key) are ignored silently.
     on_message : callable, optional
@@ -140,13 +138,11 @@ class Inbox(Generic[M]):
     auth : MessageAuth, optional
         Every payload must carry a valid tag (``no_mac``, ``bad_mac``).
     handshake : Handshake, optional
-        Instead of ``auth``: a tag under a session key this side holds; an admitted message
-        marks its session live.
+        Instead of ``auth``: a session key's tag; an admitted message marks its session live.
     max_future_s : float, optional
         Send time more than this ahead of the receive time [s]: ``future``.
     max_age_s : float or callable, optional
-        Sent longer ago than this [s] (a callable gets the receive time): ``too_old``,
-        before the gate and the estimator see it.
+        Sent longer ago than this [s] (a callable gets the receive time): ``too_old``.
     on_too_old : callable, optional
         Called with a message refused as too old instead of counting ``too_old``.
     """
@@ -181,10 +177,12 @@ class Inbox(Generic[M]):
         self.clock_sync, self.auth, self.handshake = clock_sync, auth, handshake
         self.max_future_s = max_future_s
         self._max_age: Callable[[float], float] | None = (
-            None if max_age_s is None
-            else max_age_s if callable(max_age_s)
+            None
+            if max_age_s is None
+            else max_age_s
+            if callable(max_age_s)
             else functools.partial(_const, float(max_age_s))
-        )  # fmt: skip
+        )
         self._on_too_old = on_too_old
         self._on_message = on_message
         # the key expression the sender signed: ours when exact, else the sample's
@@ -207,8 +205,11 @@ class Inbox(Generic[M]):
             drops.drop("too_large", f"{self.key}: {nbytes} bytes (at most {self.max_bytes})")
             return None
         if nbytes > 2 * self._largest_good + ATTACK_SLACK and t_recv - self._bad_t < UNDER_ATTACK_S:
-            drops.drop("too_large_under_attack", f"{self.key}: {nbytes} bytes while forged payloads arrive "
-                       f"(the largest authenticated: {self._largest_good})")  # fmt: skip
+            drops.drop(
+                "too_large_under_attack",
+                f"{self.key}: {nbytes} bytes while forged payloads arrive "
+                f"(the largest authenticated: {self._largest_good})",
+            )
             return None
         payload = zbytes.to_bytes()
         skey = None
@@ -282,8 +283,9 @@ class Inbox(Generic[M]):
         if self._on_too_old is not None:
             self._on_too_old(rec)
         else:
-            self.drops.drop("too_old", f"{self.key}: sid={rec.msg.sid} seq={rec.msg.seq} "
-                            f"sent {rec.t_recv - t_sent:.3f} s ago")  # fmt: skip
+            self.drops.drop(
+                "too_old", f"{self.key}: sid={rec.msg.sid} seq={rec.msg.seq} sent {rec.t_recv - t_sent:.3f} s ago"
+            )
 
     def _deliver(self, rec: Received[M], t_sent: float) -> bool:
         """Keep an admitted message, then tell ``on_message``; False when it was dropped after all."""
@@ -495,12 +497,21 @@ class CommandInbox(LatestInbox[Command]):
             return False
         self.counters["cmd_backlog"] += 1
         if self.baseline.dropped(now, delay):
-            LOG.warning("every command for %.0f s came %.2f s or more late: the path's delay changed, "
-                        "baseline now %.3f s", self.baseline.relearn_s, delay, self.baseline.value(now))  # fmt: skip
+            LOG.warning(
+                "every command for %.0f s came %.2f s or more late: the path's delay changed, baseline now %.3f s",
+                self.baseline.relearn_s,
+                delay,
+                self.baseline.value(now),
+            )
         elif now >= self._next_backlog_log:
             self._next_backlog_log = now + 5.0
-            LOG.warning("dropping a command queued in the path: delay %.3f s, baseline %.3f s, watchdog %.2f s "
-                        "(%d so far)", delay, base, self.watchdog_s, self.counters["cmd_backlog"])  # fmt: skip
+            LOG.warning(
+                "dropping a command queued in the path: delay %.3f s, baseline %.3f s, watchdog %.2f s (%d so far)",
+                delay,
+                base,
+                self.watchdog_s,
+                self.counters["cmd_backlog"],
+            )
         return True
 
 
@@ -569,8 +580,11 @@ class FeedbackInbox(LatestInbox[Feedback]):
 
     def _refuse(self, rec: Received[Feedback], t_sent: float) -> None:
         bound = self._max_age(rec.t_recv) if self._max_age is not None else math.nan
-        self.drops.drop("fb_too_old", f"feedback sid={rec.msg.sid} seq={rec.msg.seq} sent "
-                        f"{rec.t_recv - t_sent:.1f} s ago (bound {bound:.1f} s): not shown as live")  # fmt: skip
+        self.drops.drop(
+            "fb_too_old",
+            f"feedback sid={rec.msg.sid} seq={rec.msg.seq} sent "
+            f"{rec.t_recv - t_sent:.1f} s ago (bound {bound:.1f} s): not shown as live",
+        )
 
     def take_feedback(self) -> Received[Feedback] | None:
         """Return the newest usable feedback not taken before, else None."""

@@ -244,9 +244,14 @@ class FollowerApp:
                 topic="cmd/recv",
                 on_message=self._on_command,
                 max_age_s=self.fcfg.max_cmd_age_s,  # before the gate: an old replay never binds it
-                inbox=functools.partial(command_inbox, self.fcfg, to_local=node.to_local, on_take=self._on_take,
-                                        delay_window_s=self.cfg.get(ClockConfig).delay_window_s),
-            )  # fmt: skip
+                inbox=functools.partial(
+                    command_inbox,
+                    self.fcfg,
+                    to_local=node.to_local,
+                    on_take=self._on_take,
+                    delay_window_s=self.cfg.get(ClockConfig).delay_window_s,
+                ),
+            )
             assert isinstance(cmd_rx.inbox, CommandInbox)
             loop = self._make_loop(robot, cmd_rx.inbox)
             backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))

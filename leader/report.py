@@ -75,10 +75,16 @@ def fill_link(sample: LeaderSample, rep: LinkReport, counters: dict[str, int]) -
 
 
 def summary(
-    loop: LeaderLoop, op_name: str, operator: Operator | None, elapsed: float,
-    drops: DropCounter, record: Path | None, rt: bool, reach: CommandReach | None = None,
+    loop: LeaderLoop,
+    op_name: str,
+    operator: Operator | None,
+    elapsed: float,
+    drops: DropCounter,
+    record: Path | None,
+    rt: bool,
+    reach: CommandReach | None = None,
     link: LinkQuality | None = None,
-) -> str:  # fmt: skip
+) -> str:
     """Return the program's one-line result.
 
     ``N feedback received`` counts the feedback that arrived (accepted by the receiver:
@@ -92,8 +98,9 @@ def summary(
     parts.append("done" if loop.done else "stopped")
     parts.append(f"{elapsed:.1f} s")
     if link is not None:
-        received = (f"{link.fb_arrived} feedback received ({loop.feedback_count} used by the loop, "
-                    f"{link.fb_too_old} too old)")  # fmt: skip
+        received = (
+            f"{link.fb_arrived} feedback received ({loop.feedback_count} used by the loop, {link.fb_too_old} too old)"
+        )
     else:
         received = f"{loop.feedback_count} feedback received"
     parts.append(f"{loop.seq} commands sent, {received}, {drops.total} dropped")

@@ -306,8 +306,15 @@ def test_new_leader_sessions_call_the_hook_once_each() -> None:
     t = [0.0]
     cmds = [Command(sid=1, seq=1, t=0.0, ref=[5.0, 0.0])]
     seen: list[int] = []
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
-                        command_inbox(cfg.section("follower"), source=lambda: (cmds[-1], t[0])), lambda m: None, now=lambda: t[0], on_new_leader=lambda sid: seen.append(sid) or True)  # fmt: skip
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower"), source=lambda: (cmds[-1], t[0])),
+        lambda m: None,
+        now=lambda: t[0],
+        on_new_leader=lambda sid: seen.append(sid) or True,
+    )
     for k in range(2, 6):
         loop.tick()
         t[0] += loop.dt
@@ -401,8 +408,14 @@ def test_a_command_given_again_is_taken_again_the_gate_is_the_only_dedupe() -> N
     robot.connect()
     cfg = load_config("default")
     cmd = Command(sid=1, seq=1, t=100.0, ref=[5.0, 0.0])
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
-                        command_inbox(cfg.section("follower"), source=lambda: (cmd, 100.0)), lambda m: None, now=lambda: 100.0)  # fmt: skip
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower"), source=lambda: (cmd, 100.0)),
+        lambda m: None,
+        now=lambda: 100.0,
+    )
     loop.tick()
     loop.tick()
     assert loop.counters["cmd_accepted"] == 2
@@ -416,8 +429,14 @@ def test_h1_is_fed_once_by_the_loop_with_every_command_it_takes() -> None:
     robot.connect()
     cfg = load_config("default")
     cmds = iter([(Command(sid=1, seq=1, t=99.7, ref=[5.0, 0.0]), 100.0), None])
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
-                        command_inbox(cfg.section("follower"), source=lambda: next(cmds, None)), lambda m: None, now=lambda: 100.0)  # fmt: skip
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower"), source=lambda: next(cmds, None)),
+        lambda m: None,
+        now=lambda: 100.0,
+    )
     tel = loop.tick()
     assert tel.h1_s == pytest.approx(0.3)
     assert "estimator" not in inspect.signature(FollowerLoop).parameters
@@ -432,8 +451,16 @@ def test_status_carries_the_drop_counts_passed_in() -> None:
     drops = DropCounter("follower")
     drops.drop("bad_mac", "test")
     published: list[object] = []
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
-                        command_inbox(cfg.section("follower")), published.append, now=lambda: 100.0, drops=drops, sid=1234)  # fmt: skip
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower")),
+        published.append,
+        now=lambda: 100.0,
+        drops=drops,
+        sid=1234,
+    )
     loop.tick()
     st = [m for m in published if isinstance(m, Status)][-1]
     assert st.sid == 1234 and st.counters["drop_bad_mac"] == 1 and "cmd_accepted" in st.counters
@@ -622,8 +649,15 @@ def test_the_feedback_plan_is_read_from_the_callable_given_at_construction() -> 
     t = [100.0]
     plan = [FeedbackPlan(True, 50.0, math.inf)]
     published: list[object] = []
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), command_inbox(cfg.section("follower")),
-                        published.append, now=lambda: t[0], feedback_plan=lambda: plan[0])  # fmt: skip
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower")),
+        published.append,
+        now=lambda: t[0],
+        feedback_plan=lambda: plan[0],
+    )
     seq = 0
 
     def pickup() -> bool:

@@ -86,9 +86,14 @@ def test_each_admission_reason_is_counted_once_under_its_name() -> None:
     drops = DropCounter("cmd")
     sync = ClockSync()
     inbox: LatestInbox[Command] = LatestInbox(
-        Command, drops, SequenceGate(takeover_after_s=0.5, clock=clock), key=KEY,
-        max_future_s=0.25, max_age_s=1.5, clock_sync=sync,
-    )  # fmt: skip
+        Command,
+        drops,
+        SequenceGate(takeover_after_s=0.5, clock=clock),
+        key=KEY,
+        max_future_s=0.25,
+        max_age_s=1.5,
+        clock_sync=sync,
+    )
 
     def offer(data: bytes) -> Received[Command] | None:
         return inbox.offer(_Payload(data), clock.t, KEY)
@@ -155,8 +160,12 @@ def test_each_take_reason_is_counted_once_and_h1_is_fed_once_per_command_taken()
     taken = inbox.take_command(t + 1.2)
     assert taken is not None and taken.new_session
     assert inbox.counters == {
-        "cmd_accepted": 2, "cmd_too_old": 1, "leader_sessions": 2, "cmd_backlog": 1, "cmd_reordered": 1,
-    }  # fmt: skip
+        "cmd_accepted": 2,
+        "cmd_too_old": 1,
+        "leader_sessions": 2,
+        "cmd_backlog": 1,
+        "cmd_reordered": 1,
+    }
     assert len(inbox.h1._samples) == 5  # every command taken, refused or not, once
     assert set(COMMAND_COUNTERS) == set(inbox.counters)
 
@@ -166,8 +175,14 @@ def test_the_follower_status_carries_the_inbox_counters_in_the_loops_order() -> 
     robot.connect()
     cfg = load_config("default")
     published: list[Any] = []
-    loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"), command_inbox(cfg.section("follower")),
-                        published.append, now=lambda: 100.0)  # fmt: skip
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower")),
+        published.append,
+        now=lambda: 100.0,
+    )
     loop.inbox.put(Command(sid=3, seq=1, t=99.9, ref=[5.0, 0.0]), 100.0)
     loop.tick()
     st = [m for m in published if isinstance(m, Status)][-1]
@@ -204,14 +219,27 @@ def _run_follower(hosted: bool) -> tuple[list[Any], dict[str, int], dict[str, in
     if hosted:
         session = FakeSession()
         rx: LatestReceiver[Command] = LatestReceiver(
-            session, KEY, Command, drops, SequenceGate(clock=clock), clock=clock, max_future_s=0.25,
-            max_age_s=fcfg.max_cmd_age_s, inbox=lambda **kw: command_inbox(fcfg, **kw),
-        )  # type: ignore[arg-type]  # fmt: skip
+            session,
+            KEY,
+            Command,
+            drops,
+            SequenceGate(clock=clock),
+            clock=clock,
+            max_future_s=0.25,
+            max_age_s=fcfg.max_cmd_age_s,
+            inbox=lambda **kw: command_inbox(fcfg, **kw),
+        )  # type: ignore[arg-type]
         assert isinstance(rx.inbox, CommandInbox)
         inbox = rx.inbox
     else:
-        inbox = command_inbox(fcfg, drops=drops, source=lambda: pending[0], gate=SequenceGate(clock=clock),
-                              max_future_s=0.25, max_age_s=fcfg.max_cmd_age_s)  # fmt: skip
+        inbox = command_inbox(
+            fcfg,
+            drops=drops,
+            source=lambda: pending[0],
+            gate=SequenceGate(clock=clock),
+            max_future_s=0.25,
+            max_age_s=fcfg.max_cmd_age_s,
+        )
     loop = FollowerLoop(robot, cfg.section("control"), fcfg, inbox, lambda m: None, now=clock)
     tels = []
     i = 0
@@ -255,9 +283,15 @@ def _run_leader(hosted: bool) -> tuple[list[float | None], int]:
     if hosted:
         session = FakeSession()
         rx: LatestReceiver[Feedback] = LatestReceiver(
-            session, "bipedtele/nao1/feedback", Feedback, DropCounter("feedback"), SequenceGate(clock=clock),
-            clock=clock, max_future_s=0.25, inbox=FeedbackInbox,
-        )  # fmt: skip
+            session,
+            "bipedtele/nao1/feedback",
+            Feedback,
+            DropCounter("feedback"),
+            SequenceGate(clock=clock),
+            clock=clock,
+            max_future_s=0.25,
+            inbox=FeedbackInbox,
+        )
         assert isinstance(rx.inbox, FeedbackInbox)
         inbox = rx.inbox
     else:

@@ -297,8 +297,9 @@ def test_the_hand_is_read_from_the_callable_given_at_construction() -> None:
     dev.connect()
     sent: list[Command] = []
     hand = [False]
-    loop = LeaderLoop(dev, None, cfg.control, sent.append, FeedbackInbox(), cfg=cfg.leader, clock=lambda: T0,
-                      hand=lambda: hand[0])  # fmt: skip
+    loop = LeaderLoop(
+        dev, None, cfg.control, sent.append, FeedbackInbox(), cfg=cfg.leader, clock=lambda: T0, hand=lambda: hand[0]
+    )
     loop.run_for(0.05)
     assert sent and not any(c.release for c in sent) and not loop.released
     n = len(sent)
