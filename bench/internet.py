@@ -3,7 +3,7 @@
     .venv/bin/python bench/internet.py [--seconds 90] [--links split|single|single,split]
         [--only trace,loss1,loss5,outage,lan600-video,lan600-novideo,lan300-video,lan300-novideo,
                 tbf600-video,tbf600-novideo,tbf300-video,lte,3g]
-        [--json F] [--workdir DIR] [--seed N]
+        [--json F] [--workdir DIR] [--seed N] [--leader-status-hz HZ]
 
 What a field engineer would do: ``bipedtele setup two-hosts --router-name router.bt.test``
 once, each of its three folders copied into the working folder of its own "host" (a network
@@ -85,6 +85,7 @@ from typing import Any
 import numpy as np
 from bipedtele.delaymodels import parse_delay_model
 from bipedtele.recordformat import Record, read_records
+from bipedtele.shapers import load_mahimahi, mahimahi_stats
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
 from bipedtele.tools.report import compute_report
 
@@ -380,12 +381,14 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
     ``blind_over`` event.
     """
     fb = sorted((r.t_recv, r.t_recv - r.data["t"], r.data["t"]) for r in l_rec if r.topic == "feedback/recv")
+    f_st = [(r.t_recv, r.data.get("counters", {})) for r in f_rec if r.topic == "status/sent"]
     gaps = []
     for (a, _, _), (b, age, _) in itertools.pairwise(fb):
         if b - a > 1.0:
             fresh = next((t - b for t, ag, _ in fb if t >= b and ag <= 0.5), None)
             gaps.append({"at": round(a, 2), "length_s": round(b - a, 2), "first_age_s": round(age, 3),
-                         "fresh_after_s": None if fresh is None else round(fresh, 3)})  # fmt: skip
+                         "fresh_after_s": None if fresh is None else round(fresh, 3),
+                         **_gap_split(fb, f_st, a, b)})  # fmt: skip
     sent = [(r.t_recv, r.data.get("state")) for r in f_rec if r.topic == "feedback/sent"]
     ev = [(r.t_recv, r.data) for r in l_rec if r.topic == "events"]
     stops, walks = [], []
@@ -403,6 +406,46 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
         "acl_lines": sum(1 for ln in leader_log.splitlines() if "ACL" in ln and "WARNING" in ln),
         "stall_lines": leader_log.count("uplink stalled for"), "blind_stop_s": blind_stop_s,
     }  # fmt: skip
+
+
+def _gap_split(
+    fb: list[tuple[float, float, float]], f_st: list[tuple[float, dict[str, Any]]], a: float, b: float
+) -> dict[str, Any]:
+    """The feedback that arrived after a gap ``(a, b)``, split by when it was sent.
+
+    (a) sent before the gap began (``a``: the last arrival before it): in flight then,
+    queued in the path; its count, the age of the oldest, and the follower's bytes in flight
+    in its last Status before ``a`` (``uplink_inflight_bytes``; None: not reported).
+    (b) sent during the gap or after: the age of the first of it to arrive.
+    """
+    after = [(t, ag, ts) for t, ag, ts in fb if t >= b]
+    old = [(t, ag) for t, ag, ts in after if ts < a]
+    new = next(((t, ag) for t, ag, ts in after if ts >= a), None)
+    st = [c for t, c in f_st if t <= a]
+    return {
+        "inflight_n": len(old), "inflight_age_s": round(max((ag for _, ag in old), default=0.0), 3),
+        "inflight_bytes": st[-1].get("uplink_inflight_bytes") if st else None,
+        "first_new_age_s": None if new is None else round(new[1], 3),
+        "first_new_after_s": None if new is None else round(new[0] - b, 3),
+    }  # fmt: skip
+
+
+def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t0: float, t1: float) -> dict[str, Any]:
+    """The frame rate the trace's mean capacity allows after control, from the frames actually sent.
+
+    ``frame_bytes``: mean size of the frames the leader received (JPEG + 120 bytes of
+    fields and MAC); ``control_bps``: the follower's control rate (``uplink_tx_control_bps``,
+    mean of its Status over the run); allowance = (mean - control) / (8 frame_bytes).
+    """
+    sizes = [len(r.data.get("jpeg") or b"") + 120 for r in l_rec if r.topic == "video/recv" and t0 <= r.t_recv <= t1]
+    ctl = [float(r.data.get("counters", {}).get("uplink_tx_control_bps", 0) or 0)
+           for r in f_rec if r.topic == "status/sent" and t0 <= r.t_recv <= t1]  # fmt: skip
+    if not sizes or not ctl:
+        return {"mean_bps": mean_bps, "frame_bytes": None, "control_bps": None, "allowed_fps": None}
+    fb = sum(sizes) / len(sizes)
+    c = sum(ctl) / len(ctl)
+    return {"mean_bps": round(mean_bps), "frame_bytes": round(fb), "control_bps": round(c),
+            "allowed_fps": round(max(0.0, mean_bps - c) / (8.0 * fb), 2)}  # fmt: skip
 
 
 def outage_figures(
@@ -471,8 +514,9 @@ def shape_robot(top: Topology, tbf: tuple[str, ...]) -> None:
 def run_condition(
     cond: Condition, links: str | None, seconds: float, setup_out: Path, commands: dict[str, list[str]],
     run_dir: Path, *, seed: int = 1, startup_s: float = 5.0, say: Any = print, tag: str | None = None,
+    leader_extra: tuple[str, ...] = (),
 ) -> dict[str, Any]:  # fmt: skip
-    """One run of ``cond`` with ``links`` (None: as setup wrote); return its figures."""
+    """One run of ``cond`` with ``links`` (None: as setup wrote); return its figures (``leader_extra``: more leader arguments)."""
     run_dir.mkdir(parents=True)
     homes = copy_hosts(setup_out, run_dir, links)
     stats = run_dir / "linkemu.json"
@@ -507,7 +551,7 @@ def run_condition(
             follower.wait_log(r"follower \S+ ready", 120.0)
             if t0 is None:  # the origin of the trace and the outage: just before the leader starts
                 t0 = emulate()
-            leader = go("operator", "leader", ["--duration", f"{seconds:g}"])
+            leader = go("operator", "leader", ["--duration", f"{seconds:g}", *leader_extra])
             deadline = time.monotonic() + seconds + 180.0  # bounded: start-up through the path, then S
             t_ss: float | None = time.monotonic() + min(10.0, seconds / 2)
             while leader.alive() and time.monotonic() < deadline:
@@ -538,6 +582,11 @@ def run_condition(
     res.update(analyse(l_rec, f_rec, leader.log(), outage_wall=outage, startup_s=startup_s, emulated=(*h_models, t0)))
     # Table 2 of the run (`bipedtele report`): completion time and speed errors, as the demo prints
     res["table2"] = compute_report(l_rec, f_rec)
+    trace = next((x.split(":", 1)[1] for x in cond.emulator if x.startswith("mahimahi:")), None)
+    if trace is not None:  # the cellular rows: the frame rate the trace's mean allows after control
+        sent = [r.t_recv for r in l_rec if r.topic == "cmd/sent"]
+        mean = mahimahi_stats(load_mahimahi(trace))["mean_bps"]
+        res["allowance"] = video_allowance(l_rec, f_rec, mean, sent[0], sent[-1]) if sent else None
     try:
         res["linkemu"] = json.loads(stats.read_text())
     except (OSError, ValueError):
@@ -605,9 +654,15 @@ def row_line(r: dict[str, Any]) -> str:
     if g.get("gaps") or g.get("blind_stops") or g.get("acl_lines"):
         s += (
             f"; gaps {[(x['length_s'], x['first_age_s'], x['fresh_after_s']) for x in g['gaps']]} (length, first "
-            f"feedback's age, fresh after s), blind stops {g['blind_stops']} (stopped {g['stop_after_newest_fb_s']} s "
+            f"feedback's age, fresh after s); split {[_split(x) for x in g['gaps']]}, blind stops {g['blind_stops']} (stopped {g['stop_after_newest_fb_s']} s "
             f"after the newest feedback's send, walking {g['walk_after_handle_s']} s after the move), "
             f"ACL lines {g['acl_lines']}, stall lines {g['stall_lines']}"
+        )
+    al = r.get("allowance")
+    if al and al.get("allowed_fps"):
+        s += (
+            f"; video allowance {al['allowed_fps']} fps (mean {al['mean_bps'] / 1e6:.2f} Mbit/s, control "
+            f"{al['control_bps'] / 1e3:.0f} kbit/s, frames {al['frame_bytes']} B): {r['video_fps'] / al['allowed_fps']:.0%}"
         )
     if "outage" in r:
         o = r["outage"]
@@ -617,6 +672,14 @@ def row_line(r: dict[str, Any]) -> str:
             f"stale applied {o['stale_applied']}"
         )
     return s
+
+
+def _split(x: dict[str, Any]) -> str:
+    """One gap's split: (a) in flight when it began, (b) sent in it."""
+    return (
+        f"(a) {x.get('inflight_n')} fb up to {x.get('inflight_age_s')} s old, {x.get('inflight_bytes')} B in flight; "
+        f"(b) first {x.get('first_new_age_s')} s old at +{x.get('first_new_after_s')} s"
+    )
 
 
 def table(rows: list[dict[str, Any]]) -> str:
@@ -658,6 +721,9 @@ def main(argv: list[str] | None = None) -> int:
         "--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)"
     )
     p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
+    p.add_argument(
+        "--leader-status-hz", type=float, default=None, help="the leader's [leader] status_rate_hz (default: as set up)"
+    )
     p.add_argument("--tag", default="", help="prefix of the namespaces' 4-character tag (random hex after it)")
     p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
     p.add_argument(
@@ -679,6 +745,10 @@ def main(argv: list[str] | None = None) -> int:
 
     for sig in (signal.SIGTERM, signal.SIGINT):  # SIGINT too: a background job may have it ignored
         signal.signal(sig, on_term)
+    hz = args.leader_status_hz
+    if hz is not None and not (math.isfinite(hz) and 0.1 <= hz <= 50.0):
+        p.error(f"--leader-status-hz {hz!r}: allowed: 0.1 to 50")
+    leader_extra = () if hz is None else ("--set", f"leader.status_rate_hz={hz:g}")
     work = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="bt-internet-"))
     work.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
@@ -697,7 +767,8 @@ def main(argv: list[str] | None = None) -> int:
                 try:
                     r = run_condition(cond, lk, args.seconds, setup_out, commands,
                                       work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed,
-                                      tag=args.tag + secrets.token_hex(2)[: 4 - len(args.tag)])  # fmt: skip
+                                      tag=args.tag + secrets.token_hex(2)[: 4 - len(args.tag)],
+                                      leader_extra=leader_extra)  # fmt: skip
                 except (RuntimeError, NetnsError) as exc:
                     r = {"condition": name, "label": cond.label, "links": lk, "error": str(exc)}
                 r["wall_s"] = round(time.monotonic() - t_start, 1)

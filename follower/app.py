@@ -144,9 +144,11 @@ class FollowerApp:
             self.pacer.notify()
 
     def _publish(self, msg: Message) -> None:
+        fb = isinstance(msg, Feedback)
+        if fb and not self.budget.inflight.admit_feedback(self.clock()):
+            return  # over the in-flight cap: the next feedback carries the newest state (docs/network.md)
         pub, topic = self._outlets[type(msg)]
         self.node.send(pub, msg, topic)
-        fb = isinstance(msg, Feedback)
         self.budget.sent(len(encode(msg)) + self._mac_bytes, feedback=fb)
         if fb:
             self._fb_times.append(self.clock())
@@ -179,6 +181,7 @@ class FollowerApp:
             "uplink_capacity_bps": round(min(b.capacity_bps, 1e9)) if math.isfinite(b.capacity_bps) else 0,
             "uplink_excess_ms": round(1000.0 * b.excess_s),
             **{f"uplink_{k}": v for k, v in b.signals.items()},
+            **b.inflight_counters(),
         }
         if self._video is not None:
             video = self._video
@@ -258,7 +261,7 @@ class FollowerApp:
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
             video = node.enter(VideoStreamer(
                 robot, self.fcfg.cameras, self.fcfg.camera_fps, self._publish_video, now=self.clock,
-                jpeg_quality=self.fcfg.jpeg_quality, sid=node.sid,
+                jpeg_quality=self.fcfg.jpeg_quality, sid=node.sid, admit=self.budget.inflight.admit_video,
             ))  # fmt: skip
             self._video = video
             node.link_clocks(peer_sid=lambda: self.gate.live_sid)

@@ -69,6 +69,12 @@ runs).
   (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
   ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a
   cellular uplink to 4-43 kbit/s at its first gap and probed back at 0.5 %/s.
+- **in flight.** What was sent after the newest feedback the leader acknowledged (its
+  Status: ``fb_age_ms``) is in flight; it is capped at about twice the bandwidth-delay
+  product (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd). Over the cap video
+  waits and feedback goes out once per ``probe_s`` (the newest only), so when the path stops
+  delivering the follower stops adding to its queue within about a round trip plus the
+  leader's status period, before the stall above is judged.
 - **recovery.** With a ceiling under half that delivered rate (set in a dip) and h2
   clear, the capacity grows by ``start_growth`` (x1.3) a second up to ``drain_ratio`` of
   it, the ceiling with it: a dip of the path's capacity is not a new ceiling. (A token
@@ -93,7 +99,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 
-from bipedtele.follower.delivery import DeliveryRate
+from bipedtele.follower.delivery import DeliveryRate, InFlight
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -178,6 +184,8 @@ class UplinkBudget:
         self.leader: dict[str, int] = {}
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0}
         self.delivery = DeliveryRate(self.tuning.delivery_window_s)
+        tu = self.tuning
+        self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s)
         self._undo: _PendingCut | None = None
         self._last_signal = -math.inf
         self._last_cut = -math.inf
@@ -217,7 +225,9 @@ class UplinkBudget:
         feedback : bool
             A Feedback message (its size feeds the feedback rate plan).
         """
-        self._log.add(self._clock(), nbytes, video, feedback)
+        now = self._clock()
+        self._log.add(now, nbytes, video, feedback)
+        self.inflight.sent(now, nbytes)
 
     def on_h2(self, h2_s: float) -> None:
         """Feed the leader's feedback-path delay estimate [s] (from each command's ``h2_s``).
@@ -251,7 +261,11 @@ class UplinkBudget:
             return
         self._last_status = now
         ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
-        if self._judge_stall(now, ts, rx):
+        stalled = self._judge_stall(now, ts, rx)
+        age_ms = self.leader.get("fb_age_ms")
+        if age_ms is not None:  # everything sent up to the newest feedback the leader had: delivered
+            self.inflight.acked(now, ts - age_ms / 1000.0, self.delivery.max_bps)
+        if stalled:
             return
         if now < self._q.quiet_until:
             return
@@ -464,6 +478,14 @@ class UplinkBudget:
         self._last_cut = self._last_signal = now
 
     # ------------------------------------------------------------------ outputs
+
+    def inflight_counters(self) -> dict[str, int]:
+        """Return the in-flight figures for the Status: bytes in flight, the cap [bytes] (0: open), what was held, control's rate [bit/s]."""
+        f = self.inflight
+        cap = f.cap_bytes
+        return {"uplink_inflight_bytes": f.bytes, "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
+                "uplink_held_feedback": f.held["feedback"], "uplink_held_video": f.held["video"],
+                "uplink_tx_control_bps": round(self.tx_bps("control"))}  # fmt: skip
 
     def tx_bps(self, which: str | None = None) -> float:
         """Sent rate over the last ``window_s`` [bit/s]: ``control``, ``video`` or all (None)."""

@@ -23,9 +23,10 @@ Not thread-safe: the follower's loop thread only.
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 
-__all__ = ["DeliveryRate"]
+__all__ = ["DeliveryRate", "InFlight"]
 
 
 class DeliveryRate:
@@ -92,3 +93,148 @@ class DeliveryRate:
     def max_bps(self) -> float | None:
         """The highest rate delivered over the last ``window_s`` of delivering time [bit/s] (None: no sample)."""
         return self._max[0][1] if self._max else None
+
+
+class InFlight:
+    """Bytes sent on the uplink and not yet known delivered, capped near the bandwidth-delay product.
+
+    BBR bounds what a sender keeps in flight to about twice the bandwidth-delay product
+    (Cardwell et al. 2016): when the path stops delivering, the sender stops adding to its
+    queue within about one round trip, whatever its rate estimate says. Here the
+    acknowledgement is the leader's Status: the newest feedback it received was sent at
+    ``t_status - fb_age_ms`` (the follower's clock), so everything the follower sent up to
+    then has left the path's queue (one FIFO queue at the bottleneck; a message lost there
+    is counted delivered, so loss never holds the cap shut). What was sent after it is in
+    flight.
+
+    The cap is ``gain x rate x (min_rtt + ack_interval)`` [bytes], at least ``min_bytes``:
+    the delivery rate (:class:`DeliveryRate`), the least round trip seen over ``rtt_window_s``
+    (status receive time minus the acknowledged feedback's send time) and the mean interval
+    between acknowledgements (the leader's status period: a sender acknowledged every 0.5 s
+    keeps up to 0.5 s of its rate in flight between two, BBR's allowance for aggregated
+    acknowledgements). The gain leaves room for a rate above the one delivered so far (the
+    delivery rate of an application-limited sender is what it sent, and a cap at it would
+    only ratchet down). Until the first acknowledgement with a rate the cap is infinite.
+
+    Over the cap, feedback goes out at most once per ``probe_s`` (the newest only) and
+    video waits: see docs/network.md, In flight. Thread-safe (the video thread counts too).
+
+    Parameters
+    ----------
+    gain : float
+        Multiple of the bandwidth-delay product kept in flight [-] (2, BBR's cwnd gain).
+    min_bytes : float
+        The least cap [bytes] (a frame part and a few feedback always fit).
+    probe_s : float
+        Over the cap, one feedback per this interval [s].
+    rtt_window_s : float
+        Window of the round trip's minimum [s].
+    """
+
+    def __init__(
+        self, gain: float = 2.0, min_bytes: float = 4000.0, probe_s: float = 0.2, rtt_window_s: float = 10.0
+    ) -> None:
+        for name, v in (("gain", gain), ("min_bytes", min_bytes), ("probe_s", probe_s), ("rtt_window_s", rtt_window_s)):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
+        self.gain, self.min_bytes, self.probe_s = float(gain), float(min_bytes), float(probe_s)
+        self._lock = threading.Lock()
+        self._sent: deque[tuple[float, int]] = deque()  # (send time [s], bytes), in send order
+        self._bytes = 0
+        self._acked_t = -math.inf
+        self._rtt: deque[tuple[float, float]] = deque()  # (time, rtt), values increasing
+        self._rtt_window_s = float(rtt_window_s)
+        self._last_ack: float | None = None
+        self.ack_interval_s: float | None = None
+        self.rate_bps: float | None = None
+        self._last_probe = -math.inf
+        #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or dropped).
+        self.held = {"feedback": 0, "video": 0}
+
+    def sent(self, t: float, nbytes: int) -> None:
+        """Count ``nbytes`` [bytes] sent at ``t`` [s] (any thread)."""
+        with self._lock:
+            if self._sent and t < self._sent[-1][0]:
+                t = self._sent[-1][0]  # threads may stamp out of order: keep the queue sorted
+            self._sent.append((t, int(nbytes)))
+            self._bytes += int(nbytes)
+
+    def acked(self, now: float, t_delivered: float, rate_bps: float | None) -> None:
+        """Take an acknowledgement: everything sent up to ``t_delivered`` [s] was delivered.
+
+        Parameters
+        ----------
+        now : float
+            When the acknowledgement arrived [s].
+        t_delivered : float
+            Send time of the newest feedback the leader had received [s] (the follower's clock).
+        rate_bps : float or None
+            The path's delivery rate now [bit/s] (None: not known; the cap stays open).
+        """
+        if not math.isfinite(t_delivered):
+            return
+        if self._last_ack is not None and now > self._last_ack:
+            dt = now - self._last_ack
+            self.ack_interval_s = dt if self.ack_interval_s is None else 0.8 * self.ack_interval_s + 0.2 * dt
+        self._last_ack = now
+        self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
+        rtt = max(0.0, now - t_delivered)
+        q = self._rtt
+        while q and q[-1][1] >= rtt:
+            q.pop()
+        q.append((now, rtt))
+        while q and q[0][0] < now - self._rtt_window_s:
+            q.popleft()
+        with self._lock:
+            if t_delivered <= self._acked_t:
+                return
+            self._acked_t = t_delivered
+            while self._sent and self._sent[0][0] <= t_delivered:
+                self._bytes -= self._sent.popleft()[1]
+
+    @property
+    def bytes(self) -> int:
+        """Bytes in flight: sent after the newest acknowledged feedback."""
+        with self._lock:
+            return self._bytes
+
+    @property
+    def min_rtt_s(self) -> float | None:
+        """The least round trip over the window [s] (None before the first acknowledgement)."""
+        return self._rtt[0][1] if self._rtt else None
+
+    @property
+    def cap_bytes(self) -> float:
+        """The cap [bytes]: ``gain x rate x (min_rtt + ack_interval)``, at least ``min_bytes``; infinite until known."""
+        rtt = self.min_rtt_s
+        if self.rate_bps is None or rtt is None:
+            return math.inf
+        return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + (self.ack_interval_s or 0.0)))
+
+    @property
+    def over(self) -> bool:
+        """True while what is in flight reaches the cap."""
+        return self.bytes >= self.cap_bytes
+
+    def admit_feedback(self, now: float) -> bool:
+        """Say whether a feedback may leave at ``now`` [s]: under the cap, or one per ``probe_s`` over it."""
+        if not self.over:
+            return True
+        if now - self._last_probe >= self.probe_s:
+            self._last_probe = now
+            return True
+        self.held["feedback"] += 1
+        return False
+
+    def admit_video(self, nbytes: int) -> bool:
+        """Say whether a video message of ``nbytes`` [bytes] fits under the cap now.
+
+        A message larger than half the cap is taken once what is in flight leaves room for
+        half the cap (a frame larger than the cap is never shut out for good).
+        """
+        cap = self.cap_bytes
+        ok = self.bytes + min(float(nbytes), 0.5 * cap) <= cap
+        if not ok:
+            with self._lock:
+                self.held["video"] += 1
+        return ok

@@ -86,6 +86,10 @@ class UplinkTuning:
         ``stall_fb_hz``, and the capacity restarts from what the path delivered before.
     stall_fb_hz : float
         Feedback rate while stalled [Hz] (the newest only: no acknowledgement per command).
+    inflight_gain, inflight_min_bytes, probe_s : float
+        The in-flight cap (:class:`~bipedtele.follower.delivery.InFlight`): its gain over
+        the bandwidth-delay product [-], its least value [bytes], and over it one feedback
+        per ``probe_s`` [s].
     delivery_window_s : float
         The delivery rate's maximum is kept this long [s] of time the path delivered.
     lossy_ppm, rising_s_per_s : float
@@ -128,6 +132,9 @@ class UplinkTuning:
     stall_s: float = 0.5
     stall_fb_hz: float = 5.0
     delivery_window_s: float = 10.0
+    inflight_gain: float = 2.0
+    inflight_min_bytes: float = 4000.0
+    probe_s: float = 0.2
     lossy_ppm: float = 1000.0
     rising_s_per_s: float = 0.1
 

@@ -74,6 +74,12 @@ class VideoStreamer:
         Clock for frame times [s].
     jpeg_quality : int
         JPEG quality (10-100).
+    sid : int, optional
+        The frames' session id (default: a new one).
+    admit : callable, optional
+        ``admit(nbytes) -> bool``: may a frame of ``nbytes`` [bytes] leave now (the uplink's
+        in-flight cap, :class:`~bipedtele.follower.delivery.InFlight`)? A frame refused is
+        dropped and counted (``held``): the next one is newer. None: always.
     """
 
     def __init__(
@@ -86,11 +92,13 @@ class VideoStreamer:
         now: Callable[[], float] = time.time,
         jpeg_quality: int = 80,
         sid: int | None = None,
+        admit: Callable[[int], bool] | None = None,
     ) -> None:
         self.robot = robot
         self.cameras = list(cameras)
         self.period = 1.0 / fps if fps > 0 else 0.0
         self._publish = publish
+        self._admit = admit  # the uplink's in-flight cap: may a frame of N bytes leave now?
         self._now = now
         self._quality = int(jpeg_quality)
         self._sid = new_session_id() if sid is None else int(sid)  # the node's: the leader shows its bound peer's only
@@ -113,6 +121,7 @@ class VideoStreamer:
         self._unlogged = 0
         self.max_fps = float(fps)
         self.stats["throttled"] = 0
+        self.stats["held"] = 0
         self._budget: float | None = None
         self._frame_bits_max: float | None = None
         self._part_bits_max: float | None = None
@@ -225,6 +234,9 @@ class VideoStreamer:
                 continue
             jpeg = buf.tobytes()
             bits = 8.0 * (len(jpeg) + _OVERHEAD_BYTES)
+            if self._admit is not None and not self._admit(int(bits / 8.0)):
+                self.stats["held"] += 1  # the uplink holds its cap in flight: the next frame is newer
+                continue
             if not self._spend(level, bits):
                 self.stats["throttled"] += 1
                 continue

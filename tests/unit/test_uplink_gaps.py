@@ -33,12 +33,13 @@ class CellSim:
     def __init__(
         self, cap: Callable[[float], float], *, base_s: Callable[[float], float] = lambda t: 0.04,
         queue_bytes: int = 64_000, want_bps: float = 800_000.0, video_delivered: float = 1.0,
-        fb_loss_ppm: int = 0,
+        fb_loss_ppm: int = 0, status_s: float = 0.5,
     ) -> None:  # fmt: skip
         self.t = 0.0
         self.cap, self.base_s, self.qmax = cap, base_s, queue_bytes
         self.want, self.video_delivered, self.fb_loss_ppm = want_bps, video_delivered, fb_loss_ppm
         self.rng = random.Random(3)
+        self.status_s = status_s  # the leader's status period [s]: its acknowledgements
         self.budget = UplinkBudget(lambda: self.t)
         self.queue: deque[list[float]] = deque()  # [t_sent, bits left, is feedback, bits]
         self.queue_bits = 0.0
@@ -53,6 +54,11 @@ class CellSim:
         self.log: list[dict[str, float]] = []
 
     def send(self, nbytes: int, *, video: bool = False, feedback: bool = False) -> None:
+        # the in-flight cap, as follower/app.py and follower/video.py apply it
+        if feedback and not self.budget.inflight.admit_feedback(self.t):
+            return
+        if video and not self.budget.inflight.admit_video(nbytes):
+            return
         self.budget.sent(nbytes, video, feedback=feedback)
         if video and self.rng.random() >= self.video_delivered:
             return
@@ -109,7 +115,7 @@ class CellSim:
             h2 = sum(d for _, d in self.fb_arrived) / len(self.fb_arrived)
             self.to_follower.append((t + self.base_s(t), "h2", h2))
         if t >= self.next_leader_st and self.newest_fb_sent is not None:
-            self.next_leader_st = t + 0.5
+            self.next_leader_st = t + self.status_s
             counters = {"rx_bps": round(sum(b for _, b in self.rx) / 2.0), "fb_loss_ppm": self.fb_loss_ppm,
                         "fb_age_ms": round(1000.0 * (t - self.newest_fb_sent))}  # fmt: skip
             self.to_follower.append((t + self.base_s(t), "status", (counters, t)))
@@ -212,3 +218,33 @@ def test_the_delivery_rate_keeps_its_maximum_through_a_stall() -> None:
     assert d.max_bps == 300_000.0
     with pytest.raises(ValueError, match="window_s"):
         DeliveryRate(window_s=0.0)
+
+
+def _after_gap(status_s: float, cap: bool) -> tuple[float, float]:
+    """A 2 Mbit/s uplink that delivers nothing for 4 s from 30 s, video wanting 3 Mbit/s,
+    the leader acknowledging every ``status_s``: return when the first feedback at most
+    0.5 s old arrived after the path's return [s after it], and the bytes in the path's queue
+    when the path returned."""
+    sim = CellSim(_gap(30.0, 4.0, rate=2_000_000.0, low=0.0), queue_bytes=256_000, want_bps=3_000_000.0,
+                  status_s=status_s)  # fmt: skip
+    if not cap:
+        sim.budget.inflight.gain = 1e9  # a cap no sender reaches
+    sim.run(34.0)
+    queued = sim.queue_bits / 8.0
+    sim.run(6.0)
+    fresh = next(a for a, age in sim.first_fb_after if a >= 34.0 and age <= 0.5)
+    return fresh - 34.0, queued
+
+
+def test_the_in_flight_cap_keeps_the_robots_own_backlog_out_of_a_gap() -> None:
+    """With the leader's status at 10 Hz the cap (twice rate x (round trip + status
+    period)) is what queues when the path stops: the first fresh feedback arrives within
+    0.5 s of the path's return. Without the cap the follower went on sending until the
+    stall was judged, and more queued behind the gap."""
+    fresh, queued = _after_gap(0.1, cap=True)
+    fresh_open, queued_open = _after_gap(0.1, cap=False)
+    assert fresh <= 0.5, fresh
+    assert queued < queued_open and fresh < fresh_open, (queued, queued_open, fresh, fresh_open)
+    # at the shipped 2 Hz status the cap must hold 0.5 s of the rate between two acknowledgements
+    fresh_2hz, queued_2hz = _after_gap(0.5, cap=True)
+    assert queued < queued_2hz, (queued, queued_2hz)

@@ -1,0 +1,109 @@
+"""The uplink's in-flight cap (follower/delivery.py, InFlight), with a simulated clock."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from bipedtele.follower.capacity import UplinkBudget
+from bipedtele.follower.delivery import InFlight
+
+pytestmark = pytest.mark.timeout(30)
+
+FB = 400  # one feedback [bytes]
+
+
+def _steady(f: InFlight, t0: float, t1: float, *, acks: bool, rtt: float = 0.1, ack_s: float = 0.1) -> dict[str, int]:
+    """Feedback every 10 ms and a 2 kB video frame every 50 ms from ``t0`` to ``t1`` [s];
+    with ``acks`` the leader acknowledges every ``ack_s`` what it received ``rtt`` ago.
+    Return what left: feedback and video messages."""
+    out = {"feedback": 0, "video": 0}
+    t, next_ack, k = t0, t0, 0
+    while t < t1:
+        if f.admit_feedback(t):
+            f.sent(t, FB)
+            out["feedback"] += 1
+        if k % 5 == 0 and f.admit_video(2000):
+            f.sent(t, 2000)
+            out["video"] += 1
+        if acks and t >= next_ack:
+            next_ack = t + ack_s
+            f.acked(t, t - rtt, 8.0 * (FB * 100 + 2000 * 20))  # what the path delivers [bit/s]
+        t, k = round(t + 0.01, 6), k + 1
+    return out
+
+
+def test_the_cap_is_open_until_the_first_acknowledgement() -> None:
+    f = InFlight()
+    assert f.cap_bytes == math.inf and not f.over
+    for k in range(1000):
+        f.sent(0.001 * k, 10_000)
+    assert f.admit_feedback(1.0) and f.admit_video(10_000)
+    assert f.bytes == 10_000_000
+
+
+def test_when_acknowledgements_stop_the_follower_stops_adding_to_the_queue() -> None:
+    """A path that delivered, then delivers nothing: within the cap the follower sends on,
+    then one feedback per probe interval and no video, and what is in flight stays near
+    the cap; once acknowledgements come back it sends at its rate again."""
+    f = InFlight(gain=2.0, probe_s=0.2)
+    before = _steady(f, 0.0, 10.0, acks=True)
+    assert before["video"] >= 190 and before["feedback"] >= 990  # the cap never held a delivering path
+    cap = f.cap_bytes
+    assert math.isfinite(cap) and f.min_rtt_s == pytest.approx(0.1)
+    # 4 s without an acknowledgement
+    during = _steady(f, 10.0, 14.0, acks=False)
+    assert during["video"] <= cap / 2000 + 1  # video stops once the cap is reached
+    assert during["feedback"] <= cap / FB + 4.0 / 0.2 + 1  # then one feedback per 0.2 s
+    assert f.bytes <= cap + FB * (4.0 / 0.2 + 1)
+    late = _steady(f, 14.0, 15.0, acks=False)  # the cap holds: five probes a second, no video
+    assert late == {"feedback": 5, "video": 0}
+    assert f.held["video"] > 0 and f.held["feedback"] > 0
+    back = _steady(f, 15.0, 17.0, acks=True)
+    assert back["video"] >= 35 and back["feedback"] >= 190
+
+
+def test_a_lost_feedback_does_not_hold_the_cap_shut() -> None:
+    """The acknowledgement names the newest feedback the leader had: what was sent before
+    it is delivered or lost, and out of the path either way."""
+    f = InFlight(min_bytes=1000.0)
+    for k in range(100):
+        f.sent(0.01 * k, FB)
+    f.acked(1.0, 0.5, 100_000.0)
+    assert f.bytes == 49 * FB  # sent after 0.5 s
+    f.acked(1.1, 0.3, 100_000.0)  # an older acknowledgement (reordered): nothing changes
+    assert f.bytes == 49 * FB
+    f.acked(1.2, 0.99, 100_000.0)
+    assert f.bytes == 0
+
+
+def test_the_cap_follows_rate_round_trip_and_acknowledgement_interval() -> None:
+    f = InFlight(gain=2.0, min_bytes=100.0)
+    f.acked(1.0, 0.9, 800_000.0)  # rtt 0.1 s, no interval yet
+    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * 0.1)
+    f.acked(1.5, 1.3, 800_000.0)  # rtt 0.2 (the minimum stays 0.1), an interval of 0.5 s
+    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * (0.1 + 0.5))
+    assert InFlight(min_bytes=5000.0).min_bytes == 5000.0
+    g = InFlight(min_bytes=5000.0)
+    g.acked(1.0, 0.99, 8_000.0)
+    assert g.cap_bytes == 5000.0  # the floor: a part and a few feedback always fit
+
+
+@pytest.mark.parametrize("name", ["gain", "min_bytes", "probe_s", "rtt_window_s"])
+def test_bad_parameters_are_named(name: str) -> None:
+    with pytest.raises(ValueError, match=name):
+        InFlight(**{name: 0.0})
+
+
+def test_the_budget_feeds_the_cap_from_the_leaders_status() -> None:
+    """UplinkBudget counts what it sends and takes the leader's ``fb_age_ms`` as the acknowledgement."""
+    now = [0.0]
+    b = UplinkBudget(lambda: now[0])
+    for k in range(100):
+        now[0] = 0.01 * k
+        b.sent(FB, feedback=True)
+    now[0] = 1.0
+    b.on_leader_status({"rx_bps": 320_000, "fb_age_ms": 300, "fb_loss_ppm": 0}, 1.0)
+    assert b.inflight.bytes == 30 * FB  # sent after 0.7 s
+    c = b.inflight_counters()
+    assert c["uplink_inflight_bytes"] == 30 * FB and c["uplink_inflight_cap"] > 0
