@@ -382,13 +382,14 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
     """
     fb = sorted((r.t_recv, r.t_recv - r.data["t"], r.data["t"]) for r in l_rec if r.topic == "feedback/recv")
     f_st = [(r.t_recv, r.data.get("counters", {})) for r in f_rec if r.topic == "status/sent"]
+    f_fb = sorted(r.data["t"] for r in f_rec if r.topic == "feedback/sent")
     gaps = []
     for (a, _, _), (b, age, _) in itertools.pairwise(fb):
         if b - a > 1.0:
             fresh = next((t - b for t, ag, _ in fb if t >= b and ag <= 0.5), None)
             gaps.append({"at": round(a, 2), "length_s": round(b - a, 2), "first_age_s": round(age, 3),
                          "fresh_after_s": None if fresh is None else round(fresh, 3),
-                         **_gap_split(fb, f_st, a, b)})  # fmt: skip
+                         **_gap_split(fb, f_st, f_fb, a, b)})  # fmt: skip
     sent = [(r.t_recv, r.data.get("state")) for r in f_rec if r.topic == "feedback/sent"]
     ev = [(r.t_recv, r.data) for r in l_rec if r.topic == "events"]
     stops, walks = [], []
@@ -409,20 +410,26 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
 
 
 def _gap_split(
-    fb: list[tuple[float, float, float]], f_st: list[tuple[float, dict[str, Any]]], a: float, b: float
-) -> dict[str, Any]:
+    fb: list[tuple[float, float, float]], f_st: list[tuple[float, dict[str, Any]]], f_fb: list[float],
+    a: float, b: float,
+) -> dict[str, Any]:  # fmt: skip
     """The feedback that arrived after a gap ``(a, b)``, split by when it was sent.
 
-    (a) sent before the gap began (``a``: the last arrival before it): in flight then,
-    queued in the path; its count, the age of the oldest, and the follower's bytes in flight
-    in its last Status before ``a`` (``uplink_inflight_bytes``; None: not reported).
-    (b) sent during the gap or after: the age of the first of it to arrive.
+    (a) in flight when the gap began: sent after the last one that arrived before it and
+    before ``a`` (the last arrival before the gap): how many the follower sent
+    (``inflight_sent``, from its ``feedback/sent``), how many of them the leader took after
+    the gap (``inflight_n``; the others were refused as too old, or lost) and the oldest
+    of those's age, and the follower's bytes in flight in its last Status before ``a``
+    (``uplink_inflight_bytes``; None: not reported). (b) sent during the gap or after: the
+    age of the first of it to arrive, and when it arrived after the gap's end.
     """
+    last = max((ts for t, _, ts in fb if t <= a), default=-math.inf)
     after = [(t, ag, ts) for t, ag, ts in fb if t >= b]
     old = [(t, ag) for t, ag, ts in after if ts < a]
     new = next(((t, ag) for t, ag, ts in after if ts >= a), None)
     st = [c for t, c in f_st if t <= a]
     return {
+        "inflight_sent": sum(1 for ts in f_fb if last < ts < a),
         "inflight_n": len(old), "inflight_age_s": round(max((ag for _, ag in old), default=0.0), 3),
         "inflight_bytes": st[-1].get("uplink_inflight_bytes") if st else None,
         "first_new_age_s": None if new is None else round(new[1], 3),
@@ -437,7 +444,8 @@ def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t
     fields and MAC); ``control_bps``: the follower's control rate (``uplink_tx_control_bps``,
     mean of its Status over the run); allowance = (mean - control) / (8 frame_bytes).
     """
-    sizes = [len(r.data.get("jpeg") or b"") + 120 for r in l_rec if r.topic == "video/recv" and t0 <= r.t_recv <= t1]
+    sizes = [len(r.data["jpeg"]) + 120 for r in l_rec if r.topic == "video/recv" and t0 <= r.t_recv <= t1
+             and r.data.get("jpeg") and not r.data.get("jpeg_skipped")]  # the recorder keeps some frames' JPEG  # fmt: skip
     ctl = [float(r.data.get("counters", {}).get("uplink_tx_control_bps", 0) or 0)
            for r in f_rec if r.topic == "status/sent" and t0 <= r.t_recv <= t1]  # fmt: skip
     if not sizes or not ctl:
@@ -677,7 +685,8 @@ def row_line(r: dict[str, Any]) -> str:
 def _split(x: dict[str, Any]) -> str:
     """One gap's split: (a) in flight when it began, (b) sent in it."""
     return (
-        f"(a) {x.get('inflight_n')} fb up to {x.get('inflight_age_s')} s old, {x.get('inflight_bytes')} B in flight; "
+        f"(a) {x.get('inflight_sent')} fb in flight ({x.get('inflight_bytes')} B), {x.get('inflight_n')} taken after "
+        f"it, up to {x.get('inflight_age_s')} s old; "
         f"(b) first {x.get('first_new_age_s')} s old at +{x.get('first_new_after_s')} s"
     )
 

@@ -261,7 +261,7 @@ class FollowerApp:
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
             video = node.enter(VideoStreamer(
                 robot, self.fcfg.cameras, self.fcfg.camera_fps, self._publish_video, now=self.clock,
-                jpeg_quality=self.fcfg.jpeg_quality, sid=node.sid, admit=self.budget.inflight.admit_video,
+                jpeg_quality=self.fcfg.jpeg_quality, sid=node.sid, admit=self.budget.admit_video,
             ))  # fmt: skip
             self._video = video
             node.link_clocks(peer_sid=lambda: self.gate.live_sid)

@@ -185,7 +185,7 @@ class UplinkBudget:
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0}
         self.delivery = DeliveryRate(self.tuning.delivery_window_s)
         tu = self.tuning
-        self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s)
+        self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s, video_queue_s=tu.video_queue_s)
         self._undo: _PendingCut | None = None
         self._last_signal = -math.inf
         self._last_cut = -math.inf
@@ -479,13 +479,18 @@ class UplinkBudget:
 
     # ------------------------------------------------------------------ outputs
 
+    def admit_video(self, nbytes: int) -> bool:
+        """Say whether a video message of ``nbytes`` [bytes] may leave now (the in-flight cap and the queue it saw)."""
+        return self.inflight.admit_video(nbytes, self._clock())
+
     def inflight_counters(self) -> dict[str, int]:
         """Return the in-flight figures for the Status: bytes in flight, the cap [bytes] (0: open), what was held, control's rate [bit/s]."""
         f = self.inflight
         cap = f.cap_bytes
         return {"uplink_inflight_bytes": f.bytes, "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
                 "uplink_held_feedback": f.held["feedback"], "uplink_held_video": f.held["video"],
-                "uplink_tx_control_bps": round(self.tx_bps("control"))}  # fmt: skip
+                "uplink_tx_control_bps": round(self.tx_bps("control")),
+                "uplink_queue_ms": round(1000.0 * f.queue_s)}  # fmt: skip
 
     def tx_bps(self, which: str | None = None) -> float:
         """Sent rate over the last ``window_s`` [bit/s]: ``control``, ``video`` or all (None)."""

@@ -117,7 +117,12 @@ class InFlight:
     only ratchet down). Until the first acknowledgement with a rate the cap is infinite.
 
     Over the cap, feedback goes out at most once per ``probe_s`` (the newest only) and
-    video waits: see docs/network.md, In flight. Thread-safe (the video thread counts too).
+    video waits. Each acknowledgement is also a round-trip sample: its rise over the
+    minimum is the path's queue now (``queue_s``), seen one status period after it formed
+    rather than through the leader's 1 s mean of h2 (about 0.75 s late; LEDBAT's and BBR's
+    signal); while it exceeds ``video_queue_s`` video waits too, so that no more than about
+    that much link time queues ahead of the feedback. See docs/network.md, In flight.
+    Thread-safe (the video thread counts too).
 
     Parameters
     ----------
@@ -129,12 +134,18 @@ class InFlight:
         Over the cap, one feedback per this interval [s].
     rtt_window_s : float
         Window of the round trip's minimum [s].
+    video_queue_s : float
+        Video waits while the last round trip exceeds its minimum by more than this [s]
+        (a sample older than ``1 s`` is not used).
     """
 
     def __init__(
-        self, gain: float = 2.0, min_bytes: float = 4000.0, probe_s: float = 0.2, rtt_window_s: float = 10.0
-    ) -> None:
-        for name, v in (("gain", gain), ("min_bytes", min_bytes), ("probe_s", probe_s), ("rtt_window_s", rtt_window_s)):
+        self, gain: float = 2.0, min_bytes: float = 4000.0, probe_s: float = 0.2, rtt_window_s: float = 10.0,
+        video_queue_s: float = 0.05,
+    ) -> None:  # fmt: skip
+        checked = (("gain", gain), ("min_bytes", min_bytes), ("probe_s", probe_s), ("rtt_window_s", rtt_window_s),
+                   ("video_queue_s", video_queue_s))  # fmt: skip
+        for name, v in checked:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
         self.gain, self.min_bytes, self.probe_s = float(gain), float(min_bytes), float(probe_s)
@@ -148,6 +159,9 @@ class InFlight:
         self.ack_interval_s: float | None = None
         self.rate_bps: float | None = None
         self._last_probe = -math.inf
+        self.video_queue_s = float(video_queue_s)
+        #: The last round trip above its minimum [s] (the path's queue when it was acknowledged).
+        self.queue_s = 0.0
         #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or dropped).
         self.held = {"feedback": 0, "video": 0}
 
@@ -180,6 +194,7 @@ class InFlight:
         self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
         rtt = max(0.0, now - t_delivered)
         q = self._rtt
+        self.queue_s = max(0.0, rtt - (q[0][1] if q else rtt))
         while q and q[-1][1] >= rtt:
             q.pop()
         q.append((now, rtt))
@@ -226,14 +241,21 @@ class InFlight:
         self.held["feedback"] += 1
         return False
 
-    def admit_video(self, nbytes: int) -> bool:
+    def admit_video(self, nbytes: int, now: float | None = None) -> bool:
         """Say whether a video message of ``nbytes`` [bytes] fits under the cap now.
 
         A message larger than half the cap is taken once what is in flight leaves room for
-        half the cap (a frame larger than the cap is never shut out for good).
+        half the cap (a frame larger than the cap is never shut out for good). With ``now``
+        [s]: not while the last acknowledgement (under 1 s old) showed more than
+        ``video_queue_s`` of queue with more than ``cap / gain`` in flight.
         """
         cap = self.cap_bytes
         ok = self.bytes + min(float(nbytes), 0.5 * cap) <= cap
+        if ok and now is not None and self._last_ack is not None and now - self._last_ack < 1.0:
+            # a queue of ours: the round trip rose and more than one bandwidth-delay product is
+            # in flight (a rise of the path's own delay with nothing queued keeps under it)
+            ours = self.bytes > cap / self.gain
+            ok = not (ours and self.queue_s > self.video_queue_s)
         if not ok:
             with self._lock:
                 self.held["video"] += 1

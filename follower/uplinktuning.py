@@ -90,6 +90,9 @@ class UplinkTuning:
         The in-flight cap (:class:`~bipedtele.follower.delivery.InFlight`): its gain over
         the bandwidth-delay product [-], its least value [bytes], and over it one feedback
         per ``probe_s`` [s].
+    video_queue_s : float
+        Video waits while the leader's last acknowledgement showed the round trip this much
+        [s] above its minimum (the path's queue, one status period late).
     delivery_window_s : float
         The delivery rate's maximum is kept this long [s] of time the path delivered.
     lossy_ppm, rising_s_per_s : float
@@ -135,6 +138,7 @@ class UplinkTuning:
     inflight_gain: float = 2.0
     inflight_min_bytes: float = 4000.0
     probe_s: float = 0.2
+    video_queue_s: float = 0.05
     lossy_ppm: float = 1000.0
     rising_s_per_s: float = 0.1
 

@@ -107,3 +107,24 @@ def test_the_budget_feeds_the_cap_from_the_leaders_status() -> None:
     assert b.inflight.bytes == 30 * FB  # sent after 0.7 s
     c = b.inflight_counters()
     assert c["uplink_inflight_bytes"] == 30 * FB and c["uplink_inflight_cap"] > 0
+
+
+def test_video_waits_while_the_acknowledgements_show_a_queue_of_ours() -> None:
+    """A round trip 80 ms over its minimum with more than a bandwidth-delay product in
+    flight: a queue of ours, video waits; the same rise with little in flight (the path's
+    own delay rose) does not hold it."""
+    f = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
+    for k in range(10):  # 10 Hz acknowledgements, 20 ms round trip, 800 kbit/s delivered
+        f.acked(0.1 * k, 0.1 * k - 0.02, 800_000.0)
+    bdp = f.cap_bytes / f.gain  # 100 kB/s x (0.02 + 0.1) s
+    f.sent(0.95, int(bdp) + 2000)  # more than one product in flight
+    f.acked(1.0, 0.90, 800_000.0)  # 100 ms: 80 ms of queue
+    assert f.queue_s == pytest.approx(0.08)
+    assert f.admit_video(1000) and not f.admit_video(1000, now=1.01)
+    assert f.admit_video(1000, now=2.5)  # a sample over a second old is not used
+    g = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
+    for k in range(10):
+        g.acked(0.1 * k, 0.1 * k - 0.02, 800_000.0)
+    g.sent(0.95, 2000)
+    g.acked(1.0, 0.90, 800_000.0)
+    assert g.queue_s == pytest.approx(0.08) and g.admit_video(1000, now=1.01)

@@ -57,7 +57,7 @@ class CellSim:
         # the in-flight cap, as follower/app.py and follower/video.py apply it
         if feedback and not self.budget.inflight.admit_feedback(self.t):
             return
-        if video and not self.budget.inflight.admit_video(nbytes):
+        if video and not self.budget.admit_video(nbytes):
             return
         self.budget.sent(nbytes, video, feedback=feedback)
         if video and self.rng.random() >= self.video_delivered:
@@ -229,6 +229,7 @@ def _after_gap(status_s: float, cap: bool) -> tuple[float, float]:
                   status_s=status_s)  # fmt: skip
     if not cap:
         sim.budget.inflight.gain = 1e9  # a cap no sender reaches
+        sim.budget.inflight.video_queue_s = 1e9  # and no queue holds video
     sim.run(34.0)
     queued = sim.queue_bits / 8.0
     sim.run(6.0)
