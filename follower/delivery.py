@@ -118,7 +118,8 @@ class InFlight:
 
     Over the cap, feedback goes out at most once per ``probe_s`` (the newest only) and
     video waits. Each acknowledgement is also a round-trip sample: its rise over the
-    minimum is the path's queue now (``queue_s``), seen one status period after it formed
+    minimum is the path's queue now (``queue_s``, the least of the last three samples over
+    the minimum), seen a few status periods after it formed
     rather than through the leader's 1 s mean of h2 (about 0.75 s late; LEDBAT's and BBR's
     signal); while it exceeds ``video_queue_s`` video waits too, so that no more than about
     that much link time queues ahead of the feedback. See docs/network.md, In flight.
@@ -155,6 +156,7 @@ class InFlight:
         self._acked_t = -math.inf
         self._rtt: deque[tuple[float, float]] = deque()  # (time, rtt), values increasing
         self._rtt_window_s = float(rtt_window_s)
+        self._recent: deque[float] = deque(maxlen=3)  # the last round trips [s]
         self._last_ack: float | None = None
         self.ack_interval_s: float | None = None
         self.rate_bps: float | None = None
@@ -194,7 +196,12 @@ class InFlight:
         self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
         rtt = max(0.0, now - t_delivered)
         q = self._rtt
-        self.queue_s = max(0.0, rtt - (q[0][1] if q else rtt))
+        # the queue: the least of the last few samples over the window's minimum (each sample
+        # adds the wait between the feedback's arrival and the status, up to a feedback
+        # period: noise of one sign, which LEDBAT's current-delay filter takes out the same way)
+        recent = self._recent
+        recent.append(rtt)
+        self.queue_s = max(0.0, min(recent) - (q[0][1] if q else rtt))
         while q and q[-1][1] >= rtt:
             q.pop()
         q.append((now, rtt))

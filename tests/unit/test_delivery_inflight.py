@@ -109,22 +109,33 @@ def test_the_budget_feeds_the_cap_from_the_leaders_status() -> None:
     assert c["uplink_inflight_bytes"] == 30 * FB and c["uplink_inflight_cap"] > 0
 
 
-def test_video_waits_while_the_acknowledgements_show_a_queue_of_ours() -> None:
-    """A round trip 80 ms over its minimum with more than a bandwidth-delay product in
-    flight: a queue of ours, video waits; the same rise with little in flight (the path's
-    own delay rose) does not hold it."""
-    f = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
-    for k in range(10):  # 10 Hz acknowledgements, 20 ms round trip, 800 kbit/s delivered
+def _acks(f: InFlight, sent: int) -> None:
+    """Ten acknowledgements at 10 Hz with a 20 ms round trip (800 kbit/s delivered), then
+    ``sent`` bytes and one acknowledgement 80 ms over the minimum."""
+    for k in range(10):
         f.acked(0.1 * k, 0.1 * k - 0.02, 800_000.0)
-    bdp = f.cap_bytes / f.gain  # 100 kB/s x (0.02 + 0.1) s
-    f.sent(0.95, int(bdp) + 2000)  # more than one product in flight
-    f.acked(1.0, 0.90, 800_000.0)  # 100 ms: 80 ms of queue
+    f.sent(0.95, sent)
+    f.acked(1.0, 0.90, 800_000.0)
+
+
+def test_video_waits_while_the_acknowledgements_show_a_queue_of_ours() -> None:
+    """Round trips 80 ms over their minimum with more than a bandwidth-delay product in
+    flight: a queue of ours, video waits; the same rise with little in flight (the path's
+    own delay rose) does not hold it, nor does one late sample among prompt ones."""
+    f = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
+    big = 100_000 * 12 // 100 + 2000  # more than one product: 100 kB/s x (0.02 + 0.1) s
+    _acks(f, big)
+    assert f.queue_s == pytest.approx(0.0, abs=1e-9) and f.admit_video(1000, now=1.01)  # one late sample: noise
+    f.acked(1.1, 1.0, 800_000.0)
+    f.sent(1.15, big)
+    f.acked(1.2, 1.1, 800_000.0)
     assert f.queue_s == pytest.approx(0.08)
-    assert f.admit_video(1000) and not f.admit_video(1000, now=1.01)
+    assert f.bytes > f.cap_bytes / f.gain
+    assert f.admit_video(1000) and not f.admit_video(1000, now=1.21)
     assert f.admit_video(1000, now=2.5)  # a sample over a second old is not used
     g = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
-    for k in range(10):
-        g.acked(0.1 * k, 0.1 * k - 0.02, 800_000.0)
-    g.sent(0.95, 2000)
-    g.acked(1.0, 0.90, 800_000.0)
-    assert g.queue_s == pytest.approx(0.08) and g.admit_video(1000, now=1.01)
+    _acks(g, 100)
+    g.sent(1.15, 100)
+    g.acked(1.1, 1.0, 800_000.0)
+    g.acked(1.2, 1.1, 800_000.0)
+    assert g.queue_s == pytest.approx(0.08) and g.admit_video(1000, now=1.21)
