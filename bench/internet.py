@@ -51,6 +51,12 @@ one-way delay):
   in a state other than ``walking``), its restart latency (path back to the first feedback
   in ``walking``), and the commands sent before the path returned that the follower applied
   after it (count, oldest age);
+- gaps of the feedback at the leader (over 1 s): the first feedback after each, split into
+  (a) what was in flight when the gap began (sent before it; the leader refuses what is
+  older than about 2 s) and (b) the first one sent during it, and when the first fresh one
+  (at most 0.5 s old) arrived;
+- cellular rows: the frame rate the trace's mean capacity allows after control, from the
+  mean size of the frames the leader received (``allowance``), beside the frame rate;
 - the emulator's counters (``--stats-json``);
 - the paper's Table 2 of the run (``bipedtele report``: completion time of the pilot's
   passes, speed errors, delays): with ``--only trace --seconds 220`` the pilot finishes
