@@ -10,6 +10,8 @@ reaching the robot through each gap. 18 s of the pilot: at least one whole gap.
   queued in the gap arrived first when it ended, with no acknowledgement for far longer
   than the reach check's window, and the leader warned "commands not reaching the robot:
   refused by the router's ACL?" at every gap's end.
+- No backlog of the robot's own: with the leader's status at 10 Hz (the in-flight cap's
+  acknowledgements) the first fresh feedback arrives within 0.5 s of the path's return.
 - The blind operator does not drive: the leader stops the robot once its newest feedback
   is older than ``blind_stop_s`` (1.5 s), within 0.5 s more (plus the downlink's 40 ms),
   and it walks again after the gap.
@@ -54,8 +56,10 @@ def test_a_gap_of_the_robots_uplink_names_no_acl_and_stops_the_blind_operator(tm
         ("--forward", "const:40ms", "--backward", "const:40ms", "--rate-forward", f"mahimahi:{trace}",
          "--queue-forward", "256kB"),
     )  # fmt: skip
+    tag = f"b33{secrets.token_hex(1)[0]}"
+    ack = ("--set", "leader.status_rate_hz=10")  # acknowledgements for the in-flight cap
     r: dict[str, Any] = mod.run_condition(
-        cond, "split", SECONDS, setup, commands, tmp_path / "run", seed=3, tag=f"b33{secrets.token_hex(1)[0]}"
+        cond, "split", SECONDS, setup, commands, tmp_path / "run", seed=3, tag=tag, leader_extra=ack
     )
     print(mod.row_line(r))
     print("  " + mod.emu_line(r.get("linkemu")))
@@ -70,3 +74,8 @@ def test_a_gap_of_the_robots_uplink_names_no_acl_and_stops_the_blind_operator(tm
     # 40 ms the stopping command travels
     assert all(s <= 1.5 + 0.5 + 0.04 for s in g["stop_after_newest_fb_s"]), g
     assert r["distance_m"] > 0.3, r["distance_m"]  # it walked
+    # no backlog of the robot's own: the follower's in-flight cap held what it sent in the gap
+    # to a feedback per 0.2 s, so a fresh one (at most 0.5 s old) arrives within 0.5 s of the
+    # path's return
+    long = [x for x in g["gaps"] if x["length_s"] >= 2.5]
+    assert all(x["fresh_after_s"] is not None and x["fresh_after_s"] <= 0.5 for x in long), long
