@@ -427,12 +427,16 @@ def _gap_split(
     the gap (``inflight_n``; the others were refused as too old, or lost) and the oldest
     of those's age, and the follower's bytes in flight in its last Status before ``a``
     (``uplink_inflight_bytes``; None: not reported). (b) sent during the gap or after: the
-    age of the first of it to arrive, and when it arrived after the gap's end.
+    age of the first of it to arrive, and when it arrived after the gap's end; of what was
+    sent 0.5 s or more into the gap (once the follower could know: a round trip and a
+    status period), the age of the first to arrive (``first_late_age_s``: a probe, or the
+    first fresh one).
     """
     last = max((ts for t, _, ts in fb if t <= a), default=-math.inf)
     after = [(t, ag, ts) for t, ag, ts in fb if t >= b]
     old = [(t, ag) for t, ag, ts in after if ts < a]
     new = next(((t, ag) for t, ag, ts in after if ts >= a), None)
+    late = next(((t, ag) for t, ag, ts in after if ts >= a + 0.5), None)
     st = [c for t, c in f_st if t <= a]
     return {
         "inflight_sent": sum(1 for ts in f_fb if last < ts < a),
@@ -440,6 +444,7 @@ def _gap_split(
         "inflight_bytes": st[-1].get("uplink_inflight_bytes") if st else None,
         "first_new_age_s": None if new is None else round(new[1], 3),
         "first_new_after_s": None if new is None else round(new[0] - b, 3),
+        "first_late_age_s": None if late is None else round(late[1], 3),
     }  # fmt: skip
 
 
@@ -460,6 +465,15 @@ def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t
     c = sum(ctl) / len(ctl)
     return {"mean_bps": round(mean_bps), "frame_bytes": round(fb), "control_bps": round(c),
             "allowed_fps": round(max(0.0, mean_bps - c) / (8.0 * fb), 2)}  # fmt: skip
+
+
+def _cellular_allowance(cond: Condition, l_rec: list[Record], f_rec: list[Record]) -> dict[str, Any] | None:
+    """A cellular row's video allowance (:func:`video_allowance` over the pilot's run); None for other rows."""
+    trace = next((x.split(":", 1)[1] for x in cond.emulator if x.startswith("mahimahi:")), None)
+    sent = [r.t_recv for r in l_rec if r.topic == "cmd/sent"]
+    if trace is None or not sent:
+        return None
+    return video_allowance(l_rec, f_rec, mahimahi_stats(load_mahimahi(trace))["mean_bps"], sent[0], sent[-1])
 
 
 def outage_figures(
@@ -596,11 +610,7 @@ def run_condition(
     res.update(analyse(l_rec, f_rec, leader.log(), outage_wall=outage, startup_s=startup_s, emulated=(*h_models, t0)))
     # Table 2 of the run (`bipedtele report`): completion time and speed errors, as the demo prints
     res["table2"] = compute_report(l_rec, f_rec)
-    trace = next((x.split(":", 1)[1] for x in cond.emulator if x.startswith("mahimahi:")), None)
-    if trace is not None:  # the cellular rows: the frame rate the trace's mean allows after control
-        sent = [r.t_recv for r in l_rec if r.topic == "cmd/sent"]
-        mean = mahimahi_stats(load_mahimahi(trace))["mean_bps"]
-        res["allowance"] = video_allowance(l_rec, f_rec, mean, sent[0], sent[-1]) if sent else None
+    res["allowance"] = _cellular_allowance(cond, l_rec, f_rec)
     try:
         res["linkemu"] = json.loads(stats.read_text())
     except (OSError, ValueError):
@@ -693,7 +703,8 @@ def _split(x: dict[str, Any]) -> str:
     return (
         f"(a) {x.get('inflight_sent')} fb in flight ({x.get('inflight_bytes')} B), {x.get('inflight_n')} taken after "
         f"it, up to {x.get('inflight_age_s')} s old; "
-        f"(b) first {x.get('first_new_age_s')} s old at +{x.get('first_new_after_s')} s"
+        f"(b) first {x.get('first_new_age_s')} s old at +{x.get('first_new_after_s')} s, of what was sent 0.5 s "
+        f"into it {x.get('first_late_age_s')} s old"
     )
 
 
@@ -722,6 +733,13 @@ def table(rows: list[dict[str, Any]]) -> str:
 # --------------------------------------------------------------------------- main
 
 
+def _leader_extra(p: argparse.ArgumentParser, hz: float | None) -> tuple[str, ...]:
+    """The leader's extra arguments for ``--leader-status-hz`` (exits 2 naming the range when out of it)."""
+    if hz is not None and not (math.isfinite(hz) and 0.1 <= hz <= 50.0):
+        p.error(f"--leader-status-hz {hz!r}: allowed: 0.1 to 50")
+    return () if hz is None else ("--set", f"leader.status_rate_hz={hz:g}")
+
+
 def main(argv: list[str] | None = None) -> int:
     all_conds = conditions()
     p = argparse.ArgumentParser(
@@ -736,9 +754,7 @@ def main(argv: list[str] | None = None) -> int:
         "--outage-at", type=float, default=40.0, help="outage start [s] of the emulator's origin (leader start)"
     )
     p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
-    p.add_argument(
-        "--leader-status-hz", type=float, default=None, help="the leader's [leader] status_rate_hz (default: as set up)"
-    )
+    p.add_argument("--leader-status-hz", type=float, default=None, help="[leader] status_rate_hz (default: setup's)")
     p.add_argument("--tag", default="", help="prefix of the namespaces' 4-character tag (random hex after it)")
     p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
     p.add_argument(
@@ -760,10 +776,7 @@ def main(argv: list[str] | None = None) -> int:
 
     for sig in (signal.SIGTERM, signal.SIGINT):  # SIGINT too: a background job may have it ignored
         signal.signal(sig, on_term)
-    hz = args.leader_status_hz
-    if hz is not None and not (math.isfinite(hz) and 0.1 <= hz <= 50.0):
-        p.error(f"--leader-status-hz {hz!r}: allowed: 0.1 to 50")
-    leader_extra = () if hz is None else ("--set", f"leader.status_rate_hz={hz:g}")
+    leader_extra = _leader_extra(p, args.leader_status_hz)
     work = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="bt-internet-"))
     work.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []

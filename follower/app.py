@@ -145,8 +145,10 @@ class FollowerApp:
 
     def _publish(self, msg: Message) -> None:
         fb = isinstance(msg, Feedback)
-        if fb and not self.budget.inflight.admit_feedback(self.clock()):
-            return  # over the in-flight cap: the next feedback carries the newest state (docs/network.md)
+        if (fb and not self.budget.inflight.admit_feedback(self.clock())) or (
+            isinstance(msg, Status) and self.budget.inflight.over
+        ):
+            return  # over the in-flight cap: the next one carries the newest state (docs/network.md)
         pub, topic = self._outlets[type(msg)]
         self.node.send(pub, msg, topic)
         self.budget.sent(len(encode(msg)) + self._mac_bytes, feedback=fb)

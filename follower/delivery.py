@@ -116,8 +116,12 @@ class InFlight:
     delivery rate of an application-limited sender is what it sent, and a cap at it would
     only ratchet down). Until the first acknowledgement with a rate the cap is infinite.
 
-    Over the cap, feedback goes out at most once per ``probe_s`` (the newest only) and
-    video waits. Each acknowledgement is also a round-trip sample: its rise over the
+    Over the cap video waits and feedback is held (the newest is sent once the cap opens):
+    what is in flight is acknowledged once the path delivers again, and that opens the cap,
+    so nothing sent in a gap waits in the path's queue to arrive stale after it. Only when
+    no acknowledgement advanced for ``probe_s`` (what was in flight may have been lost) one
+    feedback leaves as a probe, then again after twice as long, up to ``8 probe_s`` (TCP's
+    retransmission back-off). Each acknowledgement is also a round-trip sample: its rise over the
     minimum is the path's queue now (``queue_s``, the least of the last three samples over
     the minimum), seen a few status periods after it formed
     rather than through the leader's 1 s mean of h2 (about 0.75 s late; LEDBAT's and BBR's
@@ -132,7 +136,8 @@ class InFlight:
     min_bytes : float
         The least cap [bytes] (a frame part and a few feedback always fit).
     probe_s : float
-        Over the cap, one feedback per this interval [s].
+        Over the cap without an acknowledgement advancing for this long [s], one feedback
+        leaves as a probe (then after 2, 4, 8 times as long).
     rtt_window_s : float
         Window of the round trip's minimum [s].
     video_queue_s : float
@@ -141,7 +146,7 @@ class InFlight:
     """
 
     def __init__(
-        self, gain: float = 2.0, min_bytes: float = 4000.0, probe_s: float = 0.2, rtt_window_s: float = 10.0,
+        self, gain: float = 2.0, min_bytes: float = 4000.0, probe_s: float = 1.0, rtt_window_s: float = 10.0,
         video_queue_s: float = 0.05,
     ) -> None:  # fmt: skip
         checked = (("gain", gain), ("min_bytes", min_bytes), ("probe_s", probe_s), ("rtt_window_s", rtt_window_s),
@@ -161,6 +166,8 @@ class InFlight:
         self.ack_interval_s: float | None = None
         self.rate_bps: float | None = None
         self._last_probe = -math.inf
+        self._progress = -math.inf  # when an acknowledgement last advanced [s]
+        self._backoff = 1.0  # the probe interval's multiple (doubles per probe, up to 8)
         self.video_queue_s = float(video_queue_s)
         #: The last round trip above its minimum [s] (the path's queue when it was acknowledged).
         self.queue_s = 0.0
@@ -211,6 +218,7 @@ class InFlight:
             if t_delivered <= self._acked_t:
                 return
             self._acked_t = t_delivered
+            self._progress, self._backoff = now, 1.0
             while self._sent and self._sent[0][0] <= t_delivered:
                 self._bytes -= self._sent.popleft()[1]
 
@@ -239,11 +247,13 @@ class InFlight:
         return self.bytes >= self.cap_bytes
 
     def admit_feedback(self, now: float) -> bool:
-        """Say whether a feedback may leave at ``now`` [s]: under the cap, or one per ``probe_s`` over it."""
+        """Say whether a feedback may leave at ``now`` [s]: under the cap, or as a probe over it (see the class docstring)."""
         if not self.over:
             return True
-        if now - self._last_probe >= self.probe_s:
+        wait = self.probe_s * self._backoff
+        if now - max(self._progress, self._last_probe) >= wait:
             self._last_probe = now
+            self._backoff = min(8.0, 2.0 * self._backoff)
             return True
         self.held["feedback"] += 1
         return False

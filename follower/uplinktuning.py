@@ -88,8 +88,8 @@ class UplinkTuning:
         Feedback rate while stalled [Hz] (the newest only: no acknowledgement per command).
     inflight_gain, inflight_min_bytes, probe_s : float
         The in-flight cap (:class:`~bipedtele.follower.delivery.InFlight`): its gain over
-        the bandwidth-delay product [-], its least value [bytes], and over it one feedback
-        per ``probe_s`` [s].
+        the bandwidth-delay product [-], its least value [bytes], and over it, with no
+        acknowledgement advancing for ``probe_s`` [s], one feedback as a probe (backing off x2).
     video_queue_s : float
         Video waits while the leader's last acknowledgement showed the round trip this much
         [s] above its minimum (the path's queue, one status period late).
@@ -137,7 +137,7 @@ class UplinkTuning:
     delivery_window_s: float = 10.0
     inflight_gain: float = 2.0
     inflight_min_bytes: float = 4000.0
-    probe_s: float = 0.2
+    probe_s: float = 1.0
     video_queue_s: float = 0.05
     lossy_ppm: float = 1000.0
     rising_s_per_s: float = 0.1

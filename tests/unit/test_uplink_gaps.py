@@ -78,7 +78,8 @@ class CellSim:
             self.send(FB, feedback=True)
         if t >= self.next_st:
             self.next_st = t + 0.5
-            self.send(STATUS)
+            if not self.budget.inflight.over:  # held over the cap, as follower/app.py does
+                self.send(STATUS)
         vb = b.video_budget_bps()
         self.credit += (self.want if vb is None else min(self.want, vb)) * DT / 8
         while self.credit >= 4000:
