@@ -123,11 +123,11 @@ class InFlight:
     feedback leaves as a probe, then again after twice as long, up to ``8 probe_s`` (TCP's
     retransmission back-off). Each acknowledgement is also a round-trip sample: its rise over the
     minimum is the path's queue now (``queue_s``, the least of the last three samples over
-    the minimum), seen a few status periods after it formed
-    rather than through the leader's 1 s mean of h2 (about 0.75 s late; LEDBAT's and BBR's
-    signal); while it exceeds ``video_queue_s`` video waits too, so that no more than about
-    that much link time queues ahead of the feedback. See docs/network.md, In flight.
-    Thread-safe (the video thread counts too).
+    the minimum), seen a few status periods after it formed rather than through the
+    leader's 1 s mean of h2 (about 0.75 s late; LEDBAT's and BBR's signal); while it
+    exceeds ``video_queue_s`` video waits too, so that no more than about that much link
+    time queues ahead of the feedback. See docs/network.md, "No backlog of the robot's
+    own". Thread-safe (the video thread counts too).
 
     Parameters
     ----------
