@@ -376,13 +376,17 @@ def analyse(
     return res
 
 
+_STOP_EVENTS = ("operator_stop", "watchdog_stop")
+
+
 def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind_stop_s: float = 1.5) -> dict[str, Any]:
     """Gaps of the feedback at the leader, the first feedback after each, the blind stops, the wording.
 
     A gap: more than 1 s between two feedback the leader received. ``first_age_s``: how old
     the first one after it was (receive time - send stamp); ``fresh_after_s``: from the gap's
     end to the first one at most 0.5 s old. Blind stops (leader events): the robot's stop
-    (its first feedback sent in a state other than ``walking``) after the send time of the
+    (its ``operator_stop`` / ``watchdog_stop`` event, or its first feedback sent in a state
+    other than ``walking``, whichever came first) after the send time of the
     newest feedback the operator had, and its first ``walking`` feedback after the
     ``blind_over`` event.
     """
@@ -397,12 +401,16 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
                          "fresh_after_s": None if fresh is None else round(fresh, 3),
                          **_gap_split(fb, f_st, f_fb, a, b)})  # fmt: skip
     sent = [(r.t_recv, r.data.get("state")) for r in f_rec if r.topic == "feedback/sent"]
+    # the robot's stop: its stop event, or its first feedback not walking (the feedback may
+    # be held by the uplink's in-flight cap, so the event comes first)
+    halts = sorted([r.t_recv for r in f_rec if r.topic == "events" and r.data.get("event") in _STOP_EVENTS]
+                   + [ts for ts, st in sent if st != "walking"])  # fmt: skip
     ev = [(r.t_recv, r.data) for r in l_rec if r.topic == "events"]
     stops, walks = [], []
     for t, d in ev:
         if d.get("event") == "blind_stop":
             newest = max((ts for tr, _, ts in fb if tr <= t), default=None)
-            t_stop = next((ts for ts, st in sent if ts >= t and st != "walking"), None)
+            t_stop = next((ts for ts in halts if ts >= t), None)
             if newest is not None and t_stop is not None:
                 stops.append(round(t_stop - newest, 3))
         elif d.get("event") == "blind_over":
