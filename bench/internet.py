@@ -403,8 +403,10 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
     sent = [(r.t_recv, r.data.get("state")) for r in f_rec if r.topic == "feedback/sent"]
     # the robot's stop: its stop event, or its first feedback not walking (the feedback may
     # be held by the uplink's in-flight cap, so the event comes first)
-    halts = sorted([r.t_recv for r in f_rec if r.topic == "events" and r.data.get("event") in _STOP_EVENTS]
-                   + [ts for ts, st in sent if st != "walking"])  # fmt: skip
+    halts = sorted(
+        [r.t_recv for r in f_rec if r.topic == "events" and r.data.get("event") in _STOP_EVENTS]
+        + [ts for ts, st in sent if st != "walking"]
+    )
     ev = [(r.t_recv, r.data) for r in l_rec if r.topic == "events"]
     stops, walks = [], []
     for t, d in ev:
@@ -424,9 +426,12 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
 
 
 def _gap_split(
-    fb: list[tuple[float, float, float]], f_st: list[tuple[float, dict[str, Any]]], f_fb: list[float],
-    a: float, b: float,
-) -> dict[str, Any]:  # fmt: skip
+    fb: list[tuple[float, float, float]],
+    f_st: list[tuple[float, dict[str, Any]]],
+    f_fb: list[float],
+    a: float,
+    b: float,
+) -> dict[str, Any]:
     """The feedback that arrived after a gap ``(a, b)``, split by when it was sent.
 
     (a) in flight when the gap began: sent after the last one that arrived before it and
@@ -448,12 +453,13 @@ def _gap_split(
     st = [c for t, c in f_st if t <= a]
     return {
         "inflight_sent": sum(1 for ts in f_fb if last < ts < a),
-        "inflight_n": len(old), "inflight_age_s": round(max((ag for _, ag in old), default=0.0), 3),
+        "inflight_n": len(old),
+        "inflight_age_s": round(max((ag for _, ag in old), default=0.0), 3),
         "inflight_bytes": st[-1].get("uplink_inflight_bytes") if st else None,
         "first_new_age_s": None if new is None else round(new[1], 3),
         "first_new_after_s": None if new is None else round(new[0] - b, 3),
         "first_late_age_s": None if late is None else round(late[1], 3),
-    }  # fmt: skip
+    }
 
 
 def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t0: float, t1: float) -> dict[str, Any]:
@@ -463,16 +469,26 @@ def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t
     fields and MAC); ``control_bps``: the follower's control rate (``uplink_tx_control_bps``,
     mean of its Status over the run); allowance = (mean - control) / (8 frame_bytes).
     """
-    sizes = [len(r.data["jpeg"]) + 120 for r in l_rec if r.topic == "video/recv" and t0 <= r.t_recv <= t1
-             and r.data.get("jpeg") and not r.data.get("jpeg_skipped")]  # the recorder keeps some frames' JPEG  # fmt: skip
-    ctl = [float(r.data.get("counters", {}).get("uplink_tx_control_bps", 0) or 0)
-           for r in f_rec if r.topic == "status/sent" and t0 <= r.t_recv <= t1]  # fmt: skip
+    sizes = [
+        len(r.data["jpeg"]) + 120
+        for r in l_rec
+        if r.topic == "video/recv" and t0 <= r.t_recv <= t1 and r.data.get("jpeg") and not r.data.get("jpeg_skipped")
+    ]
+    ctl = [
+        float(r.data.get("counters", {}).get("uplink_tx_control_bps", 0) or 0)
+        for r in f_rec
+        if r.topic == "status/sent" and t0 <= r.t_recv <= t1
+    ]
     if not sizes or not ctl:
         return {"mean_bps": mean_bps, "frame_bytes": None, "control_bps": None, "allowed_fps": None}
     fb = sum(sizes) / len(sizes)
     c = sum(ctl) / len(ctl)
-    return {"mean_bps": round(mean_bps), "frame_bytes": round(fb), "control_bps": round(c),
-            "allowed_fps": round(max(0.0, mean_bps - c) / (8.0 * fb), 2)}  # fmt: skip
+    return {
+        "mean_bps": round(mean_bps),
+        "frame_bytes": round(fb),
+        "control_bps": round(c),
+        "allowed_fps": round(max(0.0, mean_bps - c) / (8.0 * fb), 2),
+    }
 
 
 def _cellular_allowance(cond: Condition, l_rec: list[Record], f_rec: list[Record]) -> dict[str, Any] | None:

@@ -487,10 +487,14 @@ class UplinkBudget:
         """Return the in-flight figures for the Status: bytes in flight, the cap [bytes] (0: open), what was held, control's rate [bit/s]."""
         f = self.inflight
         cap = f.cap_bytes
-        return {"uplink_inflight_bytes": f.bytes, "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
-                "uplink_held_feedback": f.held["feedback"], "uplink_held_video": f.held["video"],
-                "uplink_tx_control_bps": round(self.tx_bps("control")),
-                "uplink_queue_ms": round(1000.0 * f.queue_s)}  # fmt: skip
+        return {
+            "uplink_inflight_bytes": f.bytes,
+            "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
+            "uplink_held_feedback": f.held["feedback"],
+            "uplink_held_video": f.held["video"],
+            "uplink_tx_control_bps": round(self.tx_bps("control")),
+            "uplink_queue_ms": round(1000.0 * f.queue_s),
+        }
 
     def tx_bps(self, which: str | None = None) -> float:
         """Sent rate over the last ``window_s`` [bit/s]: ``control``, ``video`` or all (None)."""

@@ -146,11 +146,20 @@ class InFlight:
     """
 
     def __init__(
-        self, gain: float = 2.0, min_bytes: float = 4000.0, probe_s: float = 1.0, rtt_window_s: float = 10.0,
+        self,
+        gain: float = 2.0,
+        min_bytes: float = 4000.0,
+        probe_s: float = 1.0,
+        rtt_window_s: float = 10.0,
         video_queue_s: float = 0.05,
-    ) -> None:  # fmt: skip
-        checked = (("gain", gain), ("min_bytes", min_bytes), ("probe_s", probe_s), ("rtt_window_s", rtt_window_s),
-                   ("video_queue_s", video_queue_s))  # fmt: skip
+    ) -> None:
+        checked = (
+            ("gain", gain),
+            ("min_bytes", min_bytes),
+            ("probe_s", probe_s),
+            ("rtt_window_s", rtt_window_s),
+            ("video_queue_s", video_queue_s),
+        )
         for name, v in checked:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")

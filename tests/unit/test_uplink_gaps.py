@@ -226,8 +226,9 @@ def _after_gap(status_s: float, cap: bool) -> tuple[float, float]:
     the leader acknowledging every ``status_s``: return when the first feedback at most
     0.5 s old arrived after the path's return [s after it], and the bytes in the path's queue
     when the path returned."""
-    sim = CellSim(_gap(30.0, 4.0, rate=2_000_000.0, low=0.0), queue_bytes=256_000, want_bps=3_000_000.0,
-                  status_s=status_s)  # fmt: skip
+    sim = CellSim(
+        _gap(30.0, 4.0, rate=2_000_000.0, low=0.0), queue_bytes=256_000, want_bps=3_000_000.0, status_s=status_s
+    )
     if not cap:
         sim.budget.inflight.gain = 1e9  # a cap no sender reaches
         sim.budget.inflight.video_queue_s = 1e9  # and no queue holds video
