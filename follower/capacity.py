@@ -72,9 +72,10 @@ runs).
 - **in flight.** What was sent after the newest feedback the leader acknowledged (its
   Status: ``fb_age_ms``) is in flight; it is capped at about twice the bandwidth-delay
   product (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd). Over the cap video
-  waits and feedback goes out once per ``probe_s`` (the newest only), so when the path stops
-  delivering the follower stops adding to its queue within about a round trip plus the
-  leader's status period, before the stall above is judged.
+  waits and feedback and status are held (a probe only after ``probe_s`` without an
+  acknowledgement advancing, backing off), so when the path stops delivering the follower
+  stops adding to its queue within about a round trip plus the leader's status period,
+  before the stall above is judged; the acknowledgement of what was in flight reopens it.
 - **recovery.** With a ceiling under half that delivered rate (set in a dip) and h2
   clear, the capacity grows by ``start_growth`` (x1.3) a second up to ``drain_ratio`` of
   it, the ceiling with it: a dip of the path's capacity is not a new ceiling. (A token
