@@ -218,12 +218,12 @@ class InFlight:
         recent = self._recent
         recent.append(rtt)
         self.queue_s = max(0.0, min(recent) - (q[0][1] if q else rtt))
-        while q and q[-1][1] >= rtt:
-            q.pop()
-        q.append((now, rtt))
-        while q and q[0][0] < now - self._rtt_window_s:
-            q.popleft()
-        with self._lock:
+        with self._lock:  # the video thread reads the minimum (cap_bytes)
+            while q and q[-1][1] >= rtt:
+                q.pop()
+            q.append((now, rtt))
+            while q and q[0][0] < now - self._rtt_window_s:
+                q.popleft()
             if t_delivered <= self._acked_t:
                 return
             self._acked_t = t_delivered
@@ -240,7 +240,8 @@ class InFlight:
     @property
     def min_rtt_s(self) -> float | None:
         """The least round trip over the window [s] (None before the first acknowledgement)."""
-        return self._rtt[0][1] if self._rtt else None
+        with self._lock:
+            return self._rtt[0][1] if self._rtt else None
 
     @property
     def cap_bytes(self) -> float:
