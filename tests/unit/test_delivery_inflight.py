@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import math
+import time
 
+import numpy as np
 import pytest
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.delivery import InFlight
+from bipedtele.follower.video import VideoStreamer
+from bipedtele.messages import VideoFrame
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -141,3 +145,39 @@ def test_video_waits_while_the_acknowledgements_show_a_queue_of_ours() -> None:
     g.acked(1.1, 1.0, 800_000.0)
     g.acked(1.2, 1.1, 800_000.0)
     assert g.queue_s == pytest.approx(0.08) and g.admit_video(1000, now=1.21)
+
+
+class _Cam:
+    """A robot whose cameras return a flat QVGA image."""
+
+    def capture(self, cam: str) -> np.ndarray:
+        return np.full((240, 320, 3), 128, dtype=np.uint8)
+
+
+def test_the_video_streamer_holds_frames_the_cap_refuses() -> None:
+    """VideoStreamer asks ``admit`` before each frame: refused ones are dropped and counted
+    (``held``), and frames flow again once it admits them. Fake clock, real encoder thread."""
+    t = [0.0]
+    sent: list[VideoFrame] = []
+    open_ = [False]
+    asked: list[int] = []
+
+    def admit(nbytes: int) -> bool:
+        asked.append(nbytes)
+        return open_[0]
+
+    v = VideoStreamer(_Cam(), ["head"], 10.0, sent.append, now=lambda: t[0], admit=admit)  # type: ignore[arg-type]
+    with v:
+        for k in range(200):
+            open_[0] = k >= 100  # shut for the first 2 s
+            v.maybe_capture(t[0])
+            for _ in range(200):  # let the encoder take the frame (latest-only slot)
+                with v._cv:
+                    if v._slot is None:
+                        break
+                time.sleep(0.001)
+            time.sleep(0.002)
+            t[0] += 0.02
+    assert v.stats["held"] >= 15 and all(n > 0 for n in asked)
+    assert sent and min(f.t for f in sent) >= 2.0 - 1e-9  # nothing left while it was shut
+    assert len(sent) >= 15
