@@ -163,7 +163,7 @@ class FollowerApp:
         """Once per tick: the leader's figures in, the feedback plan and video's budget out."""
         got = self._status_rx.take() if self._status_rx is not None else None
         if got is not None and got.msg.role == "leader":
-            self.budget.on_leader_status(got.msg.counters, self.node.to_local(got.msg.t))
+            self.budget.on_leader_status(got.msg.counters, self.node.to_local(got.msg.t), got.msg.sid)
         self.budget.update()
         self._plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz)  # the loop reads it
         if self._video is not None:

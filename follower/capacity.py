@@ -194,6 +194,8 @@ class UplinkBudget:
         self._last_undo = -math.inf
         self._last_status = -math.inf
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
+        self._last_cmd = -math.inf  # the last command taken
+        self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
 
     def __getattr__(self, name: str) -> float:
@@ -236,12 +238,15 @@ class UplinkBudget:
         0 (the leader has no estimate yet: its commands carry 0 until feedback came back),
         negative and non-finite values are ignored.
         """
+        self._last_cmd = self._clock()  # a command taken: a leader is there (the in-flight cap's release)
         if not math.isfinite(h2_s) or h2_s <= 0:
             return
         if self._q.add(self._clock(), h2_s):
             self.signals["relearn"] += 1
 
-    def on_leader_status(self, counters: Mapping[str, int], t_sent: float | None = None) -> None:
+    def on_leader_status(
+        self, counters: Mapping[str, int], t_sent: float | None = None, sid: int | None = None
+    ) -> None:
         """Judge the path from a leader Status.
 
         Parameters
@@ -251,9 +256,16 @@ class UplinkBudget:
         t_sent : float, optional
             The status's send time on the local clock [s] (default: now; the forward
             delay is small against the 2 s window).
+        sid : int, optional
+            The leader's session: another one than the last status's releases the in-flight
+            cap (what the earlier session acknowledged says nothing of the new one's path).
         """
         tu = self.tuning
         now = self._clock()
+        if sid is not None and sid != self._leader_sid:
+            if self._leader_sid is not None:
+                self.inflight.reset()
+            self._leader_sid = sid
         self.leader = {k: v for k, v in counters.items() if k in ("rx_bps", "fb_loss_ppm", "fb_age_ms")
                        and isinstance(v, int) and not isinstance(v, bool)}  # fmt: skip
         self._last_heard = now
@@ -335,6 +347,8 @@ class UplinkBudget:
         tu, q = self.tuning, self._q
         now = self._clock()
         last, self._last_update = self._last_update, now
+        if now - max(self._last_heard, self._last_cmd) > tu.inflight_release_s:
+            self.inflight.reset()  # nobody acknowledges: the leader left, or the whole path is down
         self._delay_rule(now)
         self._check_cut(now)
         tx = self._log.rate(now - tu.window_s, now)  # what is sent [bit/s], read once

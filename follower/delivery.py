@@ -231,6 +231,25 @@ class InFlight:
             while self._sent and self._sent[0][0] <= t_delivered:
                 self._bytes -= self._sent.popleft()[1]
 
+    def reset(self) -> None:
+        """Forget what is in flight and what the acknowledgements said: the cap is open (infinite) until the next one.
+
+        For a leader that left (nobody acknowledges) or a new leader session (its own path
+        and acknowledgements); the counts of what was held stay.
+        """
+        with self._lock:
+            self._sent.clear()
+            self._bytes = 0
+            self._acked_t = -math.inf
+            self._rtt.clear()
+        self._recent.clear()
+        self._last_ack = None
+        self.ack_interval_s = None
+        self.rate_bps = None
+        self._last_probe = self._progress = -math.inf
+        self._backoff = 1.0
+        self.queue_s = 0.0
+
     @property
     def bytes(self) -> int:
         """Bytes in flight: sent after the newest acknowledged feedback."""

@@ -90,6 +90,10 @@ class UplinkTuning:
         The in-flight cap (:class:`~bipedtele.follower.delivery.InFlight`): its gain over
         the bandwidth-delay product [-], its least value [bytes], and over it, with no
         acknowledgement advancing for ``probe_s`` [s], one feedback as a probe (backing off x2).
+    inflight_release_s : float
+        No command taken and no leader Status for this long [s]: nobody acknowledges (the
+        leader left, or the whole path is down), and the cap is released until a leader
+        acknowledges again (a new leader gets feedback at once, not at the probes' pace).
     video_queue_s : float
         Video waits while the leader's last acknowledgement showed the round trip this much
         [s] above its minimum (the path's queue, one status period late).
@@ -138,6 +142,7 @@ class UplinkTuning:
     inflight_gain: float = 2.0
     inflight_min_bytes: float = 4000.0
     probe_s: float = 1.0
+    inflight_release_s: float = 0.5
     video_queue_s: float = 0.05
     lossy_ppm: float = 1000.0
     rising_s_per_s: float = 0.1

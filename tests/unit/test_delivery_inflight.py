@@ -115,6 +115,52 @@ def test_the_budget_feeds_the_cap_from_the_leaders_status() -> None:
     assert c["uplink_inflight_bytes"] == 30 * FB and c["uplink_inflight_cap"] > 0
 
 
+def _closed_budget(now: list[float]) -> UplinkBudget:
+    """A budget whose cap is shut: a leader (session 7) acknowledged at 2 Hz for 3 s, then 2 s
+    without an acknowledgement advancing while commands and statuses kept coming (a stalled uplink)."""
+    b = UplinkBudget(lambda: now[0])
+    for k in range(300):
+        now[0] = 0.01 * k
+        b.sent(FB, feedback=True)
+        b.update()
+        if k % 50 == 49:
+            b.on_leader_status({"rx_bps": 320_000, "fb_age_ms": 20, "fb_loss_ppm": 0}, now[0], 7)
+    while now[0] < 5.0:  # the uplink stalls; the leader's commands and statuses still come
+        now[0] = round(now[0] + 0.01, 6)
+        b.on_h2(0.2)
+        if b.inflight.admit_feedback(now[0]):
+            b.sent(5 * FB, feedback=True)  # feedback and video's worth
+        if round(now[0] * 100) % 50 == 49:
+            b.on_leader_status(
+                {"rx_bps": 320_000, "fb_age_ms": int(1000 * (now[0] - 2.97)), "fb_loss_ppm": 0}, now[0], 7
+            )
+        b.update()
+    assert b.inflight.over and not b.inflight.admit_feedback(now[0])
+    return b
+
+
+def test_a_leader_that_left_releases_the_cap() -> None:
+    """No command and no leader Status for ``inflight_release_s`` (0.5 s): nobody acknowledges,
+    so the follower's feedback is not held (it was: a killed leader left the robot's feedback
+    at the probes' pace, 1-2 s apart; a new leader saw the robot late)."""
+    now = [0.0]
+    b = _closed_budget(now)
+    now[0] += 0.3
+    b.update()
+    assert b.inflight.over  # 0.3 s of silence: a stalled uplink still
+    now[0] += 0.3
+    b.update()
+    assert not b.inflight.over and b.inflight.admit_feedback(now[0]) and b.inflight.cap_bytes == math.inf
+
+
+def test_a_new_leader_session_releases_the_cap() -> None:
+    """Another leader's Status (a new session) while the cap is shut: it opens at once."""
+    now = [0.0]
+    b = _closed_budget(now)
+    b.on_leader_status({"rx_bps": 0}, now[0], 8)
+    assert not b.inflight.over and b.inflight.admit_feedback(now[0])
+
+
 def _acks(f: InFlight, sent: int) -> None:
     """Ten acknowledgements at 10 Hz with a 20 ms round trip (800 kbit/s delivered), then
     ``sent`` bytes and one acknowledgement 80 ms over the minimum."""
