@@ -143,17 +143,19 @@ class FollowerApp:
         if self.pacer is not None:
             self.pacer.notify()
 
-    def _publish(self, msg: Message) -> None:
+    def _publish(self, msg: Message) -> bool:
+        """Send ``msg``; False when the uplink's in-flight cap holds it (the loop reuses its sequence number)."""
         fb = isinstance(msg, Feedback)
         if (fb and not self.budget.inflight.admit_feedback(self.clock())) or (
             isinstance(msg, Status) and self.budget.inflight.over
         ):
-            return  # over the in-flight cap: the next one carries the newest state (docs/network.md)
+            return False  # over the in-flight cap: the next one carries the newest state (docs/network.md)
         pub, topic = self._outlets[type(msg)]
         self.node.send(pub, msg, topic)
         self.budget.sent(len(encode(msg)) + self._mac_bytes, feedback=fb)
         if fb:
             self._fb_times.append(self.clock())
+        return True
 
     def _publish_video(self, frame: VideoFrame) -> None:  # the video thread
         self.node.pubs.video.put(frame)

@@ -155,7 +155,7 @@ class FollowerLoop:
         control: ControlConfig,
         cfg: FollowerConfig,
         inbox: CommandInbox,
-        publish: Callable[[Any], None],
+        publish: Callable[[Any], bool | None],
         *,
         now: Callable[[], float] = time.time,
         on_event: Callable[[str, dict[str, Any]], None] | None = None,
@@ -282,7 +282,7 @@ class FollowerLoop:
             now = self._now()
             if now >= self._next_status:
                 self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
-                self._publish(self.status(now))
+                self._send_status(now)
         except Exception as exc:
             LOG.debug("publishing a status failed: %s", exc)
 
@@ -301,11 +301,11 @@ class FollowerLoop:
         self._odometry(obs, now, tel.ref)
         if now >= self._next_fb:
             self._next_fb = max(now, self._next_fb + 1.0 / self._plan().rate_hz)
-            self._publish(self._feedback(now, obs))
+            self._send_feedback(now, obs)
             self._last_fb_t = now
         if now >= self._next_status:
             self._next_status = max(now, self._next_status + 1.0 / self.cfg.status_rate_hz)
-            self._publish(self.status(now))
+            self._send_status(now)
         return tel
 
     def pickup(self) -> bool:
@@ -336,7 +336,7 @@ class FollowerLoop:
             plan = self._plan()
             if plan.ack_each_command or now - self._last_fb_t >= plan.min_interval_s:
                 # else the next periodic feedback acknowledges it
-                self._publish(self._feedback(now, start.obs))
+                self._send_feedback(now, start.obs)
                 self._last_fb_t = now
             return True
         except Exception as exc:
@@ -504,6 +504,14 @@ class FollowerLoop:
         return changed
 
     # ------------------------------------------------------------------ messages
+
+    def _send_feedback(self, now: float, obs: RobotObservation) -> None:
+        if self._publish(self._feedback(now, obs)) is False:
+            self._fb_seq -= 1  # held (the uplink's in-flight cap): never sent, so no gap in the sequence
+
+    def _send_status(self, now: float) -> None:
+        if self._publish(self.status(now)) is False:
+            self._st_seq -= 1
 
     def _feedback(self, now: float, obs: RobotObservation) -> Feedback:
         self._fb_seq += 1
