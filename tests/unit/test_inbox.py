@@ -26,48 +26,13 @@ from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.messages import Command, Feedback, Status, encode
 from bipedtele.receivers import LatestReceiver
+from fake_zenoh_session import FakeSession, Payload
 from fakes.kinematic_robot import KinematicRobot
 
 pytestmark = pytest.mark.timeout(60)
 
 T0 = 1_700_000_000.0
 KEY = "bipedtele/nao1/cmd"
-
-
-class _Payload:
-    def __init__(self, data: bytes) -> None:
-        self.data = data
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-
-class _Sample:
-    def __init__(self, data: bytes, key: str) -> None:
-        self.payload = _Payload(data)
-        self.key_expr = key
-
-
-class _Sub:
-    def undeclare(self) -> None:
-        pass
-
-
-class FakeSession:
-    """Just enough of a Zenoh session: the receiver's callback is called by hand."""
-
-    def __init__(self) -> None:
-        self.callback: Any = None
-
-    def declare_subscriber(self, key: str, callback: Any) -> _Sub:
-        self.callback = callback
-        return _Sub()
-
-    def put_bytes(self, data: bytes, key: str = KEY) -> None:
-        self.callback(_Sample(data, key))
 
 
 class Clock:
@@ -96,7 +61,7 @@ def test_each_admission_reason_is_counted_once_under_its_name() -> None:
     )
 
     def offer(data: bytes) -> Received[Command] | None:
-        return inbox.offer(_Payload(data), clock.t, KEY)
+        return inbox.offer(Payload(data), clock.t, KEY)
 
     assert offer(encode(Command(sid=1, seq=1, t=T0))) is None  # no clock answer yet
     assert sync.on_pong(T0 - 0.002, T0 - 0.001, T0 - 0.001, T0) is not None  # offset 0, rtt 2 ms: synced

@@ -14,46 +14,11 @@ from typing import Any
 from bipedtele.delayestimate import DelayEstimator
 from bipedtele.drops import DropCounter
 from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command, encode
+from bipedtele.messages import Command
 from bipedtele.receivers import LatestReceiver, Received
+from fake_zenoh_session import FakeSession
 
 T0 = 1_700_000_000.0
-
-
-class _Payload:
-    def __init__(self, data: bytes) -> None:
-        self.data = data
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-    def to_bytes(self) -> bytes:
-        return self.data
-
-
-class _Sample:
-    def __init__(self, data: bytes, key: str) -> None:
-        self.payload = _Payload(data)
-        self.key_expr = key
-
-
-class _Sub:
-    def undeclare(self) -> None:
-        pass
-
-
-class FakeSession:
-    """Just enough of a Zenoh session: the receiver's callback is called by hand."""
-
-    def __init__(self) -> None:
-        self.callback: Any = None
-
-    def declare_subscriber(self, key: str, callback: Any) -> _Sub:
-        self.callback = callback
-        return _Sub()
-
-    def put(self, msg: Command, key: str = "bipedtele/nao1/cmd") -> None:
-        self.callback(_Sample(encode(msg), key))
 
 
 class Clock:
