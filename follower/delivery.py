@@ -235,8 +235,11 @@ class InFlight:
         """Forget what is in flight and what the acknowledgements said: the cap is open (infinite) until the next one.
 
         For a leader that left (nobody acknowledges) or a new leader session (its own path
-        and acknowledgements); the counts of what was held stay.
+        and acknowledgements); the counts of what was held stay. Called every tick while
+        nobody acknowledges: a reset state is left as it is.
         """
+        if self._last_ack is None and self.rate_bps is None and not self._sent and not self._rtt:
+            return
         with self._lock:
             self._sent.clear()
             self._bytes = 0

@@ -46,6 +46,7 @@ __all__ = [
     "critical_delay",
     "critical_scale",
     "decay_rates",
+    "ratio_alpha",
     "rule_damping",
     "small_gain_holds",
 ]
@@ -185,6 +186,11 @@ class DelayProcess:
         return np.asarray(np.maximum(0.0, self.mean + self.jitter * u + drift), dtype=float)
 
 
+def ratio_alpha(k_pos: np.ndarray | float, mass_kg: float) -> np.ndarray:
+    """Return the leader damping [N s/m] that gives the handle the damping ratio :data:`FIXED_RATIO`."""
+    return np.asarray(FIXED_RATIO * 2.0 * np.sqrt(np.asarray(k_pos, dtype=float) * mass_kg), dtype=float)
+
+
 def rule_damping(
     rule: str, cfg: ControlConfig, h1: np.ndarray, h2: np.ndarray, mass_kg: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -204,9 +210,7 @@ def rule_damping(
     if rule == "floor":
         return np.full((*shape, 2), cfg.alpha_m_min), np.full((*shape, 2), cfg.s_e_min)
     if rule == "ratio":
-        return np.broadcast_to(FIXED_RATIO * 2.0 * np.sqrt(k_pos * mass_kg), (*shape, 2)), np.full(
-            (*shape, 2), cfg.s_e_min
-        )
+        return np.broadcast_to(ratio_alpha(k_pos, mass_kg), (*shape, 2)), np.full((*shape, 2), cfg.s_e_min)
     if rule == "scheduled":
         a, s, _, _ = schedule_damping_array(np.ravel(h1), np.ravel(h2), cfg)
         return a.reshape(*shape, 2), s.reshape(*shape, 2)
@@ -426,7 +430,7 @@ def margin_map(
                 "name": name,
                 "K_n_per_m": float(k_pos[ch]),
                 "alpha_floor": cfg.alpha_m_min,
-                "alpha_ratio": float(FIXED_RATIO * 2.0 * math.sqrt(k_pos[ch] * mass_kg)),
+                "alpha_ratio": float(ratio_alpha(k_pos[ch], mass_kg)),
                 "small_gain": [small_gain_holds(p) for p in loops],
                 "critical_constant_delay_s": [_finite(critical_delay(p)) for p in loops],
                 "alpha_40": [float(v) for v in k_pos[ch] * (0.5 * mu + 0.125 * mu)],
