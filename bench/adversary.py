@@ -71,8 +71,14 @@ class Run:
 
     def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
         with open(self.folder / f"{name}.log", "wb") as log:
-            p = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                 start_new_session=True, cwd=self.folder)  # fmt: skip
+            p = subprocess.Popen(
+                argv,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=self.folder,
+            )
         self.procs[name] = p
         return p
 
@@ -153,16 +159,60 @@ def _attack_run(
     try:
         run.start("router", [*CLI, "router", "--listen", r_ep])
         run.wait_log("router", "listening on", 30)
-        run.start("proxy", [*CLI, "delay-proxy", "--listen", f"127.0.0.1:{p_port}", "--target", f"127.0.0.1:{r_port}",
-                            "--forward", f"const:{FWD_S * 1000:g}ms", "--backward", f"const:{BWD_S * 1000:g}ms"])  # fmt: skip
+        run.start(
+            "proxy",
+            [
+                *CLI,
+                "delay-proxy",
+                "--listen",
+                f"127.0.0.1:{p_port}",
+                "--target",
+                f"127.0.0.1:{r_port}",
+                "--forward",
+                f"const:{FWD_S * 1000:g}ms",
+                "--backward",
+                f"const:{BWD_S * 1000:g}ms",
+            ],
+        )
         run.wait_log("proxy", "listening on", 30)
-        run.start("follower", [*CLI, "follower", *client, "--set", f'network.connect=["{r_ep}"]', *NTP,
-                               "--set", "follower.camera_fps=0", "--set", "follower.feedback_rate_hz=1000",
-                               "--record", str(f_rec)])  # fmt: skip
-        run.start("leader", [*CLI, "leader", *client, "--set", f'network.connect=["tcp/127.0.0.1:{p_port}"]', *NTP,
-                             "--operator", "scripted", "--set", "leader.script=[[0, 5, 0], [600, 5, 0]]",
-                             "--set", 'leader.script_interp="step"', "--set", "leader.cockpit=false",
-                             "--record", str(l_rec)])  # fmt: skip
+        run.start(
+            "follower",
+            [
+                *CLI,
+                "follower",
+                *client,
+                "--set",
+                f'network.connect=["{r_ep}"]',
+                *NTP,
+                "--set",
+                "follower.camera_fps=0",
+                "--set",
+                "follower.feedback_rate_hz=1000",
+                "--record",
+                str(f_rec),
+            ],
+        )
+        run.start(
+            "leader",
+            [
+                *CLI,
+                "leader",
+                *client,
+                "--set",
+                f'network.connect=["tcp/127.0.0.1:{p_port}"]',
+                *NTP,
+                "--operator",
+                "scripted",
+                "--set",
+                "leader.script=[[0, 5, 0], [600, 5, 0]]",
+                "--set",
+                'leader.script_interp="step"',
+                "--set",
+                "leader.cockpit=false",
+                "--record",
+                str(l_rec),
+            ],
+        )
         end = time.monotonic() + 60
         while not _walking(f_rec):
             if time.monotonic() > end or not (run.alive("follower") and run.alive("leader")):
@@ -172,22 +222,40 @@ def _attack_run(
         marks["baseline"] = time.time()
         time.sleep(a.baseline_s)
         marks["flood"] = time.time()
-        reports["flood"] = run.attack("flood", ["flood", "--connect", r_ep, "--rate", f"{a.flood_rate:g}",
-                                                "--seconds", f"{a.flood_s:g}"])  # fmt: skip
+        reports["flood"] = run.attack(
+            "flood", ["flood", "--connect", r_ep, "--rate", f"{a.flood_rate:g}", "--seconds", f"{a.flood_s:g}"]
+        )
         marks["flood_end"] = marks["flood"] + float(reports["flood"].get("elapsed_s", a.flood_s))
         time.sleep(2.0)
         marks["future"] = time.time()
-        reports["future"] = run.attack("future", ["future", "--connect", r_ep, "--targets", "feedback,cmd",
-                                                  "--gap", "0.5", "--seconds", "5"])  # fmt: skip
+        reports["future"] = run.attack(
+            "future", ["future", "--connect", r_ep, "--targets", "feedback,cmd", "--gap", "0.5", "--seconds", "5"]
+        )
         if run.alive("follower"):
-            reports["stream"] = run.attack("stream", ["stream", "--connect", r_ep, "--kind", "cmd", "--shift", "1.0",
-                                                      "--rate", "50", "--seconds", "3"])  # fmt: skip
+            reports["stream"] = run.attack(
+                "stream",
+                ["stream", "--connect", r_ep, "--kind", "cmd", "--shift", "1.0", "--rate", "50", "--seconds", "3"],
+            )
         marks["future_end"] = time.time()
         time.sleep(1.0)
         marks["forged"] = time.time()
         if run.alive("follower") and run.alive("leader"):
-            reports["forged"] = run.attack("forge", ["clock-forge", "--connect", r_ep, "--offset", "5",
-                                                     "--back-s", f"{BWD_S:g}", "--seconds", "6", "--rate", "4"])  # fmt: skip
+            reports["forged"] = run.attack(
+                "forge",
+                [
+                    "clock-forge",
+                    "--connect",
+                    r_ep,
+                    "--offset",
+                    "5",
+                    "--back-s",
+                    f"{BWD_S:g}",
+                    "--seconds",
+                    "6",
+                    "--rate",
+                    "4",
+                ],
+            )
         marks["forged_end"] = time.time()
         time.sleep(1.0)
         marks["end"] = time.time()
@@ -222,8 +290,10 @@ def _print_effects(marks: dict[str, float], reports: dict[str, Any], f_recs: lis
     """Who answered the pings, what the forged clock answers did to alpha_m, the follower's counters."""
     fl = reports.get("flood", {})
     print(f"flood: {fl.get('sent', 0)} pings in {fl.get('elapsed_s', 0):.2f} s; answers by sid {fl.get('answered')}")
-    sids = {"leader": next((r.data["sid"] for r in l_recs if r.topic == "cmd/sent"), None),
-            "follower": next((r.data["sid"] for r in f_recs if r.topic == "feedback/sent"), None)}  # fmt: skip
+    sids = {
+        "leader": next((r.data["sid"] for r in l_recs if r.topic == "cmd/sent"), None),
+        "follower": next((r.data["sid"] for r in f_recs if r.topic == "feedback/sent"), None),
+    }
     for who, sid in sids.items():
         print(f"  answered by the {who}: {fl.get('answered', {}).get(str(sid), 0)}")
     need = schedule_damping(FWD_S, BWD_S, load_config().get(ControlConfig)).alpha_m
@@ -232,15 +302,19 @@ def _print_effects(marks: dict[str, float], reports: dict[str, Any], f_recs: lis
     during = [d["alpha_m"] for d in sent if marks["forged"] <= d["t"] <= marks["end"]]
     if before and during:
         b, m = np.min(before, axis=0), np.min(during, axis=0)
-        print(f"leader alpha_m [N s/m]: min before {b[0]:.2f}/{b[1]:.2f}, min under forged answers "
-              f"{m[0]:.2f}/{m[1]:.2f}; (40) requires {need[0]:.2f}/{need[1]:.2f} for h1={FWD_S:g} s, h2={BWD_S:g} s "
-              f"-> {'held' if all(m >= need) else 'BROKEN'}")  # fmt: skip
+        print(
+            f"leader alpha_m [N s/m]: min before {b[0]:.2f}/{b[1]:.2f}, min under forged answers "
+            f"{m[0]:.2f}/{m[1]:.2f}; (40) requires {need[0]:.2f}/{need[1]:.2f} for h1={FWD_S:g} s, h2={BWD_S:g} s "
+            f"-> {'held' if all(m >= need) else 'BROKEN'}"
+        )
     st = [
         r.data["counters"] for r in f_recs if r.topic == "status/sent" and marks["forged"] <= r.t_recv <= marks["end"]
     ]
     if len(st) >= 2:
-        print(f"follower during forged answers: cmd_accepted +{st[-1]['cmd_accepted'] - st[0]['cmd_accepted']}, "
-              f"cmd_too_old +{st[-1]['cmd_too_old'] - st[0]['cmd_too_old']}")  # fmt: skip
+        print(
+            f"follower during forged answers: cmd_accepted +{st[-1]['cmd_accepted'] - st[0]['cmd_accepted']}, "
+            f"cmd_too_old +{st[-1]['cmd_too_old'] - st[0]['cmd_too_old']}"
+        )
     last = [r.data["counters"] for r in f_recs if r.topic == "status/sent"]
     if last:
         print(f"follower drops: { {k: v for k, v in last[-1].items() if k.startswith('drop_')} }")

@@ -70,11 +70,21 @@ from bipedtele.zenohsession import open_session
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 PING, PONG = "benche2e/ping", "benche2e/pong"
 QOS: dict[str, Any] = {
-    "express": True, "priority": zenoh.Priority.REAL_TIME, "congestion_control": zenoh.CongestionControl.DROP,
-}  # fmt: skip
+    "express": True,
+    "priority": zenoh.Priority.REAL_TIME,
+    "congestion_control": zenoh.CongestionControl.DROP,
+}
 CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]  # fmt: skip
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 
 def free_port() -> int:
@@ -115,8 +125,14 @@ class Stack:
     def start(self, name: str, argv: list[str], ready: str | None = None, timeout_s: float = 60.0) -> None:
         log = self.folder / f"{name}.log"
         with open(log, "wb") as f:
-            self.procs[name] = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, start_new_session=True,
-                                                cwd=self.folder, env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
+            self.procs[name] = subprocess.Popen(
+                argv,
+                stdout=f,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                cwd=self.folder,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            )
         deadline = time.monotonic() + timeout_s
         while ready is not None and ready not in log.read_text(errors="replace"):
             if self.procs[name].poll() is not None or time.monotonic() > deadline:
@@ -125,9 +141,21 @@ class Stack:
 
     def base(self) -> None:
         self.start("router", [*CLI, "router", "--listen", self.router_ep], "listening on")
-        self.start("proxy", [*CLI, "delay-proxy", "--listen", f"127.0.0.1:{self.proxy_port}",
-                             "--target", self.router_ep.removeprefix("tcp/"),
-                             "--forward", "const:0ms", "--backward", "const:0ms"])  # fmt: skip
+        self.start(
+            "proxy",
+            [
+                *CLI,
+                "delay-proxy",
+                "--listen",
+                f"127.0.0.1:{self.proxy_port}",
+                "--target",
+                self.router_ep.removeprefix("tcp/"),
+                "--forward",
+                "const:0ms",
+                "--backward",
+                "const:0ms",
+            ],
+        )
         time.sleep(0.5)
 
     def stop(self, name: str, timeout_s: float = 15.0) -> None:
@@ -206,11 +234,35 @@ def bare_pingpong(ep: str, cmd_size: int, rate: float, stop: threading.Event, ou
 def message_sizes() -> tuple[int, int]:
     """Encoded sizes [bytes] of a typical Command and Feedback."""
     t = time.time()
-    cmd = Command(sid=123456789, seq=123456, t=t, ref=[5.0, 0.1], x_m=[0.01, 0.001], dx_m=[0.001, 0.0],
-                  h2_s=0.004, alpha_m=[2.5, 1.2])  # fmt: skip
-    fb = Feedback(sid=123456789, seq=123456, t=t, z_e=[4.9, 0.1], z_r=[4.8, 0.1], eta=[5.1, 0.2], ref=[5.0, 0.1],
-                  pose=[1.2, 0.01, 0.02], sonar=[2.5, 2.5], f_v=[0.0, 0.0], h1_s=0.002, s_e=[1.0, 1.0],
-                  s_r=[0.8, 0.6], T=0.8, eps=0.1, state="walking", cmd_seq=123456)  # fmt: skip
+    cmd = Command(
+        sid=123456789,
+        seq=123456,
+        t=t,
+        ref=[5.0, 0.1],
+        x_m=[0.01, 0.001],
+        dx_m=[0.001, 0.0],
+        h2_s=0.004,
+        alpha_m=[2.5, 1.2],
+    )
+    fb = Feedback(
+        sid=123456789,
+        seq=123456,
+        t=t,
+        z_e=[4.9, 0.1],
+        z_r=[4.8, 0.1],
+        eta=[5.1, 0.2],
+        ref=[5.0, 0.1],
+        pose=[1.2, 0.01, 0.02],
+        sonar=[2.5, 2.5],
+        f_v=[0.0, 0.0],
+        h1_s=0.002,
+        s_e=[1.0, 1.0],
+        s_r=[0.8, 0.6],
+        T=0.8,
+        eps=0.1,
+        state="walking",
+        cmd_seq=123456,
+    )
     return len(encode(cmd)), len(encode(fb))
 
 
@@ -221,20 +273,61 @@ def overhead(rate_hz: float, seconds: float, keep: bool) -> dict[str, list[float
     cmd_size, fb_size = message_sizes()
     with stack(keep) as st:
         f_rec, l_rec = st.folder / "follower.mcap", st.folder / "leader.mcap"
-        st.start("echo", [sys.executable, __file__, "--echo", st.router_ep, "--fb-size", str(fb_size),
-                          "--seconds", str(seconds + 120)], "ready")  # fmt: skip
-        st.start("follower", [*CLI, "follower", *client_args(st.router_ep), "--set", "follower.camera_fps=0",
-                              "--set", f"follower.control_rate_hz={rate_hz:g}",
-                              "--set", f"follower.feedback_rate_hz={rate_hz:g}",
-                              "--record", str(f_rec)], "ready")  # fmt: skip
+        st.start(
+            "echo",
+            [
+                sys.executable,
+                __file__,
+                "--echo",
+                st.router_ep,
+                "--fb-size",
+                str(fb_size),
+                "--seconds",
+                str(seconds + 120),
+            ],
+            "ready",
+        )
+        st.start(
+            "follower",
+            [
+                *CLI,
+                "follower",
+                *client_args(st.router_ep),
+                "--set",
+                "follower.camera_fps=0",
+                "--set",
+                f"follower.control_rate_hz={rate_hz:g}",
+                "--set",
+                f"follower.feedback_rate_hz={rate_hz:g}",
+                "--record",
+                str(f_rec),
+            ],
+            "ready",
+        )
         stop = threading.Event()
         bare: list[float] = []
         pinger = threading.Thread(target=bare_pingpong, args=(st.proxy_ep, cmd_size, 50.0, stop, bare))
         pinger.start()
         try:
-            st.start("leader", [*CLI, "leader", *client_args(st.proxy_ep), "--operator", "scripted",
-                                "--set", "leader.script=[[0, 5, 0], [600, 5, 0]]", "--set", "leader.cockpit=false",
-                                "--duration", f"{seconds:g}", "--record", str(l_rec)], "leader ready")  # fmt: skip
+            st.start(
+                "leader",
+                [
+                    *CLI,
+                    "leader",
+                    *client_args(st.proxy_ep),
+                    "--operator",
+                    "scripted",
+                    "--set",
+                    "leader.script=[[0, 5, 0], [600, 5, 0]]",
+                    "--set",
+                    "leader.cockpit=false",
+                    "--duration",
+                    f"{seconds:g}",
+                    "--record",
+                    str(l_rec),
+                ],
+                "leader ready",
+            )
             st.procs["leader"].wait(timeout=seconds + 60)
         finally:
             stop.set()
@@ -280,8 +373,10 @@ def overhead(rate_hz: float, seconds: float, keep: bool) -> dict[str, list[float
 
 
 def print_overhead(rate_hz: float, p: dict[str, list[float]]) -> None:
-    print(f"\ncommand -> feedback, follower control and feedback at {rate_hz:g} Hz, proxy 0 ms "
-          f"(Command {p['_sizes'][0]:.0f} B, Feedback {p['_sizes'][1]:.0f} B)")  # fmt: skip
+    print(
+        f"\ncommand -> feedback, follower control and feedback at {rate_hz:g} Hz, proxy 0 ms "
+        f"(Command {p['_sizes'][0]:.0f} B, Feedback {p['_sizes'][1]:.0f} B)"
+    )
     print(row("ours: command sent -> first feedback", p["total"]))
     print(row("  forward: leader -> follower receipt", p["forward"]))
     print(row("  wait for the next control tick", p["tick_wait"]))
@@ -357,13 +452,44 @@ def video(seconds: float, cockpit_hz: float, browser: bool, keep: bool) -> dict[
         port = free_port()
         token = secrets.token_urlsafe(24)
         os.environ[COCKPIT_TOKEN_ENV] = token  # inherited by the leader started below
-        st.start("follower", [*CLI, "follower", *client_args(st.router_ep), "--set", "follower.camera_fps=10",
-                              "--set", 'follower.cameras=["head"]', "--record", str(st.folder / "follower.mcap")],
-                 "ready")  # fmt: skip
-        st.start("leader", [*CLI, "leader", *client_args(st.proxy_ep), "--operator", "scripted",
-                            "--set", "leader.script=[[0, 5, 0], [600, 5, 0]]", "--set", "leader.cockpit=true",
-                            "--set", f"leader.cockpit_port={port}", "--set", f"leader.cockpit_rate_hz={cockpit_hz:g}",
-                            "--duration", f"{seconds + 30:g}", "--record", str(l_rec)], "leader ready")  # fmt: skip
+        st.start(
+            "follower",
+            [
+                *CLI,
+                "follower",
+                *client_args(st.router_ep),
+                "--set",
+                "follower.camera_fps=10",
+                "--set",
+                'follower.cameras=["head"]',
+                "--record",
+                str(st.folder / "follower.mcap"),
+            ],
+            "ready",
+        )
+        st.start(
+            "leader",
+            [
+                *CLI,
+                "leader",
+                *client_args(st.proxy_ep),
+                "--operator",
+                "scripted",
+                "--set",
+                "leader.script=[[0, 5, 0], [600, 5, 0]]",
+                "--set",
+                "leader.cockpit=true",
+                "--set",
+                f"leader.cockpit_port={port}",
+                "--set",
+                f"leader.cockpit_rate_hz={cockpit_hz:g}",
+                "--duration",
+                f"{seconds + 30:g}",
+                "--record",
+                str(l_rec),
+            ],
+            "leader ready",
+        )
         res: dict[str, list[float]] = {}
         if browser and Path(CHROMIUM).exists():
             from playwright.sync_api import sync_playwright

@@ -100,9 +100,13 @@ class Procs:
     def start(self, name: str, argv: list[str]) -> None:
         with open(self.folder / f"{name}.log", "wb") as log:
             self.procs[name] = subprocess.Popen(
-                argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                start_new_session=True, cwd=self.cwd,
-            )  # fmt: skip
+                argv,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=self.cwd,
+            )
 
     def log(self, name: str) -> str:
         return (self.folder / f"{name}.log").read_text(errors="replace")
@@ -179,22 +183,31 @@ def pair_figures(f_rec: Path, l_rec: Path, t0: float, t1: float, rate_hz: float)
     sent = sum(1 for r in lrs if r.topic == "cmd/sent" and t0 <= r.t_recv <= t1)
     fb = sum(1 for r in frs if r.topic == "feedback/sent" and t0 <= r.data["t"] <= t1)
     span = t1 - t0
-    return {**tick, "feedback_hz": round(fb / span, 1), "h1_ms": _ms(h1), "h2_ms": _ms(h2),
-            "cmd_hz": round(sent / span, 1)}  # fmt: skip
+    return {
+        **tick,
+        "feedback_hz": round(fb / span, 1),
+        "h1_ms": _ms(h1),
+        "h2_ms": _ms(h2),
+        "cmd_hz": round(sent / span, 1),
+    }
 
 
 def holds(pairs: list[dict[str, Any]], rate_hz: float) -> dict[str, bool]:
     """The verdict's rule (module docstring), in its two parts: ``rate`` and ``delay``."""
     rate = all(
-        p["follower_hz"] is not None and p["follower_hz"] >= 0.98 * rate_hz and not p["steps_dropped"]
+        p["follower_hz"] is not None
+        and p["follower_hz"] >= 0.98 * rate_hz
+        and not p["steps_dropped"]
         and p["cmd_hz"] >= 0.98 * CMD_RATE_HZ
         for p in pairs
-    )  # fmt: skip
+    )
     delay = all(
-        p["h1_ms"]["p99"] is not None and p["h2_ms"]["p99"] is not None
-        and p["h1_ms"]["p99"] < 20.0 and p["h2_ms"]["p99"] < 20.0
+        p["h1_ms"]["p99"] is not None
+        and p["h2_ms"]["p99"] is not None
+        and p["h1_ms"]["p99"] < 20.0
+        and p["h2_ms"]["p99"] < 20.0
         for p in pairs
-    )  # fmt: skip
+    )
     return {"rate": rate, "delay": delay, "holds": rate and delay}
 
 
@@ -202,29 +215,64 @@ def run_fleet(n: int, seconds: float, rate_hz: float, camera_fps: float, work: P
     """Set up and run ``n`` pairs; return every figure."""
     port = free_port()
     robots = [f"nao{k}" for k in range(1, n + 1)]
-    fleet = write_fleet(work / "fleet", "127.0.0.1", robots, {f"op{k}": (f"nao{k}",) for k in range(1, n + 1)}, port,
-                        {"watcher": tuple(robots)})  # fmt: skip
+    fleet = write_fleet(
+        work / "fleet",
+        "127.0.0.1",
+        robots,
+        {f"op{k}": (f"nao{k}",) for k in range(1, n + 1)},
+        port,
+        {"watcher": tuple(robots)},
+    )
     logs = work / "logs"
     logs.mkdir()
     procs = Procs(logs, fleet.out)
     out: dict[str, Any] = {"pairs": n}
     try:
-        procs.start("router", [*CLI, "router", "--config", "router/bipedtele.toml",
-                               "--set", f'network.listen=["tls/127.0.0.1:{port}"]'])  # fmt: skip
+        procs.start(
+            "router",
+            [*CLI, "router", "--config", "router/bipedtele.toml", "--set", f'network.listen=["tls/127.0.0.1:{port}"]'],
+        )
         procs.wait_log("router", "listening", 30)
         for k, r in enumerate(robots, 1):
-            procs.start(f"follower{k}", [*CLI, "follower", "--config", f"robot-{r}/bipedtele.toml",
-                                         "--set", f"follower.control_rate_hz={rate_hz:g}",
-                                         "--set", f"follower.feedback_rate_hz={rate_hz:g}",
-                                         "--set", f"follower.camera_fps={camera_fps:g}",
-                                         "--record", str(logs / f"follower{k}.mcap")])  # fmt: skip
+            procs.start(
+                f"follower{k}",
+                [
+                    *CLI,
+                    "follower",
+                    "--config",
+                    f"robot-{r}/bipedtele.toml",
+                    "--set",
+                    f"follower.control_rate_hz={rate_hz:g}",
+                    "--set",
+                    f"follower.feedback_rate_hz={rate_hz:g}",
+                    "--set",
+                    f"follower.camera_fps={camera_fps:g}",
+                    "--record",
+                    str(logs / f"follower{k}.mcap"),
+                ],
+            )
         for k in range(1, n + 1):
             procs.wait_log(f"follower{k}", "ready", 90)
         for k, r in enumerate(robots, 1):
-            procs.start(f"leader{k}", [*CLI, "leader", "--config", f"operator-op{k}/{r}.toml",
-                                       "--operator", "scripted", "--set", "leader.script=[[0, 5, 5], [3600, 5, 5]]",
-                                       "--set", 'leader.script_interp="step"', "--set", "leader.cockpit=false",
-                                       "--record", str(logs / f"leader{k}.mcap")])  # fmt: skip
+            procs.start(
+                f"leader{k}",
+                [
+                    *CLI,
+                    "leader",
+                    "--config",
+                    f"operator-op{k}/{r}.toml",
+                    "--operator",
+                    "scripted",
+                    "--set",
+                    "leader.script=[[0, 5, 5], [3600, 5, 5]]",
+                    "--set",
+                    'leader.script_interp="step"',
+                    "--set",
+                    "leader.cockpit=false",
+                    "--record",
+                    str(logs / f"leader{k}.mcap"),
+                ],
+            )
         for k in range(1, n + 1):
             procs.wait_log(f"leader{k}", "leader ready", 60)
         end = time.monotonic() + 90
@@ -243,8 +291,14 @@ def run_fleet(n: int, seconds: float, rate_hz: float, camera_fps: float, work: P
         out["load1"] = round(max(load0, os.getloadavg()[0]), 2)
         out["alive"] = {name: p.poll() is None for name, p in procs.procs.items()}
         # the fleet view, as an observer sees it (after the measured window)
-        view = subprocess.run([*CLI, "status", "--config", "observer-watcher/bipedtele.toml"], cwd=fleet.out,
-                              capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
+        view = subprocess.run(
+            [*CLI, "status", "--config", "observer-watcher/bipedtele.toml"],
+            cwd=fleet.out,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
         out["status_view"] = view.stdout if view.returncode == 0 else f"(failed: {view.stderr.strip()[-300:]})"
     except RuntimeError as exc:
         out["error"] = str(exc)
@@ -252,10 +306,12 @@ def run_fleet(n: int, seconds: float, rate_hz: float, camera_fps: float, work: P
     finally:
         procs.close()
     out["pair"] = [
-        {**pair_figures(logs / f"follower{k}.mcap", logs / f"leader{k}.mcap", t0, t1, rate_hz),
-         **_leader_loop(procs.log(f"leader{k}"))}
+        {
+            **pair_figures(logs / f"follower{k}.mcap", logs / f"leader{k}.mcap", t0, t1, rate_hz),
+            **_leader_loop(procs.log(f"leader{k}")),
+        }
         for k in range(1, n + 1)
-    ]  # fmt: skip
+    ]
     out.update(holds(out["pair"], rate_hz))
     return out
 
@@ -265,16 +321,22 @@ def _print(res: dict[str, Any], rate_hz: float) -> None:
     if "error" in res:
         print(f"\n{n} pair(s): did not run: {res['error'][:600]}")
         return
-    print(f"\n{n} pair(s) on one router, follower at {rate_hz:g} Hz: holds = {res['holds']} (rate {res['rate']}, "
-          f"h1/h2 p99 < 20 ms {res['delay']}; load {res['load1']})")  # fmt: skip
-    print("  pair | ticks/s | robot steps given up / caught up | feedback/s | h1 p50/p99 ms | h2 p50/p99 ms | "
-          "cmd/s | haptic Hz | CPU follower/leader %")  # fmt: skip
+    print(
+        f"\n{n} pair(s) on one router, follower at {rate_hz:g} Hz: holds = {res['holds']} (rate {res['rate']}, "
+        f"h1/h2 p99 < 20 ms {res['delay']}; load {res['load1']})"
+    )
+    print(
+        "  pair | ticks/s | robot steps given up / caught up | feedback/s | h1 p50/p99 ms | h2 p50/p99 ms | "
+        "cmd/s | haptic Hz | CPU follower/leader %"
+    )
     for k, p in enumerate(res["pair"], 1):
         h1, h2 = p["h1_ms"], p["h2_ms"]
         cpu = res["cpu_pct"]
-        print(f"  {k:4d} | {p['follower_hz']} | {p['steps_dropped']} / {p['steps_caught_up']} | {p['feedback_hz']} | "
-              f"{h1['p50']}/{h1['p99']} | {h2['p50']}/{h2['p99']} | {p['cmd_hz']:5.1f} | {p.get('haptic_hz')} | "
-              f"{cpu[f'follower{k}']}/{cpu[f'leader{k}']}")  # fmt: skip
+        print(
+            f"  {k:4d} | {p['follower_hz']} | {p['steps_dropped']} / {p['steps_caught_up']} | {p['feedback_hz']} | "
+            f"{h1['p50']}/{h1['p99']} | {h2['p50']}/{h2['p99']} | {p['cmd_hz']:5.1f} | {p.get('haptic_hz')} | "
+            f"{cpu[f'follower{k}']}/{cpu[f'leader{k}']}"
+        )
     print(f"  router CPU {res['cpu_pct']['router']} %; all alive: {all(res['alive'].values())}")
     print("  bipedtele status (the observer's fleet view, after the window):")
     print("".join(f"    {line}\n" for line in res.get("status_view", "").splitlines()), end="")

@@ -113,8 +113,14 @@ class Run:
 
     def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
         with open(self.folder / f"{name}.log", "wb") as log:
-            p = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                 start_new_session=True, cwd=self.folder)  # fmt: skip
+            p = subprocess.Popen(
+                argv,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=self.folder,
+            )
         self.procs[name] = p
         return p
 
@@ -220,19 +226,56 @@ def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) ->
     run = Run(folder)
     key = folder / "message.key"
     ep = f"tcp/127.0.0.1:{free_port()}"
-    common = ["--set", 'network.mode="client"', "--set", f'network.connect=["{ep}"]', "--set", "network.listen=[]",
-              "--set", f'network.message_key_file="{key}"', "--set", 'clock.mode="synced"']  # fmt: skip
+    common = [
+        "--set",
+        'network.mode="client"',
+        "--set",
+        f'network.connect=["{ep}"]',
+        "--set",
+        "network.listen=[]",
+        "--set",
+        f'network.message_key_file="{key}"',
+        "--set",
+        'clock.mode="synced"',
+    ]
     names = ("follower", "leader", "router")
     got: dict[str, Any] = {"report": {}, "marks": {}, "peaks": {}}
     try:
         subprocess.run([*CLI, "setup", "message-key", str(key)], check=True, capture_output=True, timeout=30)
         run.start("router", [*CLI, "router", "--listen", ep])
         run.wait_log("router", "listening on", 30)
-        run.start("follower", [*CLI, "follower", *common, "--set", f"follower.camera_fps={a.video_fps:g}",
-                               "--set", 'follower.cameras=["head"]', "--record", str(f_rec)])  # fmt: skip
-        run.start("leader", [*CLI, "leader", *common, "--operator", "scripted",
-                             "--set", "leader.script=[[0, 5, 0], [600, 5, 0]]", "--set", 'leader.script_interp="step"',
-                             "--set", "leader.cockpit=false", "--record", str(l_rec)])  # fmt: skip
+        run.start(
+            "follower",
+            [
+                *CLI,
+                "follower",
+                *common,
+                "--set",
+                f"follower.camera_fps={a.video_fps:g}",
+                "--set",
+                'follower.cameras=["head"]',
+                "--record",
+                str(f_rec),
+            ],
+        )
+        run.start(
+            "leader",
+            [
+                *CLI,
+                "leader",
+                *common,
+                "--operator",
+                "scripted",
+                "--set",
+                "leader.script=[[0, 5, 0], [600, 5, 0]]",
+                "--set",
+                'leader.script_interp="step"',
+                "--set",
+                "leader.cockpit=false",
+                "--record",
+                str(l_rec),
+            ],
+        )
         end = time.monotonic() + 90
         while not _walking(f_rec):
             if time.monotonic() > end or any(run.procs[n].poll() is not None for n in ("follower", "leader")):
@@ -245,9 +288,23 @@ def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) ->
         sample(run, time.monotonic() + a.baseline_s, peaks["baseline"])
         marks["baseline_end"] = time.time()
         peaks["flood"] = dict.fromkeys(names, 0.0)
-        attacker = run.start("attacker", [sys.executable, __file__, "--attack", ep, "--size", str(a.size),
-                                          "--flood-rate", f"{a.flood_rate:g}", "--flood-s", f"{a.flood_s:g}",
-                                          "--target", a.target])  # fmt: skip
+        attacker = run.start(
+            "attacker",
+            [
+                sys.executable,
+                __file__,
+                "--attack",
+                ep,
+                "--size",
+                str(a.size),
+                "--flood-rate",
+                f"{a.flood_rate:g}",
+                "--flood-s",
+                f"{a.flood_s:g}",
+                "--target",
+                a.target,
+            ],
+        )
         end = time.monotonic() + a.flood_s + 30.0
         while attacker.poll() is None and time.monotonic() < end:
             sample(run, time.monotonic() + 0.5, peaks["flood"])
@@ -264,26 +321,33 @@ def _figures(a: argparse.Namespace, f_rec: Path, l_rec: Path, got: dict[str, Any
     """Command and feedback ages, accepted commands, VmRSS and drops of the baseline and the flood."""
     report, marks, peaks = got["report"], got["marks"], got["peaks"]
     f_recs, l_recs = _records(f_rec), _records(l_rec)
-    phases = {"baseline": (marks["baseline"], marks["baseline_end"]),
-              "flood": (report.get("t_first", math.nan), report.get("t_last", math.nan))}  # fmt: skip
+    phases = {
+        "baseline": (marks["baseline"], marks["baseline_end"]),
+        "flood": (report.get("t_first", math.nan), report.get("t_last", math.nan)),
+    }
     out: dict[str, Any] = {"size": a.size, "flood_rate": a.flood_rate, "attacker": report, "survived": got["survived"]}
     for name, (t0, t1) in phases.items():
         cmd = _ages(f_recs, "cmd/recv", t0, t1)
         t_drops = t1 + (1.0 if name == "flood" else 0.0)  # status at 2 Hz: the last payloads' drops
         out[name] = {
-            "s": t1 - t0, "cmd_age_ms": cmd, "fb_age_ms": _ages(l_recs, "feedback/recv", t0, t1),
-            "cmd_accepted_per_s": cmd["n"] / (t1 - t0) if t1 > t0 else math.nan, "rss_max_mb": peaks[name],
+            "s": t1 - t0,
+            "cmd_age_ms": cmd,
+            "fb_age_ms": _ages(l_recs, "feedback/recv", t0, t1),
+            "cmd_accepted_per_s": cmd["n"] / (t1 - t0) if t1 > t0 else math.nan,
+            "rss_max_mb": peaks[name],
             "drops": {"follower": _drops(f_recs, t0, t_drops), "leader": _drops(l_recs, t0, t_drops)},
             "leader_missed_ticks": _grew(l_recs, "missed_ticks", t0, t1),
-        }  # fmt: skip
+        }
     return out
 
 
 def _print_figures(a: argparse.Namespace, out: dict[str, Any], folder: Path) -> None:
     report, phases = out["attacker"], ("baseline", "flood")
     sent_mb = report.get("bytes", 0) / 2**20
-    print(f"flood: {report.get('sent', 0)} payloads of {a.size} bytes ({sent_mb:.0f} MiB) on {a.target}, "
-          f"{a.flood_rate:g}/s per key; run folder {folder}")  # fmt: skip
+    print(
+        f"flood: {report.get('sent', 0)} payloads of {a.size} bytes ({sent_mb:.0f} MiB) on {a.target}, "
+        f"{a.flood_rate:g}/s per key; run folder {folder}"
+    )
     print(f"{'':40s} {'baseline':>24s} {'flood':>24s}")
     for label, key_ in (
         ("cmd age at follower p50/p99/max", "cmd_age_ms"),

@@ -126,9 +126,20 @@ def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
     lan = lambda rate: ("--rate-forward", rate, "--queue-forward", "64kB")  # noqa: E731
     # the kernel's token bucket as a modem or a policer has it: 16 kB burst, 64 kB queue
     tbf = lambda rate: ("rate", rate, "burst", "16kb", "limit", "64kb")  # noqa: E731
+
     # a cellular uplink: a mahimahi capacity trace with a deep drop-tail queue, 40 ms each way
-    cell = lambda name: ("--forward", "const:40ms", "--backward", "const:40ms",  # noqa: E731
-                         "--rate-forward", f"mahimahi:{name}", "--queue-forward", "256kB")  # fmt: skip
+    def cell(name: str) -> tuple[str, ...]:
+        return (
+            "--forward",
+            "const:40ms",
+            "--backward",
+            "const:40ms",
+            "--rate-forward",
+            f"mahimahi:{name}",
+            "--queue-forward",
+            "256kB",
+        )
+
     rows = [
         Condition("trace", "shipped trace", "intercontinental"),
         Condition("loss1", "+ 1 % loss", "intercontinental", both("loss", "1%")),
@@ -201,10 +212,14 @@ def start(name: str, args: list[str], *, netns: str, cwd: Path, log_dir: Path) -
     log_path = log_dir / f"{name}.log"
     with open(log_path, "wb") as log:
         popen = subprocess.Popen(
-            ["ip", "netns", "exec", netns, *CLI, *args], stdout=log, stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL, start_new_session=True, cwd=cwd,
+            ["ip", "netns", "exec", netns, *CLI, *args],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            cwd=cwd,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )  # fmt: skip
+        )
     return Proc(name, popen, log_path)
 
 
@@ -215,8 +230,10 @@ def setup_two_hosts(out: Path) -> dict[str, list[str]]:
     """Run ``bipedtele setup two-hosts`` once; return host -> the printed command (after ``bipedtele``)."""
     r = subprocess.run(
         [*CLI, "setup", "two-hosts", "--router-name", ROUTER_NAME, "--out", str(out)],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     if r.returncode != 0:
         raise RuntimeError(f"setup two-hosts failed: {r.stderr.strip()}")
     commands = {}
@@ -305,9 +322,14 @@ def _passes(log: str) -> int:
 
 
 def analyse(
-    l_rec: list[Record], f_rec: list[Record], leader_log: str, *, outage_wall: tuple[float, float] | None,
-    startup_s: float = 0.0, emulated: tuple[str, str, float] | None = None,
-) -> dict[str, Any]:  # fmt: skip
+    l_rec: list[Record],
+    f_rec: list[Record],
+    leader_log: str,
+    *,
+    outage_wall: tuple[float, float] | None,
+    startup_s: float = 0.0,
+    emulated: tuple[str, str, float] | None = None,
+) -> dict[str, Any]:
     """Every figure of one run from the two recordings and the leader's log.
 
     ``outage_wall``: (cut, return) in wall time; ``startup_s``: delays of messages sent in
@@ -397,9 +419,15 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
     for (a, _, _), (b, age, _) in itertools.pairwise(fb):
         if b - a > 1.0:
             fresh = next((t - b for t, ag, _ in fb if t >= b and ag <= 0.5), None)
-            gaps.append({"at": round(a, 2), "length_s": round(b - a, 2), "first_age_s": round(age, 3),
-                         "fresh_after_s": None if fresh is None else round(fresh, 3),
-                         **_gap_split(fb, f_st, f_fb, a, b)})  # fmt: skip
+            gaps.append(
+                {
+                    "at": round(a, 2),
+                    "length_s": round(b - a, 2),
+                    "first_age_s": round(age, 3),
+                    "fresh_after_s": None if fresh is None else round(fresh, 3),
+                    **_gap_split(fb, f_st, f_fb, a, b),
+                }
+            )
     sent = [(r.t_recv, r.data.get("state")) for r in f_rec if r.topic == "feedback/sent"]
     # the robot's stop: its stop event, or its first feedback not walking (the feedback may
     # be held by the uplink's in-flight cap, so the event comes first)
@@ -419,10 +447,14 @@ def gap_figures(l_rec: list[Record], f_rec: list[Record], leader_log: str, blind
             t_walk = next((ts for ts, st in sent if ts >= t and st == "walking"), None)
             walks.append(None if t_walk is None else round(t_walk - t, 3))
     return {
-        "gaps": gaps, "blind_stops": len(stops), "stop_after_newest_fb_s": stops, "walk_after_handle_s": walks,
+        "gaps": gaps,
+        "blind_stops": len(stops),
+        "stop_after_newest_fb_s": stops,
+        "walk_after_handle_s": walks,
         "acl_lines": sum(1 for ln in leader_log.splitlines() if "ACL" in ln and "WARNING" in ln),
-        "stall_lines": leader_log.count("uplink stalled for"), "blind_stop_s": blind_stop_s,
-    }  # fmt: skip
+        "stall_lines": leader_log.count("uplink stalled for"),
+        "blind_stop_s": blind_stop_s,
+    }
 
 
 def _gap_split(
@@ -524,18 +556,18 @@ def outage_figures(
     stale = [r for r in cmd if r.data["t"] < back - 0.005 and r.t_recv >= back]
     first_after = next((r for r in cmd if r.t_recv >= back), None)
     return {
-        "cut_wall": cut, "back_wall": back, "walking_at_cut": walking_at_cut,
+        "cut_wall": cut,
+        "back_wall": back,
+        "walking_at_cut": walking_at_cut,
         "stop_latency_s": None if stop is None else round(stop, 3),
-        "stop_after_last_command_s": (
-            None if stop is None or last_cmd is None else round(cut + stop - last_cmd, 3)
-        ),
+        "stop_after_last_command_s": (None if stop is None or last_cmd is None else round(cut + stop - last_cmd, 3)),
         "restart_latency_s": None if restart is None else round(restart, 3),
         "restart_after_move_s": None if after_move is None else round(after_move, 3),
         "move_after_return_s": None if move is None else round(move - back, 3),
         "first_command_after_s": None if first_after is None else round(first_after.t_recv - back, 3),
         "stale_applied": len(stale),
         "stale_oldest_age_s": round(max((r.t_recv - r.data["t"] for r in stale), default=0.0), 3),
-    }  # fmt: skip
+    }
 
 
 def operator_sockets(ns: str, out: Path) -> dict[str, int]:
@@ -564,10 +596,19 @@ def shape_robot(top: Topology, tbf: tuple[str, ...]) -> None:
 
 
 def run_condition(
-    cond: Condition, links: str | None, seconds: float, setup_out: Path, commands: dict[str, list[str]],
-    run_dir: Path, *, seed: int = 1, startup_s: float = 5.0, say: Any = print, tag: str | None = None,
+    cond: Condition,
+    links: str | None,
+    seconds: float,
+    setup_out: Path,
+    commands: dict[str, list[str]],
+    run_dir: Path,
+    *,
+    seed: int = 1,
+    startup_s: float = 5.0,
+    say: Any = print,
+    tag: str | None = None,
     leader_extra: tuple[str, ...] = (),
-) -> dict[str, Any]:  # fmt: skip
+) -> dict[str, Any]:
     """One run of ``cond`` with ``links`` (None: as setup wrote); return its figures (``leader_extra``: more leader arguments)."""
     run_dir.mkdir(parents=True)
     homes = copy_hosts(setup_out, run_dir, links)
@@ -588,10 +629,20 @@ def run_condition(
 
             def emulate() -> float:
                 t0 = time.time()
-                top.link.start_emulator([
-                    *base, *cond.emulator, "--t0", f"{t0:.6f}", "--seed", str(seed),
-                    "--stats-every", "10", "--stats-json", str(stats),
-                ])  # fmt: skip
+                top.link.start_emulator(
+                    [
+                        *base,
+                        *cond.emulator,
+                        "--t0",
+                        f"{t0:.6f}",
+                        "--seed",
+                        str(seed),
+                        "--stats-every",
+                        "10",
+                        "--stats-json",
+                        str(stats),
+                    ]
+                )
                 return t0
 
             if cond.tbf:
@@ -620,9 +671,15 @@ def run_condition(
             for p in procs:
                 p.stop(5.0)
             top.link.stop_emulator()
-    res: dict[str, Any] = {"condition": cond.name, "label": cond.label, "links": links or "as written",
-                           "leader_rc": leader_rc, "run_dir": str(run_dir), "operator_sockets": sockets,
-                           "leader_summary": _summary_line(leader)}  # fmt: skip
+    res: dict[str, Any] = {
+        "condition": cond.name,
+        "label": cond.label,
+        "links": links or "as written",
+        "leader_rc": leader_rc,
+        "run_dir": str(run_dir),
+        "operator_sockets": sockets,
+        "leader_summary": _summary_line(leader),
+    }
     l_path, f_path = _recording(homes["operator"], "leader"), _recording(homes["robot"], "follower")
     if l_path is None or f_path is None:
         res["error"] = f"no recording (leader {l_path}, follower {f_path}); leader log:\n{leader.tail()}"
@@ -817,10 +874,17 @@ def main(argv: list[str] | None = None) -> int:
                 t_start = time.monotonic()
                 print(f"--- {cond.label} [{lk}] ({args.seconds:g} s) ...", flush=True)
                 try:
-                    r = run_condition(cond, lk, args.seconds, setup_out, commands,
-                                      work / f"{name}-{lk}-{secrets.token_hex(2)}", seed=args.seed,
-                                      tag=args.tag + secrets.token_hex(2)[: 4 - len(args.tag)],
-                                      leader_extra=leader_extra)  # fmt: skip
+                    r = run_condition(
+                        cond,
+                        lk,
+                        args.seconds,
+                        setup_out,
+                        commands,
+                        work / f"{name}-{lk}-{secrets.token_hex(2)}",
+                        seed=args.seed,
+                        tag=args.tag + secrets.token_hex(2)[: 4 - len(args.tag)],
+                        leader_extra=leader_extra,
+                    )
                 except (RuntimeError, NetnsError) as exc:
                     r = {"condition": name, "label": cond.label, "links": lk, "error": str(exc)}
                 r["wall_s"] = round(time.monotonic() - t_start, 1)

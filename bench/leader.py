@@ -138,20 +138,24 @@ def run_full(seconds: float, rt_priority: int) -> dict:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     os.environ[COCKPIT_TOKEN_ENV] = token  # the leader below runs in this process
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = load_config("default", [
-            f"robot.id={robot!r}".replace("'", '"'),
-            f'network.listen=["tcp/127.0.0.1:{zport}"]',
-            f"leader.cockpit_port={cport}",
-            f"leader.rt_priority={rt_priority}",
-            "leader.script=[[0, 4, 2], [1000, 4, 2]]",
-            f'record.dir="{tmp}"',
-        ])  # fmt: skip
+        cfg = load_config(
+            "default",
+            [
+                f"robot.id={robot!r}".replace("'", '"'),
+                f'network.listen=["tcp/127.0.0.1:{zport}"]',
+                f"leader.cockpit_port={cport}",
+                f"leader.rt_priority={rt_priority}",
+                "leader.script=[[0, 4, 2], [1000, 4, 2]]",
+                f'record.dir="{tmp}"',
+            ],
+        )
         peer = subprocess.Popen([sys.executable, "-c", PEER, str(zport), robot, str(seconds + 3)], env=env)
         browser = subprocess.Popen([sys.executable, "-c", BROWSER, str(cport), str(seconds + 2), token], env=env)
         stats: dict = {}
         try:
-            LeaderApp(cfg, operator_name="scripted", duration_s=seconds, realtime=True,
-                      record=Path(tmp) / "bench.mcap").run(stats)  # fmt: skip
+            LeaderApp(
+                cfg, operator_name="scripted", duration_s=seconds, realtime=True, record=Path(tmp) / "bench.mcap"
+            ).run(stats)
         finally:
             for p in (peer, browser):
                 try:
@@ -165,8 +169,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="duration of each scenario [s]")
     args = ap.parse_args()
-    print(f"leader loop benchmark: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, "
-          f"{args.seconds:.0f} s per scenario, goal >= 995 Hz and p99 error < 1 ms")  # fmt: skip
+    print(
+        f"leader loop benchmark: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, "
+        f"{args.seconds:.0f} s per scenario, goal >= 995 Hz and p99 error < 1 ms"
+    )
     alone = run_alone(args.seconds)
     print(fmt("alone", alone), flush=True)
     full = run_full(args.seconds, 0)

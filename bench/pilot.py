@@ -73,8 +73,14 @@ class ReferenceModelRobot:
     def publish(self, t: float) -> None:
         self.seq += 1
         self.fb_at = max(self.fb_at, t + self.h2f(t))
-        fb = Feedback(seq=self.seq, t=t, eta=[float(self.eta[0]), float(self.eta[1])],
-                      pose=[self.x, self.y, self.yaw], sonar=[2.55, 2.55], h1_s=self.h1f(t))  # fmt: skip
+        fb = Feedback(
+            seq=self.seq,
+            t=t,
+            eta=[float(self.eta[0]), float(self.eta[1])],
+            pose=[self.x, self.y, self.yaw],
+            sonar=[2.55, 2.55],
+            h1_s=self.h1f(t),
+        )
         self.fbs.append((self.fb_at, fb))
 
     def latest(self, t: float):
@@ -99,11 +105,18 @@ def run(model: str, scale: float) -> dict[str, float]:
             t_recv, fb = got
         op.update(t, fb)
         robot.command(t, op.intended)
-        op.observe_sample(LeaderSample(
-            t=t, t_device=t, ref_v=float(op.intended[0]), ref_w=float(op.intended[1]), enable=True,
-            h1_ms=1e3 * robot.h1f(t), h2_ms=1e3 * robot.h2f(t),
-            feedback_age_ms=None if fb is None else 1e3 * (t - t_recv),
-        ))  # fmt: skip
+        op.observe_sample(
+            LeaderSample(
+                t=t,
+                t_device=t,
+                ref_v=float(op.intended[0]),
+                ref_w=float(op.intended[1]),
+                enable=True,
+                h1_ms=1e3 * robot.h1f(t),
+                h2_ms=1e3 * robot.h2f(t),
+                feedback_age_ms=None if fb is None else 1e3 * (t - t_recv),
+            )
+        )
         robot.step(t, dt, course)
         robot.publish(t)
         t += dt
@@ -114,10 +127,16 @@ def run(model: str, scale: float) -> dict[str, float]:
     moving = np.abs(steps[:, 3]) > 0.5
     err = np.abs(steps[moving, 1:3] - steps[moving, 3:5]).mean(axis=0)
     return {
-        "s_r_v": float(choice.s_r[0]), "s_r_w": float(choice.s_r[1]), "T": float(choice.T),
-        "done": float(op.done), "passes": float(op.passes_done), "completion_s": t,
-        "forward_err": float(err[0]), "turn_err": float(err[1]), "clearance_m": robot.min_clear,
-    }  # fmt: skip
+        "s_r_v": float(choice.s_r[0]),
+        "s_r_w": float(choice.s_r[1]),
+        "T": float(choice.T),
+        "done": float(op.done),
+        "passes": float(op.passes_done),
+        "completion_s": t,
+        "forward_err": float(err[0]),
+        "turn_err": float(err[1]),
+        "clearance_m": robot.min_clear,
+    }
 
 
 def main() -> None:

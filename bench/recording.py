@@ -33,9 +33,32 @@ N = 20_000
 
 
 def sample(i: int) -> dict[str, object]:
-    keys = ["ref_v", "ref_w", "z_e_v", "z_e_w", "eta_v", "eta_w", "force_v", "force_w",
-            "h1_ms", "h2_ms", "alpha_m_v", "alpha_m_w", "s_r_v", "s_r_w", "T", "eps",
-            "x_v", "x_w", "pose_x", "pose_y", "pose_yaw", "sonar_l", "sonar_r", "gain"]  # fmt: skip
+    keys = [
+        "ref_v",
+        "ref_w",
+        "z_e_v",
+        "z_e_w",
+        "eta_v",
+        "eta_w",
+        "force_v",
+        "force_w",
+        "h1_ms",
+        "h2_ms",
+        "alpha_m_v",
+        "alpha_m_w",
+        "s_r_v",
+        "s_r_w",
+        "T",
+        "eps",
+        "x_v",
+        "x_w",
+        "pose_x",
+        "pose_y",
+        "pose_yaw",
+        "sonar_l",
+        "sonar_r",
+        "gain",
+    ]
     d: dict[str, object] = {k: 0.001 * i + j for j, k in enumerate(keys)}
     d.update(t=time.time(), state="walking", link="ok", watchdog="ok", falls=0, passes_done=1)
     return d
@@ -69,8 +92,10 @@ def timeit(fn: Callable[[int], object]) -> np.ndarray:
 def row(name: str, us: np.ndarray, base: np.ndarray) -> None:
     p50, p99, mx = np.percentile(us, 50), np.percentile(us, 99), us.max()
     b50, b99 = np.percentile(base, 50), np.percentile(base, 99)
-    print(f"{name:<34} p50 {p50:7.2f} us  p99 {p99:7.2f} us  max {mx:8.1f} us"
-          f"   baseline p50 {b50:6.2f} p99 {b99:6.2f} us  ratio p50 {p50 / b50:5.2f}")  # fmt: skip
+    print(
+        f"{name:<34} p50 {p50:7.2f} us  p99 {p99:7.2f} us  max {mx:8.1f} us"
+        f"   baseline p50 {b50:6.2f} p99 {b99:6.2f} us  ratio p50 {p50 / b50:5.2f}"
+    )
 
 
 def paced_loop(seconds: float, rec: Recorder | None) -> np.ndarray:
@@ -108,11 +133,15 @@ def main() -> None:
             base = timeit(lambda i: msgpack.packb(message_to_dict(cmd), use_bin_type=True))
             row("Recorder.write(Command)", timeit(lambda i: rec.write("cmd/sent", cmd, 1.0)), base)
             base = timeit(lambda i: msgpack.packb(samples[i % 100], use_bin_type=True))
-            row("Recorder.write(30-key sample)",
-                timeit(lambda i: rec.write("other/state", samples[i % 100], 1.0)), base)  # fmt: skip
+            row(
+                "Recorder.write(30-key sample)", timeit(lambda i: rec.write("other/state", samples[i % 100], 1.0)), base
+            )
             base = timeit(lambda i: msgpack.packb(full[i % 100], use_bin_type=True))
-            row(f"Recorder.write({len(full[0])}-key leader/state)",
-                timeit(lambda i: rec.write("leader/state", full[i % 100], 1.0)), base)  # fmt: skip
+            row(
+                f"Recorder.write({len(full[0])}-key leader/state)",
+                timeit(lambda i: rec.write("leader/state", full[i % 100], 1.0)),
+                base,
+            )
             base = timeit(lambda i: msgpack.packb(message_to_dict(frame), use_bin_type=True))
             row("Recorder.write(VideoFrame 20 kB)", timeit(lambda i: rec.write("video/recv", frame, 1.0)), base)
         print(f"  file {(Path(tmp) / 'bench.mcap').stat().st_size / 1e6:.1f} MB, stats {rec.stats}")
@@ -137,8 +166,10 @@ def main() -> None:
         with Recorder(Path(tmp) / "loop.mcap", jpeg_every=10) as rec:
             with_rec = paced_loop(5.0, rec)
         for name, late in (("no recorder", no_rec), ("recorder", with_rec)):
-            print(f"  {name:<12} p50 {np.percentile(late, 50):7.1f}  p99 {np.percentile(late, 99):7.1f}"
-                  f"  p99.9 {np.percentile(late, 99.9):7.1f}  max {late.max():8.1f}")  # fmt: skip
+            print(
+                f"  {name:<12} p50 {np.percentile(late, 50):7.1f}  p99 {np.percentile(late, 99):7.1f}"
+                f"  p99.9 {np.percentile(late, 99.9):7.1f}  max {late.max():8.1f}"
+            )
 
     with CockpitServer(telemetry_hz=30) as server:
         stop = threading.Event()

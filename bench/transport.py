@@ -103,7 +103,7 @@ def echo(listen: str, seconds: float) -> None:
                 estimator=est,
                 on_message=answer_sealed,
                 auth=auth,
-            ),  # fmt: skip
+            ),
             sealed_pubs,
         ):
             print("ready", flush=True)
@@ -252,9 +252,11 @@ def bench_seal(quick: bool) -> None:
             return _hmac.compare_digest(sign(b)[4:36], p[4:36])
 
         fns = (
-            functools.partial(sign, body), verify,
-            functools.partial(auth.sign, body, topic), functools.partial(auth.verify, sealed, topic),
-        )  # fmt: skip
+            functools.partial(sign, body),
+            verify,
+            functools.partial(auth.sign, body, topic),
+            functools.partial(auth.verify, sealed, topic),
+        )
         t = []
         for fn in fns:
             t0 = time.perf_counter()

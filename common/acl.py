@@ -62,9 +62,16 @@ ROLE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 }
 #: What a linked router passes (everything of a pub/sub and liveliness mesh).
 _ROUTER_MESSAGES = (
-    "put", "delete", "declare_subscriber", "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
-    "query", "reply", "declare_queryable",
-)  # fmt: skip
+    "put",
+    "delete",
+    "declare_subscriber",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+    "query",
+    "reply",
+    "declare_queryable",
+)
 #: role -> its ``[network]`` list
 ROLE_LIST = {"leader": "publishers_allowed", "follower": "followers_allowed", "observer": "observers_allowed"}
 
@@ -190,13 +197,16 @@ def _role_entries(
             role_rules = _rules(role, robots, tag)
             rules += role_rules
             if per_user:
-                mine = [{"id": f"{tag}s{j}", "usernames": [n], "cert_common_names": [n], **on_link}
-                        for j, n in enumerate(names)]  # fmt: skip
+                mine = [
+                    {"id": f"{tag}s{j}", "usernames": [n], "cert_common_names": [n], **on_link}
+                    for j, n in enumerate(names)
+                ]
             else:
                 mine = [{"id": f"{tag}s", "usernames": names, **on_link}]
             subjects += mine
-            policies.append({"id": f"{tag}_role", "rules": [r["id"] for r in role_rules],
-                             "subjects": [m["id"] for m in mine]})  # fmt: skip
+            policies.append(
+                {"id": f"{tag}_role", "rules": [r["id"] for r in role_rules], "subjects": [m["id"] for m in mine]}
+            )
     return rules, subjects, policies
 
 
@@ -241,13 +251,19 @@ def access_control_json(net: NetworkConfig, listen: list[str] | None = None) -> 
     protocols = stream_protocols(list(net.listen if listen is None else listen))
     gone = set(net.revoked)
     kept = {role: {u: r for u, r in bound.items() if u not in gone} for role, bound in roles.items()}
-    rules, subjects, policies = _role_entries(kept, {"link_protocols": protocols} if protocols else {},
-                                              per_user=net.tls_user_certs)  # fmt: skip
+    rules, subjects, policies = _role_entries(
+        kept, {"link_protocols": protocols} if protocols else {}, per_user=net.tls_user_certs
+    )
     if net.routers_allowed:
-        rules.append({
-            "id": "routers_all", "permission": "allow", "flows": ["ingress", "egress"],
-            "messages": list(_ROUTER_MESSAGES), "key_exprs": ["bipedtele/**"],
-        })  # fmt: skip
+        rules.append(
+            {
+                "id": "routers_all",
+                "permission": "allow",
+                "flows": ["ingress", "egress"],
+                "messages": list(_ROUTER_MESSAGES),
+                "key_exprs": ["bipedtele/**"],
+            }
+        )
         subjects.append({"id": "routers", "cert_common_names": list(net.routers_allowed)})
         policies.append({"id": "routers_role", "rules": ["routers_all"], "subjects": ["routers"]})
     return {

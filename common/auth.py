@@ -341,8 +341,11 @@ class WatchAuth(MessageAuth):
         if self._pin is not None and epoch != self.epoch:
             want = self._pin()
             if want is not None and epoch != want:
-                raise MacError("old_session", f"{topic}: sealed under another session's watch key than the "
-                                              "bound peer's (an earlier session's frames replayed?)")  # fmt: skip
+                raise MacError(
+                    "old_session",
+                    f"{topic}: sealed under another session's watch key than the "
+                    "bound peer's (an earlier session's frames replayed?)",
+                )
         opener = self._opener(epoch)
         body = opener.open_framed(payload, topic)
         if opener is not self:
@@ -377,9 +380,10 @@ def read_key_file(path: str, field: str = "message_key_file") -> bytes:
             raise _key_error(field, path, "not a regular file; allowed: a file of 64 hex characters")
         if st.st_mode & 0o077:
             raise _key_error(
-                field, path,
+                field,
+                path,
                 f"readable by group or others (mode {stat.S_IMODE(st.st_mode):04o}); fix: chmod 600 {path}",
-            )  # fmt: skip
+            )
         text = Path(path).read_text(encoding="ascii").strip()
     except OSError as exc:
         raise _key_error(
@@ -393,10 +397,11 @@ def read_key_file(path: str, field: str = "message_key_file") -> bytes:
         return bytes.fromhex(text)
     except ValueError:
         raise _key_error(
-            field, path,
+            field,
+            path,
             f"not a key; allowed: exactly {2 * KEY_BYTES} hex characters (32 random bytes, e.g. "
             f"python3 -c 'import secrets; print(secrets.token_hex(32))' > {path}; chmod 600 {path})",
-        ) from None  # fmt: skip
+        ) from None
 
 
 def load_message_auth(net: NetworkConfig) -> MessageAuth | None:

@@ -173,9 +173,10 @@ PYTHON_311_EXTRAS = frozenset({"sim", "naoqi"})
 def add_foxglove_arg(parser: argparse.ArgumentParser) -> None:
     """Add ``--foxglove [HOST:]PORT`` (sets ``[record] foxglove``; see :func:`config_from_args`)."""
     parser.add_argument(
-        "--foxglove", metavar="[HOST:]PORT",
+        "--foxglove",
+        metavar="[HOST:]PORT",
         help="also serve the recording's channels live on a Foxglove WebSocket (e.g. 8765; extra foxglove)",
-    )  # fmt: skip
+    )
     parser.add_argument("--allow-remote", action="store_true", help="let --foxglove listen on a non-loopback address")
 
 

@@ -102,9 +102,13 @@ class LiveView:
     """
 
     def __init__(
-        self, host: str = "127.0.0.1", port: int = 8765, name: str = "bipedtele",
-        allow_remote: bool = False, token: str | None = None,
-    ) -> None:  # fmt: skip
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        name: str = "bipedtele",
+        allow_remote: bool = False,
+        token: str | None = None,
+    ) -> None:
         from bipedtele.foxglovews import LiveServer
 
         check_bind((host, port), allow_remote)
@@ -113,11 +117,18 @@ class LiveView:
         self.host = host
         self.logged = 0
         shown = f"[{host}]" if ":" in host else host
-        LOG.info("foxglove live view on ws://%s:%d/?token=%s (Foxglove: Open connection, this address)",
-                 shown, self.port, self.token)  # fmt: skip
+        LOG.info(
+            "foxglove live view on ws://%s:%d/?token=%s (Foxglove: Open connection, this address)",
+            shown,
+            self.port,
+            self.token,
+        )
         if not _loopback(host):
-            LOG.warning("foxglove live view: listening on %s (--allow-remote): anyone with the token on the network "
-                        "can watch the robot", host)  # fmt: skip
+            LOG.warning(
+                "foxglove live view: listening on %s (--allow-remote): anyone with the token on the network "
+                "can watch the robot",
+                host,
+            )
 
     @property
     def url(self) -> str:
@@ -138,10 +149,16 @@ class LiveView:
     def add_channel(self, cid: int, topic: str, schema_name: str, schema_encoding: str, schema: bytes) -> None:
         """Advertise channel ``cid`` (the recorder's id) on ``topic`` with its JSON Schema."""
         if self._server is not None:
-            self._server.add_channel({
-                "id": cid, "topic": topic, "encoding": "json", "schemaName": schema_name,
-                "schema": schema.decode("utf-8"), "schemaEncoding": schema_encoding,
-            })  # fmt: skip
+            self._server.add_channel(
+                {
+                    "id": cid,
+                    "topic": topic,
+                    "encoding": "json",
+                    "schemaName": schema_name,
+                    "schema": schema.decode("utf-8"),
+                    "schemaEncoding": schema_encoding,
+                }
+            )
 
     def log(self, cid: int, payload: bytes, log_time_ns: int) -> None:
         """Send one JSON payload on channel ``cid`` to the subscribed clients."""

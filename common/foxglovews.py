@@ -135,8 +135,19 @@ class LiveServer:
         self._fails: dict[str, deque[float]] = {}
         self._locked: dict[str, float] = {}
         self._last_line: dict[str, float] = {}
-        self.counters = {k: 0 for k in ("refused_token", "refused_host", "refused_origin", "refused_full",
-                                        "refused_rate", "refused_protocol", "served", "dropped")}  # fmt: skip
+        self.counters = {
+            k: 0
+            for k in (
+                "refused_token",
+                "refused_host",
+                "refused_origin",
+                "refused_full",
+                "refused_rate",
+                "refused_protocol",
+                "served",
+                "dropped",
+            )
+        }
         self.subscribed: frozenset[int] = frozenset()  # channels someone watches (read from any thread)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Event | None = None
@@ -319,8 +330,14 @@ class LiveServer:
         self._clients.append(client)
         self.counters["served"] += 1
         LOG.info("foxglove live view: a client from %s watches", client.addr)
-        info = {"op": "serverInfo", "name": self.name, "capabilities": [], "supportedEncodings": [],
-                "metadata": {}, "sessionId": str(id(self))}  # fmt: skip
+        info = {
+            "op": "serverInfo",
+            "name": self.name,
+            "capabilities": [],
+            "supportedEncodings": [],
+            "metadata": {},
+            "sessionId": str(id(self)),
+        }
         self._queue(client, json.dumps(info))
         if self._channels:
             self._queue(client, json.dumps({"op": "advertise", "channels": list(self._channels.values())}))

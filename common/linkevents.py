@@ -101,8 +101,11 @@ class RouterLinkLog:
             )
         LOG.warning(
             "client %s lost its %s link(s) while its %s link(s) stay up: %s",
-            zid, "+".join(sorted(set(lost))), "+".join(sorted(set(left))), why,
-        )  # fmt: skip
+            zid,
+            "+".join(sorted(set(lost))),
+            "+".join(sorted(set(left))),
+            why,
+        )
 
     def close(self) -> None:
         """Stop listening."""

@@ -120,8 +120,9 @@ def client_endpoints(connect: list[str], layout: Layout) -> list[Any]:
         if layout == "split":
             control = _join(_DATAGRAM[proto], address, f"prio={CONTROL_PRIORITIES};rel=0")
         else:
-            control = _join(proto, address, f"prio={CONTROL_PRIORITIES};rel=0",
-                            _with(config, "so_sndbuf", CONTROL_SNDBUF_BYTES))  # fmt: skip
+            control = _join(
+                proto, address, f"prio={CONTROL_PRIORITIES};rel=0", _with(config, "so_sndbuf", CONTROL_SNDBUF_BYTES)
+            )
         links = [
             _join(proto, address, f"prio={STATUS_PRIORITIES};rel=1", config),
             control,

@@ -142,8 +142,9 @@ class Node:
         # Video opens only under the bound follower session's watch epoch (leader).
         self.video_auth: WatchAuth | None = self.watch_auth
         if self.auth is not None and self.watch_auth is not None:
-            hs = self.handshake = Handshake(role, self.sid, self.auth, takeover_after_s=takeover_after_s,
-                                            watch_epoch=self.watch_auth.epoch)  # fmt: skip
+            hs = self.handshake = Handshake(
+                role, self.sid, self.auth, takeover_after_s=takeover_after_s, watch_epoch=self.watch_auth.epoch
+            )
             if role == "leader":
                 self.video_auth = self.watch_auth.pinned(lambda: hs.peer_watch_epoch)
         self.drops = DropCounter(role)
@@ -184,8 +185,12 @@ class Node:
         control = relink_control(net)
         if not control:
             return stack.enter_context(open_session(net))
-        self._relink = RelinkSession(lambda: open_raw(net), control=control, silence_s=RELINK_SILENCE_S,
-                                     peer_present=lambda: self._peer is not None and self._peer.alive)  # fmt: skip
+        self._relink = RelinkSession(
+            lambda: open_raw(net),
+            control=control,
+            silence_s=RELINK_SILENCE_S,
+            peer_present=lambda: self._peer is not None and self._peer.alive,
+        )
         stack.callback(self._relink.close)
         self.drops.on_live = self._relink.heard  # refused by policy (held robot...): the link carries traffic
         session = cast(zenoh.Session, self._relink)  # the declarations' surface of a session
@@ -303,10 +308,17 @@ class Node:
             self.recorder = self.enter(Recorder(None, flush_s=rc.flush_s, live=live, **kwargs))  # live only
             return self.recorder
         try:
-            self.recorder = self.enter(recording_for_run(
-                self._record_path, rc.dir, self.role, flush_s=rc.flush_s,
-                metadata={"role": self.role, "config": self.cfg.to_dict(), **metadata}, live=live, **kwargs,
-            ))  # fmt: skip
+            self.recorder = self.enter(
+                recording_for_run(
+                    self._record_path,
+                    rc.dir,
+                    self.role,
+                    flush_s=rc.flush_s,
+                    metadata={"role": self.role, "config": self.cfg.to_dict(), **metadata},
+                    live=live,
+                    **kwargs,
+                )
+            )
         except BaseException:
             if live is not None:
                 live.close()
@@ -417,23 +429,41 @@ class Node:
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
         auth = self.video_auth if key == self.keys.video else self.watch_auth if key == self.keys.status else self.auth
         rx: LatestReceiver[M] = LatestReceiver(
-            self.session, key, expect, self.drops, gate, estimator=estimator, clock_sync=self.sync,
-            auth=auth, max_future_s=self.max_future_s, ignore_sid=ignore_sid,
-            on_message=accepted if wants else None, max_age_s=max_age_s, on_too_old=on_too_old, handshake=hs,
+            self.session,
+            key,
+            expect,
+            self.drops,
+            gate,
+            estimator=estimator,
+            clock_sync=self.sync,
+            auth=auth,
+            max_future_s=self.max_future_s,
+            ignore_sid=ignore_sid,
+            on_message=accepted if wants else None,
+            max_age_s=max_age_s,
+            on_too_old=on_too_old,
+            handshake=hs,
             inbox=inbox,
-        )  # fmt: skip
+        )
         return self.enter(rx)
 
     def link_clocks(self, peer_sid: Callable[[], int | None]) -> ClockLink:
         """Start the clock link (answers pings; pings in ntp mode) bound to ``peer_sid()``."""
         ck = self.cfg.get(ClockConfig)
-        link = self.enter(ClockLink(
-            self.pubs.clock.put, self.sid, sync=self.sync, drops=self.drops, ping_rate_hz=ck.ping_rate_hz,
-            answer_rate_hz=ck.answer_rate_hz, peer_sid=peer_sid,
-            # the follower also answers leader sessions that completed the handshake (one
-            # waiting for a robot another operator holds syncs and reads its status)
-            also_answer=self.handshake.answers if self.handshake is not None and self.role == "follower" else None,
-        ))  # fmt: skip
+        link = self.enter(
+            ClockLink(
+                self.pubs.clock.put,
+                self.sid,
+                sync=self.sync,
+                drops=self.drops,
+                ping_rate_hz=ck.ping_rate_hz,
+                answer_rate_hz=ck.answer_rate_hz,
+                peer_sid=peer_sid,
+                # the follower also answers leader sessions that completed the handshake (one
+                # waiting for a robot another operator holds syncs and reads its status)
+                also_answer=self.handshake.answers if self.handshake is not None and self.role == "follower" else None,
+            )
+        )
         # The clock receiver gets no clock conversion, future check nor gate: pings are
         # stamped on the peer's clock, and the link does its own matching. With the key,
         # the handshake's Hellos travel on the clock key too (both roles may publish it).
@@ -451,10 +481,17 @@ class Node:
 
             on_clock = hello_or_clock
             self._start_hellos(hs)
-        self.enter(LatestReceiver(
-            self.session, self.keys.clock, kinds, self.drops, ignore_sid=self.sid,
-            auth=self.auth, on_message=on_clock,
-        ))  # fmt: skip
+        self.enter(
+            LatestReceiver(
+                self.session,
+                self.keys.clock,
+                kinds,
+                self.drops,
+                ignore_sid=self.sid,
+                auth=self.auth,
+                on_message=on_clock,
+            )
+        )
         return link
 
     def _start_hellos(self, hs: Handshake) -> None:

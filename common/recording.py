@@ -381,8 +381,9 @@ class Recorder:
             self._count("jpeg_skipped")
         return keep
 
-    def _register(self, key: tuple[str, Any], topic: str, schema: dict[str, Any],
-                  metadata: dict[str, str] | None = None) -> int:  # fmt: skip
+    def _register(
+        self, key: tuple[str, Any], topic: str, schema: dict[str, Any], metadata: dict[str, str] | None = None
+    ) -> int:
         """Register the channel ``key`` (its schema once per distinct schema)."""
         blob = json.dumps(schema, separators=(",", ":")).encode()
         name = str(schema["title"])
@@ -414,9 +415,11 @@ class Recorder:
             sec = int(t)
             data = {
                 "timestamp": {"sec": sec, "nsec": min(999_999_999, round((t - sec) * 1e9))},
-                "frame_id": frame.camera, "data": base64.b64encode(frame.jpeg).decode("ascii"),
-                "format": "jpeg", **header,
-            }  # fmt: skip
+                "frame_id": frame.camera,
+                "data": base64.b64encode(frame.jpeg).decode("ascii"),
+                "format": "jpeg",
+                **header,
+            }
             return cid, data
         key = (topic, schemas.VIDEO_HEADER)
         cid = self._channels.get(key)

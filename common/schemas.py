@@ -79,8 +79,9 @@ def _nullable(schema: Schema) -> Schema:
     return dict(schema)
 
 
-def _object(name: str, properties: Mapping[str, Schema], required: list[str], *,
-            description: str = "", additional: bool = False) -> Schema:  # fmt: skip
+def _object(
+    name: str, properties: Mapping[str, Schema], required: list[str], *, description: str = "", additional: bool = False
+) -> Schema:
     out: Schema = {"$schema": JSON_SCHEMA_DRAFT, "title": name, "type": "object"}
     if description:
         out["description"] = description
@@ -225,8 +226,12 @@ def compressed_image_schema() -> Schema:
         "format": {"type": "string", "enum": ["jpeg"], "description": "image format"},
         **header,
     }
-    return _object(COMPRESSED_IMAGE, props, ["timestamp", "frame_id", "data", "format", *header],
-                   description="A compressed image (a VideoFrame with its JPEG)")  # fmt: skip
+    return _object(
+        COMPRESSED_IMAGE,
+        props,
+        ["timestamp", "frame_id", "data", "format", *header],
+        description="A compressed image (a VideoFrame with its JPEG)",
+    )
 
 
 @functools.cache
@@ -238,8 +243,9 @@ def video_header_schema() -> Schema:
     """
     header = _video_header_properties()
     props = {**header, "jpeg_skipped": {"type": "boolean"}}
-    return _object(VIDEO_HEADER, props, [*header, "jpeg_skipped"],
-                   description="A video frame's header, recorded without its image")  # fmt: skip
+    return _object(
+        VIDEO_HEADER, props, [*header, "jpeg_skipped"], description="A video frame's header, recorded without its image"
+    )
 
 
 # ---------------------------------------------------------------------- maps
@@ -317,8 +323,13 @@ def _value_schema(value: Any) -> Schema:
     return {}
 
 
-def sample_schema(name: str, sample: Mapping[str, Any], known: Mapping[str, Schema] | None = None,
-                  required: list[str] | None = None, description: str = "") -> Schema:  # fmt: skip
+def sample_schema(
+    name: str,
+    sample: Mapping[str, Any],
+    known: Mapping[str, Schema] | None = None,
+    required: list[str] | None = None,
+    description: str = "",
+) -> Schema:
     """Return the schema of a channel of maps.
 
     ``known`` keys as given, every other key of ``sample`` (the first map written) typed
@@ -356,11 +367,11 @@ def leader_state_schema(sample: Mapping[str, Any] | None = None) -> Schema:
     Plus, for a channel written as maps, the first map's other keys (typed from their
     values); ``t`` is required, other keys are allowed.
     """
-    return sample_schema(LEADER_STATE, sample or {}, LEADER_STATE_FIELDS, ["t"],
-                         description="The leader loop's sample (one per command)")  # fmt: skip
+    return sample_schema(
+        LEADER_STATE, sample or {}, LEADER_STATE_FIELDS, ["t"], description="The leader loop's sample (one per command)"
+    )
 
 
 def event_schema(sample: Mapping[str, Any]) -> Schema:
     """``bipedtele.Event``: :data:`EVENT_FIELDS` plus the first event's other keys."""
-    return sample_schema(EVENTS, sample, EVENT_FIELDS, ["event"],
-                         description="A run event: {event: NAME, ...details}")  # fmt: skip
+    return sample_schema(EVENTS, sample, EVENT_FIELDS, ["event"], description="A run event: {event: NAME, ...details}")

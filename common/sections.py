@@ -92,8 +92,13 @@ class NetworkConfig:
         doc="router only: certificate common names of the other sites' routers linked to this one "
         "(router-<site>): they pass everything under bipedtele/** both ways (bipedtele setup sites)",
     )
-    tls_user_certs: bool = param(False, doc="router only: each user's certificate names the user (CN = user): a role holds only for a session whose certificate names its user (setup fleet/sites)")  # fmt: skip
-    revoked: list[str] = param(default_factory=list, doc="router only: people refused (user and certificate name): no login, no role")  # fmt: skip
+    tls_user_certs: bool = param(
+        False,
+        doc="router only: each user's certificate names the user (CN = user): a role holds only for a session whose certificate names its user (setup fleet/sites)",
+    )
+    revoked: list[str] = param(
+        default_factory=list, doc="router only: people refused (user and certificate name): no login, no role"
+    )
     router_user: str = param("", doc="router only: user name of this router's login to the routers of connect")
     router_password_file: str = param("", path=True, doc="router only: file holding the password of router_user")
     watch_key_dir: str = param(

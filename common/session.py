@@ -237,8 +237,16 @@ class Handshake:
 
     def _hello(self, nonce: bytes, peer_sid: int, peer_nonce: bytes) -> Hello:
         self._seq += 1
-        return Hello(sid=self.sid, seq=self._seq, t=self._wall(), role=self.role, nonce=nonce,
-                     peer_sid=peer_sid, peer_nonce=peer_nonce, watch=self.watch_epoch)  # fmt: skip
+        return Hello(
+            sid=self.sid,
+            seq=self._seq,
+            t=self._wall(),
+            role=self.role,
+            nonce=nonce,
+            peer_sid=peer_sid,
+            peer_nonce=peer_nonce,
+            watch=self.watch_epoch,
+        )
 
     def _own_hello(self) -> Hello:
         cur = self._current

@@ -176,11 +176,13 @@ def load_mahimahi(source: str) -> list[int]:
         try:
             ms = int(line.strip())
         except ValueError:
-            raise ConfigError(f"mahimahi:{source}: line {n} {line.strip()!r} is not an integer ms; "
-                              f"allowed: {ALLOWED_TRACE}") from None  # fmt: skip
+            raise ConfigError(
+                f"mahimahi:{source}: line {n} {line.strip()!r} is not an integer ms; allowed: {ALLOWED_TRACE}"
+            ) from None
         if ms < 0 or (out and ms < out[-1]):
-            raise ConfigError(f"mahimahi:{source}: line {n}: times must be >= 0 and non-decreasing; "
-                              f"allowed: {ALLOWED_TRACE}")  # fmt: skip
+            raise ConfigError(
+                f"mahimahi:{source}: line {n}: times must be >= 0 and non-decreasing; allowed: {ALLOWED_TRACE}"
+            )
         out.append(ms)
     if not out or out[-1] <= 0:
         raise ConfigError(f"mahimahi:{source}: no opportunity after 0 ms; allowed: {ALLOWED_TRACE}")

@@ -214,11 +214,21 @@ class FollowerApp:
     def _make_loop(self, robot: FollowerRobot, inbox: CommandInbox) -> FollowerLoop:
         node = self.node
         return FollowerLoop(
-            robot, self.cfg.get(ControlConfig), self.fcfg, inbox, self._publish,
-            now=self.clock, drops=node.drops, sid=node.sid, on_event=node.event, conservative_rtt=node.round_trip,
+            robot,
+            self.cfg.get(ControlConfig),
+            self.fcfg,
+            inbox,
+            self._publish,
+            now=self.clock,
+            drops=node.drops,
+            sid=node.sid,
+            on_event=node.event,
+            conservative_rtt=node.round_trip,
             on_new_leader=self._reset_robot if self.reset_on_leader else None,
-            feedback_plan=lambda: self._plan, extra_counters=self._status_counters, held_by=lambda: self.gate.held_by,
-        )  # fmt: skip
+            feedback_plan=lambda: self._plan,
+            extra_counters=self._status_counters,
+            held_by=lambda: self.gate.held_by,
+        )
 
     # ------------------------------------------------------------------ run
 
@@ -263,20 +273,38 @@ class FollowerApp:
             loop = self._make_loop(robot, cmd_rx.inbox)
             backoff = getattr(getattr(robot, "config", None), "reconnect_backoff_s", (0.2, 5.0))
             supervisor = RobotSupervisor(robot, loop, backoff_s=(float(backoff[0]), float(backoff[1])))
-            video = node.enter(VideoStreamer(
-                robot, self.fcfg.cameras, self.fcfg.camera_fps, self._publish_video, now=self.clock,
-                jpeg_quality=self.fcfg.jpeg_quality, sid=node.sid, admit=self.budget.admit_video,
-            ))  # fmt: skip
+            video = node.enter(
+                VideoStreamer(
+                    robot,
+                    self.fcfg.cameras,
+                    self.fcfg.camera_fps,
+                    self._publish_video,
+                    now=self.clock,
+                    jpeg_quality=self.fcfg.jpeg_quality,
+                    sid=node.sid,
+                    admit=self.budget.admit_video,
+                )
+            )
             self._video = video
             node.link_clocks(peer_sid=lambda: self.gate.live_sid)
-            LOG.info("follower %s ready: robot %s, key %s, %s", node.keys.cmd.split("/")[1], self.robot_name,
-                     node.keys.cmd, "real time" if self.realtime else "as fast as possible")  # fmt: skip
+            LOG.info(
+                "follower %s ready: robot %s, key %s, %s",
+                node.keys.cmd.split("/")[1],
+                self.robot_name,
+                node.keys.cmd,
+                "real time" if self.realtime else "as fast as possible",
+            )
             if self.realtime:
                 self._run_realtime(robot, loop, supervisor, video)
             else:
                 self._run_fast(supervisor, video)
-            LOG.info("follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
-                     dict(loop.counters), supervisor.faults, supervisor.reconnects, video.stats["errors"])  # fmt: skip
+            LOG.info(
+                "follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
+                dict(loop.counters),
+                supervisor.faults,
+                supervisor.reconnects,
+                video.stats["errors"],
+            )
         return 0
 
     def _over(self, start_t: float) -> bool:
@@ -324,12 +352,18 @@ class FollowerApp:
                 loop.pickup()
 
         stepper.run(
-            tick, lambda: supervisor.advance(sub_dt), pickup,
+            tick,
+            lambda: supervisor.advance(sub_dt),
+            pickup,
             lambda: self.node.stopping or self._over(start_t),
-        )  # fmt: skip
+        )
         if stepper.caught_up_steps or stepper.dropped_steps:
-            LOG.info("real time: %d steps caught up after overruns, %d given up (lag over %.2f s)",
-                     stepper.caught_up_steps, stepper.dropped_steps, stepper.max_lag_steps * sub_dt)  # fmt: skip
+            LOG.info(
+                "real time: %d steps caught up after overruns, %d given up (lag over %.2f s)",
+                stepper.caught_up_steps,
+                stepper.dropped_steps,
+                stepper.max_lag_steps * sub_dt,
+            )
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -266,8 +266,11 @@ class UplinkBudget:
             if self._leader_sid is not None:
                 self.inflight.reset()
             self._leader_sid = sid
-        self.leader = {k: v for k, v in counters.items() if k in ("rx_bps", "fb_loss_ppm", "fb_age_ms")
-                       and isinstance(v, int) and not isinstance(v, bool)}  # fmt: skip
+        self.leader = {
+            k: v
+            for k, v in counters.items()
+            if k in ("rx_bps", "fb_loss_ppm", "fb_age_ms") and isinstance(v, int) and not isinstance(v, bool)
+        }
         self._last_heard = now
         rx = self.leader.get("rx_bps")
         if rx is None:

@@ -114,8 +114,11 @@ class CustodyGate:
                 if holder is not None:
                     self._holder = None
                     self.releases += 1
-                    LOG.info("robot %s released by %s: free, the next operator's command takes it",
-                             self.robot_id, op or "its operator")  # fmt: skip
+                    LOG.info(
+                        "robot %s released by %s: free, the next operator's command takes it",
+                        self.robot_id,
+                        op or "its operator",
+                    )
             elif holder is None:
                 self._holder = op
                 self.takes += 1

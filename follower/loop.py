@@ -449,11 +449,17 @@ class FollowerLoop:
         if ff is not None and ff.n != self._footfall_n:
             self._footfall_n = ff.n
             mean = self._ref_sum / self._ref_n if self._ref_n else np.asarray(ref, dtype=float)
-            self._on_event("footfall", {
-                "t": now - max(0.0, obs.t - ff.t), "robot_t": ff.t, "n": ff.n,
-                "pose": [float(v) for v in ff.pose], "step_s": ff.step_s,
-                "ref": pair(mean, MAX_SPEED),
-            })  # fmt: skip
+            self._on_event(
+                "footfall",
+                {
+                    "t": now - max(0.0, obs.t - ff.t),
+                    "robot_t": ff.t,
+                    "n": ff.n,
+                    "pose": [float(v) for v in ff.pose],
+                    "step_s": ff.step_s,
+                    "ref": pair(mean, MAX_SPEED),
+                },
+            )
             self._ref_sum, self._ref_n = np.zeros(2), 0
         # this tick's reference acts until the next observation
         self._ref_sum = self._ref_sum + np.asarray(ref, dtype=float)

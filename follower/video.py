@@ -284,8 +284,9 @@ class VideoStreamer:
         _, rel, _ = LEVELS[level]
         return int(min(100, max(10, round(self._quality * rel))))
 
-    def set_budget(self, bps: float | None, frame_bits_max: float | None = None,
-                   part_bits_max: float | None = None) -> None:  # fmt: skip
+    def set_budget(
+        self, bps: float | None, frame_bits_max: float | None = None, part_bits_max: float | None = None
+    ) -> None:
         """Set video's budget [bit/s] (None: unlimited, the configured rate and quality).
 
         ``frame_bits_max`` [bit]: levels whose frames are larger are not chosen (the

@@ -88,11 +88,18 @@ class _Aux:
     """
 
     def __init__(
-        self, loop: LeaderLoop, pubs: Publishers, cfg: Config, status_rx: LatestReceiver[Status],
-        presence: PresenceWatcher, drops: DropCounter, record: Callable[[str, Any, float], None],
-        reach: CommandReach | None = None, link: LinkQuality | None = None,
+        self,
+        loop: LeaderLoop,
+        pubs: Publishers,
+        cfg: Config,
+        status_rx: LatestReceiver[Status],
+        presence: PresenceWatcher,
+        drops: DropCounter,
+        record: Callable[[str, Any, float], None],
+        reach: CommandReach | None = None,
+        link: LinkQuality | None = None,
         hand: Callable[[], bool] | None = None,
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.reach = reach
         self.hand = hand
         self.link = link or LinkQuality(feedback_timeout_s=cfg.get(LeaderConfig).feedback_timeout_s)
@@ -178,14 +185,25 @@ class _Aux:
                 if now_m >= next_status:
                     next_status = now_m + 1.0 / lc.status_rate_hz
                     counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
-                    counters.update(commands=self.loop.seq, feedback=self.loop.feedback_count,
-                                    missed_ticks=self.loop.missed_ticks, blind_stops=self.loop.blind.stops)  # fmt: skip
+                    counters.update(
+                        commands=self.loop.seq,
+                        feedback=self.loop.feedback_count,
+                        missed_ticks=self.loop.missed_ticks,
+                        blind_stops=self.loop.blind.stops,
+                    )
                     counters.update(link_counters(self.report(now)))
                     self._status_seq += 1
                     blind = self.loop.blind.words()
-                    st = Status(sid=self.loop.sid, seq=self._status_seq, t=now, role="leader",
-                                state=self.loop.state, counters=counters, text=f"{text}; {blind}" if blind else text,
-                                operator=user)  # fmt: skip
+                    st = Status(
+                        sid=self.loop.sid,
+                        seq=self._status_seq,
+                        t=now,
+                        role="leader",
+                        state=self.loop.state,
+                        counters=counters,
+                        text=f"{text}; {blind}" if blind else text,
+                        operator=user,
+                    )
                     self.pubs.status.put(st)
                     self.record("status/sent", st, now)
                 self.record_progress(now)
@@ -279,9 +297,12 @@ class LeaderApp:
         self.aux: _Aux | None = None
         try:
             operator: Operator | None = make_operator(
-                self.op_name, cfg, workspace_m=self.device.limits.workspace_m,
-                joystick=self._joystick if lc.cockpit else None, hold_script=bool(self.duration),
-            )  # fmt: skip
+                self.op_name,
+                cfg,
+                workspace_m=self.device.limits.workspace_m,
+                joystick=self._joystick if lc.cockpit else None,
+                hold_script=bool(self.duration),
+            )
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         if not self.device.simulated:
@@ -294,9 +315,14 @@ class LeaderApp:
         # The feedback gate follows one follower session; its live sid binds the clock link.
         # Without the message key a forged high seq is rolled back after 3 real feedbacks.
         self.fb_gate = SequenceGate(takeover_after_s=lc.feedback_timeout_s, rollback_after=0 if self.node.auth else 3)
-        self.reach = CommandReach(self._commands_sent, key_drops=self.node.drops.counts,
-                                  robot_id=cfg.get(RobotConfig).id, user=cfg.get(NetworkConfig).user,
-                                  holder=self._holder, released=self._released)  # fmt: skip
+        self.reach = CommandReach(
+            self._commands_sent,
+            key_drops=self.node.drops.counts,
+            robot_id=cfg.get(RobotConfig).id,
+            user=cfg.get(NetworkConfig).user,
+            holder=self._holder,
+            released=self._released,
+        )
         self.link = LinkQuality(feedback_timeout_s=lc.feedback_timeout_s)
         self._frames = FrameAssembler(self.node.drops)
         self._mac_bytes = MAC_OVERHEAD if self.node.auth is not None else 0
@@ -362,8 +388,13 @@ class LeaderApp:
         if frame is None:
             return
         self.node.record("video/recv", frame, got.t_recv)
-        self.link.on_video(got.t_recv, nbytes if frame is msg else self._size(frame), frame.width, frame.height,
-                           counted=frame is not msg)  # fmt: skip
+        self.link.on_video(
+            got.t_recv,
+            nbytes if frame is msg else self._size(frame),
+            frame.width,
+            frame.height,
+            counted=frame is not msg,
+        )
         if self.cockpit is not None:
             self.cockpit.publish_video(frame.camera, frame.jpeg, frame.t_capture)
 
@@ -374,8 +405,9 @@ class LeaderApp:
 
     def _feedback_inbox(self, **checks: Any) -> FeedbackInbox:
         """Build the feedback inbox with the node's ``checks``: h2, the link's judgement."""
-        return FeedbackInbox(delay_window_s=self.cfg.get(ClockConfig).delay_window_s, judge=self._judge_feedback,
-                             **checks)  # fmt: skip
+        return FeedbackInbox(
+            delay_window_s=self.cfg.get(ClockConfig).delay_window_s, judge=self._judge_feedback, **checks
+        )
 
     def _send_command(self, cmd: Command) -> None:
         self.node.pubs.cmd.put(cmd)
@@ -411,10 +443,15 @@ class LeaderApp:
 
         try:  # its own process: a flood of the web server never takes the haptic loop's CPU
             cockpit = CockpitProcess(
-                lc.cockpit_host, lc.cockpit_port, telemetry_hz=lc.cockpit_rate_hz, token=self.token,
-                allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients,
-                course=_map_course(self.cfg), force_max_n=self.device.limits.force_max_n,
-            ).start()  # fmt: skip
+                lc.cockpit_host,
+                lc.cockpit_port,
+                telemetry_hz=lc.cockpit_rate_hz,
+                token=self.token,
+                allowed_hosts=lc.cockpit_allowed_hosts,
+                max_clients=lc.cockpit_max_clients,
+                course=_map_course(self.cfg),
+                force_max_n=self.device.limits.force_max_n,
+            ).start()
         except OSError as exc:
             raise ConfigError(
                 f"leader.cockpit_port = {lc.cockpit_port}: cannot serve on {lc.cockpit_host} "
@@ -452,28 +489,63 @@ class LeaderApp:
             recorder = node.start_recording({"operator": self.op_name, "device": self.dev_name}, jpeg_every=10)
             # every check on feedback, h2 and the link's judgement in one inbox; too old:
             # refused before the gate binds and h2 moves
-            fb_rx = node.receive(node.keys.feedback, Feedback, self.fb_gate, topic="feedback/recv",
-                                 max_age_s=self.link.max_age_s, inbox=self._feedback_inbox)  # fmt: skip
+            fb_rx = node.receive(
+                node.keys.feedback,
+                Feedback,
+                self.fb_gate,
+                topic="feedback/recv",
+                max_age_s=self.link.max_age_s,
+                inbox=self._feedback_inbox,
+            )
             assert isinstance(fb_rx.inbox, FeedbackInbox)
             node.receive(node.keys.video, VideoFrame, SequenceGate(), on_message=self._on_video)
-            status_rx = node.receive(node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid,
-                                     on_message=self._on_status)  # fmt: skip
+            status_rx = node.receive(
+                node.keys.status,
+                Status,
+                SequenceGate(),
+                topic="status/recv",
+                ignore_sid=node.sid,
+                on_message=self._on_status,
+            )
             node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
             self.loop = loop = LeaderLoop(
-                self.device, self.operator, self.cfg.get(ControlConfig), self._send_command, fb_rx.inbox,
-                cfg=lc, clock=self.clock, conservative_rtt=node.round_trip,
-                on_sample=self._on_sample, sid=node.sid, operator_name=self.cfg.get(NetworkConfig).user,
-                feedback_age=self.link.feedback_age if self.realtime else None, on_blind=node.event,
+                self.device,
+                self.operator,
+                self.cfg.get(ControlConfig),
+                self._send_command,
+                fb_rx.inbox,
+                cfg=lc,
+                clock=self.clock,
+                conservative_rtt=node.round_trip,
+                on_sample=self._on_sample,
+                sid=node.sid,
+                operator_name=self.cfg.get(NetworkConfig).user,
+                feedback_age=self.link.feedback_age if self.realtime else None,
+                on_blind=node.event,
                 hand=self._hand,
-            )  # fmt: skip
-            self.aux = aux = node.enter(_Aux(loop, node.pubs, self.cfg, status_rx, presence, node.drops,
-                                             node.record, self.reach, self.link, hand=self._hand))  # fmt: skip
+            )
+            self.aux = aux = node.enter(
+                _Aux(
+                    loop,
+                    node.pubs,
+                    self.cfg,
+                    status_rx,
+                    presence,
+                    node.drops,
+                    node.record,
+                    self.reach,
+                    self.link,
+                    hand=self._hand,
+                )
+            )
             LOG.info(
-                "leader ready: robot %s, device %s, operator %s, %s%s", self.cfg.get(RobotConfig).id, self.dev_name,
+                "leader ready: robot %s, device %s, operator %s, %s%s",
+                self.cfg.get(RobotConfig).id,
+                self.dev_name,
                 self.op_name if self.operator is not None else "(person)",
                 "real time" if self.realtime else "as fast as possible",
                 f", cockpit {self.cockpit.url}" if self.cockpit is not None else "",
-            )  # fmt: skip
+            )
             if self.cockpit is not None:
                 LOG.info("cockpit: open %s", self.cockpit.url)
             node.event("start", {"operator": self.op_name})
@@ -488,20 +560,28 @@ class LeaderApp:
             if never_reached:
                 node.event("commands_not_reaching", {"commands": loop.seq})
             path = recorder.path if recorder is not None else None
-            summary = report_summary(loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime,
-                                     self.reach, self.link)  # fmt: skip
+            summary = report_summary(
+                loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime, self.reach, self.link
+            )
             if stats is not None:
                 stats.update(loop.period_stats.summary(loop.dt))
                 stats.update(
-                    missed_ticks=loop.missed_ticks, commands=loop.seq, feedback=self.link.fb_arrived,
-                    feedback_used=loop.feedback_count, fb_too_old=self.link.fb_too_old,
-                    drops=node.drops.total, done=done, elapsed_s=elapsed,
+                    missed_ticks=loop.missed_ticks,
+                    commands=loop.seq,
+                    feedback=self.link.fb_arrived,
+                    feedback_used=loop.feedback_count,
+                    fb_too_old=self.link.fb_too_old,
+                    drops=node.drops.total,
+                    done=done,
+                    elapsed_s=elapsed,
                     progress=self.operator.progress() if self.operator is not None else {},
                     cockpit=self.cockpit.stats if self.cockpit is not None else {},
-                    acknowledged=self.reach.acknowledged, never_reached=self.reach.never_reached,
-                    never_acknowledged=never_reached, link_lost_warnings=self.reach.lost_warnings,
+                    acknowledged=self.reach.acknowledged,
+                    never_reached=self.reach.never_reached,
+                    never_acknowledged=never_reached,
+                    link_lost_warnings=self.reach.lost_warnings,
                     slew_limited_ticks=loop.slew_limited_ticks,
-                )  # fmt: skip
+                )
         print(summary, flush=True)  # noqa: T201 - the program's one-line result
         return EXIT_NOT_REACHED if never_reached else 0
 
@@ -546,9 +626,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration {args.duration}: allowed: a number of seconds >= 0")
     realtime = None if args.realtime is None else args.realtime == "on"
     app = LeaderApp(
-        cfg, operator_name=args.operator, device_name=args.device, duration_s=args.duration,
-        realtime=realtime, record=Path(args.record) if args.record else None,
-    )  # fmt: skip
+        cfg,
+        operator_name=args.operator,
+        device_name=args.device,
+        duration_s=args.duration,
+        realtime=realtime,
+        record=Path(args.record) if args.record else None,
+    )
     return app.run()
 
 

@@ -69,9 +69,13 @@ class BlindGuard:
     """
 
     def __init__(
-        self, stop_s: float, workspace_m: float, on_event: Callable[[str, dict[str, float]], None] | None = None,
-        move_share: float = 0.02, settle_s: float = 0.5,
-    ) -> None:  # fmt: skip
+        self,
+        stop_s: float,
+        workspace_m: float,
+        on_event: Callable[[str, dict[str, float]], None] | None = None,
+        move_share: float = 0.02,
+        settle_s: float = 0.5,
+    ) -> None:
         if not (math.isfinite(stop_s) and stop_s > 0):
             raise ValueError(f"blind_stop_s = {stop_s!r}: allowed: a number of seconds > 0")
         self.stop_s = float(stop_s)

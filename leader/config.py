@@ -63,9 +63,12 @@ class LeaderConfig:
         1.5, lo=0.1, hi=60.0, unit="s", doc="newest feedback older than this -> commands stop the robot"
     )
     force_rate_max_n_s: float = param(
-        80.0, lo=1.0, hi=100000.0, unit="N/s",
+        80.0,
+        lo=1.0,
+        hi=100000.0,
+        unit="N/s",
         doc="largest change of the handle force per axis (8 N in 0.1 s: no step the hand cannot meet)",
-    )  # fmt: skip
+    )
     g_m: list[float] = param(
         default_factory=lambda: [0.0, 0.0], unit="N", doc="gravity compensation g_m of eq. (31) per axis"
     )

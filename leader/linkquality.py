@@ -157,9 +157,13 @@ class LinkQuality:
         capacity_ratio: float = 0.85,
         clock: Callable[[], float] = time.time,
     ) -> None:
-        for name, value in (("feedback_timeout_s", feedback_timeout_s), ("lost_after_s", lost_after_s),
-                            ("window_s", window_s), ("max_age_floor_s", max_age_floor_s),
-                            ("baseline_s", baseline_s)):  # fmt: skip
+        for name, value in (
+            ("feedback_timeout_s", feedback_timeout_s),
+            ("lost_after_s", lost_after_s),
+            ("window_s", window_s),
+            ("max_age_floor_s", max_age_floor_s),
+            ("baseline_s", baseline_s),
+        ):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} = {value!r}: allowed: a number > 0")
         self.feedback_timeout_s = float(feedback_timeout_s)
@@ -305,9 +309,12 @@ class LinkQuality:
         return None if sent is None else max(now - sent, 0.0)
 
     def report(
-        self, now: float | None = None, *, follower_present: bool = True,
+        self,
+        now: float | None = None,
+        *,
+        follower_present: bool = True,
         follower_counters: Mapping[str, int] | None = None,
-    ) -> LinkReport:  # fmt: skip
+    ) -> LinkReport:
         """Return the link's figures and state at ``now`` (module docstring).
 
         Parameters
@@ -351,10 +358,19 @@ class LinkQuality:
         else:
             state = "ok"
         return LinkReport(
-            state=state, lost_s=lost_s, fb_age_s=age, loss_ppm=loss_ppm, rx_bps=rx_bps, video_fps=video_fps,
-            video_bytes=frame[0] if frame else None, video_width=frame[1] if frame else None,
-            video_height=frame[2] if frame else None, fb_arrived=arrived, fb_too_old=too_old, max_age_s=bound,
-        )  # fmt: skip
+            state=state,
+            lost_s=lost_s,
+            fb_age_s=age,
+            loss_ppm=loss_ppm,
+            rx_bps=rx_bps,
+            video_fps=video_fps,
+            video_bytes=frame[0] if frame else None,
+            video_width=frame[1] if frame else None,
+            video_height=frame[2] if frame else None,
+            fb_arrived=arrived,
+            fb_too_old=too_old,
+            max_age_s=bound,
+        )
 
 
 def _capacity_limited(rx_bps: float | None, counters: Mapping[str, int] | None, ratio: float) -> bool:

@@ -192,8 +192,9 @@ class LeaderLoop:
         self._stop = threading.Event()
         self._fb_age = feedback_age
         #: Stops the robot while the newest feedback is older than ``blind_stop_s``.
-        self.blind = BlindGuard(self.cfg.blind_stop_s, device.limits.workspace_m, on_event=on_blind,
-                                settle_s=self.cfg.fade_s + 0.3)  # fmt: skip
+        self.blind = BlindGuard(
+            self.cfg.blind_stop_s, device.limits.workspace_m, on_event=on_blind, settle_s=self.cfg.fade_s + 0.3
+        )
 
     def feedback_age(self, now: float) -> float | None:
         """Age of the newest usable feedback at ``now`` [s] (None before the first)."""
@@ -419,11 +420,17 @@ class LeaderLoop:
         for _ in range(repeats):
             self.seq += 1
             cmd = Command(
-                sid=self.sid, seq=self.seq, t=self._clock(),
-                x_m=[float(v) for v in self.x_m], h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
-                alpha_m=[float(v) for v in self.alpha_m], enable=False,
-                energy=self.port.outgoing(np.zeros(2))[1], operator=self.operator_name, release=True,
-            )  # fmt: skip
+                sid=self.sid,
+                seq=self.seq,
+                t=self._clock(),
+                x_m=[float(v) for v in self.x_m],
+                h2_s=float(min(max(self.h2 or 0.0, 0.0), 60.0)),
+                alpha_m=[float(v) for v in self.alpha_m],
+                enable=False,
+                energy=self.port.outgoing(np.zeros(2))[1],
+                operator=self.operator_name,
+                release=True,
+            )
             try:
                 self._send(cmd)
             except Exception as exc:

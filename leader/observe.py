@@ -90,8 +90,9 @@ class _Robot:
         self._frames = FrameAssembler(self.drops)
         self._lock = threading.Lock()
         keys = Keys(robot)
-        self.video: LatestReceiver[VideoFrame] = LatestReceiver(session, keys.video, VideoFrame, self.drops, SequenceGate(),
-                                    on_message=self._on_video, auth=auth)  # fmt: skip
+        self.video: LatestReceiver[VideoFrame] = LatestReceiver(
+            session, keys.video, VideoFrame, self.drops, SequenceGate(), on_message=self._on_video, auth=auth
+        )
         self.status: MessageReceiver[Status] = MessageReceiver(session, keys.status, Status, self.drops, auth=auth)
 
     def _on_video(self, got: Received[VideoFrame]) -> None:
@@ -113,8 +114,12 @@ class _Robot:
             elif st.operator and st.operator not in w.operators:
                 w.operators.append(st.operator)
         r = self.robot
-        return {f"{r}_state": w.state or "-", f"{r}_held_by": w.held_by or "-", f"{r}_frames": w.frames,
-                f"{r}_leaders": ",".join(w.operators) or "-"}  # fmt: skip
+        return {
+            f"{r}_state": w.state or "-",
+            f"{r}_held_by": w.held_by or "-",
+            f"{r}_frames": w.frames,
+            f"{r}_leaders": ",".join(w.operators) or "-",
+        }
 
     def close(self) -> None:
         self.video.close()
@@ -129,11 +134,20 @@ def main(cfg: Any, robots: list[str] | None, duration_s: float | None, report: P
     auths = watch_auths(net, ids, cfg.get(RobotConfig).id)
     for r in ids:
         if r not in auths:
-            LOG.warning("robot %s: no watch key (%s/%s.watch): its video and status are not verified",
-                        r, net.watch_key_dir or "[network] watch_key_dir", r)  # fmt: skip
+            LOG.warning(
+                "robot %s: no watch key (%s/%s.watch): its video and status are not verified",
+                r,
+                net.watch_key_dir or "[network] watch_key_dir",
+                r,
+            )
     mode = "client" if net.connect else "peer"
-    cockpit = CockpitServer(lc.cockpit_host, lc.cockpit_port, telemetry_hz=2.0,
-                            allowed_hosts=lc.cockpit_allowed_hosts, max_clients=lc.cockpit_max_clients)  # fmt: skip
+    cockpit = CockpitServer(
+        lc.cockpit_host,
+        lc.cockpit_port,
+        telemetry_hz=2.0,
+        allowed_hosts=lc.cockpit_allowed_hosts,
+        max_clients=lc.cockpit_max_clients,
+    )
     with shutdown_on_signals() as stop, open_session(net, mode=mode, listen=[]) as session, cockpit:
         watched = {r: _Robot(r, session, cockpit, auths.get(r)) for r in ids}
         LOG.info("observing %s: cockpit %s (watching only: this login commands nothing)", ", ".join(ids), cockpit.url)
@@ -149,8 +163,14 @@ def main(cfg: Any, robots: list[str] | None, duration_s: float | None, report: P
                 w.close()
         out = {r: asdict(w.watched) for r, w in watched.items()}
     for r, got in out.items():
-        LOG.info("observed %s: %d frames, %d statuses, state %s, held by %s", r, got["frames"], got["statuses"],
-                 got["state"] or "-", got["held_by"] or "-")  # fmt: skip
+        LOG.info(
+            "observed %s: %d frames, %d statuses, state %s, held by %s",
+            r,
+            got["frames"],
+            got["statuses"],
+            got["state"] or "-",
+            got["held_by"] or "-",
+        )
     if report is not None:
         report.write_text(json.dumps({"robots": out}, indent=1) + "\n")
     return 0

@@ -74,10 +74,18 @@ def check_operator(factory: Callable[[], Operator], *, steps: int = 300, dt_s: f
         f = np.asarray(op.hand_force(t, x, np.zeros(2)), dtype=float)
         _expect(f.shape == (2,) and bool(np.all(np.isfinite(f))), "hand_force() must return 2 finite forces [N]")
         _expect(bool(np.all(np.abs(f) <= op.hand.f_max + 1e-9)), "hand_force() must stay within the hand's strength")
-        op.observe_sample(LeaderSample(
-            t=t, t_device=t, ref_v=float(intended[0]), ref_w=float(intended[1]), enable=True,
-            h1_ms=300.0, h2_ms=300.0, delay_ms=600.0,
-        ))  # fmt: skip
+        op.observe_sample(
+            LeaderSample(
+                t=t,
+                t_device=t,
+                ref_v=float(intended[0]),
+                ref_w=float(intended[1]),
+                enable=True,
+                h1_ms=300.0,
+                h2_ms=300.0,
+                delay_ms=600.0,
+            )
+        )
         x = np.clip(x + 0.001 * np.sign(target - x), -lim, lim)
         t += dt_s
     done = op.done

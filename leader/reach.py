@@ -183,8 +183,12 @@ class CommandReach:
         LOG.warning(
             "%s %s on the router after %.0f s of commands: it is not running, or the router's ACL does not let "
             "%s reach it (an operator drives only the robots named for it: publishers_allowed 'user@robot_id', "
-            "bipedtele setup fleet --operator USER=ROBOT)", ABSENT, self.robot_id or "(this id)", self.absent_s, who,
-        )  # fmt: skip
+            "bipedtele setup fleet --operator USER=ROBOT)",
+            ABSENT,
+            self.robot_id or "(this id)",
+            self.absent_s,
+            who,
+        )
 
     def _heard(self, now: float, age_s: float | None) -> None:
         """Something of the follower's arrived ``age_s`` after it was sent (None: unknown); lock held."""
@@ -308,8 +312,12 @@ class CommandReach:
                 self.held_warnings += 1
                 LOG.warning(
                     "%s robot %s is held by %s: our commands are refused until %s releases it (cockpit: Release); "
-                    "we take it then", HELD, self.robot_id or "(this id)", held, held,
-                )  # fmt: skip
+                    "we take it then",
+                    HELD,
+                    self.robot_id or "(this id)",
+                    held,
+                    held,
+                )
             return
         fresh = last_fresh is not None and now - last_fresh < self.window_s
         if heard and not fresh:
@@ -330,8 +338,10 @@ class CommandReach:
                 )
                 LOG.warning(
                     "%s (%s for %.1f s; the leader must log in as a user of network.publishers_allowed)",
-                    REFUSED, why, self.window_s,
-                )  # fmt: skip
+                    REFUSED,
+                    why,
+                    self.window_s,
+                )
             return
         if self._warned not in ("lost", "stalled"):
             self._warned = "lost"
@@ -339,8 +349,10 @@ class CommandReach:
             silent = now - (last_fb if last_fb is not None else self._since)
             LOG.warning(
                 "%s %.1f s (path or router down?): nothing heard from the follower while its presence is "
-                "still seen; commands may or may not reach it", LOST, silent,
-            )  # fmt: skip
+                "still seen; commands may or may not reach it",
+                LOST,
+                silent,
+            )
 
     def _stalled(self, now: float, since: float) -> None:
         """Tell (once per episode) that the follower is heard, but late: its uplink is stalled."""
@@ -350,5 +362,8 @@ class CommandReach:
         self.stall_warnings += 1
         LOG.warning(
             "%s %.1f s: the follower's messages arrive %.1f s late or older (its uplink is stalled or "
-            "draining a backlog); commands may still reach the robot", STALLED, now - since, self.fresh_s,
-        )  # fmt: skip
+            "draining a backlog); commands may still reach the robot",
+            STALLED,
+            now - since,
+            self.fresh_s,
+        )

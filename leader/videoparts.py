@@ -62,8 +62,10 @@ class FrameAssembler:
         frame_seq = msg.seq - msg.part
         if cur is not None and (cur.first.sid != msg.sid or cur.first.seq != frame_seq):
             del self._joining[msg.camera]
-            self.drops.drop("video_incomplete", f"frame seq={cur.first.seq}: {len(cur.pieces)} of "
-                            f"{cur.first.parts} parts, then seq={msg.seq}")  # fmt: skip
+            self.drops.drop(
+                "video_incomplete",
+                f"frame seq={cur.first.seq}: {len(cur.pieces)} of {cur.first.parts} parts, then seq={msg.seq}",
+            )
             cur = None
         if msg.parts == 1:
             return msg
@@ -84,8 +86,11 @@ class FrameAssembler:
             )
             if not same or msg.part != len(cur.pieces) or cur.size + len(msg.jpeg) > MAX_JPEG_BYTES:
                 del self._joining[msg.camera]
-                self.drops.drop("video_bad_part", f"seq={msg.seq}: part {msg.part} of {msg.parts} does not continue "
-                                f"frame seq={head.seq} ({len(cur.pieces)} parts, {cur.size} bytes)")  # fmt: skip
+                self.drops.drop(
+                    "video_bad_part",
+                    f"seq={msg.seq}: part {msg.part} of {msg.parts} does not continue "
+                    f"frame seq={head.seq} ({len(cur.pieces)} parts, {cur.size} bytes)",
+                )
                 return None
         cur.pieces.append(msg.jpeg)
         cur.size += len(msg.jpeg)
@@ -93,5 +98,13 @@ class FrameAssembler:
             return None
         del self._joining[msg.camera]
         head = cur.first
-        return VideoFrame(sid=head.sid, seq=head.seq, t=head.t, camera=head.camera, width=head.width,
-                          height=head.height, t_capture=head.t_capture, jpeg=b"".join(cur.pieces))  # fmt: skip
+        return VideoFrame(
+            sid=head.sid,
+            seq=head.seq,
+            t=head.t,
+            camera=head.camera,
+            width=head.width,
+            height=head.height,
+            t_capture=head.t_capture,
+            jpeg=b"".join(cur.pieces),
+        )

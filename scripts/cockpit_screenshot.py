@@ -24,8 +24,11 @@ def main(seconds: float, out: str) -> int:
     run = tempfile.mkdtemp(prefix="bipedtele-shot-")
     demo = subprocess.Popen(
         [sys.executable, "-m", "bipedtele.cli", "demo", "--run-dir", run, "--quiet", "--duration", str(seconds + 30)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     try:
         assert demo.stdout is not None
         url = None
@@ -37,8 +40,9 @@ def main(seconds: float, out: str) -> int:
             sys.stderr.write("cockpit_screenshot: the demo printed no cockpit address\n")
             return 1
         with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path="/usr/bin/chromium", headless=True,
-                                         args=["--headless", "--no-sandbox", "--disable-gpu"])  # fmt: skip
+            browser = pw.chromium.launch(
+                executable_path="/usr/bin/chromium", headless=True, args=["--headless", "--no-sandbox", "--disable-gpu"]
+            )
             page = browser.new_page(viewport={"width": 1400, "height": 1120})
             for _ in range(120):  # the address is printed before the cockpit serves
                 try:

@@ -32,8 +32,11 @@ def written_router(
         args += ["--set", "network.connect=[" + ", ".join(f'"{c}"' for c in connect) + "]"]
     router = subprocess.Popen(
         [sys.executable, "-m", "bipedtele.cli", "router", "--config", profile, *args],
-        cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        cwd=folder,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert router.stdout is not None
         line = router.stdout.readline()

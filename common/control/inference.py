@@ -172,8 +172,13 @@ class Verdict:
         """Return the verdict as a JSON-ready map (the difference's fields flattened)."""
         out = asdict(self.diff)
         out["ci95"] = list(self.diff.ci95)
-        out.update(p_holm=self.p_holm, margin=self.margin, tost_p=self.tost_p, tost_p_holm=self.tost_p_holm,
-                   verdict=self.verdict)  # fmt: skip
+        out.update(
+            p_holm=self.p_holm,
+            margin=self.margin,
+            tost_p=self.tost_p,
+            tost_p_holm=self.tost_p_holm,
+            verdict=self.verdict,
+        )
         return out
 
 

@@ -199,10 +199,15 @@ def _enter_network(plan: DemoPlan, network: contextlib.ExitStack) -> int | None:
         # Exits in reverse: processes stop, the replay stops, the namespaces go.
         try:
             network.enter_context(plan.link)
-            network.enter_context(NetemReplayer(
-                plan.link, parse_delay_model(plan.forward), parse_delay_model(plan.backward), plan.t0,
-                extra=plan.netem_extra,
-            ))  # fmt: skip
+            network.enter_context(
+                NetemReplayer(
+                    plan.link,
+                    parse_delay_model(plan.forward),
+                    parse_delay_model(plan.backward),
+                    plan.t0,
+                    extra=plan.netem_extra,
+                )
+            )
         except (NetnsError, RuntimeError) as exc:
             sys.stderr.write(f"bipedtele demo: netem backend: {exc}\n")
             return 1
@@ -325,8 +330,16 @@ def _backend(requested: str, dry_run: bool) -> str:
 
 def _impairments(args: argparse.Namespace, backend: str) -> list[str]:
     """Return the ``link-emu`` arguments of ``--loss``, ``--rate-up/down``, ``--outage`` (checked)."""
-    given = [f for f, v in (("--loss", args.loss), ("--rate-up", args.rate_up), ("--rate-down", args.rate_down),
-                            ("--outage", args.outage)) if v]  # fmt: skip
+    given = [
+        f
+        for f, v in (
+            ("--loss", args.loss),
+            ("--rate-up", args.rate_up),
+            ("--rate-down", args.rate_down),
+            ("--outage", args.outage),
+        )
+        if v
+    ]
     if backend == "netem" and args.outage:
         raise ConfigError("--outage: allowed only with --delay-backend packet (netem has no outage schedule)")
     if given and backend not in ("packet", "netem"):
@@ -488,11 +501,13 @@ def add_demo_parser(sub: Any) -> None:
     p.add_argument("--json", default=None, metavar="F", help="write the report as JSON")
     p.add_argument("--run-dir", default=None, metavar="DIR", help="folder for logs and recordings")
     p.add_argument(
-        "--delay-backend", default="proxy", choices=BACKENDS,
+        "--delay-backend",
+        default="proxy",
+        choices=BACKENDS,
         help="proxy (user space, default), netem (root, kernel sch_netem: two namespaces and a "
         "veth pair), packet (root: the per-packet link emulator between two namespaces, see "
         "docs/linkemu.md) or auto (netem where available, else the proxy)",
-    )  # fmt: skip
+    )
     p.add_argument(
         "--loss", default=None, metavar="SPEC", help="packet or netem backend: loss each way (1%%, ge:p=1%%,r=30%%)"
     )
@@ -516,18 +531,24 @@ def add_demo_parser(sub: Any) -> None:
         help="packet backend: outage both ways, at=30s,for=3s[,every=60s] (repeatable)",
     )
     p.add_argument(
-        "--delay-scale", default="1", metavar="K",
+        "--delay-scale",
+        default="1",
+        metavar="K",
         help="multiply every delay of the chosen models by K (0 to 10; e.g. 2: the trace with its delays doubled)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--scheme", default=None, metavar="NAME",
+        "--scheme",
+        default=None,
+        metavar="NAME",
         help="control scheme of both sides (default: the profile's, the paper's; docs/schemes.md lists them)",
-    )  # fmt: skip
+    )
     p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
     p.add_argument(
-        "--foxglove", default=None, metavar="[HOST:]PORT",
+        "--foxglove",
+        default=None,
+        metavar="[HOST:]PORT",
         help="watch live in Foxglove: the leader on PORT, the follower on PORT+1 (extra foxglove)",
-    )  # fmt: skip
+    )
     p.add_argument(
         "--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing"
     )

@@ -62,9 +62,16 @@ class DemoPlan:
     def emulator_args(self) -> list[str]:
         """Return the ``link-emu`` arguments of the packet backend (forward = leader -> follower)."""
         return [
-            "--forward", self.forward, "--backward", self.backward, "--t0", f"{self.t0:.6f}",
-            "--stats-json", str(self.run_dir / "linkemu.json"), *self.impairments,
-        ]  # fmt: skip
+            "--forward",
+            self.forward,
+            "--backward",
+            self.backward,
+            "--t0",
+            f"{self.t0:.6f}",
+            "--stats-json",
+            str(self.run_dir / "linkemu.json"),
+            *self.impairments,
+        ]
 
     def commands(self) -> dict[str, list[str]]:
         """Return the command lines of the processes, in start order.
@@ -192,8 +199,17 @@ class DemoPlan:
         if not isinstance(self.link, EmulatedLink):
             raise ValueError("the packet backend needs an EmulatedLink")
         link = self.link
-        emu = [*link.exec_prefix(MIDDLE), sys.executable, "-m", "bipedtele.tools.linkemu",
-               "--a", link.dev["ma"], "--b", link.dev["mb"], *self.emulator_args()]  # fmt: skip
+        emu = [
+            *link.exec_prefix(MIDDLE),
+            sys.executable,
+            "-m",
+            "bipedtele.tools.linkemu",
+            "--a",
+            link.dev["ma"],
+            "--b",
+            link.dev["mb"],
+            *self.emulator_args(),
+        ]
         return [
             f"# packet backend: leader in {link.ns[SIDE_A]} ({link.a_ip}), follower and router in "
             f"{link.ns[SIDE_B]} ({link.b_ip}), link-emu in {link.ns[MIDDLE]}",

@@ -114,7 +114,7 @@ def fleet_view(cfg: Any, robots: list[str] | None = None, seconds: float = 3.0) 
         drops = {r: DropCounter(f"status/{r}") for r in ids}
         receivers: dict[str, MessageReceiver[Status]] = {
             r: MessageReceiver(session, Keys(r).status, Status, drops[r], auth=auths.get(r)) for r in ids
-        }  # fmt: skip
+        }
         try:
             end = time.monotonic() + seconds
             while time.monotonic() < end:

@@ -222,9 +222,14 @@ class LinkEmulator:
             c = d.counters
             LOG.info(
                 "link-emu %s: %d frames (%d B) forwarded; dropped loss %d, queue %d, outage %d; queue max %d B",
-                name, c.forwarded, c.forwarded_bytes, c.dropped["loss"], c.dropped["queue"],
-                c.dropped["outage"], c.queue_bytes_max,
-            )  # fmt: skip
+                name,
+                c.forwarded,
+                c.forwarded_bytes,
+                c.dropped["loss"],
+                c.dropped["queue"],
+                c.dropped["outage"],
+                c.queue_bytes_max,
+            )
 
     def run(
         self, stop: Callable[[], bool], stats_every_s: float = 10.0, on_stats: Callable[[], None] | None = None
@@ -309,9 +314,14 @@ def run(args: argparse.Namespace) -> int:
         args.burst_forward,
     )
     backward = build_direction(
-        args.backward, args.loss_backward, args.rate_backward, args.queue_backward, args.outage_backward,
-        args.seed + 1, args.burst_backward,
-    )  # fmt: skip
+        args.backward,
+        args.loss_backward,
+        args.rate_backward,
+        args.queue_backward,
+        args.outage_backward,
+        args.seed + 1,
+        args.burst_backward,
+    )
     t_origin = time.time() - args.t0 if args.t0 is not None else 0.0
     emu = LinkEmulator(args.a, args.b, forward, backward, t_origin=t_origin)
     try:
@@ -353,13 +363,17 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
             f"--loss-{name}", default="none", metavar="SPEC", help=f"{arrow} loss: {ALLOWED_LOSS}".replace("%", "%%")
         )
         p.add_argument(
-            f"--rate-{name}", default="none", metavar="RATE",
+            f"--rate-{name}",
+            default="none",
+            metavar="RATE",
             help=f"{arrow} rate cap: {ALLOWED_RATE}; or a capacity trace: {ALLOWED_TRACE}",
-        )  # fmt: skip
+        )
         p.add_argument(
-            f"--burst-{name}", default=None, metavar="SIZE",
+            f"--burst-{name}",
+            default=None,
+            metavar="SIZE",
             help=f"{arrow} token bucket of SIZE bytes at the rate (the kernel's tbf): {ALLOWED_QUEUE} (default: none, a FIFO)",
-        )  # fmt: skip
+        )
         p.add_argument(
             f"--queue-{name}",
             default="64kB",

@@ -220,8 +220,11 @@ class NetemReplayer:
         for side in (LEADER, FOLLOWER):
             self._batch[side] = subprocess.Popen(
                 ["tc", "-n", self.link.ns[side], "-force", "-batch", "-"],
-                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-            )  # fmt: skip
+                stdin=subprocess.PIPE,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
             threading.Thread(target=self._log_errors, args=(side,), daemon=True).start()
         self._thread = threading.Thread(target=self._run, args=(steps,), name="netem-replay", daemon=True)
         self._thread.start()

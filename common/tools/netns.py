@@ -347,10 +347,22 @@ class EmulatedLink:
             out = _run(["ip", "-n", self.ns[side], "-o", "link", "show", "dev", self.dev[side]]).stdout.split()
             mac[side] = out[out.index("link/ether") + 1]
         for side, other in ((SIDE_A, SIDE_B), (SIDE_B, SIDE_A)):
-            self._step([
-                "ip", "-n", self.ns[side], "neigh", "replace", self.ip(other), "lladdr", mac[other],
-                "dev", self.dev[side], "nud", "permanent",
-            ])  # fmt: skip
+            self._step(
+                [
+                    "ip",
+                    "-n",
+                    self.ns[side],
+                    "neigh",
+                    "replace",
+                    self.ip(other),
+                    "lladdr",
+                    mac[other],
+                    "dev",
+                    self.dev[side],
+                    "nud",
+                    "permanent",
+                ]
+            )
 
     def add_host(self, side: str, ip: str) -> str:
         """Put a new namespace behind side A or B, on a bridge in that side's namespace.
@@ -399,9 +411,16 @@ class EmulatedLink:
         if args is not None:
             self.emulator_args = list(args)
         cmd = [
-            *self.exec_prefix(MIDDLE), sys.executable, "-m", "bipedtele.tools.linkemu",
-            "--a", self.dev["ma"], "--b", self.dev["mb"], *self.emulator_args,
-        ]  # fmt: skip
+            *self.exec_prefix(MIDDLE),
+            sys.executable,
+            "-m",
+            "bipedtele.tools.linkemu",
+            "--a",
+            self.dev["ma"],
+            "--b",
+            self.dev["mb"],
+            *self.emulator_args,
+        ]
         assert self.log_path is not None
         with open(self.log_path, "ab") as log:
             self.emulator = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, start_new_session=True)

@@ -195,12 +195,26 @@ def make_certs(out_dir: str | Path, router_names: Sequence[str], ca_dir: str | P
     old_umask = os.umask(0o077)
     try:
         _openssl(
-            "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
-            "-days", str(_CA_DAYS), "-keyout", str(ca_key), "-out", str(ca_pem),
-            "-subj", "/CN=bipedtele CA",
-            "-addext", "basicConstraints=critical,CA:TRUE",
-            "-addext", "keyUsage=critical,keyCertSign,cRLSign",
-        )  # fmt: skip
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-days",
+            str(_CA_DAYS),
+            "-keyout",
+            str(ca_key),
+            "-out",
+            str(ca_pem),
+            "-subj",
+            "/CN=bipedtele CA",
+            "-addext",
+            "basicConstraints=critical,CA:TRUE",
+            "-addext",
+            "keyUsage=critical,keyCertSign,cRLSign",
+        )
         pairs = {
             "router": _issue(out, "router", _subject_alt_names(names), "serverAuth,clientAuth", ca_pem, ca_key),
             LEADER_USER: _issue(out, LEADER_USER, f"DNS:{LEADER_USER}", "clientAuth,serverAuth", ca_pem, ca_key),
@@ -220,9 +234,19 @@ def _issue(out: Path, name: str, alt: str, eku: str, ca_pem: Path, ca_key: Path)
     with tempfile.TemporaryDirectory(prefix="bipedtele-cert-") as tmp:
         csr, ext = Path(tmp) / f"{name}.csr", Path(tmp) / f"{name}.ext"
         _openssl(
-            "req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
-            "-keyout", str(key), "-out", str(csr), "-subj", f"/CN={name}",
-        )  # fmt: skip
+            "req",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-keyout",
+            str(key),
+            "-out",
+            str(csr),
+            "-subj",
+            f"/CN={name}",
+        )
         ext.write_text(
             "basicConstraints=CA:FALSE\n"
             "keyUsage=critical,digitalSignature,keyEncipherment\n"
@@ -231,10 +255,23 @@ def _issue(out: Path, name: str, alt: str, eku: str, ca_pem: Path, ca_key: Path)
             encoding="utf-8",
         )
         _openssl(
-            "x509", "-req", "-in", str(csr), "-CA", str(ca_pem), "-CAkey", str(ca_key),
-            "-set_serial", f"0x{secrets.token_hex(16)}", "-days", str(_CERT_DAYS),
-            "-out", str(pem), "-extfile", str(ext),
-        )  # fmt: skip
+            "x509",
+            "-req",
+            "-in",
+            str(csr),
+            "-CA",
+            str(ca_pem),
+            "-CAkey",
+            str(ca_key),
+            "-set_serial",
+            f"0x{secrets.token_hex(16)}",
+            "-days",
+            str(_CERT_DAYS),
+            "-out",
+            str(pem),
+            "-extfile",
+            str(ext),
+        )
     return pem, key
 
 
@@ -317,10 +354,19 @@ _WORLD_NOTE = (
 )
 
 
-def router_profile(head: str, router_name: str, port: int, robot_id: str,
-                   publishers: Sequence[str], followers: Sequence[str], observers: Sequence[str] = (),
-                   *, cert: str = "router", mesh: Mapping[str, Any] | None = None,
-                   user_certs: bool = False) -> str:  # fmt: skip
+def router_profile(
+    head: str,
+    router_name: str,
+    port: int,
+    robot_id: str,
+    publishers: Sequence[str],
+    followers: Sequence[str],
+    observers: Sequence[str] = (),
+    *,
+    cert: str = "router",
+    mesh: Mapping[str, Any] | None = None,
+    user_certs: bool = False,
+) -> str:
     """Return the router's profile: TLS listener, credentials and the ACL's roles.
 
     ``publishers``, ``followers`` and ``observers`` are ``publishers_allowed`` /
@@ -330,35 +376,39 @@ def router_profile(head: str, router_name: str, port: int, robot_id: str,
     ``routers_allowed``); ``user_certs``: every client holds a certificate named after its
     user (``tls_user_certs``).
     """
-    net = _toml_table("network", {
-        "mode": "router",
-        "listen": [f"tls/0.0.0.0:{port}"],
-        "multicast_scouting": False,
-        "tls_root_ca": "certs/ca.pem",
-        "tls_cert": f"certs/{cert}.pem",
-        "tls_key": f"certs/{cert}.key",
-        "tls_mutual": True,
-        **({"tls_user_certs": True} if user_certs else {}),
-        "credentials_file": "secrets/router-credentials.txt",
-        **({"revoked": []} if user_certs else {}),
-        "publishers_allowed": list(publishers),
-        "followers_allowed": list(followers),
-        **({"observers_allowed": list(observers)} if observers else {}),
-        **dict(mesh or {}),
-        "links": "split",
-        "timeout_s": 20.0,
-    }, {
-        "links": "also listens on UDP at the same port: the clients' control link",
-        "tls_mutual": "clients must show a certificate of this CA",
-        "tls_user_certs": "each person's certificate names its user: a role only with one's own",
-        "revoked": "people refused (login and certificate name): add one, restart the router",
-        "credentials_file": "user:password lines (leaders, followers)",
-        "publishers_allowed": "users with the leader's role (commands); user@robot: that robot only",
-        "followers_allowed": "users with the follower's role (feedback, video); user@robot: as that robot only",
-        "observers_allowed": "users who receive video and status and put nothing",
-        "connect": "the other sites' routers this one links to",
-        "routers_allowed": "the other sites' routers, by certificate name",
-    })  # fmt: skip
+    net = _toml_table(
+        "network",
+        {
+            "mode": "router",
+            "listen": [f"tls/0.0.0.0:{port}"],
+            "multicast_scouting": False,
+            "tls_root_ca": "certs/ca.pem",
+            "tls_cert": f"certs/{cert}.pem",
+            "tls_key": f"certs/{cert}.key",
+            "tls_mutual": True,
+            **({"tls_user_certs": True} if user_certs else {}),
+            "credentials_file": "secrets/router-credentials.txt",
+            **({"revoked": []} if user_certs else {}),
+            "publishers_allowed": list(publishers),
+            "followers_allowed": list(followers),
+            **({"observers_allowed": list(observers)} if observers else {}),
+            **dict(mesh or {}),
+            "links": "split",
+            "timeout_s": 20.0,
+        },
+        {
+            "links": "also listens on UDP at the same port: the clients' control link",
+            "tls_mutual": "clients must show a certificate of this CA",
+            "tls_user_certs": "each person's certificate names its user: a role only with one's own",
+            "revoked": "people refused (login and certificate name): add one, restart the router",
+            "credentials_file": "user:password lines (leaders, followers)",
+            "publishers_allowed": "users with the leader's role (commands); user@robot: that robot only",
+            "followers_allowed": "users with the follower's role (feedback, video); user@robot: as that robot only",
+            "observers_allowed": "users who receive video and status and put nothing",
+            "connect": "the other sites' routers this one links to",
+            "routers_allowed": "the other sites' routers, by certificate name",
+        },
+    )
     return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
 
 
@@ -373,12 +423,14 @@ def issue_person_cert(out: Path, user: str, ca_pem: Path, ca_key: Path) -> tuple
 
 def issue_router_cert(out: Path, cn: str, names: Sequence[str], ca_pem: Path, ca_key: Path) -> tuple[Path, Path]:
     """Issue ``out/<cn>.pem`` and ``.key``: a router certificate named ``cn`` for ``names`` (DNS or IP)."""
-    return _issue(out, cn, _subject_alt_names([check_router_name(n) for n in names]), "serverAuth,clientAuth",
-                  ca_pem, ca_key)  # fmt: skip
+    return _issue(
+        out, cn, _subject_alt_names([check_router_name(n) for n in names]), "serverAuth,clientAuth", ca_pem, ca_key
+    )
 
 
-def client_profile(head: str, host: str, router_name: str, port: int, robot_id: str,
-                   user: str, cert: str, key_file: str) -> str:  # fmt: skip
+def client_profile(
+    head: str, host: str, router_name: str, port: int, robot_id: str, user: str, cert: str, key_file: str
+) -> str:
     """Return a robot's (``host="robot"``), an operator's or an observer's profile, a client of the router.
 
     ``user`` logs in with ``secrets/<user>.pw``; ``cert`` names ``certs/<cert>.pem`` and
@@ -386,26 +438,30 @@ def client_profile(head: str, host: str, router_name: str, port: int, robot_id: 
     the folder of its watch keys).
     """
     keys: dict[str, Any] = {"message_key_file": key_file} if host != "observer" else {"watch_key_dir": key_file}
-    net = _toml_table("network", {
-        "mode": "client",
-        "connect": [tls_endpoint(router_name, port)],
-        "listen": [],
-        "multicast_scouting": False,
-        "tls_root_ca": "certs/ca.pem",
-        "tls_cert": f"certs/{cert}.pem",
-        "tls_key": f"certs/{cert}.key",
-        "tls_mutual": True,
-        "user": user,
-        "password_file": f"secrets/{user}.pw",
-        **keys,
-        "links": "split",
-        "timeout_s": 20.0,
-    }, {
-        "links": "control as UDP datagrams (HMAC, not encrypted); status and video on TLS links",
-        "connect": "the router's name, as in its certificate",
-        "message_key_file": "the same key on robot and operator; never on the router",
-        "watch_key_dir": "<robot>.watch files: verify video and status, sign nothing",
-    })  # fmt: skip
+    net = _toml_table(
+        "network",
+        {
+            "mode": "client",
+            "connect": [tls_endpoint(router_name, port)],
+            "listen": [],
+            "multicast_scouting": False,
+            "tls_root_ca": "certs/ca.pem",
+            "tls_cert": f"certs/{cert}.pem",
+            "tls_key": f"certs/{cert}.key",
+            "tls_mutual": True,
+            "user": user,
+            "password_file": f"secrets/{user}.pw",
+            **keys,
+            "links": "split",
+            "timeout_s": 20.0,
+        },
+        {
+            "links": "control as UDP datagrams (HMAC, not encrypted); status and video on TLS links",
+            "connect": "the router's name, as in its certificate",
+            "message_key_file": "the same key on robot and operator; never on the router",
+            "watch_key_dir": "<robot>.watch files: verify video and status, sign nothing",
+        },
+    )
     if host == "observer":
         return "".join([head, _toml_table("robot", {"id": robot_id}), "\n", net])
     parts = [head, _toml_table("robot", {"id": robot_id}), "\n", net, "\n", _CLOCK_NOTE, _toml_table("clock", _CLOCK)]

@@ -53,10 +53,13 @@ def _run_two_hosts(args: argparse.Namespace) -> int:
 
 def _run_certs(args: argparse.Namespace) -> int:
     files = make_certs(args.out_dir, args.names)
-    os.write(1, (
-        f"setup: wrote CA, router, leader and follower certificates to {args.out_dir}\n"
-        f"  {files.ca_key}: the CA's key; keep it off the hosts\n"
-    ).encode())  # fmt: skip
+    os.write(
+        1,
+        (
+            f"setup: wrote CA, router, leader and follower certificates to {args.out_dir}\n"
+            f"  {files.ca_key}: the CA's key; keep it off the hosts\n"
+        ).encode(),
+    )
     return 0
 
 
@@ -79,8 +82,13 @@ def add_setup_parser(sub: Any) -> None:
     ss = p.add_subparsers(dest="setup_command", metavar="WHAT", parser_class=type(p))
     ss.required = True
     t = ss.add_parser("two-hosts", help="three folders (router, robot, operator) and the command for each")
-    t.add_argument("--router-name", action="append", required=True, metavar="NAME",
-                   help="the router's DNS name or IP address, as the robot and operator reach it")  # fmt: skip
+    t.add_argument(
+        "--router-name",
+        action="append",
+        required=True,
+        metavar="NAME",
+        help="the router's DNS name or IP address, as the robot and operator reach it",
+    )
     t.add_argument("--router-port", type=int, default=7447, metavar="PORT", help="the router's TLS port (default 7447)")
     t.add_argument(
         "--out", default="two-hosts", metavar="DIR", help="new or empty folder to write (default: two-hosts)"
@@ -116,8 +124,9 @@ def _run_fleet(args: argparse.Namespace) -> int:
     if len(names) != 1:
         raise ConfigError(f"--router-name given {len(names)} times; allowed: once")
     members = {opt: {k: ids for k, (_, ids) in m.items()} for opt, m in _members(args, at=False).items()}
-    fleet = write_fleet(args.out, names[0], args.robot or [], members["--operator"], args.router_port,
-                        members["--observer"])  # fmt: skip
+    fleet = write_fleet(
+        args.out, names[0], args.robot or [], members["--operator"], args.router_port, members["--observer"]
+    )
     os.write(1, _fleet_instructions(fleet, f"router {names[0]}:{args.router_port}").encode())
     return 0
 
@@ -160,16 +169,28 @@ def _run_sites(args: argparse.Namespace) -> int:
 def add_sites_parser(ss: Any) -> None:
     """``bipedtele setup sites``, under the ``setup`` sub-command parser ``ss``."""
     f = ss.add_parser("sites", help="one router per site, linked over TLS; robots and operators at their sites")
-    f.add_argument("--site", action="append", metavar="SITE=ROUTER_NAME",
-                   help="a site and its router's DNS name or IP address (repeat; each links to those before)")  # fmt: skip
+    f.add_argument(
+        "--site",
+        action="append",
+        metavar="SITE=ROUTER_NAME",
+        help="a site and its router's DNS name or IP address (repeat; each links to those before)",
+    )
     f.add_argument(
         "--router-port", type=int, default=7447, metavar="PORT", help="every router's TLS port (default 7447)"
     )
     f.add_argument("--robot", action="append", metavar="ID@SITE", help="a robot and its site (repeat)")
-    f.add_argument("--operator", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
-                   help="an operator, its site and the robots it may drive, of any site (repeat)")  # fmt: skip
-    f.add_argument("--observer", action="append", metavar="NAME@SITE=ROBOT[,ROBOT...]",
-                   help="an observer, its site and the robots it may watch (repeat)")  # fmt: skip
+    f.add_argument(
+        "--operator",
+        action="append",
+        metavar="NAME@SITE=ROBOT[,ROBOT...]",
+        help="an operator, its site and the robots it may drive, of any site (repeat)",
+    )
+    f.add_argument(
+        "--observer",
+        action="append",
+        metavar="NAME@SITE=ROBOT[,ROBOT...]",
+        help="an observer, its site and the robots it may watch (repeat)",
+    )
     f.add_argument("--out", default="sites", metavar="DIR", help="new or empty folder to write (default: sites)")
     f.set_defaults(func=_run_sites)
 
@@ -177,13 +198,26 @@ def add_sites_parser(ss: Any) -> None:
 def add_fleet_parser(ss: Any) -> None:
     """``bipedtele setup fleet``, under the ``setup`` sub-command parser ``ss``."""
     f = ss.add_parser("fleet", help="one router, several robots and operators, each operator bound to its robots")
-    f.add_argument("--router-name", action="append", required=True, metavar="NAME",
-                   help="the router's DNS name or IP address, as robots and operators reach it")  # fmt: skip
+    f.add_argument(
+        "--router-name",
+        action="append",
+        required=True,
+        metavar="NAME",
+        help="the router's DNS name or IP address, as robots and operators reach it",
+    )
     f.add_argument("--router-port", type=int, default=7447, metavar="PORT", help="the router's TLS port (default 7447)")
     f.add_argument("--robot", action="append", metavar="ID", help="a robot id (repeat for each robot)")
-    f.add_argument("--operator", action="append", metavar="NAME=ROBOT[,ROBOT...]",
-                   help="an operator and the robots it may drive (repeat for each operator)")  # fmt: skip
-    f.add_argument("--observer", action="append", metavar="NAME=ROBOT[,ROBOT...]",
-                   help="an observer and the robots it may watch (video, status; puts nothing)")  # fmt: skip
+    f.add_argument(
+        "--operator",
+        action="append",
+        metavar="NAME=ROBOT[,ROBOT...]",
+        help="an operator and the robots it may drive (repeat for each operator)",
+    )
+    f.add_argument(
+        "--observer",
+        action="append",
+        metavar="NAME=ROBOT[,ROBOT...]",
+        help="an observer and the robots it may watch (video, status; puts nothing)",
+    )
     f.add_argument("--out", default="fleet", metavar="DIR", help="new or empty folder to write (default: fleet)")
     f.set_defaults(func=_run_fleet)

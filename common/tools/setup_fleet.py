@@ -113,8 +113,9 @@ def parse_operator(spec: str, option: str = "--operator") -> tuple[str, tuple[st
     return name.strip(), ids
 
 
-def _check(robots: Sequence[str], operators: Mapping[str, Sequence[str]],
-           observers: Mapping[str, Sequence[str]]) -> None:  # fmt: skip
+def _check(
+    robots: Sequence[str], operators: Mapping[str, Sequence[str]], observers: Mapping[str, Sequence[str]]
+) -> None:
     if not robots:
         raise ConfigError("--robot: none given; allowed: one or more robot ids (--robot nao1 --robot nao2)")
     if not operators:
@@ -133,8 +134,10 @@ def _check(robots: Sequence[str], operators: Mapping[str, Sequence[str]],
         raise ConfigError(
             f"--robot: {sorted(r for r in set(robots) if robots.count(r) > 1)} given twice; allowed: once each"
         )
-    for opt, name, ids in [*(("--operator", n, i) for n, i in operators.items()),
-                           *(("--observer", n, i) for n, i in observers.items())]:  # fmt: skip
+    for opt, name, ids in [
+        *(("--operator", n, i) for n, i in operators.items()),
+        *(("--observer", n, i) for n, i in observers.items()),
+    ]:
         if not _NAME.match(name) or name in _RESERVED or name in robots:
             raise ConfigError(
                 f"{opt} {name!r}: allowed: 1-64 characters of letters, digits, '_' or '-', "
@@ -147,9 +150,14 @@ def _check(robots: Sequence[str], operators: Mapping[str, Sequence[str]],
             raise ConfigError(f"{opt} {name}={','.join(ids)}: a robot named twice; allowed: once each")
 
 
-def write_fleet(out: str | Path, router_name: str, robots: Sequence[str],
-                operators: Mapping[str, Sequence[str]], router_port: int = 7447,
-                observers: Mapping[str, Sequence[str]] | None = None) -> Fleet:  # fmt: skip
+def write_fleet(
+    out: str | Path,
+    router_name: str,
+    robots: Sequence[str],
+    operators: Mapping[str, Sequence[str]],
+    router_port: int = 7447,
+    observers: Mapping[str, Sequence[str]] | None = None,
+) -> Fleet:
     """Write the router's, each robot's and each operator's folder into ``out``.
 
     Parameters
@@ -180,8 +188,12 @@ def write_fleet(out: str | Path, router_name: str, robots: Sequence[str],
     assigned = {k: tuple(v) for k, v in operators.items()}
     watching = {k: tuple(v) for k, v in (observers or {}).items()}
     _check(robot_ids, assigned, watching)
-    plan = _Plan({"": router_name}, dict.fromkeys(robot_ids, ""),
-                 {k: ("", v) for k, v in assigned.items()}, {k: ("", v) for k, v in watching.items()})  # fmt: skip
+    plan = _Plan(
+        {"": router_name},
+        dict.fromkeys(robot_ids, ""),
+        {k: ("", v) for k, v in assigned.items()},
+        {k: ("", v) for k, v in watching.items()},
+    )
     return _write(Path(out), plan, int(router_port))
 
 
@@ -199,9 +211,14 @@ def parse_at(spec: str, option: str) -> tuple[str, str]:
     return name.strip(), site.strip()
 
 
-def write_sites(out: str | Path, sites: Mapping[str, str], robots: Mapping[str, str],
-                operators: Mapping[str, tuple[str, Sequence[str]]], router_port: int = 7447,
-                observers: Mapping[str, tuple[str, Sequence[str]]] | None = None) -> Fleet:  # fmt: skip
+def write_sites(
+    out: str | Path,
+    sites: Mapping[str, str],
+    robots: Mapping[str, str],
+    operators: Mapping[str, tuple[str, Sequence[str]]],
+    router_port: int = 7447,
+    observers: Mapping[str, tuple[str, Sequence[str]]] | None = None,
+) -> Fleet:
     """Write one router per site, linked over TLS, and each robot's, operator's and observer's folder.
 
     Parameters
@@ -312,9 +329,10 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
         write_private(folder / "secrets" / f"{r}.pw", passwords[r] + "\n")
         write_private(folder / "secrets" / "message.key", keys[r])
         cmd = f"bipedtele follower --config {name}/bipedtele.toml"
-        write_profile(folder / "bipedtele.toml", client_profile(
-            head(f"robot {r}", router, cmd), "robot", router, port, r,
-            r, r, "secrets/message.key"))  # fmt: skip
+        write_profile(
+            folder / "bipedtele.toml",
+            client_profile(head(f"robot {r}", router, cmd), "robot", router, port, r, r, r, "secrets/message.key"),
+        )
         commands[name] = (cmd,)
 
     for op, (site, ids) in plan.operators.items():
@@ -325,9 +343,19 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
         for r in ids:
             write_private(folder / "secrets" / f"{r}.key", keys[r])
             cmd = f"bipedtele leader --config {name}/{r}.toml"
-            write_profile(folder / f"{r}.toml", client_profile(
-                head(f"operator {op} driving robot {r}", router, cmd), "operator",
-                router, port, r, op, op, f"secrets/{r}.key"))  # fmt: skip
+            write_profile(
+                folder / f"{r}.toml",
+                client_profile(
+                    head(f"operator {op} driving robot {r}", router, cmd),
+                    "operator",
+                    router,
+                    port,
+                    r,
+                    op,
+                    op,
+                    f"secrets/{r}.key",
+                ),
+            )
             cmds.append(cmd)
         commands[name] = tuple(cmds)
 
@@ -339,17 +367,33 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
             write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
         cmd = f"bipedtele observe --config {name}/bipedtele.toml"
         fleet = f"bipedtele status --config {name}/bipedtele.toml"
-        write_profile(folder / "bipedtele.toml", client_profile(
-            head(f"observer {obs} watching {', '.join(ids)}", router, cmd), "observer",
-            router, port, ids[0], obs, obs, "secrets"))  # fmt: skip
+        write_profile(
+            folder / "bipedtele.toml",
+            client_profile(
+                head(f"observer {obs} watching {', '.join(ids)}", router, cmd),
+                "observer",
+                router,
+                port,
+                ids[0],
+                obs,
+                obs,
+                "secrets",
+            ),
+        )
         commands[name] = (cmd, fleet)
 
     keep_ca_only(root, certs, "fleet")
     return commands
 
 
-def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwords: dict[str, str],
-                   head: Callable[[str, str, str], str]) -> dict[str, tuple[str, ...]]:  # fmt: skip
+def _write_routers(
+    root: Path,
+    plan: _Plan,
+    port: int,
+    certs: CertFiles,
+    passwords: dict[str, str],
+    head: Callable[[str, str, str], str],
+) -> dict[str, tuple[str, ...]]:
     """Each site's router folder: certificate, credentials, links to the earlier sites, the ACL."""
     sites, robots = list(plan.routers), list(plan.robot_site)
     users = [*robots, *plan.operators, *plan.observers]
@@ -361,8 +405,9 @@ def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwor
             cert, cn = certs.pairs["router"], "router"
         else:
             cn = f"router-{site}"
-            cert = issue_router_cert(certs.ca_pem.parent, cn, [plan.routers[site]], certs.ca_pem,
-                                     root / "ca-private" / "ca.key")  # fmt: skip
+            cert = issue_router_cert(
+                certs.ca_pem.parent, cn, [plan.routers[site]], certs.ca_pem, root / "ca-private" / "ca.key"
+            )
         folder = host_folder(root, name, certs.ca_pem, cert)
         local = [u for u in users if _site_of(plan, u) == site] + [links[s] for s in sites[i + 1 :]]
         write_private(folder / "secrets" / "router-credentials.txt", "".join(f"{u}:{passwords[u]}\n" for u in local))
@@ -376,11 +421,21 @@ def _write_routers(root: Path, plan: _Plan, port: int, certs: CertFiles, passwor
         cmd = f"bipedtele router --config {name}/bipedtele.toml"
         leaders_here = [f"{n}@{r}" for n, (st, ids) in plan.operators.items() if st == site for r in ids]
         observers_here = [f"{n}@{r}" for n, (st, ids) in plan.observers.items() if st == site for r in ids]
-        write_profile(folder / "bipedtele.toml", router_profile(
-            head(f"the router of site {site}" if site else "the fleet's router", plan.routers[site], cmd),
-            plan.routers[site], port, next((r for r in robots if plan.robot_site[r] == site), robots[0]),
-            leaders_here, [f"{r}@{r}" for r in robots if plan.robot_site[r] == site], observers_here,
-            cert=cn, mesh=mesh, user_certs=True))  # fmt: skip
+        write_profile(
+            folder / "bipedtele.toml",
+            router_profile(
+                head(f"the router of site {site}" if site else "the fleet's router", plan.routers[site], cmd),
+                plan.routers[site],
+                port,
+                next((r for r in robots if plan.robot_site[r] == site), robots[0]),
+                leaders_here,
+                [f"{r}@{r}" for r in robots if plan.robot_site[r] == site],
+                observers_here,
+                cert=cn,
+                mesh=mesh,
+                user_certs=True,
+            ),
+        )
         commands[name] = (cmd,)
     return commands
 

@@ -118,10 +118,15 @@ def path_trace(
         v = states[i][1] if i >= 0 else None
         rx.append(float(v) if isinstance(v, (int, float)) and math.isfinite(v) else 0.0)
     return [
-        {"t_s": k * step_s, "h1_ms": 1000.0 * max(0.0, h1[k]), "h2_ms": 1000.0 * max(0.0, h2[k]),
-         "loss_pct": loss[k], "rx_kbps": rx[k]}
+        {
+            "t_s": k * step_s,
+            "h1_ms": 1000.0 * max(0.0, h1[k]),
+            "h2_ms": 1000.0 * max(0.0, h2[k]),
+            "loss_pct": loss[k],
+            "rx_kbps": rx[k],
+        }
         for k in range(n)
-    ]  # fmt: skip
+    ]
 
 
 def write_csv(rows: list[dict[str, float]], path: Path) -> None:
@@ -176,9 +181,12 @@ def run(args: argparse.Namespace) -> int:
 
 def add_trace_parser(sub: Any) -> None:
     """Register ``bipedtele trace``."""
-    p = sub.add_parser("trace", help="turn a run's recording into a trace of its path (delays, loss, rate)",
-                       description="Turn a run's recording into a trace of its path that the delay proxy, "
-                       "link-emu and netem replay (trace:FILE.csv:h1|h2).")  # fmt: skip
+    p = sub.add_parser(
+        "trace",
+        help="turn a run's recording into a trace of its path (delays, loss, rate)",
+        description="Turn a run's recording into a trace of its path that the delay proxy, "
+        "link-emu and netem replay (trace:FILE.csv:h1|h2).",
+    )
     p.add_argument("recording", metavar="RECORDING", help="the leader's recording (leader-*.mcap)")
     p.add_argument("--follower", metavar="FILE", help="the follower's recording of the same run (true h1)")
     p.add_argument("--out", required=True, metavar="FILE", help="the trace to write (CSV t_s,h1_ms,h2_ms,...)")

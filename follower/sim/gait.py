@@ -452,9 +452,15 @@ class Gait:
         self._step, self._phases = step, phases
 
     def _ground(
-        self, o: int, leg: Leg, kind: str, speed: tuple[float, float], tau_f: np.ndarray, dy_t: np.ndarray,
+        self,
+        o: int,
+        leg: Leg,
+        kind: str,
+        speed: tuple[float, float],
+        tau_f: np.ndarray,
+        dy_t: np.ndarray,
         settle_d: float,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Plan a foot on the ground: hip over ankle in its frame (x, y) [m] and hip yaw [rad] on ``tau_f`` [s].
 
         ``o``: the leg's first joint; ``speed``: the step's (v [m/s], omega [rad/s]);
@@ -478,9 +484,14 @@ class Gait:
         return x0 + _cumtrapz(vxf, tau_f), y0 + _cumtrapz(vyf, tau_f), yaw
 
     def _swing(
-        self, tau: np.ndarray, swing: Leg, speed: tuple[float, float], times: tuple[float, float],
-        lift_off: list[float], sway: Callable[[np.ndarray], np.ndarray],
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        self,
+        tau: np.ndarray,
+        swing: Leg,
+        speed: tuple[float, float],
+        times: tuple[float, float],
+        lift_off: list[float],
+        sway: Callable[[np.ndarray], np.ndarray],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Plan the swing foot from lift-off to landing: hip over ankle x, lift, y [m] and yaw [rad] on ``tau``.
 
         ``speed``: (v [m/s], omega [rad/s]); ``times``: (half cycle ts, double support t_ds)

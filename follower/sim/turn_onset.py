@@ -252,8 +252,15 @@ def step_means(turn: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return np.array([seg.mean() for seg in np.split(turn, edges)])
 
 
-def _alternation(tau: float, T: float, st: OnsetSettings, seconds: float, start: tuple[float, float] | None,
-                 control: ControlConfig | None, sim: SimConfig | None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def _alternation(
+    tau: float,
+    T: float,
+    st: OnsetSettings,
+    seconds: float,
+    start: tuple[float, float] | None,
+    control: ControlConfig | None,
+    sim: SimConfig | None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Run the servo from standing; the step-to-step alternation ``|s_j - s_{j-1}| / 2`` [deg/s] and its times [s].
 
     ``start = (tau0, t0)``: turn damping ``tau0`` until ``t0`` [s], ``tau`` after; only steps
@@ -442,8 +449,15 @@ def step_latency(
         LOG.info("T %.2f s: step %.2f s into the gait step: latency %.3f s", T, j * dt, lat[-1])
     # baseline profile over whole gait steps in the window
     seg = rate_b[win_a : win_a + 2 * per_step].reshape(2, per_step)
-    settings = {"base_deg_s": base, "delta_deg_s": delta, "v_cm_s": v_cm_s, "eps_s": eps, "settle_s": settle_s,
-                "after_cycles": after_cycles, "control_rate_hz": control_rate_hz}  # fmt: skip
+    settings = {
+        "base_deg_s": base,
+        "delta_deg_s": delta,
+        "v_cm_s": v_cm_s,
+        "eps_s": eps,
+        "settle_s": settle_s,
+        "after_cycles": after_cycles,
+        "control_rate_hz": control_rate_hz,
+    }
     return _latency_result(T, phase, lat, seg, settings)
 
 

@@ -100,8 +100,15 @@ class Guard:
         self._budget_t = time.monotonic()
         # connections that have not shown the token yet, oldest first: the first to go at a cap
         self.untrusted: dict[Any, str] = {}
-        self.counters = {"refused_conn_address": 0, "refused_conn_total": 0, "closed_no_head": 0,
-                         "refused_rate": 0, "closed_unanswered": 0, "lockouts": 0, "evicted_untrusted": 0}  # fmt: skip
+        self.counters = {
+            "refused_conn_address": 0,
+            "refused_conn_total": 0,
+            "closed_no_head": 0,
+            "refused_rate": 0,
+            "closed_unanswered": 0,
+            "lockouts": 0,
+            "evicted_untrusted": 0,
+        }
 
     # -- connections
 
@@ -182,9 +189,11 @@ class Guard:
 
 
 async def accept_loop(
-    listener: socket.socket, guard: Guard, factory: Callable[[str], asyncio.Protocol],
+    listener: socket.socket,
+    guard: Guard,
+    factory: Callable[[str], asyncio.Protocol],
     on_refuse: Callable[[str, str], None],
-) -> None:  # fmt: skip
+) -> None:
     """Accept connections, applying the caps before any protocol or transport is made.
 
     At a cap, the oldest connection that has not shown the token is closed to make room

@@ -69,18 +69,34 @@ class CockpitProcess:
         allowed = list(allowed_hosts)
         course = [(float(ob[0]), float(ob[1]), float(ob[2])) for ob in course]
         # Checks the arguments and draws the token; never started in this process.
-        spec = CockpitServer(host, port, telemetry_hz=telemetry_hz, history_s=history_s, token=token,
-                             allowed_hosts=allowed, max_clients=max_clients, course=course, limits=limits,
-                             force_max_n=force_max_n)  # fmt: skip
+        spec = CockpitServer(
+            host,
+            port,
+            telemetry_hz=telemetry_hz,
+            history_s=history_s,
+            token=token,
+            allowed_hosts=allowed,
+            max_clients=max_clients,
+            course=course,
+            limits=limits,
+            force_max_n=force_max_n,
+        )
         self._spec = spec
         self.host, self.token = spec.host, spec.token
         self.telemetry_hz = spec.telemetry_hz
         self.allowed_hosts = spec.allowed_hosts
         self._kwargs: dict[str, Any] = dict(
-            host=host, port=port, telemetry_hz=telemetry_hz, history_s=history_s, token=spec.token,
-            allowed_hosts=allowed, max_clients=max_clients, course=course, limits=spec.limits,
+            host=host,
+            port=port,
+            telemetry_hz=telemetry_hz,
+            history_s=history_s,
+            token=spec.token,
+            allowed_hosts=allowed,
+            max_clients=max_clients,
+            course=course,
+            limits=spec.limits,
             force_max_n=spec.force_max_n,
-        )  # fmt: skip
+        )
         self._sample: tuple[int, LeaderSample | dict[str, Any]] | None = None
         self._sample_n = 0
         self._frames: dict[str, tuple[int, float, bytes]] = {}

@@ -115,9 +115,11 @@ class SimFalcon(LeaderDevice):
         if params is None and config is not None:
             lc = config.get(LeaderConfig)
             params = SimFalconParams(
-                mass_kg=lc.mass_kg, viscous_n_s_m=lc.viscous_n_s_m, coulomb_n=lc.coulomb_n,
+                mass_kg=lc.mass_kg,
+                viscous_n_s_m=lc.viscous_n_s_m,
+                coulomb_n=lc.coulomb_n,
                 gravity_n=(lc.gravity_n[0], lc.gravity_n[1]),
-            )  # fmt: skip
+            )
         self.params = params or SimFalconParams()
         self.limits = limits or DeviceLimits()
         w = self.limits.workspace_m

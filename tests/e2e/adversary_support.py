@@ -196,8 +196,9 @@ class Attacker:
             logins["b"] = (a.user2, a.password2)
         with ExitStack() as stack:
             for name, (user, password) in logins.items():
-                net = NetworkConfig(mode="client", connect=[a.connect], user=user, password=password,
-                                    timeout_s=a.timeout)  # fmt: skip
+                net = NetworkConfig(
+                    mode="client", connect=[a.connect], user=user, password=password, timeout_s=a.timeout
+                )
                 self.sessions[name] = stack.enter_context(open_session(net))
             self.out["opened"] = True
             try:
@@ -377,9 +378,20 @@ def cmd_stream(a: argparse.Namespace) -> dict[str, Any]:
                 msg: Any = Command(sid=att.sid, seq=n, t=t, ref=[a.forward, 0.0], alpha_m=[40.0, 40.0], enable=True)
             else:
                 msg = Feedback(
-                    sid=att.sid, seq=n, t=t, z_e=[a.forward, 0.0], z_r=[a.forward, 0.0], eta=[a.forward, 0.0],
-                    ref=[a.forward, 0.0], s_e=[1.0, 1.0], s_r=[1.0, 1.0], T=1.0, eps=0.1, state="walking", cmd_seq=0,
-                )  # fmt: skip
+                    sid=att.sid,
+                    seq=n,
+                    t=t,
+                    z_e=[a.forward, 0.0],
+                    z_r=[a.forward, 0.0],
+                    eta=[a.forward, 0.0],
+                    ref=[a.forward, 0.0],
+                    s_e=[1.0, 1.0],
+                    s_r=[1.0, 1.0],
+                    T=1.0,
+                    eps=0.1,
+                    state="walking",
+                    cmd_seq=0,
+                )
             att.put(key, encode(msg))
             time.sleep(1.0 / a.rate)
     att.out.update(sent=n, shift=a.shift)
@@ -421,8 +433,14 @@ def cmd_clock_forge(a: argparse.Namespace) -> dict[str, Any]:
         with lock:
             seq[0] += 1
             msg = ClockPong(
-                sid=responder_for(pinger), seq=seq[0], t=t3, ping_sid=pinger, ping_seq=ping_seq, t1=t1, t2=t2,
-            )  # fmt: skip
+                sid=responder_for(pinger),
+                seq=seq[0],
+                t=t3,
+                ping_sid=pinger,
+                ping_seq=ping_seq,
+                t1=t1,
+                t2=t2,
+            )
             att.put(att.key("clock"), encode(msg))
             sent[what] += 1
             sent_to[str(pinger)] += 1
@@ -496,8 +514,12 @@ def cmd_flood(a: argparse.Namespace) -> dict[str, Any]:
                 time.sleep(delay)
         elapsed = time.monotonic() - t0
         time.sleep(1.0)  # answers still on their way
-    att.out.update(sent=n, elapsed_s=elapsed, rate_hz=n / elapsed if elapsed else 0.0,
-                   answered={str(k): v for k, v in answered.items()})  # fmt: skip
+    att.out.update(
+        sent=n,
+        elapsed_s=elapsed,
+        rate_hz=n / elapsed if elapsed else 0.0,
+        answered={str(k): v for k, v in answered.items()},
+    )
     return att.out
 
 

@@ -132,12 +132,19 @@ def idle(port: int, n: int, seconds: float) -> dict[str, Any]:
     sel.close()
     acked_at.update((s, now) for s in alive if s not in acked_at and not _unacked(s))
     held = sorted((round(now - acked_at[s], 1) for s in alive if s in acked_at), reverse=True)
-    out = {"opened": len(socks), "sent": sent, "open_s": round(open_s, 2), "connect_failed": dict(failed),
-           "closed": len(socks) - len(alive), "still_open": len(alive),
-           "still_open_unacked": len(alive) - len(held), "still_open_held_s": held[:50],
-           "ack_to_close_max_s": round(max(ack_to_close), 2) if ack_to_close else None,
-           "timeline": timeline,
-           "closed_p50_s": sorted(closed_at)[len(closed_at) // 2] if closed_at else None}  # fmt: skip
+    out = {
+        "opened": len(socks),
+        "sent": sent,
+        "open_s": round(open_s, 2),
+        "connect_failed": dict(failed),
+        "closed": len(socks) - len(alive),
+        "still_open": len(alive),
+        "still_open_unacked": len(alive) - len(held),
+        "still_open_held_s": held[:50],
+        "ack_to_close_max_s": round(max(ack_to_close), 2) if ack_to_close else None,
+        "timeline": timeline,
+        "closed_p50_s": sorted(closed_at)[len(closed_at) // 2] if closed_at else None,
+    }
     for s in socks:
         s.close()
     return out
@@ -194,8 +201,12 @@ async def _brute(port: int, total: int, seconds: float, workers: int) -> dict[st
     t0 = time.monotonic()
     await asyncio.gather(*(worker() for _ in range(workers)))
     elapsed = time.monotonic() - t0
-    return {"sent": sent[0], "elapsed_s": round(elapsed, 2), "rate_hz": round(sent[0] / elapsed, 1),
-            "status": dict(status)}  # fmt: skip
+    return {
+        "sent": sent[0],
+        "elapsed_s": round(elapsed, 2),
+        "rate_hz": round(sent[0] / elapsed, 1),
+        "status": dict(status),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -46,20 +46,27 @@ def free_port(host: str = "127.0.0.1") -> int:
 def client_args(endpoint: str) -> list[str]:
     """Overrides that make a program a Zenoh client of the router at ``endpoint``."""
     return [
-        "--set", 'network.mode="client"',
-        "--set", f'network.connect=["{endpoint}"]',
-        "--set", "network.listen=[]",
-    ]  # fmt: skip
+        "--set",
+        'network.mode="client"',
+        "--set",
+        f'network.connect=["{endpoint}"]',
+        "--set",
+        "network.listen=[]",
+    ]
 
 
 def walking_script(forward_cm_s: float = 5.0, turn_deg_s: float = 0.0, until_s: float = 600.0) -> list[str]:
     """Scripted operator holding a constant speed [cm/s, deg/s] from the start."""
     return [
-        "--operator", "scripted",
-        "--set", f"leader.script=[[0, {forward_cm_s:g}, {turn_deg_s:g}], [{until_s:g}, {forward_cm_s:g}, {turn_deg_s:g}]]",
-        "--set", 'leader.script_interp="step"',
-        "--set", "leader.cockpit=false",
-    ]  # fmt: skip
+        "--operator",
+        "scripted",
+        "--set",
+        f"leader.script=[[0, {forward_cm_s:g}, {turn_deg_s:g}], [{until_s:g}, {forward_cm_s:g}, {turn_deg_s:g}]]",
+        "--set",
+        'leader.script_interp="step"',
+        "--set",
+        "leader.cockpit=false",
+    ]
 
 
 NO_VIDEO = ["--set", "follower.camera_fps=0"]
@@ -133,9 +140,14 @@ class Procs:
         self.started: list[Proc] = []
 
     def start(
-        self, name: str, args: list[str], *, netns: str | None = None, raw: bool = False,
+        self,
+        name: str,
+        args: list[str],
+        *,
+        netns: str | None = None,
+        raw: bool = False,
         env: dict[str, str] | None = None,
-    ) -> Proc:  # fmt: skip
+    ) -> Proc:
         """Start ``python -m bipedtele.cli ARGS`` (``raw``: ``python ARGS``), logs to ``NAME.log``.
 
         ``netns``: run it inside that network namespace (``ip netns exec``).
@@ -151,9 +163,14 @@ class Procs:
         full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         with open(log_path, "wb") as log:
             popen = subprocess.Popen(
-                argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                start_new_session=True, cwd=self.folder, env=full_env,
-            )  # fmt: skip
+                argv,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=self.folder,
+                env=full_env,
+            )
         proc = Proc(name, popen, log_path)
         self.started.append(proc)
         return proc
@@ -195,17 +212,32 @@ READY = {
 }
 
 
-def start_router(procs: Procs, endpoint: str, extra: list[str] | None = None, *, netns: str | None = None,
-                 name: str = "router", env: dict[str, str] | None = None) -> Proc:  # fmt: skip
+def start_router(
+    procs: Procs,
+    endpoint: str,
+    extra: list[str] | None = None,
+    *,
+    netns: str | None = None,
+    name: str = "router",
+    env: dict[str, str] | None = None,
+) -> Proc:
     """Start ``bipedtele router --listen ENDPOINT`` and wait until it listens (``env``: added to its environment)."""
     p = procs.start(name, ["router", *(extra or []), "--listen", endpoint], netns=netns, env=env)
     p.wait_log(READY["router"], 30.0)
     return p
 
 
-def start_follower(procs: Procs, endpoint: str, extra: list[str] | None = None, *, netns: str | None = None,
-                   name: str = "follower", record: Path | None = None, wait: bool = True,
-                   env: dict[str, str] | None = None) -> Proc:  # fmt: skip
+def start_follower(
+    procs: Procs,
+    endpoint: str,
+    extra: list[str] | None = None,
+    *,
+    netns: str | None = None,
+    name: str = "follower",
+    record: Path | None = None,
+    wait: bool = True,
+    env: dict[str, str] | None = None,
+) -> Proc:
     """Start the sim follower as a client of ``endpoint`` (recording to ``record``; ``env``: added to its environment)."""
     args = ["follower", *client_args(endpoint), *(extra or [])]
     if record is not None:
@@ -216,9 +248,17 @@ def start_follower(procs: Procs, endpoint: str, extra: list[str] | None = None, 
     return p
 
 
-def start_leader(procs: Procs, endpoint: str, extra: list[str] | None = None, *, netns: str | None = None,
-                 name: str = "leader", record: Path | None = None, wait: bool = True,
-                 env: dict[str, str] | None = None) -> Proc:  # fmt: skip
+def start_leader(
+    procs: Procs,
+    endpoint: str,
+    extra: list[str] | None = None,
+    *,
+    netns: str | None = None,
+    name: str = "leader",
+    record: Path | None = None,
+    wait: bool = True,
+    env: dict[str, str] | None = None,
+) -> Proc:
     """Start the leader (sim Falcon) as a client of ``endpoint`` (recording to ``record``; ``env``: added to its environment)."""
     args = ["leader", *client_args(endpoint), *(extra or [])]
     if record is not None:
@@ -229,17 +269,28 @@ def start_leader(procs: Procs, endpoint: str, extra: list[str] | None = None, *,
     return p
 
 
-def start_delay_proxy(procs: Procs, listen_port: int, target_port: int, forward: str, backward: str,
-                      *, name: str = "proxy") -> Proc:  # fmt: skip
+def start_delay_proxy(
+    procs: Procs, listen_port: int, target_port: int, forward: str, backward: str, *, name: str = "proxy"
+) -> Proc:
     """Start ``bipedtele delay-proxy`` from 127.0.0.1:LISTEN_PORT to 127.0.0.1:TARGET_PORT.
 
     ``forward`` delays what flows towards the target (h1 for a leader behind the proxy),
     ``backward`` what flows back (h2); delay models as on the command line (``const:100ms``).
     """
-    p = procs.start(name, [
-        "delay-proxy", "--listen", f"127.0.0.1:{listen_port}", "--target", f"127.0.0.1:{target_port}",
-        "--forward", forward, "--backward", backward,
-    ])  # fmt: skip
+    p = procs.start(
+        name,
+        [
+            "delay-proxy",
+            "--listen",
+            f"127.0.0.1:{listen_port}",
+            "--target",
+            f"127.0.0.1:{target_port}",
+            "--forward",
+            forward,
+            "--backward",
+            backward,
+        ],
+    )
     p.wait_log(r"delay-proxy: listening on", 30.0)
     return p
 
@@ -308,8 +359,12 @@ class Monitor:
             first.append(start)
             return True
 
-        wait_until(ok, timeout_s, f"feedback state {state!r} for {hold_s:g} s",
-                   lambda: f"states: {self.states_since(since)[-20:]}")  # fmt: skip
+        wait_until(
+            ok,
+            timeout_s,
+            f"feedback state {state!r} for {hold_s:g} s",
+            lambda: f"states: {self.states_since(since)[-20:]}",
+        )
         return first[0]
 
     def follower_status(self) -> list[Received[Status]]:

@@ -38,11 +38,19 @@ from bipedtele.zenohsession import open_session
 
 # What each receiver expects on each key; a *valid* message of another kind is garbage there.
 WRONG_KIND: dict[str, type[Message]] = {
-    "cmd": Feedback, "feedback": Command, "video": Status, "clock": Command, "status": Command,
-}  # fmt: skip
+    "cmd": Feedback,
+    "feedback": Command,
+    "video": Status,
+    "clock": Command,
+    "status": Command,
+}
 RIGHT_KIND: dict[str, type[Message]] = {
-    "cmd": Command, "feedback": Feedback, "video": VideoFrame, "clock": ClockPing, "status": Status,
-}  # fmt: skip
+    "cmd": Command,
+    "feedback": Feedback,
+    "video": VideoFrame,
+    "clock": ClockPing,
+    "status": Status,
+}
 
 
 def _pack(obj: object) -> bytes:

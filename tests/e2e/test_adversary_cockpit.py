@@ -69,11 +69,24 @@ def leader(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Leader]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = f"ca{free_port()}"
     try:
-        p = procs.start("leader", [
-            "leader", "--operator", "browser", "--set", f'robot.id="{robot}"',
-            "--set", f'network.listen=["{endpoint}"]', "--set", "leader.cockpit_port=0",
-            "--set", "record.enabled=false", "--duration", "0",
-        ])  # fmt: skip
+        p = procs.start(
+            "leader",
+            [
+                "leader",
+                "--operator",
+                "browser",
+                "--set",
+                f'robot.id="{robot}"',
+                "--set",
+                f'network.listen=["{endpoint}"]',
+                "--set",
+                "leader.cockpit_port=0",
+                "--set",
+                "record.enabled=false",
+                "--duration",
+                "0",
+            ],
+        )
         m = p.wait_log(r"leader ready.*cockpit (http://\S+)", 60.0)
         yield Leader(p, m.group(1), endpoint, robot)
     finally:
@@ -109,9 +122,10 @@ def _forward_commands(
     """Run one websocket attack while listening to the leader's commands; return how the
     attack went and the largest forward speed the leader then commanded [cm/s]."""
     net = NetworkConfig(mode="peer", connect=[leader.endpoint], timeout_s=10.0)
-    with open_session(net) as session, MessageReceiver(
-        session, Keys(leader.robot).cmd, Command, DropCounter("test"), maxlen=100_000
-    ) as rx:  # fmt: skip
+    with (
+        open_session(net) as session,
+        MessageReceiver(session, Keys(leader.robot).cmd, Command, DropCounter("test"), maxlen=100_000) as rx,
+    ):
         deadline = time.monotonic() + 10.0
         while not rx.drain() and time.monotonic() < deadline:  # the leader is heard
             time.sleep(0.05)
@@ -209,8 +223,20 @@ LIMITED = (
 
 
 def _leader_args(robot: str, extra: list[str]) -> list[str]:
-    return ["leader", "--operator", "browser", "--set", f'robot.id="{robot}"', "--set", "leader.cockpit_port=0",
-            "--set", "record.enabled=false", "--duration", "0", *extra]  # fmt: skip
+    return [
+        "leader",
+        "--operator",
+        "browser",
+        "--set",
+        f'robot.id="{robot}"',
+        "--set",
+        "leader.cockpit_port=0",
+        "--set",
+        "record.enabled=false",
+        "--duration",
+        "0",
+        *extra,
+    ]
 
 
 def _start_leader(procs: Procs, extra: list[str], *, limited: bool = False) -> Leader:
@@ -284,10 +310,12 @@ def test_idle_connections_are_closed_and_the_cockpit_still_answers(procs: Procs)
     out, err = flood.communicate(timeout=90)
     assert flood.returncode == 0, err
     res = json.loads(out.strip().splitlines()[-1])
-    print(f"idle flood: {res['opened']} opened, {res['closed']} closed or refused, {res['still_open']} open "
-          f"after 20 s (held {res['still_open_held_s']} s since acknowledged, {res['still_open_unacked']} never "
-          f"acknowledged); closed p50 {res['closed_p50_s']} s, acknowledged-to-closed max "
-          f"{res['ack_to_close_max_s']} s; descriptors {fds0} -> {fds_peak} (4 s in)")  # fmt: skip
+    print(
+        f"idle flood: {res['opened']} opened, {res['closed']} closed or refused, {res['still_open']} open "
+        f"after 20 s (held {res['still_open_held_s']} s since acknowledged, {res['still_open_unacked']} never "
+        f"acknowledged); closed p50 {res['closed_p50_s']} s, acknowledged-to-closed max "
+        f"{res['ack_to_close_max_s']} s; descriptors {fds0} -> {fds_peak} (4 s in)"
+    )
     assert res["opened"] == 3000, res
     # Closed by the header timeout (5 s from the accept) or refused at once by the caps. A
     # connection is judged from when the server's kernel acknowledged its half head: one
@@ -301,8 +329,12 @@ def test_idle_connections_are_closed_and_the_cockpit_still_answers(procs: Procs)
     assert res["ack_to_close_max_s"] is not None and res["ack_to_close_max_s"] < HELD_MAX_S, res
     assert not res["still_open_held_s"] or max(res["still_open_held_s"]) < HELD_MAX_S, res
     assert _genuine(leader) == 200
-    wait_until(lambda: _descriptors(leader.proc.pid) <= fds0 + 20, 15.0, "the descriptors to come back",
-               lambda: f"{fds0} -> {_descriptors(leader.proc.pid)}")  # fmt: skip
+    wait_until(
+        lambda: _descriptors(leader.proc.pid) <= fds0 + 20,
+        15.0,
+        "the descriptors to come back",
+        lambda: f"{fds0} -> {_descriptors(leader.proc.pid)}",
+    )
     assert fds_peak < fds0 + 600, (fds0, fds_peak)
     log = leader.proc.log()
     assert "Traceback" not in log and len(log) < 200_000, log[-3000:]
@@ -327,9 +359,10 @@ def test_token_brute_force_is_rate_limited_and_spares_the_haptic_loop(procs: Pro
     leader = _start_leader(procs, [])
     net = NetworkConfig(mode="peer", connect=[leader.endpoint], timeout_s=10.0)
     window = 8.0
-    with open_session(net) as session, MessageReceiver(
-        session, Keys(leader.robot).status, Status, DropCounter("test"), maxlen=10_000
-    ) as rx:  # fmt: skip
+    with (
+        open_session(net) as session,
+        MessageReceiver(session, Keys(leader.robot).status, Status, DropCounter("test"), maxlen=10_000) as rx,
+    ):
         last: list[int] = []
         time.sleep(3.0)  # the leader settles
         m0 = _missed_ticks(rx, last)
@@ -340,8 +373,10 @@ def test_token_brute_force_is_rate_limited_and_spares_the_haptic_loop(procs: Pro
     rest, flooded = m1 - m0, m2 - m1
     status = res["status"]
     assert isinstance(status, dict)
-    print(f"brute force: {res['sent']} guesses in {res['elapsed_s']} s ({res['rate_hz']}/s), answers {status}; "
-          f"haptic loop missed {rest} ticks in {window:g} s at rest, {flooded} under the flood")  # fmt: skip
+    print(
+        f"brute force: {res['sent']} guesses in {res['elapsed_s']} s ({res['rate_hz']}/s), answers {status}; "
+        f"haptic loop missed {rest} ticks in {window:g} s at rest, {flooded} under the flood"
+    )
     assert status.get("429", 0) > 0, status
     assert status.get("200", 0) == 0, status
     assert flooded <= 3 * rest + 100, (rest, flooded)  # 100 ticks: 1.25 % of the window (noise of a 2-core host)

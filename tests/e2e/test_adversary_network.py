@@ -87,10 +87,24 @@ def test_wildcard_keys_from_a_non_leader_never_move_the_robot(procs: Procs, tmp_
 
     reports = {}
     for who, secs in (("follower", 1.0), ("guest", 0.5)):
-        reports[who] = _attack(procs, f"attacker-{who}", [
-            "commands", "--connect", ep, *users.attacker_args(who), "--keys", ",".join(WILDCARDS),
-            "--seconds", str(secs), "--rate", "50", "--forward", "6",
-        ])  # fmt: skip
+        reports[who] = _attack(
+            procs,
+            f"attacker-{who}",
+            [
+                "commands",
+                "--connect",
+                ep,
+                *users.attacker_args(who),
+                "--keys",
+                ",".join(WILDCARDS),
+                "--seconds",
+                str(secs),
+                "--rate",
+                "50",
+                "--forward",
+                "6",
+            ],
+        )
     time.sleep(1.0)  # anything still in flight arrives
     t_leader = time.time()
     _no_crash(router, follower)
@@ -153,16 +167,21 @@ def test_future_stamped_command_and_feedback_are_dropped_as_future(procs: Procs,
     with Monitor(ep) as mon:
         mon.wait_state("walking", time.time() - 60, timeout_s=30.0, hold_s=1.5)
         t_attack = time.time()
-        rep = _attack(procs, "attacker", ["future", "--connect", ep, "--targets", "feedback,cmd", "--ahead", "1.0",
-                                          "--seconds", "10"])  # fmt: skip
+        rep = _attack(
+            procs,
+            "attacker",
+            ["future", "--connect", ep, "--targets", "feedback,cmd", "--ahead", "1.0", "--seconds", "10"],
+        )
         assert rep["error"] is None and set(rep["forged"]) == {"cmd", "feedback"}, rep
         time.sleep(1.5)
         _no_crash(follower, leader)
         mon.wait_state("walking", t_attack + 0.5, timeout_s=10.0, hold_s=1.5)
 
         def counted() -> bool:
-            return (drops(_latest_status(mon, "follower"), "future") >= 1
-                    and drops(_latest_status(mon, "leader"), "future") >= 1)  # fmt: skip
+            return (
+                drops(_latest_status(mon, "follower"), "future") >= 1
+                and drops(_latest_status(mon, "leader"), "future") >= 1
+            )
 
         deadline = time.monotonic() + 5.0
         while not counted() and time.monotonic() < deadline:
@@ -205,8 +224,25 @@ def test_clock_skew_beyond_the_one_way_delay_does_not_crash(procs: Procs, tmp_pa
     f_rec, l_rec = tmp_path / "follower.mcap", tmp_path / "leader.mcap"
     router = start_router(procs, ep)
     follower = start_follower(procs, ep, NO_VIDEO, record=f_rec)
-    rep = _attack(procs, "skewed-leader", ["stream", "--connect", ep, "--kind", "cmd", "--shift", "0.1",
-                                           "--rate", "50", "--seconds", "3", "--forward", "5"])  # fmt: skip
+    rep = _attack(
+        procs,
+        "skewed-leader",
+        [
+            "stream",
+            "--connect",
+            ep,
+            "--kind",
+            "cmd",
+            "--shift",
+            "0.1",
+            "--rate",
+            "50",
+            "--seconds",
+            "3",
+            "--forward",
+            "5",
+        ],
+    )
     time.sleep(1.0)
     _no_crash(router, follower)
     assert follower.stop() == 0, follower.tail()
@@ -215,8 +251,11 @@ def test_clock_skew_beyond_the_one_way_delay_does_not_crash(procs: Procs, tmp_pa
     assert all(d["h1_s"] >= 0.0 for d in fbs)
 
     leader = start_leader(procs, ep, [*NO_VIDEO, *walking_script(5.0)], record=l_rec)
-    rep = _attack(procs, "skewed-follower", ["stream", "--connect", ep, "--kind", "feedback", "--shift", "0.1",
-                                             "--rate", "50", "--seconds", "3"])  # fmt: skip
+    rep = _attack(
+        procs,
+        "skewed-follower",
+        ["stream", "--connect", ep, "--kind", "feedback", "--shift", "0.1", "--rate", "50", "--seconds", "3"],
+    )
     assert rep["sent"] > 100, rep
     time.sleep(1.0)
     _no_crash(router, leader)
@@ -293,10 +332,26 @@ def test_forged_clock_answers_change_neither_damping_nor_offset(procs: Procs, tm
     # (as if leaked) and answers pings it cannot see.
     known = [] if not spoof else ["--pingers", f"{_first_sid(l_rec, 'cmd/sent')},{_first_sid(f_rec, 'feedback/sent')}"]
     t_attack = time.time()
-    rep = _attack(procs, "clock-forger", [
-        "clock-forge", "--connect", r_ep, "--as", "peer" if spoof else "own", "--offset", "5",
-        "--back-s", f"{BWD_S:g}", "--seconds", "6", "--rate", "4", *known,
-    ])  # fmt: skip
+    rep = _attack(
+        procs,
+        "clock-forger",
+        [
+            "clock-forge",
+            "--connect",
+            r_ep,
+            "--as",
+            "peer" if spoof else "own",
+            "--offset",
+            "5",
+            "--back-s",
+            f"{BWD_S:g}",
+            "--seconds",
+            "6",
+            "--rate",
+            "4",
+            *known,
+        ],
+    )
     time.sleep(2.5)  # effects of the last forged answers, and the status that counts them
     t_end = time.time()
     _no_crash(router, proxy, follower, leader)
@@ -424,8 +479,25 @@ def test_a_second_session_cannot_command_while_the_leader_is_active(procs: Procs
     with Monitor(ep) as mon:
         mon.wait_state("walking", time.time() - 60, timeout_s=30.0, hold_s=1.5)
         t0 = time.time()
-        rep = _attack(procs, "attacker", ["commands", "--connect", ep, "--sids", "2", "--forward", "2",
-                                          "--turn", "20", "--rate", "50", "--seconds", "2"])  # fmt: skip
+        rep = _attack(
+            procs,
+            "attacker",
+            [
+                "commands",
+                "--connect",
+                ep,
+                "--sids",
+                "2",
+                "--forward",
+                "2",
+                "--turn",
+                "20",
+                "--rate",
+                "50",
+                "--seconds",
+                "2",
+            ],
+        )
         time.sleep(1.5)
         mon.wait_state("walking", t0, timeout_s=5.0, hold_s=1.0)
         f_st = _latest_status(mon, "follower")
@@ -532,33 +604,101 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
     f_rec, l_rec = tmp_path / "follower.mcap", tmp_path / "leader.mcap"
     router = start_router(procs, ep, ["--config", str(prof)])
     follower = start_follower(procs, ep, [*signed, *users.client_args("follower")], record=f_rec)
-    leader = start_leader(procs, ep, [
-        *signed, *users.client_args("leader"), "--operator", "pilot", "--duration", "60",
-        "--set", "leader.cockpit=false",
-    ], record=l_rec)  # fmt: skip
+    leader = start_leader(
+        procs,
+        ep,
+        [
+            *signed,
+            *users.client_args("leader"),
+            "--operator",
+            "pilot",
+            "--duration",
+            "60",
+            "--set",
+            "leader.cockpit=false",
+        ],
+        record=l_rec,
+    )
     wait_recorded_state(f_rec, "walking", time.time() - 60, timeout_s=30.0, hold_s=1.0)
 
     t0 = time.time()
     attack_s = 45
     attackers = {
-        "intruder": procs.start("intruder", [
-            ATTACKER, "commands", "--connect", ep, *users.attacker_args("follower"), "--keys", ",".join(WILDCARDS),
-            "--seconds", str(attack_s / len(WILDCARDS)), "--rate", "20", "--forward", "6",
-        ], raw=True),
-        "relay": procs.start("relay", [
-            ATTACKER, "compromised", "--connect", ep, *users.attacker_args("relay_l"),
-            "--user2", "relay_f", "--password2", users.passwords["relay_f"], "--seconds", str(attack_s),
-            "--rate", "20", "--forward", "6", "--turn", "-9",
-        ], raw=True),
-        "garbage_l": procs.start("garbage-l", [
-            str(HERE / "garbage.py"), "--connect", ep, *users.attacker_args("relay_l"), "--count", "900",
-            "--seconds", str(attack_s), "--keys", "cmd,clock,status",
-        ], raw=True),
-        "garbage_f": procs.start("garbage-f", [
-            str(HERE / "garbage.py"), "--connect", ep, *users.attacker_args("relay_f"), "--count", "900",
-            "--seconds", str(attack_s), "--keys", "feedback,video",
-        ], raw=True),
-    }  # fmt: skip
+        "intruder": procs.start(
+            "intruder",
+            [
+                ATTACKER,
+                "commands",
+                "--connect",
+                ep,
+                *users.attacker_args("follower"),
+                "--keys",
+                ",".join(WILDCARDS),
+                "--seconds",
+                str(attack_s / len(WILDCARDS)),
+                "--rate",
+                "20",
+                "--forward",
+                "6",
+            ],
+            raw=True,
+        ),
+        "relay": procs.start(
+            "relay",
+            [
+                ATTACKER,
+                "compromised",
+                "--connect",
+                ep,
+                *users.attacker_args("relay_l"),
+                "--user2",
+                "relay_f",
+                "--password2",
+                users.passwords["relay_f"],
+                "--seconds",
+                str(attack_s),
+                "--rate",
+                "20",
+                "--forward",
+                "6",
+                "--turn",
+                "-9",
+            ],
+            raw=True,
+        ),
+        "garbage_l": procs.start(
+            "garbage-l",
+            [
+                str(HERE / "garbage.py"),
+                "--connect",
+                ep,
+                *users.attacker_args("relay_l"),
+                "--count",
+                "900",
+                "--seconds",
+                str(attack_s),
+                "--keys",
+                "cmd,clock,status",
+            ],
+            raw=True,
+        ),
+        "garbage_f": procs.start(
+            "garbage-f",
+            [
+                str(HERE / "garbage.py"),
+                "--connect",
+                ep,
+                *users.attacker_args("relay_f"),
+                "--count",
+                "900",
+                "--seconds",
+                str(attack_s),
+                "--keys",
+                "feedback,video",
+            ],
+            raw=True,
+        ),
+    }
     reports = {}
     for name, p in attackers.items():
         assert p.popen.wait(timeout=attack_s + 60) == 0, p.tail()
@@ -575,8 +715,13 @@ def test_sixty_seconds_of_pilot_under_intruder_and_compromised_router(procs: Pro
     intr, relay = reports["intruder"], reports["relay"]["sent"]
     garbage = {**reports["garbage_l"]["sent"], **reports["garbage_f"]["sent"]}
     assert intr["opened"] and sum(intr["sent"].values()) > 500, intr
-    assert min(relay.get(k, 0) for k in ("replay_cmd", "restamped_cmd", "unsigned_cmd", "replay_feedback",
-                                          "restamped_feedback")) > 300, relay  # fmt: skip
+    assert (
+        min(
+            relay.get(k, 0)
+            for k in ("replay_cmd", "restamped_cmd", "unsigned_cmd", "replay_feedback", "restamped_feedback")
+        )
+        > 300
+    ), relay
     assert garbage == dict.fromkeys(("cmd", "clock", "status", "feedback", "video"), 900), garbage
 
     # ---- 0 foreign commands reached the robot: only the leader's, unmodified, in order

@@ -212,8 +212,9 @@ def test_an_earlier_sessions_commands_never_bind_the_follower_while_the_new_lead
     script, trigger = tmp_path / "capture_replay.py", tmp_path / "replay.now"
     script.write_text(CAPTURE_TRIGGER_REPLAY)
     sniffed = tmp_path / "sniffed.hex"
-    attacker = procs.start("attacker", [str(script), ep, "bipedtele/nao1/cmd", str(trigger), "2.0", "8.0",
-                                        str(sniffed)], raw=True)  # fmt: skip
+    attacker = procs.start(
+        "attacker", [str(script), ep, "bipedtele/nao1/cmd", str(trigger), "2.0", "8.0", str(sniffed)], raw=True
+    )
     attacker.wait_log(r'"captured"', 15.0)
     assert leader1.stop() in (0, 3), leader1.tail()
     rep = _json_lines(attacker.log())
@@ -250,10 +251,13 @@ def test_an_earlier_sessions_commands_never_bind_the_follower_while_the_new_lead
     frozen = [s for t, s in recorded_feedback(f_rec) if t_freeze + 1.0 < t < t_resume]
     status = [dict(r.data["counters"]) for r in records(f_rec, "status/sent")]
     figures = {
-        "replay_age_s": round(age, 2), "replayed": n_replayed, "leader1_accepted_after_stop": len(replayed),
-        "walk_after_resume_s": round(t_walk2 - t_resume, 2), "walked_while_silent": "walking" in frozen,
+        "replay_age_s": round(age, 2),
+        "replayed": n_replayed,
+        "leader1_accepted_after_stop": len(replayed),
+        "walk_after_resume_s": round(t_walk2 - t_resume, 2),
+        "walked_while_silent": "walking" in frozen,
         "follower_drops": {k: v for k, v in status[-1].items() if k.startswith("drop_")} if status else {},
-    }  # fmt: skip
+    }
     print(json.dumps(figures))
     assert n_replayed >= 30, figures
     assert not replayed and t_walk2 - t_resume <= 2.0 and "walking" not in frozen, figures
@@ -282,8 +286,7 @@ def test_one_sided_or_different_keys_are_named_on_both_sides(procs: Procs, tmp_p
     f_key, l_key = {"follower_only": (k1, None), "leader_only": (None, k1), "different": (k1, k2)}[case]
     start_router(procs, ep)
     follower = start_follower(procs, ep, [*_key_args(f_key), *SYNCED, *NO_VIDEO])
-    leader = start_leader(procs, ep, [*_key_args(l_key), *SYNCED, *NO_VIDEO, *walking_script(5.0),
-                                      "--duration", "5"])  # fmt: skip
+    leader = start_leader(procs, ep, [*_key_args(l_key), *SYNCED, *NO_VIDEO, *walking_script(5.0), "--duration", "5"])
     rc = leader.popen.wait(timeout=60)
     time.sleep(0.5)
     f_log, l_log = follower.log(), leader.log()

@@ -127,8 +127,9 @@ def test_a_restarted_leader_never_shows_replayed_feedback_as_live(procs: Procs, 
         tmp_path / "replay.now",
     )
     script.write_text(CAPTURE_REPLAY)
-    attacker = procs.start("attacker", [str(script), ep, "bipedtele/nao1/feedback", str(captured), str(trigger),
-                                        "3.0", "10.0"], raw=True)  # fmt: skip
+    attacker = procs.start(
+        "attacker", [str(script), ep, "bipedtele/nao1/feedback", str(captured), str(trigger), "3.0", "10.0"], raw=True
+    )
     attacker.wait_log(r'"captured"', 20.0)
     assert leader1.stop() in (0, 3), leader1.tail()
     rep = _json_lines(attacker.log())
@@ -174,13 +175,20 @@ def test_a_restarted_leader_never_shows_replayed_feedback_as_live(procs: Procs, 
     aged = [s for s in samples if s.get("pose_x") is not None and (s.get("fb_age_ms") or 0.0) > 1000.0 * FB_BOUND_S]
     dropped = drops(last, "fb_too_old", "old_session", "bad_mac", "too_old", "stale", "foreign_session")
     figures = {
-        "keyed": keyed, "captured": len(msgs), "replay_age_min_s": round(rep["puts"][0] - newest_sent, 2),
-        "replayed": rep["replayed"], "replayed_after_leader2_up": len(puts_seen),
-        "feedback_recv": len(fb_recv), "replayed_recv": len(replayed_recv), "samples": len(samples),
-        "samples_ok": sum(s.get("link") == "ok" for s in samples), "shown_old_pose": len(shown_old),
-        "ok_on_old_data": len(ok_old), "aged_pose_samples": len(aged),
+        "keyed": keyed,
+        "captured": len(msgs),
+        "replay_age_min_s": round(rep["puts"][0] - newest_sent, 2),
+        "replayed": rep["replayed"],
+        "replayed_after_leader2_up": len(puts_seen),
+        "feedback_recv": len(fb_recv),
+        "replayed_recv": len(replayed_recv),
+        "samples": len(samples),
+        "samples_ok": sum(s.get("link") == "ok" for s in samples),
+        "shown_old_pose": len(shown_old),
+        "ok_on_old_data": len(ok_old),
+        "aged_pose_samples": len(aged),
         "leader2_drops": {k: v for k, v in last.items() if k.startswith("drop_")},
-    }  # fmt: skip
+    }
     print(json.dumps(figures))
     assert len(puts_seen) >= 100, figures
     assert len(fb_recv) >= 100 and figures["samples_ok"] > 0, f"leader 2 never got genuine feedback: {figures}"
@@ -291,10 +299,15 @@ def test_a_forged_high_sequence_copy_without_a_key_costs_the_leader_at_most_2_co
     c0, c1 = (before[-1] if before else {}), st[-1][1]
     delta = {k: v - c0.get(k, 0) for k, v in c1.items() if k.startswith("drop_") and v != c0.get(k, 0)}
     figures = {
-        "dseq": dseq, "dt": dt, "forged_accepted": len(forged_accepted), "lost_after": lost,
-        "lost_before": lost_before, "max_seq_recv": max(seqs) if seqs else None, "watchdog_stops": len(watchdog),
+        "dseq": dseq,
+        "dt": dt,
+        "forged_accepted": len(forged_accepted),
+        "lost_after": lost,
+        "lost_before": lost_before,
+        "max_seq_recv": max(seqs) if seqs else None,
+        "watchdog_stops": len(watchdog),
         "drops_since_forge": delta,
-    }  # fmt: skip
+    }
     print(json.dumps(figures))
     assert max(genuine) >= s0 + n, f"the leader's commands stopped reaching the robot: {figures}"
     assert len(lost) <= 2, f"the forged copy cost the genuine leader {len(lost)} commands: {figures}"

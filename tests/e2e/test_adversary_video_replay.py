@@ -87,10 +87,14 @@ def test_a_replayed_earlier_sessions_video_is_never_shown(procs: Procs, tmp_path
     shown = [r.data["t_capture"] for r in records(l_rec, "video/recv")]
     old, live = [t for t in shown if t < t_stop1], [t for t in shown if t > t_start2]
     st = [dict(r.data["counters"]) for r in records(l_rec, "status/sent")]
-    figures = {"captured": json.loads(attacker.log().splitlines()[0])["captured"], "shown_old": len(old),
-               "shown_live": len(live), "oldest_shown_age_s": round(t_stop1 - min(old), 1) if old else None,
-               "walk_after_start_s": round(t_walk - t_start2, 1),
-               "leader_drops": {k: v for k, v in st[-1].items() if k.startswith("drop_")} if st else {}}  # fmt: skip
+    figures = {
+        "captured": json.loads(attacker.log().splitlines()[0])["captured"],
+        "shown_old": len(old),
+        "shown_live": len(live),
+        "oldest_shown_age_s": round(t_stop1 - min(old), 1) if old else None,
+        "walk_after_start_s": round(t_walk - t_start2, 1),
+        "leader_drops": {k: v for k, v in st[-1].items() if k.startswith("drop_")} if st else {},
+    }
     print(json.dumps(figures))
     assert figures["captured"] >= 5, figures
     assert not old, f"the earlier session's video was shown as live: {figures}"

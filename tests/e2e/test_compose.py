@@ -152,8 +152,10 @@ def _copy_tree(dest: Path) -> None:
     """The working tree's files that git does not ignore (tracked or not), into ``dest``."""
     listed = subprocess.run(
         ["git", "-C", str(REPO), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-        capture_output=True, timeout=60, check=True,
-    ).stdout.decode()  # fmt: skip
+        capture_output=True,
+        timeout=60,
+        check=True,
+    ).stdout.decode()
     for rel in filter(None, listed.split("\0")):
         src = REPO / rel
         if src.is_file():  # deleted but still in the index: not part of the tree
@@ -224,8 +226,11 @@ def test_compose_stack_builds_runs_records_and_reports(engine: Engine, tmp_path:
     env = {**os.environ, "DOCKER": engine.docker}
     base = subprocess.run(
         ["bash", str(REPO / "scripts" / "docker-base-image.sh"), BASE_IMAGE],
-        capture_output=True, text=True, timeout=600, env=env,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     assert base.returncode == 0, base.stdout + base.stderr
     timings["base image"] = time.monotonic() - t_start
 
@@ -234,10 +239,23 @@ def test_compose_stack_builds_runs_records_and_reports(engine: Engine, tmp_path:
     _copy_tree(ctx)
     wheels = ctx / "docker" / "wheels"
     wheel = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "-q", "--disable-pip-version-check", "-w", str(wheels),
-         f"{ctx}[all]", "setuptools>=68", "wheel"],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--disable-pip-version-check",
+            "-w",
+            str(wheels),
+            f"{ctx}[all]",
+            "setuptools>=68",
+            "wheel",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert wheel.returncode == 0, wheel.stderr[-3000:]
     for w in wheels.glob("bipedtele-*.whl"):  # the image builds the project from its sources
         w.unlink()
@@ -247,7 +265,9 @@ def test_compose_stack_builds_runs_records_and_reports(engine: Engine, tmp_path:
     image = f"bipedtele-test:{tag}"
     cockpit_port = _free_port()
     compose = Compose(
-        compose_exe, ctx / "docker" / "compose.yaml", f"bipedtele-test-{tag}",
+        compose_exe,
+        ctx / "docker" / "compose.yaml",
+        f"bipedtele-test-{tag}",
         {
             **os.environ,
             "BIPEDTELE_IMAGE": image,
@@ -255,7 +275,7 @@ def test_compose_stack_builds_runs_records_and_reports(engine: Engine, tmp_path:
             "BIPEDTELE_COCKPIT_PORT": str(cockpit_port),
             "BIPEDTELE_DURATION": f"{WALK_S:g}",
         },
-    )  # fmt: skip
+    )
     out = tmp_path / "out"
     failed = False
     try:

@@ -74,11 +74,19 @@ def test_garbage_on_every_key_is_dropped_and_counted(procs: Procs, tmp_path: Pat
 
         def counted() -> bool:
             f, ll = latest("follower"), latest("leader")
-            return (f is not None and ll is not None
-                    and _drops(f) - _drops(f0) >= want_f and _drops(ll) - _drops(l0) >= want_l)  # fmt: skip
+            return (
+                f is not None
+                and ll is not None
+                and _drops(f) - _drops(f0) >= want_f
+                and _drops(ll) - _drops(l0) >= want_l
+            )
 
-        wait_until(counted, 10.0, "the drops counted in both statuses",
-                   lambda: f"follower {latest('follower')}\nleader {latest('leader')}")  # fmt: skip
+        wait_until(
+            counted,
+            10.0,
+            "the drops counted in both statuses",
+            lambda: f"follower {latest('follower')}\nleader {latest('leader')}",
+        )
         mon.wait_state("walking", t1, timeout_s=5.0, hold_s=1.0)
         f1, l1 = latest("follower"), latest("leader")
         assert f1 is not None and l1 is not None
@@ -90,8 +98,14 @@ def test_garbage_on_every_key_is_dropped_and_counted(procs: Procs, tmp_path: Pat
     assert _drops(f1) - _drops(f0) == want_f, f1.counters
     assert _drops(l1) - _drops(l0) == want_l, l1.counters
     reasons = {k for k, v in {**f1.counters, **l1.counters}.items() if k.startswith("drop_") and v}
-    assert {"drop_not_msgpack", "drop_not_a_map", "drop_bad_version", "drop_unknown_kind",
-            "drop_bad_field", "drop_missing_field"} <= reasons, reasons  # fmt: skip
+    assert {
+        "drop_not_msgpack",
+        "drop_not_a_map",
+        "drop_bad_version",
+        "drop_unknown_kind",
+        "drop_bad_field",
+        "drop_missing_field",
+    } <= reasons, reasons
     # ... and logged (rate-limited: one line per reason per interval)
     assert "follower: dropped" in follower.log() and "not_msgpack" in follower.log()
     assert "leader: dropped" in leader.log() and "not_msgpack" in leader.log()
@@ -105,5 +119,6 @@ def test_garbage_on_every_key_is_dropped_and_counted(procs: Procs, tmp_path: Pat
     fbs = [r.data for r in records(f_rec, "feedback/sent") if t0 <= r.data["t"] <= t1 + 1.0]
     assert fbs and {d["state"] for d in fbs} == {"walking"}
     assert fbs[-1]["pose"][0] > fbs[0]["pose"][0], "the robot stopped moving forward"
-    assert not any(r.data["event"] in ("fall", "watchdog_stop") and t0 <= r.data["t"] <= t1 + 1.0
-                   for r in records(f_rec, "events"))  # fmt: skip
+    assert not any(
+        r.data["event"] in ("fall", "watchdog_stop") and t0 <= r.data["t"] <= t1 + 1.0 for r in records(f_rec, "events")
+    )

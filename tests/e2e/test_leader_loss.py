@@ -42,10 +42,11 @@ def test_kill_leader_mid_walk_then_new_leader(procs: Procs, tmp_path: Path) -> N
     follower_rec = tmp_path / "follower.mcap"
     start_router(procs, ep)
     follower = start_follower(
-        procs, ep, [*NO_VIDEO, "--set", f"follower.watchdog_s={WATCHDOG_S}",
-                    "--set", f"follower.control_rate_hz={CONTROL_HZ:g}"],
+        procs,
+        ep,
+        [*NO_VIDEO, "--set", f"follower.watchdog_s={WATCHDOG_S}", "--set", f"follower.control_rate_hz={CONTROL_HZ:g}"],
         record=follower_rec,
-    )  # fmt: skip
+    )
     with Monitor(ep) as mon:
         leader1 = start_leader(procs, ep, walking_script(5.0), name="leader1")
         t_walk = mon.wait_state("walking", time.time() - 60, timeout_s=30.0, hold_s=3.0)

@@ -51,10 +51,21 @@ def _leader(procs: Procs, endpoint: str, profile: Path, name: str) -> tuple[int,
     """Run a scripted leader for LEADER_S; return (exit code, log, seconds from ready to the
     warning, or None)."""
     args = [
-        "leader", "--config", str(profile), "--set", 'network.mode="client"',
-        "--set", f'network.connect=["{endpoint}"]', "--set", "network.listen=[]",
-        *walking_script(5.0), "--duration", f"{LEADER_S:g}", "--set", "record.enabled=false",
-    ]  # fmt: skip
+        "leader",
+        "--config",
+        str(profile),
+        "--set",
+        'network.mode="client"',
+        "--set",
+        f'network.connect=["{endpoint}"]',
+        "--set",
+        "network.listen=[]",
+        *walking_script(5.0),
+        "--duration",
+        f"{LEADER_S:g}",
+        "--set",
+        "record.enabled=false",
+    ]
     p = procs.start(name, args)
     t_ready = t_warn = None
     deadline = time.monotonic() + 90.0

@@ -131,8 +131,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     block_log = folder / "blocked.txt"
     env = {
         "PYTHONPATH": os.pathsep.join([str(HERE / "windowslike"), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep),
-        "BIPEDTELE_BLOCK": BLOCKED, "BIPEDTELE_BLOCK_LOG": str(block_log),
-    }  # fmt: skip
+        "BIPEDTELE_BLOCK": BLOCKED,
+        "BIPEDTELE_BLOCK_LOG": str(block_log),
+    }
     fox = ["--foxglove", "127.0.0.1:0"]
     seen: dict[str, Seen] = {}
 
@@ -145,13 +146,17 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
         start_router(procs, ep)
         follower = start_follower(procs, ep, [*VIDEO, "--set", OBSTACLE, *fox], record=rec["follower"])
         f_url = "ws://" + follower.wait_log(r"foxglove live view on ws://(\S+)", 30.0).group(1)
-        leader = start_leader(procs, ep, ["--device", "gamepad", "--set", "leader.cockpit_port=0", *fox],
-                              record=rec["leader"], env=env)  # fmt: skip
+        leader = start_leader(
+            procs, ep, ["--device", "gamepad", "--set", "leader.cockpit_port=0", *fox], record=rec["leader"], env=env
+        )
         l_url = "ws://" + leader.wait_log(r"foxglove live view on ws://(\S+)", 30.0).group(1)
         url = leader.wait_log(r"cockpit: open (http://\S+)", 10.0).group(1)
-        watchers = [watching("follower", f_url), watching("leader", l_url),
-                    watching("no token", l_url.split("?")[0]),
-                    watching("foreign origin", l_url, {"Origin": "https://evil.example.com"})]  # fmt: skip
+        watchers = [
+            watching("follower", f_url),
+            watching("leader", l_url),
+            watching("no token", l_url.split("?")[0]),
+            watching("foreign origin", l_url, {"Origin": "https://evil.example.com"}),
+        ]
         t_walk, t_release, effects, label = _drive(url)
         for th in watchers:
             th.join(30.0)
@@ -219,8 +224,10 @@ def _channels(path: Path) -> dict[str, tuple[str, bytes]]:
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
-    return {ch.topic: (summary.schemas[ch.schema_id].name, summary.schemas[ch.schema_id].data)
-            for ch in summary.channels.values()}  # fmt: skip
+    return {
+        ch.topic: (summary.schemas[ch.schema_id].name, summary.schemas[ch.schema_id].data)
+        for ch in summary.channels.values()
+    }
 
 
 @pytest.mark.parametrize("role", ["leader", "follower"])

@@ -86,5 +86,7 @@ def test_router_restart_both_sides_reconnect(procs: Procs, tmp_path: Path) -> No
     assert during[-1]["gain"] == 0.0
     assert states[-1]["t"] > t_back and states[-1]["link"] == "ok" and states[-1]["gain"] == 1.0
     reconnect_s = min(t for t in fb_recv if t > t_back) - t_back
-    print(f"feedback back at the leader {reconnect_s:.2f} s after the new router started; "
-          f"robot walking again after {t_walk_again - t_back:.2f} s")  # fmt: skip
+    print(
+        f"feedback back at the leader {reconnect_s:.2f} s after the new router started; "
+        f"robot walking again after {t_walk_again - t_back:.2f} s"
+    )

@@ -54,9 +54,12 @@ def sites_link(tmp_path: Path) -> Iterator[EmulatedLink]:
     tag = secrets.token_hex(2)
     n = int(tag, 16) % 250 + 2
     link = EmulatedLink(
-        ["--forward", "const:40ms", "--backward", "const:40ms"], tag=tag,
-        a_ip=f"10.234.{n}.1", b_ip=f"10.234.{n}.2", log_path=tmp_path / "linkemu.log",
-    )  # fmt: skip
+        ["--forward", "const:40ms", "--backward", "const:40ms"],
+        tag=tag,
+        a_ip=f"10.234.{n}.1",
+        b_ip=f"10.234.{n}.2",
+        log_path=tmp_path / "linkemu.log",
+    )
     try:
         try:
             link.__enter__()
@@ -77,10 +80,13 @@ def test_two_sites_two_pairs_an_observer_and_a_hand_over(sites_link: EmulatedLin
     link = sites_link
     lab = {"lab1": link.ns[SIDE_A], "lab2": link.ns[SIDE_B]}
     out = write_sites(
-        tmp_path / "sites", {"lab1": link.ip(SIDE_A), "lab2": link.ip(SIDE_B)}, {"nao1": "lab1", "nao2": "lab2"},
-        {"alice": ("lab1", ["nao1"]), "dave": ("lab1", ["nao1"]), "bob": ("lab1", ["nao2"])}, 7447,
+        tmp_path / "sites",
+        {"lab1": link.ip(SIDE_A), "lab2": link.ip(SIDE_B)},
+        {"nao1": "lab1", "nao2": "lab2"},
+        {"alice": ("lab1", ["nao1"]), "dave": ("lab1", ["nao1"]), "bob": ("lab1", ["nao2"])},
+        7447,
         {"carol": ("lab2", ["nao1", "nao2"])},
-    )  # fmt: skip
+    )
     words = {name: cmds[0].split()[1:] for name, cmds in out.commands.items()}  # as printed, without "bipedtele"
     rec = {k: tmp_path / f"{k}.mcap" for k in ("nao1", "nao2", "alice", "bob", "dave")}
     cockpit0 = ["--set", "leader.cockpit_port=0"]
@@ -97,18 +103,23 @@ def test_two_sites_two_pairs_an_observer_and_a_hand_over(sites_link: EmulatedLin
         for f in (nao1, nao2):
             f.wait_log(r"follower \S+ ready", 90.0)
         carol.wait_log(r"observing nao1, nao2", 60.0)
-        alice = procs.start("alice", [*words["operator-alice"], *cockpit0, "--record", str(rec["alice"])],
-                            netns=lab["lab1"])  # fmt: skip
+        alice = procs.start(
+            "alice", [*words["operator-alice"], *cockpit0, "--record", str(rec["alice"])], netns=lab["lab1"]
+        )
         bob = procs.start("bob", [*words["operator-bob"], *cockpit0, "--record", str(rec["bob"])], netns=lab["lab1"])
         alice_url = alice.wait_log(r"leader ready: .*cockpit (http://\S+)", 90.0).group(1)
         bob.wait_log(r"leader ready", 90.0)
         t_start = time.time()
         # alice's login aimed at nao2: not hers (the router shows her nothing of nao2)
-        stray = procs.start("alice-at-nao2", [*words["operator-alice"], *cockpit0, "--duration", "14",
-                                              "--set", 'robot.id="nao2"'], netns=lab["lab1"])  # fmt: skip
+        stray = procs.start(
+            "alice-at-nao2",
+            [*words["operator-alice"], *cockpit0, "--duration", "14", "--set", 'robot.id="nao2"'],
+            netns=lab["lab1"],
+        )
         time.sleep(12.0)
-        dave = procs.start("dave", [*words["operator-dave"], *cockpit0, "--record", str(rec["dave"])],
-                           netns=lab["lab1"])  # fmt: skip
+        dave = procs.start(
+            "dave", [*words["operator-dave"], *cockpit0, "--record", str(rec["dave"])], netns=lab["lab1"]
+        )
         dave.wait_log(r"held by another operator: robot nao1 is held by alice", 30.0)
         nao1.wait_log(r"commands from dave refused: robot nao1 is held by alice", 10.0)
         stray.popen.wait(timeout=30)
@@ -125,8 +136,9 @@ def test_two_sites_two_pairs_an_observer_and_a_hand_over(sites_link: EmulatedLin
             assert p.alive(), p.tail()
         # alice presses Release: dave's leader takes nao1
         t_release = time.time()
-        hand = procs.start("alice-release", [str(HERE / "cockpit_hand.py"), alice_url, "release"], raw=True,
-                           netns=lab["lab1"])  # fmt: skip
+        hand = procs.start(
+            "alice-release", [str(HERE / "cockpit_hand.py"), alice_url, "release"], raw=True, netns=lab["lab1"]
+        )
         assert hand.popen.wait(timeout=30) == 0, hand.tail()
         dave.wait_log(r"commands reach the robot again", 20.0)
         t_taken = time.time()
@@ -144,8 +156,10 @@ def test_two_sites_two_pairs_an_observer_and_a_hand_over(sites_link: EmulatedLin
             assert "Traceback" not in p.log(), p.tail()
     finally:
         procs.close()
-    print(f"released at +{t_release - t_start:.1f} s, dave drives from +{t_taken - t_start:.1f} s, "
-          f"lab2 down at +{t_kill - t_start:.1f} s")  # fmt: skip
+    print(
+        f"released at +{t_release - t_start:.1f} s, dave drives from +{t_taken - t_start:.1f} s, "
+        f"lab2 down at +{t_kill - t_start:.1f} s"
+    )
 
     # ---- each robot accepted its own operators only; nao1 passed from alice to dave on release
     cmds = {r: _topic(rec[r], "cmd/recv") for r in ("nao1", "nao2")}
@@ -176,9 +190,11 @@ def test_two_sites_two_pairs_an_observer_and_a_hand_over(sites_link: EmulatedLin
     ev2 = [e.data for e in _topic(rec["nao2"], "events")]
     stops = [e["t"] for e in ev2 if e["event"] == "watchdog_stop" and e["t"] > t_kill]
     assert stops and stops[0] - t_kill <= STOP_WITHIN_S, (stops[:1], t_kill)
-    print(f"hand-over: dave's first command accepted {first_dave - t_release:.2f} s after the Release was sent; "
-          f"nao2 stopped {stops[0] - t_kill:.3f} s after its router was killed; "
-          f"{held[-1]} of dave's commands refused while alice held nao1")  # fmt: skip
+    print(
+        f"hand-over: dave's first command accepted {first_dave - t_release:.2f} s after the Release was sent; "
+        f"nao2 stopped {stops[0] - t_kill:.3f} s after its router was killed; "
+        f"{held[-1]} of dave's commands refused while alice held nao1"
+    )
     assert not [e for e in ev1 if e["event"] == "watchdog_stop" and t_kill < e["t"] < t_end], ev1[-5:]
     after = [c for c in cmds["nao1"] if t_kill < c.t_recv < t_end and c.data["enable"]]
     assert len(after) > 200 and {c.data["operator"] for c in after} == {"dave"}, len(after)  # 100 Hz for 4 s

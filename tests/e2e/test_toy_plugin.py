@@ -80,8 +80,14 @@ def test_the_toy_parts_are_registered_checked_and_offered() -> None:
     assert "toy-walker" in follower_help
     assert "toy-handle" in leader_help and "toy-cruise" in leader_help
     # without the plugin on the path, nothing of it is offered
-    plain = subprocess.run([*CLI, "follower", "--robot", "toy-walker", "--help"], capture_output=True, text=True,
-                           timeout=60, cwd="/", env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})  # fmt: skip
+    plain = subprocess.run(
+        [*CLI, "follower", "--robot", "toy-walker", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd="/",
+        env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"},
+    )
     assert plain.returncode == 2 and "toy-walker" in plain.stderr
 
 
@@ -93,12 +99,17 @@ def test_bipedtele_drives_the_toy_robot_from_the_toy_handle_and_operator(procs: 
     calls = tmp_path / "toy-walker.jsonl"
     start_router(procs, ep)
     follower = start_follower(
-        procs, ep, ["--robot", "toy-walker", "--set", f'toy_walker.log_path="{calls}"',
-                        "--set", "follower.camera_fps=0"], env=ENV,
-    )  # fmt: skip
+        procs,
+        ep,
+        ["--robot", "toy-walker", "--set", f'toy_walker.log_path="{calls}"', "--set", "follower.camera_fps=0"],
+        env=ENV,
+    )
     leader = start_leader(
-        procs, ep, ["--device", "toy-handle", "--operator", "toy-cruise", "--set", "leader.pilot_speed_cm_s=5"], env=ENV,
-    )  # fmt: skip
+        procs,
+        ep,
+        ["--device", "toy-handle", "--operator", "toy-cruise", "--set", "leader.pilot_speed_cm_s=5"],
+        env=ENV,
+    )
 
     def walked() -> bool:
         if not calls.exists():

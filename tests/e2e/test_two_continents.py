@@ -67,8 +67,11 @@ def three_hosts(tmp_path: Path) -> Iterator[ThreeHosts]:
     ip = {"operator": f"10.233.{n}.1", "router": f"10.233.{n}.2", "robot": f"10.233.{n}.3"}
     link = EmulatedLink(
         ["--forward", f"const:{FORWARD_MS:g}ms", "--backward", f"const:{BACKWARD_MS:g}ms"],
-        tag=tag, a_ip=ip["operator"], b_ip=ip["router"], log_path=tmp_path / "linkemu.log",
-    )  # fmt: skip
+        tag=tag,
+        a_ip=ip["operator"],
+        b_ip=ip["router"],
+        log_path=tmp_path / "linkemu.log",
+    )
     etc: list[Path] = []
     try:
         try:
@@ -93,10 +96,19 @@ def three_hosts(tmp_path: Path) -> Iterator[ThreeHosts]:
 def _setup(out: Path, name: str = ROUTER_NAME) -> dict[str, list[str]]:
     """Run the setup command; return host -> the printed command's words after ``bipedtele``."""
     r = subprocess.run(
-        [str(Path(shutil.which("bipedtele") or REPO / ".venv/bin/bipedtele")), "setup", "two-hosts",
-         "--router-name", name, "--out", str(out)],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        [
+            str(Path(shutil.which("bipedtele") or REPO / ".venv/bin/bipedtele")),
+            "setup",
+            "two-hosts",
+            "--router-name",
+            name,
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     commands = {}
     for host in ("router", "robot", "operator"):
@@ -175,8 +187,10 @@ def test_two_continents_as_written(three_hosts: ThreeHosts, tmp_path: Path) -> N
         states = [r.data for r in l_rec if r.topic == "leader/state" and r.data.get("h1_ms") and r.data.get("h2_ms")]
         late = states[len(states) // 2 :]
         h_sum_est = statistics.median(s["h1_ms"] + s["h2_ms"] for s in late)
-        print(f"h2 message median {1000 * h2:.1f} ms (emulator {BACKWARD_MS:g}); leader's h1+h2 {h_sum_est:.1f} ms "
-              f"(emulator {FORWARD_MS + BACKWARD_MS:g})")  # fmt: skip
+        print(
+            f"h2 message median {1000 * h2:.1f} ms (emulator {BACKWARD_MS:g}); leader's h1+h2 {h_sum_est:.1f} ms "
+            f"(emulator {FORWARD_MS + BACKWARD_MS:g})"
+        )
         # The emulator never releases a frame early; it is late by its scheduling (Python on
         # a loaded 2-core machine: a few ms at the median).
         assert 0.0 <= 1000 * h2 - BACKWARD_MS < 15.0
@@ -190,18 +204,31 @@ def test_two_continents_as_written(three_hosts: ThreeHosts, tmp_path: Path) -> N
         wrong_pw.write_text("not-the-password\n")
         wrong_pw.chmod(0o600)
         cases = {
-            "wrong password": ([f"--set=network.password_file={str(wrong_pw)!r}".replace("'", '"')],
-                               r"refused .*(user|password|credentials)"),
-            "no client certificate": (['--set=network.tls_cert=""', '--set=network.tls_key=""', "--set=network.tls_mutual=false"],
-                                      r"client certificate"),
+            "wrong password": (
+                [f"--set=network.password_file={str(wrong_pw)!r}".replace("'", '"')],
+                r"refused .*(user|password|credentials)",
+            ),
+            "no client certificate": (
+                ['--set=network.tls_cert=""', '--set=network.tls_key=""', "--set=network.tls_mutual=false"],
+                r"client certificate",
+            ),
             "client certificate of another CA": (
-                [f'--set=network.tls_cert="{other_certs}/leader.pem"', f'--set=network.tls_key="{other_certs}/leader.key"'],
-                r"client certificate"),
-            "router of another CA": ([f'--set=network.tls_root_ca="{other_certs}/ca.pem"'], r"(unknown|not trusted|another) .*CA|CA"),
-            "router dialled by its address": ([f'--set=network.connect=["tls/{hosts.ip["router"]}:{PORT}"]'],
-                                              r"(name|address).*(certificate|mismatch)|does not name"),
+                [
+                    f'--set=network.tls_cert="{other_certs}/leader.pem"',
+                    f'--set=network.tls_key="{other_certs}/leader.key"',
+                ],
+                r"client certificate",
+            ),
+            "router of another CA": (
+                [f'--set=network.tls_root_ca="{other_certs}/ca.pem"'],
+                r"(unknown|not trusted|another) .*CA|CA",
+            ),
+            "router dialled by its address": (
+                [f'--set=network.connect=["tls/{hosts.ip["router"]}:{PORT}"]'],
+                r"(name|address).*(certificate|mismatch)|does not name",
+            ),
             "name that does not resolve": ([f'--set=network.connect=["tls/nowhere.bt.test:{PORT}"]'], r"resolve"),
-        }  # fmt: skip
+        }
         messages = {}
         for i, (case, (extra, pattern)) in enumerate(cases.items()):
             rc, took, log = _run_refused(op, f"refused-{i}", [*base, *extra], ns)
@@ -221,7 +248,7 @@ def test_two_continents_as_written(three_hosts: ThreeHosts, tmp_path: Path) -> N
             f'--set=network.password_file="{robot_home}/secrets/follower.pw"',
             f'--set=network.tls_cert="{robot_home}/certs/follower.pem"',
             f'--set=network.tls_key="{robot_home}/certs/follower.key"',
-        ]  # fmt: skip
+        ]
         rc, took, log = _run_refused(op, "impostor", impostor, ns)
         print(f"leader as follower: rc {rc}: {log.strip().splitlines()[-1]}")
         assert rc != 0, log

@@ -126,19 +126,22 @@ def _write_profiles(d: Path, pair: NetnsPair, certs: Path) -> dict[str, Path]:
         (d / p).chmod(0o600)
     common = f'[network]\ntls_root_ca = "{certs}/ca.pem"\ntls_mutual = true\ntimeout_s = 10.0\n'
     profiles = {
-        "router": common + (
+        "router": common
+        + (
             f'tls_cert = "{certs}/router.pem"\ntls_key = "{certs}/router.key"\n'
             f'credentials_file = "{d}/creds.txt"\npublishers_allowed = ["leader"]\nfollowers_allowed = ["follower"]\n'
         ),
-        "leader": common + (
+        "leader": common
+        + (
             f'tls_cert = "{certs}/leader.pem"\ntls_key = "{certs}/leader.key"\n'
             f'user = "leader"\npassword_file = "{d}/leader.pw"\n'
         ),
-        "follower": common + (
+        "follower": common
+        + (
             f'tls_cert = "{certs}/follower.pem"\ntls_key = "{certs}/follower.key"\n'
             f'user = "follower"\npassword_file = "{d}/follower.pw"\n'
         ),
-    }  # fmt: skip
+    }
     out = {}
     for name, text in profiles.items():
         out[name] = d / f"{name}.toml"
@@ -154,8 +157,10 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
     certs = tmp_path / "certs"
     subprocess.run(
         ["bash", str(REPO / "scripts" / "make-certs.sh"), str(certs), pair.follower_ip, "127.0.0.1"],
-        check=True, capture_output=True, timeout=60,
-    )  # fmt: skip
+        check=True,
+        capture_output=True,
+        timeout=60,
+    )
     prof = _write_profiles(tmp_path, pair, certs)
     router_ep = f"tls/{pair.follower_ip}:{ROUTER_PORT}"
     proxy_port = free_port()  # any port: the leader namespace has nothing else listening
@@ -168,10 +173,19 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
     router.wait_log(r"router: \S+ listening on", 30.0)
     proxy = procs.start(
         "proxy",
-        ["delay-proxy", "--listen", f"127.0.0.1:{proxy_port}", "--target", f"{pair.follower_ip}:{ROUTER_PORT}",
-         "--forward", f"const:{FORWARD_S * 1000:g}ms", "--backward", f"const:{BACKWARD_S * 1000:g}ms"],
+        [
+            "delay-proxy",
+            "--listen",
+            f"127.0.0.1:{proxy_port}",
+            "--target",
+            f"{pair.follower_ip}:{ROUTER_PORT}",
+            "--forward",
+            f"const:{FORWARD_S * 1000:g}ms",
+            "--backward",
+            f"const:{BACKWARD_S * 1000:g}ms",
+        ],
         netns=pair.leader_ns,
-    )  # fmt: skip
+    )
     follower = start_follower(
         procs,
         router_ep,
@@ -181,9 +195,13 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
         wait=False,
     )
     leader = start_leader(
-        procs, proxy_ep, ["--config", str(prof["leader"]), *walking_script(5.0)],
-        netns=pair.leader_ns, record=l_rec, wait=False,
-    )  # fmt: skip
+        procs,
+        proxy_ep,
+        ["--config", str(prof["leader"]), *walking_script(5.0)],
+        netns=pair.leader_ns,
+        record=l_rec,
+        wait=False,
+    )
     follower.wait_log(r"follower \S+ ready", 60.0)
     leader.wait_log(r"leader ready", 60.0)
 
@@ -191,18 +209,35 @@ def test_two_hosts_tls_userpwd_delay_proxy(netns_pair: NetnsPair, procs: Procs, 
     zc = [str(HERE / "zclient.py"), "--connect", proxy_ep, "--ca", str(certs / "ca.pem"), "--seconds", "2"]
     mine = ["--cert", str(certs / "leader.pem"), "--key", str(certs / "leader.key")]
     clients = {
-        "valid": procs.start("client-valid", [*zc, *mine, "--user", "leader", "--password", "leader-pw"], raw=True, netns=pair.leader_ns),
-        "wrong_password": procs.start("client-wrongpw", [*zc, *mine, "--user", "leader", "--password", "guess"], raw=True, netns=pair.leader_ns),
-        "no_client_cert": procs.start("client-nocert", [*zc, "--user", "leader", "--password", "leader-pw"], raw=True, netns=pair.leader_ns),
+        "valid": procs.start(
+            "client-valid", [*zc, *mine, "--user", "leader", "--password", "leader-pw"], raw=True, netns=pair.leader_ns
+        ),
+        "wrong_password": procs.start(
+            "client-wrongpw", [*zc, *mine, "--user", "leader", "--password", "guess"], raw=True, netns=pair.leader_ns
+        ),
+        "no_client_cert": procs.start(
+            "client-nocert", [*zc, "--user", "leader", "--password", "leader-pw"], raw=True, netns=pair.leader_ns
+        ),
         # a valid identity that is not the leader tries to stop the robot: the router's
         # access control drops its commands
         "follower_commands": procs.start(
             "client-rogue",
-            [*zc, "--cert", str(certs / "follower.pem"), "--key", str(certs / "follower.key"),
-             "--user", "follower", "--password", "follower-pw", "--put-cmd"],
-            raw=True, netns=pair.leader_ns,
+            [
+                *zc,
+                "--cert",
+                str(certs / "follower.pem"),
+                "--key",
+                str(certs / "follower.key"),
+                "--user",
+                "follower",
+                "--password",
+                "follower-pw",
+                "--put-cmd",
+            ],
+            raw=True,
+            netns=pair.leader_ns,
         ),
-    }  # fmt: skip
+    }
     results = {}
     for name, c in clients.items():
         assert c.popen.wait(timeout=60) == 0, c.tail()

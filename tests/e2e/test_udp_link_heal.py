@@ -137,8 +137,26 @@ def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs:
     elif which == "garbage":  # to the router's UDP port, as if from the follower's control link
         _spoof(procs, hosts.robot_ns, f"{hosts.robot_ip}:{local}", f"{hosts.router_ip}:{peer}", ["--random", "40"])
     else:  # dead: the router's datagrams to that port vanish (a NAT that rebound it), TLS still passes
-        r = subprocess.run(["ip", "netns", "exec", hosts.robot_ns, "iptables", "-A", "INPUT", "-p", "udp",
-                            "--dport", str(local), "-j", "DROP"], capture_output=True, text=True, timeout=20)  # fmt: skip
+        r = subprocess.run(
+            [
+                "ip",
+                "netns",
+                "exec",
+                hosts.robot_ns,
+                "iptables",
+                "-A",
+                "INPUT",
+                "-p",
+                "udp",
+                "--dport",
+                str(local),
+                "-j",
+                "DROP",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=20,
+        )
         assert r.returncode == 0, r.stderr
     t_walk = wait_recorded_state(rec, "walking", t_attack, timeout_s=20.0, hold_s=1.0)
     time.sleep(2.0)  # the log lines of the recovery (the router judges a loss after 0.3 s)
@@ -153,17 +171,27 @@ def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs:
 @pytest.mark.timeout(120)
 def test_forged_udp_datagrams_cost_at_most_a_stop(hosts: Hosts, procs: Procs, tmp_path: Path) -> None:
     setup = tmp_path / "setup"
-    r = subprocess.run([*CLI, "setup", "two-hosts", "--router-name", hosts.router_ip, "--out", str(setup)],
-                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [*CLI, "setup", "two-hosts", "--router-name", hosts.router_ip, "--out", str(setup)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     f_rec = tmp_path / "follower.mcap"
     router = procs.start("router", ["router", "--config", f"{setup}/router/bipedtele.toml"], netns=hosts.router_ns)
     router.wait_log(r"router: \S+ listening on", 30.0)
-    follower = procs.start("follower", ["follower", "--config", f"{setup}/robot/bipedtele.toml", *NO_VIDEO,
-                                       "--record", str(f_rec)], netns=hosts.robot_ns)  # fmt: skip
+    follower = procs.start(
+        "follower",
+        ["follower", "--config", f"{setup}/robot/bipedtele.toml", *NO_VIDEO, "--record", str(f_rec)],
+        netns=hosts.robot_ns,
+    )
     l_rec = tmp_path / "leader.mcap"
-    leader = procs.start("leader", ["leader", "--config", f"{setup}/operator/bipedtele.toml", *walking_script(5.0),
-                                    "--record", str(l_rec)], netns=hosts.router_ns)  # fmt: skip
+    leader = procs.start(
+        "leader",
+        ["leader", "--config", f"{setup}/operator/bipedtele.toml", *walking_script(5.0), "--record", str(l_rec)],
+        netns=hosts.router_ns,
+    )
     follower.wait_log(r"follower \S+ ready", 60.0)
     leader.wait_log(r"leader ready", 60.0)
     wait_recorded_state(f_rec, "walking", 0.0, timeout_s=40.0, hold_s=1.5)

@@ -52,10 +52,20 @@ def test_a_gap_of_the_robots_uplink_names_no_acl_and_stops_the_blind_operator(tm
     commands = mod.setup_two_hosts(setup)
     trace = _trace(tmp_path / "gap.mahi")
     cond = mod.Condition(
-        "gap", "uplink gap 3.5 s in 12.5 s", "lan",
-        ("--forward", "const:40ms", "--backward", "const:40ms", "--rate-forward", f"mahimahi:{trace}",
-         "--queue-forward", "256kB"),
-    )  # fmt: skip
+        "gap",
+        "uplink gap 3.5 s in 12.5 s",
+        "lan",
+        (
+            "--forward",
+            "const:40ms",
+            "--backward",
+            "const:40ms",
+            "--rate-forward",
+            f"mahimahi:{trace}",
+            "--queue-forward",
+            "256kB",
+        ),
+    )
     tag = f"b33{secrets.token_hex(1)[0]}"
     ack = ("--set", "leader.status_rate_hz=10")  # acknowledgements for the in-flight cap
     r: dict[str, Any] = mod.run_condition(

@@ -42,8 +42,9 @@ def packet(src: tuple[str, int], dst: tuple[str, int], payload: bytes) -> bytes:
     udp = struct.pack("!HHHH", src[1], dst[1], length, 0)
     csum = _checksum(pseudo + udp + payload) or 0xFFFF
     udp = struct.pack("!HHHH", src[1], dst[1], length, csum)
-    ip = struct.pack("!BBHHHBBH4s4s", 0x45, 0, 20 + length, os.getpid() & 0xFFFF, 0, 64, socket.IPPROTO_UDP, 0,
-                     s_ip, d_ip)  # fmt: skip
+    ip = struct.pack(
+        "!BBHHHBBH4s4s", 0x45, 0, 20 + length, os.getpid() & 0xFFFF, 0, 64, socket.IPPROTO_UDP, 0, s_ip, d_ip
+    )
     ip = ip[:10] + struct.pack("!H", _checksum(ip)) + ip[12:]
     return ip + udp + payload
 

@@ -41,9 +41,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=3.0, help="session open timeout [s]")
     args = ap.parse_args(argv)
     net = NetworkConfig(
-        mode="client", connect=[args.connect], tls_root_ca=args.ca, tls_cert=args.cert, tls_key=args.key,
-        tls_mutual=bool(args.cert), user=args.user, password=args.password, timeout_s=args.timeout,
-    )  # fmt: skip
+        mode="client",
+        connect=[args.connect],
+        tls_root_ca=args.ca,
+        tls_cert=args.cert,
+        tls_key=args.key,
+        tls_mutual=bool(args.cert),
+        user=args.user,
+        password=args.password,
+        timeout_s=args.timeout,
+    )
     out: dict[str, object] = {"opened": False, "error": None, "feedback": 0, "put_cmd": 0}
     try:
         with open_session(net) as session:

@@ -59,9 +59,18 @@ def main(argv: list[str]) -> int:
                 elapsed = now - t0
                 if elapsed < silent_s:
                     seq += 1
-                    fb = Feedback(sid=sid, seq=seq, t=now, z_e=list(z), z_r=list(z), eta=list(z), ref=list(ref),
-                                  h1_s=h1.value(now) or 0.0, state="walking" if got else "standing",
-                                  cmd_seq=got.msg.seq if got else 0)  # fmt: skip
+                    fb = Feedback(
+                        sid=sid,
+                        seq=seq,
+                        t=now,
+                        z_e=list(z),
+                        z_r=list(z),
+                        eta=list(z),
+                        ref=list(ref),
+                        h1_s=h1.value(now) or 0.0,
+                        state="walking" if got else "standing",
+                        cmd_seq=got.msg.seq if got else 0,
+                    )
                     line.model = ConstDelay(delay1 if elapsed < switch_s else delay2)
                     line.push(now, fb)
             for fb in line.pop_ready(time.time()):

@@ -25,17 +25,31 @@ def main() -> int:
         endpoint = f"tcp/{link.follower_ip}:7447"
         router = subprocess.Popen(
             [*link.exec_prefix(FOLLOWER), *CLI, "router", "--listen", endpoint],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-        )  # fmt: skip
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
         health = None
         deadline = time.monotonic() + 60.0
         while time.monotonic() < deadline and not stop.is_set():
             health = subprocess.run(
-                [*link.exec_prefix(LEADER), *CLI, "health", "--role", "router",
-                 "--set", 'network.mode="client"', "--set", f'network.connect=["{endpoint}"]',
-                 "--set", "network.timeout_s=5.0"],
-                capture_output=True, text=True, timeout=60,
-            )  # fmt: skip
+                [
+                    *link.exec_prefix(LEADER),
+                    *CLI,
+                    "health",
+                    "--role",
+                    "router",
+                    "--set",
+                    'network.mode="client"',
+                    "--set",
+                    f'network.connect=["{endpoint}"]',
+                    "--set",
+                    "network.timeout_s=5.0",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
             if health.returncode == 0:
                 break
             time.sleep(0.5)

@@ -26,25 +26,53 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-]  # fmt: skip
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 
 
 def _sample(t: float, i: int) -> dict[str, object]:
     return {
-        "t": t, "ref_v": 5.0 * math.sin(t), "eta_v": 4.0 * math.sin(t - 0.3),
-        "z_e_v": 4.5 * math.sin(t - 0.2), "ref_w": 4.0 * math.cos(t),
-        "eta_w": 3.5 * math.cos(t - 0.3), "z_e_w": 3.8 * math.cos(t - 0.2),
-        "force_v": math.sin(2 * t), "force_w": 0.5 * math.cos(2 * t),
-        "h1_ms": 150.0 + 20 * math.sin(t), "h2_ms": 180.0 + 30 * math.cos(0.7 * t),
-        "alpha_m_v": 2.0 + 0.1 * math.sin(t), "alpha_m_w": 1.5, "s_r_v": 0.8, "s_r_w": 0.6,
-        "T": 0.6 + 0.05 * math.sin(t), "eps": 0.5, "state": "walking", "link": "ok",
-        "watchdog": 0, "held_by": "alice", "hand": "drive", "me": "dave", "falls": 0, "passes_done": i // 200, "sonar_left_m": 0.8,
-        "fb_age_ms": 312.4, "loss_pct": 1.25, "rx_kbps": 850.2, "tx_kbps": 900.0, "video_fps": 9.8,
+        "t": t,
+        "ref_v": 5.0 * math.sin(t),
+        "eta_v": 4.0 * math.sin(t - 0.3),
+        "z_e_v": 4.5 * math.sin(t - 0.2),
+        "ref_w": 4.0 * math.cos(t),
+        "eta_w": 3.5 * math.cos(t - 0.3),
+        "z_e_w": 3.8 * math.cos(t - 0.2),
+        "force_v": math.sin(2 * t),
+        "force_w": 0.5 * math.cos(2 * t),
+        "h1_ms": 150.0 + 20 * math.sin(t),
+        "h2_ms": 180.0 + 30 * math.cos(0.7 * t),
+        "alpha_m_v": 2.0 + 0.1 * math.sin(t),
+        "alpha_m_w": 1.5,
+        "s_r_v": 0.8,
+        "s_r_w": 0.6,
+        "T": 0.6 + 0.05 * math.sin(t),
+        "eps": 0.5,
+        "state": "walking",
+        "link": "ok",
+        "watchdog": 0,
+        "held_by": "alice",
+        "hand": "drive",
+        "me": "dave",
+        "falls": 0,
+        "passes_done": i // 200,
+        "sonar_left_m": 0.8,
+        "fb_age_ms": 312.4,
+        "loss_pct": 1.25,
+        "rx_kbps": 850.2,
+        "tx_kbps": 900.0,
+        "video_fps": 9.8,
         "video_quality": 60,
-    }  # fmt: skip
+    }
 
 
 def _jpeg(i: int) -> bytes:
@@ -229,8 +257,11 @@ def _map_sample(t: float) -> dict[str, object]:
     """The robot as reported, and the leader predictor's two ghosts ahead of it on its heading."""
     yaw = 0.3 + 0.05 * math.sin(t)
     x, y = 1.2 + 0.02 * math.sin(t), 0.1
-    ahead = {f"{name}_{k}": v for name, d in (("pred", 0.35), ("ahead", 0.7))
-             for k, v in (("x", x + d * math.cos(yaw)), ("y", y + d * math.sin(yaw)), ("yaw", yaw))}  # fmt: skip
+    ahead = {
+        f"{name}_{k}": v
+        for name, d in (("pred", 0.35), ("ahead", 0.7))
+        for k, v in (("x", x + d * math.cos(yaw)), ("y", y + d * math.sin(yaw)), ("yaw", yaw))
+    }
     return {
         "t": t,
         "pose_x": x,

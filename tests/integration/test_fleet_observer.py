@@ -44,8 +44,16 @@ def fleet(tmp_path: Path) -> Iterator[Path]:
 
 
 def _status(role: str, seq: int, state: str, text: str, counters: dict[str, int], **who: str) -> Status:
-    return Status(sid=0x1234 if role == "leader" else 0x5678, seq=seq, t=time.time(), role=role, state=state,
-                  counters=counters, text=text, **who)  # fmt: skip
+    return Status(
+        sid=0x1234 if role == "leader" else 0x5678,
+        seq=seq,
+        t=time.time(),
+        role=role,
+        state=state,
+        counters=counters,
+        text=text,
+        **who,
+    )
 
 
 def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
@@ -61,8 +69,10 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
             ls, lnet = login(lead)
             stack.enter_context(declare_presence(rs, Keys(r), "follower"))
             stack.enter_context(declare_presence(ls, Keys(r), "leader"))
-            pubs[r] = (stack.enter_context(Publishers(rs, Keys(r), auth=load_message_auth(rnet))),
-                       stack.enter_context(Publishers(ls, Keys(r), auth=load_message_auth(lnet))))  # fmt: skip
+            pubs[r] = (
+                stack.enter_context(Publishers(rs, Keys(r), auth=load_message_auth(rnet))),
+                stack.enter_context(Publishers(ls, Keys(r), auth=load_message_auth(lnet))),
+            )
         carol, dave = login("observer-carol/bipedtele.toml")[0], login("observer-dave/bipedtele.toml")[0]
         carol_again = login("observer-carol/bipedtele.toml")[0]  # her puts (a session hears its own)
         # what each observer receives (raw, key by key: the ACL refuses a wildcard subscription),
@@ -89,19 +99,43 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
                 for r, (fp, lp) in pubs.items():
                     who = "alice" if r == "nao1" else "bob"
                     fp.status.put(_status("follower", seq, "walking", f"robot={r}", {"falls": 0}, held_by=who))
-                    lp.status.put(_status("leader", seq, "running", "clock: ntp",
-                                          {"fb_age_ms": 12, "fb_loss_ppm": 1000, "rx_bps": 64000}, operator=who))  # fmt: skip
-                    fp.video.put(VideoFrame(sid=0x5678, seq=seq, t=time.time(), camera="head", width=2, height=2,
-                                            jpeg=b"\xff\xd8jpeg"))  # fmt: skip
+                    lp.status.put(
+                        _status(
+                            "leader",
+                            seq,
+                            "running",
+                            "clock: ntp",
+                            {"fb_age_ms": 12, "fb_loss_ppm": 1000, "rx_bps": 64000},
+                            operator=who,
+                        )
+                    )
+                    fp.video.put(
+                        VideoFrame(
+                            sid=0x5678, seq=seq, t=time.time(), camera="head", width=2, height=2, jpeg=b"\xff\xd8jpeg"
+                        )
+                    )
 
         th = threading.Thread(target=publish, daemon=True)
         th.start()
         try:
             # the fleet view, as printed for carol (both robots), from another working folder
             res = subprocess.run(
-                [sys.executable, "-m", "bipedtele.cli", "status", "--config", "observer-carol/bipedtele.toml",
-                 "--seconds", "2", "--json"], capture_output=True, text=True, timeout=60, cwd=fleet,
-            )  # fmt: skip
+                [
+                    sys.executable,
+                    "-m",
+                    "bipedtele.cli",
+                    "status",
+                    "--config",
+                    "observer-carol/bipedtele.toml",
+                    "--seconds",
+                    "2",
+                    "--json",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                cwd=fleet,
+            )
             assert res.returncode == 0, res.stderr
             views = {v["robot"]: v for v in json.loads(res.stdout)["robots"]}
             assert sorted(views) == ROBOTS
@@ -112,9 +146,21 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
                 assert len(v["present"]["follower"]) >= 1 and len(v["present"]["leader"]) == 1, v
                 assert not any(v["dropped"].values()), v
             table = subprocess.run(
-                [sys.executable, "-m", "bipedtele.cli", "status", "--config", "observer-carol/bipedtele.toml",
-                 "--seconds", "1.5"], capture_output=True, text=True, timeout=60, cwd=fleet,
-            )  # fmt: skip
+                [
+                    sys.executable,
+                    "-m",
+                    "bipedtele.cli",
+                    "status",
+                    "--config",
+                    "observer-carol/bipedtele.toml",
+                    "--seconds",
+                    "1.5",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                cwd=fleet,
+            )
             assert table.returncode == 0 and "alice (running; feedback age 12 ms" in table.stdout, table.stdout
             assert "walking, held by alice" in table.stdout, table.stdout
             # carol tries to command nao1: the router drops her put, and her watch key cannot sign one
@@ -129,9 +175,24 @@ def test_the_observer_watches_its_robots_and_commands_none(fleet: Path) -> None:
             time.sleep(1.0)
             # dave's fleet view: nao2 only (his one watch key); asked for nao1 he gets nothing of it
             res = subprocess.run(
-                [sys.executable, "-m", "bipedtele.cli", "status", "--config", "observer-dave/bipedtele.toml",
-                 "--robot", "nao1", "--seconds", "1", "--json"], capture_output=True, text=True, timeout=60, cwd=fleet,
-            )  # fmt: skip
+                [
+                    sys.executable,
+                    "-m",
+                    "bipedtele.cli",
+                    "status",
+                    "--config",
+                    "observer-dave/bipedtele.toml",
+                    "--robot",
+                    "nao1",
+                    "--seconds",
+                    "1",
+                    "--json",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                cwd=fleet,
+            )
             assert res.returncode == 0, res.stderr
             (v,) = json.loads(res.stdout)["robots"]
             assert v["robot"] == "nao1" and not v["verified"] and v["follower"] is None and not v["present"], v

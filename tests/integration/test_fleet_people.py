@@ -39,15 +39,44 @@ def fleet_router(tmp_path: Path, revoked: str) -> Iterator[Path]:
     """``setup fleet`` (alice and dave drive nao1) and its router with ``revoked``; yields the fleet folder."""
     port = free_port()
     out = tmp_path / "fleet"
-    r = subprocess.run([*CLI, "setup", "fleet", "--router-name", "127.0.0.1", "--router-port", str(port),
-                        "--robot", "nao1", "--operator", "alice=nao1", "--operator", "dave=nao1", "--out", str(out)],
-                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [
+            *CLI,
+            "setup",
+            "fleet",
+            "--router-name",
+            "127.0.0.1",
+            "--router-port",
+            str(port),
+            "--robot",
+            "nao1",
+            "--operator",
+            "alice=nao1",
+            "--operator",
+            "dave=nao1",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     router = subprocess.Popen(
-        [*CLI, "router", "--config", str(out / "router" / "bipedtele.toml"), "--listen", f"tls/127.0.0.1:{port}",
-         "--set", f"network.revoked={revoked}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            *CLI,
+            "router",
+            "--config",
+            str(out / "router" / "bipedtele.toml"),
+            "--listen",
+            f"tls/127.0.0.1:{port}",
+            "--set",
+            f"network.revoked={revoked}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert router.stdout is not None
         assert "listening on" in router.stdout.readline()

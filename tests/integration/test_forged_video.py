@@ -80,10 +80,11 @@ def test_forged_frames_at_the_size_bound_cost_no_copy_once_one_failed() -> None:
             SequenceGate(),
             auth=MessageAuth(KEY),
             on_message=lambda r: got.append(r.msg.seq),
-        ),  # fmt: skip
+        ),
     ):
-        sender = subprocess.run([sys.executable, "-c", SENDER, endpoint, keys.video],
-                                capture_output=True, text=True, timeout=40)  # fmt: skip
+        sender = subprocess.run(
+            [sys.executable, "-c", SENDER, endpoint, keys.video], capture_output=True, text=True, timeout=40
+        )
         assert sender.returncode == 0, sender.stderr[-2000:]
         deadline = time.monotonic() + 5.0
         while drops.total < 10 and time.monotonic() < deadline:

@@ -41,18 +41,49 @@ def test_leader_against_a_follower_stub(tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     leader = subprocess.Popen(
         [
-            sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "leader",
-            "--operator", "scripted", "--duration", str(LEADER_S), "--record", str(rec),
-            "--set", f'robot.id="{robot}"', "--set", f'network.listen=["tcp/127.0.0.1:{port}"]',
-            "--set", "leader.cockpit=false", "--set", "leader.script=[[0, 4, 3], [100, 4, 3]]",
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "--log-level",
+            "WARNING",
+            "leader",
+            "--operator",
+            "scripted",
+            "--duration",
+            str(LEADER_S),
+            "--record",
+            str(rec),
+            "--set",
+            f'robot.id="{robot}"',
+            "--set",
+            f'network.listen=["tcp/127.0.0.1:{port}"]',
+            "--set",
+            "leader.cockpit=false",
+            "--set",
+            "leader.script=[[0, 4, 3], [100, 4, 3]]",
         ],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     stub = subprocess.Popen(
-        [sys.executable, str(HERE / "leader_stub_follower.py"), robot, f"tcp/127.0.0.1:{port}",
-         str(D1), str(D2), str(SWITCH), str(SILENT), str(TOTAL)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(HERE / "leader_stub_follower.py"),
+            robot,
+            f"tcp/127.0.0.1:{port}",
+            str(D1),
+            str(D2),
+            str(SWITCH),
+            str(SILENT),
+            str(TOTAL),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         out, err = leader.communicate(timeout=60)
     finally:
@@ -134,20 +165,49 @@ def test_leader_exits_on_its_own_when_the_operator_is_done(tmp_path):
     robot = f"ld{os.getpid()}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     stub = subprocess.Popen(
-        [sys.executable, str(HERE / "leader_stub_follower.py"), robot, f"tcp/127.0.0.1:{port}",
-         "0.02", "0.02", "100", "100", "12"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(HERE / "leader_stub_follower.py"),
+            robot,
+            f"tcp/127.0.0.1:{port}",
+            "0.02",
+            "0.02",
+            "100",
+            "100",
+            "12",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         leader = subprocess.run(
             [
-                sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "leader",
-                "--operator", "scripted", "--record", str(tmp_path / "l.mcap"),
-                "--set", f'robot.id="{robot}"', "--set", f'network.listen=["tcp/127.0.0.1:{port}"]',
-                "--set", "leader.cockpit=false", "--set", "leader.script=[[0, 3, 0], [1.0, 3, 0]]",
+                sys.executable,
+                "-m",
+                "bipedtele.cli",
+                "--log-level",
+                "WARNING",
+                "leader",
+                "--operator",
+                "scripted",
+                "--record",
+                str(tmp_path / "l.mcap"),
+                "--set",
+                f'robot.id="{robot}"',
+                "--set",
+                f'network.listen=["tcp/127.0.0.1:{port}"]',
+                "--set",
+                "leader.cockpit=false",
+                "--set",
+                "leader.script=[[0, 3, 0], [1.0, 3, 0]]",
             ],
-            capture_output=True, text=True, env=env, timeout=40,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=40,
+        )
     finally:
         stub.kill()
         stub.communicate(timeout=10)
@@ -166,21 +226,53 @@ def test_duration_governs_a_shorter_script(tmp_path):
     robot = f"lh{os.getpid()}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     stub = subprocess.Popen(
-        [sys.executable, str(HERE / "leader_stub_follower.py"), robot, f"tcp/127.0.0.1:{port}",
-         "0.02", "0.02", "100", "100", "20"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(HERE / "leader_stub_follower.py"),
+            robot,
+            f"tcp/127.0.0.1:{port}",
+            "0.02",
+            "0.02",
+            "100",
+            "100",
+            "20",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         leader = subprocess.run(
             [
-                sys.executable, "-m", "bipedtele.cli", "--log-level", "WARNING", "leader",
-                "--operator", "scripted", "--duration", "4", "--record", str(tmp_path / "l.mcap"),
-                "--set", f'robot.id="{robot}"', "--set", f'network.listen=["tcp/127.0.0.1:{port}"]',
-                "--set", "leader.cockpit=false", "--set", "leader.script=[[0, 3, 2], [1.0, 3, 2]]",
-                "--set", 'leader.script_interp="step"',
+                sys.executable,
+                "-m",
+                "bipedtele.cli",
+                "--log-level",
+                "WARNING",
+                "leader",
+                "--operator",
+                "scripted",
+                "--duration",
+                "4",
+                "--record",
+                str(tmp_path / "l.mcap"),
+                "--set",
+                f'robot.id="{robot}"',
+                "--set",
+                f'network.listen=["tcp/127.0.0.1:{port}"]',
+                "--set",
+                "leader.cockpit=false",
+                "--set",
+                "leader.script=[[0, 3, 2], [1.0, 3, 2]]",
+                "--set",
+                'leader.script_interp="step"',
             ],
-            capture_output=True, text=True, env=env, timeout=40,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=40,
+        )
     finally:
         stub.kill()
         stub.communicate(timeout=10)
@@ -209,8 +301,11 @@ def test_duration_governs_a_shorter_script(tmp_path):
 def test_bad_arguments_give_one_line_and_exit_2(args, needle, tmp_path):
     res = subprocess.run(
         [sys.executable, "-m", "bipedtele.cli", "leader", "--set", "record.enabled=false", *args],
-        capture_output=True, text=True, timeout=60, cwd=tmp_path,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
     assert res.returncode == 2
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and needle in lines[0], res.stderr

@@ -44,8 +44,11 @@ def free_port() -> int:
 def make_certs(out: Path, *names: str) -> Path:
     subprocess.run(
         ["bash", str(REPO / "scripts" / "make-certs.sh"), str(out), *names],
-        check=True, capture_output=True, timeout=60, cwd=REPO,
-    )  # fmt: skip
+        check=True,
+        capture_output=True,
+        timeout=60,
+        cwd=REPO,
+    )
     return out
 
 
@@ -69,9 +72,20 @@ def tls_router(ours: Path, d: Path, port: int = 0) -> Iterator[tuple[int, list[s
     )
     port = port or free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "router", "--config", str(profile), "--listen", f"tls/127.0.0.1:{port}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "router",
+            "--config",
+            str(profile),
+            "--listen",
+            f"tls/127.0.0.1:{port}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     log: list[str] = []
     try:
         assert proc.stdout is not None
@@ -93,10 +107,16 @@ def router(certs: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -
 def _client(certs: tuple[Path, Path], port: int, host: str = "localhost") -> NetworkConfig:
     ours, _ = certs
     return NetworkConfig(
-        mode="client", connect=[f"tls/{host}:{port}"], tls_root_ca=str(ours / "ca.pem"),
-        tls_cert=str(ours / "leader.pem"), tls_key=str(ours / "leader.key"), tls_mutual=True,
-        user="leader", password="lpw", timeout_s=20.0,
-    )  # fmt: skip
+        mode="client",
+        connect=[f"tls/{host}:{port}"],
+        tls_root_ca=str(ours / "ca.pem"),
+        tls_cert=str(ours / "leader.pem"),
+        tls_key=str(ours / "leader.key"),
+        tls_mutual=True,
+        user="leader",
+        password="lpw",
+        timeout_s=20.0,
+    )
 
 
 def _failure(net: NetworkConfig) -> tuple[LinkError, float]:
@@ -166,8 +186,10 @@ def test_router_logs_refusals_and_health_says_which(certs: tuple[Path, Path], tm
         )
         res = subprocess.run(
             [sys.executable, "-m", "bipedtele.cli", "health", "--config", str(profile), "--role", "router"],
-            capture_output=True, text=True, timeout=30,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
         assert res.returncode == 1, res.stderr
         lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and "user/password refused for user 'follower'" in lines[0], res.stderr

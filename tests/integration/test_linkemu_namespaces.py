@@ -154,10 +154,20 @@ def test_random_loss_on_udp_is_binomial(link: EmulatedLink, tmp_path: Path) -> N
 def test_rate_cap_bounds_a_tcp_transfer(link: EmulatedLink, tmp_path: Path) -> None:
     stats = tmp_path / "stats.json"
     size, rate = 250_000, 1e6
-    link.start_emulator([
-        "--forward", "const:10ms", "--backward", "const:10ms",
-        "--rate-forward", "1mbit", "--queue-forward", "32kB", "--stats-json", str(stats),
-    ])  # fmt: skip
+    link.start_emulator(
+        [
+            "--forward",
+            "const:10ms",
+            "--backward",
+            "const:10ms",
+            "--rate-forward",
+            "1mbit",
+            "--queue-forward",
+            "32kB",
+            "--stats-json",
+            str(stats),
+        ]
+    )
     sink = _start(link, SIDE_B, TCP_SINK)
     time.sleep(0.5)
     t = time.monotonic()
@@ -213,15 +223,33 @@ def test_bad_arguments_are_one_line_exit_2() -> None:
 
 
 def test_demo_packet_backend_dry_run_prints_the_plan(tmp_path: Path) -> None:
-    res = _cli("demo", "--delay-backend", "packet", "--dry-run", "--headless", "--duration", "1",
-               "--loss", "ge:p=1%,r=30%", "--rate-up", "2mbit", "--outage", "at=5s,for=1s",
-               "--run-dir", str(tmp_path / "r"))  # fmt: skip
+    res = _cli(
+        "demo",
+        "--delay-backend",
+        "packet",
+        "--dry-run",
+        "--headless",
+        "--duration",
+        "1",
+        "--loss",
+        "ge:p=1%,r=30%",
+        "--rate-up",
+        "2mbit",
+        "--outage",
+        "at=5s,for=1s",
+        "--run-dir",
+        str(tmp_path / "r"),
+    )
     assert res.returncode == 0, res.stderr
     out = res.stdout
     assert "# process proxy" not in out and "# packet backend: leader in bt-ea-" in out
     emu = next(line for line in out.splitlines() if "bipedtele.tools.linkemu" in line)
-    for part in ("--forward trace:intercontinental:h1", "--backward trace:intercontinental:h2",
-                 "--rate-forward 2mbit", "--outage-backward at=5s,for=1s"):  # fmt: skip
+    for part in (
+        "--forward trace:intercontinental:h1",
+        "--backward trace:intercontinental:h2",
+        "--rate-forward 2mbit",
+        "--outage-backward at=5s,for=1s",
+    ):
         assert part in emu
     assert not (tmp_path / "r").exists()  # a dry run starts nothing
 

@@ -57,8 +57,11 @@ def test_veth_link_is_made_and_removed() -> None:
         for side in (LEADER, FOLLOWER):
             shown = subprocess.run(
                 ["ip", "-n", link.ns[side], "-o", "addr", "show", "dev", link.dev[side]],
-                capture_output=True, text=True, timeout=20, check=True,
-            ).stdout  # fmt: skip
+                capture_output=True,
+                text=True,
+                timeout=20,
+                check=True,
+            ).stdout
             assert f"{link.ip(side)}/30" in shown
         # the ends live only in the namespaces, not on the host
         host = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, timeout=20).stdout
@@ -148,10 +151,20 @@ def test_cockpit_relay_reaches_a_server_inside_the_leader_namespace(tmp_path: Pa
         port = s.getsockname()[1]
     with VethLink() as link:
         server = subprocess.Popen(
-            [*link.exec_prefix(LEADER), sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1",
-             "--directory", str(tmp_path)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )  # fmt: skip
+            [
+                *link.exec_prefix(LEADER),
+                sys.executable,
+                "-m",
+                "http.server",
+                str(port),
+                "--bind",
+                "127.0.0.1",
+                "--directory",
+                str(tmp_path),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         with CockpitRelay(link, port) as relay:
             body, deadline = "", time.monotonic() + 30.0
             while time.monotonic() < deadline:

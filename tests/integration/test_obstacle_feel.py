@@ -67,19 +67,27 @@ def drive(obstacle: bool) -> tuple[list[Sample], dict]:
             feedback.append((msg, t[0]))
 
     loop = FollowerLoop(
-        robot, cfg.section("control"), cfg.section("follower"),
-        command_inbox(cfg.section("follower"), source=lambda: (cmd[-1], t[0]) if cmd else None), publish,
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower"), source=lambda: (cmd[-1], t[0]) if cmd else None),
+        publish,
         now=lambda: t[0],
-    )  # fmt: skip
+    )
     control = cfg.section("control")
     lcfg = cfg.section("leader")
     device = SimFalcon()
     device.connect()
     hand = ScriptedOperator([[0.0, REF, 0.0], [RUN_S + 10, REF, 0.0]], k_g=control.k_g, interp="step")
     leader = LeaderLoop(
-        device, hand, control, lambda c: None,
-        FeedbackInbox(source=lambda: feedback[-1] if feedback else None), cfg=lcfg, clock=lambda: t[0],
-    )  # fmt: skip
+        device,
+        hand,
+        control,
+        lambda c: None,
+        FeedbackInbox(source=lambda: feedback[-1] if feedback else None),
+        cfg=lcfg,
+        clock=lambda: t[0],
+    )
     n_haptic = round(loop.dt / leader.dt)
     out: list[Sample] = []
     try:
@@ -90,9 +98,18 @@ def drive(obstacle: bool) -> tuple[list[Sample], dict]:
             tel = loop.tick()
             for k in range(n_haptic):
                 leader.tick(now=t[0] + k * leader.dt)
-            out.append(Sample(t[0], float(tel.z_e[0]), float(tel.f_v[0]), robot.cycle_speed() * 100,
-                              tel.obs.pose[0], tel.obs.in_contact, float(leader.force[0]),
-                              float(control.k_g[0] * leader.x_m[0])))  # fmt: skip
+            out.append(
+                Sample(
+                    t[0],
+                    float(tel.z_e[0]),
+                    float(tel.f_v[0]),
+                    robot.cycle_speed() * 100,
+                    tel.obs.pose[0],
+                    tel.obs.in_contact,
+                    float(leader.force[0]),
+                    float(control.k_g[0] * leader.x_m[0]),
+                )
+            )
             robot.advance(loop.dt)
             t[0] += loop.dt
     finally:

@@ -74,8 +74,12 @@ def test_a_recording_cut_by_kill_9_opens_in_the_standard_reader_after_repair(tmp
     assert summary_cut is None, "the cut file had a summary: nothing cut"
     print(f"cut file: the standard reader reads {n_cut} messages, ours {len(ours)}")
 
-    proc = subprocess.run([sys.executable, "-m", "bipedtele.cli", "record", "repair", str(path)],
-                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "record", "repair", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "cut.mcap.cut").exists() and "written to" in proc.stdout, proc.stdout
     n, summary = _standard(path)
@@ -85,9 +89,17 @@ def test_a_recording_cut_by_kill_9_opens_in_the_standard_reader_after_repair(tmp
     assert [r.data for r in read_records(path)] == [r.data for r in ours]  # the same messages, in order
     assert read_metadata(path)["role"] == "b32b-writer"
     # a complete file is left alone
-    again = subprocess.run([sys.executable, "-m", "bipedtele.cli", "record", "repair", str(path)],
-                           capture_output=True, text=True, timeout=60)  # fmt: skip
+    again = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "record", "repair", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert again.returncode == 0 and "nothing to repair" in again.stdout, again.stdout
-    bad = subprocess.run([sys.executable, "-m", "bipedtele.cli", "record", "repair", str(tmp_path / "none.mcap")],
-                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    bad = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", "record", "repair", str(tmp_path / "none.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr

@@ -29,8 +29,9 @@ SPOOF = Path(__file__).resolve().parents[1] / "e2e" / "udp_spoof.py"
 
 
 def _spoof(src: str, dst: str, *payload: str) -> None:
-    r = subprocess.run([sys.executable, str(SPOOF), "--src", src, "--dst", dst, *payload],
-                       capture_output=True, text=True, timeout=30)  # fmt: skip
+    r = subprocess.run(
+        [sys.executable, str(SPOOF), "--src", src, "--dst", dst, *payload], capture_output=True, text=True, timeout=30
+    )
     assert r.returncode == 0, r.stderr
 
 
@@ -39,10 +40,20 @@ def _spoof(src: str, dst: str, *payload: str) -> None:
 def test_a_forged_close_or_garbage_costs_one_reopen(tmp_path: Path) -> None:
     port = free_port()
     router = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "router", "--listen", f"tcp/127.0.0.1:{port}",
-         "--set", 'network.links="split"'],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "router",
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+            "--set",
+            'network.links="split"',
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert router.stdout is not None and "listening on" in router.stdout.readline()
         net = NetworkConfig(mode="client", connect=[f"tcp/127.0.0.1:{port}"], links="split", timeout_s=5.0)

@@ -55,8 +55,13 @@ def link(tmp_path_factory: pytest.TempPathFactory) -> Iterator[EmulatedLink]:
     if os.geteuid() != 0:
         pytest.skip("network namespaces, tc and raw sockets need root")
     n = secrets.randbelow(200) + 20
-    emu = EmulatedLink(tag=f"b33{secrets.token_hex(1)[0]}", a_ip=f"10.236.{n}.1", b_ip=f"10.236.{n}.2",
-                       log_path=tmp_path_factory.mktemp("tbf") / "linkemu.log", autostart=False)  # fmt: skip
+    emu = EmulatedLink(
+        tag=f"b33{secrets.token_hex(1)[0]}",
+        a_ip=f"10.236.{n}.1",
+        b_ip=f"10.236.{n}.2",
+        log_path=tmp_path_factory.mktemp("tbf") / "linkemu.log",
+        autostart=False,
+    )
     try:
         emu.create()
     except NetnsError as exc:
@@ -70,11 +75,19 @@ def link(tmp_path_factory: pytest.TempPathFactory) -> Iterator[EmulatedLink]:
 
 def _burst(link: EmulatedLink) -> list[float]:
     """Arrival times [s] at B of the datagrams A sends back to back."""
-    sink = subprocess.Popen([*link.exec_prefix(SIDE_B), sys.executable, "-c", SINK],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    sink = subprocess.Popen(
+        [*link.exec_prefix(SIDE_B), sys.executable, "-c", SINK],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     time.sleep(0.3)
-    src = subprocess.run([*link.exec_prefix(SIDE_A), sys.executable, "-c", SOURCE, link.b_ip, str(N), str(SIZE)],
-                         capture_output=True, text=True, timeout=30)  # fmt: skip
+    src = subprocess.run(
+        [*link.exec_prefix(SIDE_A), sys.executable, "-c", SOURCE, link.b_ip, str(N), str(SIZE)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert src.returncode == 0, src.stderr
     out, err = sink.communicate(timeout=30)
     assert sink.returncode == 0, err
@@ -94,8 +107,12 @@ def test_link_emus_token_bucket_shapes_a_burst_as_the_kernels_tbf(link: Emulated
     dev = link.dev[SIDE_A]
     tc = [*link.exec_prefix(SIDE_A), "tc", "qdisc"]
     link.start_emulator([])
-    subprocess.run([*tc, "add", "dev", dev, "root", "tbf", "rate", "400kbit", "burst", "16kb", "limit", "64kb"],
-                   check=True, capture_output=True, timeout=20)  # fmt: skip
+    subprocess.run(
+        [*tc, "add", "dev", dev, "root", "tbf", "rate", "400kbit", "burst", "16kb", "limit", "64kb"],
+        check=True,
+        capture_output=True,
+        timeout=20,
+    )
     try:
         kernel = _burst(link)
     finally:
@@ -107,8 +124,10 @@ def test_link_emus_token_bucket_shapes_a_burst_as_the_kernels_tbf(link: Emulated
     link.stop_emulator()
     assert len(kernel) == len(emulated) == len(fifo) == N, (len(kernel), len(emulated), len(fifo))
     (kb, krate), (eb, erate), (fb, frate) = _shape(kernel), _shape(emulated), _shape(fifo)
-    print(f"at once: tbf {kb}, link-emu bucket {eb}, FIFO {fb}; then tbf {krate:.0f}, bucket {erate:.0f}, "
-          f"FIFO {frate:.0f} bit/s of payload")  # fmt: skip
+    print(
+        f"at once: tbf {kb}, link-emu bucket {eb}, FIFO {fb}; then tbf {krate:.0f}, bucket {erate:.0f}, "
+        f"FIFO {frate:.0f} bit/s of payload"
+    )
     # 16 KiB of 1042-byte frames pass at once behind both token buckets (17 within 30 ms here)
     assert abs(kb - eb) <= 2 and kb >= 12, (kb, eb)
     assert fb <= 3, fb  # the FIFO: one frame per 21 ms

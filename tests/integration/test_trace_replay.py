@@ -81,8 +81,22 @@ def test_a_recordings_trace_replays_through_the_delay_proxy_within_5_ms(tmp_path
     rec = tmp_path / "leader-demo.mcap"
     _recording(rec)
     csv = tmp_path / "path.csv"
-    r = subprocess.run([sys.executable, "-m", "bipedtele.cli", "trace", str(rec), "--out", str(csv),
-                        "--mahimahi", str(tmp_path / "rate.mahi")], capture_output=True, text=True, timeout=60)  # fmt: skip
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "trace",
+            str(rec),
+            "--out",
+            str(csv),
+            "--mahimahi",
+            str(tmp_path / "rate.mahi"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 0, r.stderr
     assert csv.read_text().splitlines()[0] == "t_s,h1_ms,h2_ms,loss_pct,rx_kbps"
     target = socket.socket()
@@ -91,11 +105,26 @@ def test_a_recordings_trace_replays_through_the_delay_proxy_within_5_ms(tmp_path
     port = _free_port()
     t0 = time.time() + 1.0  # the trace's origin: a second after now (the proxy starts meanwhile)
     proxy = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "delay-proxy", "--listen", f"127.0.0.1:{port}", "--target",
-         f"127.0.0.1:{target.getsockname()[1]}", "--forward", f"trace:{csv}:h1", "--backward", f"trace:{csv}:h2",
-         "--t0", f"{t0:.6f}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "delay-proxy",
+            "--listen",
+            f"127.0.0.1:{port}",
+            "--target",
+            f"127.0.0.1:{target.getsockname()[1]}",
+            "--forward",
+            f"trace:{csv}:h1",
+            "--backward",
+            f"trace:{csv}:h2",
+            "--t0",
+            f"{t0:.6f}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     fwd: list[tuple[float, float]] = []
     bwd: list[tuple[float, float]] = []
     try:
@@ -104,13 +133,17 @@ def test_a_recordings_trace_replays_through_the_delay_proxy_within_5_ms(tmp_path
         server, _ = target.accept()
         for s in (client, server):
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        readers = [threading.Thread(target=_reader, args=(server, fwd), daemon=True),
-                   threading.Thread(target=_reader, args=(client, bwd), daemon=True)]  # fmt: skip
+        readers = [
+            threading.Thread(target=_reader, args=(server, fwd), daemon=True),
+            threading.Thread(target=_reader, args=(client, bwd), daemon=True),
+        ]
         for th in readers:
             th.start()
         time.sleep(max(0.0, t0 - time.time()))
-        senders = [threading.Thread(target=_send, args=(client, 225, 0.04)),
-                   threading.Thread(target=_send, args=(server, 225, 0.04))]  # fmt: skip
+        senders = [
+            threading.Thread(target=_send, args=(client, 225, 0.04)),
+            threading.Thread(target=_send, args=(server, 225, 0.04)),
+        ]
         for th in senders:
             th.start()
         for th in senders:

@@ -236,8 +236,10 @@ def run_sender(tmp_path: Path, spec: dict[str, Any]) -> None:
     (tmp_path / "sender.py").write_text(SENDER)
     res = subprocess.run(
         [sys.executable, str(tmp_path / "sender.py"), str(tmp_path / "spec.json")],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert res.returncode == 0, res.stderr[-3000:]
 
 

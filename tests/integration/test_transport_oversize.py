@@ -68,8 +68,10 @@ def test_oversized_payloads_are_dropped_before_the_mac(tmp_path) -> None:
     ):
         flood = subprocess.run(
             [sys.executable, "-c", FLOOD, endpoint, keys.cmd, "10", str(100 * 1024)],
-            capture_output=True, text=True, timeout=40,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=40,
+        )
         assert flood.returncode == 0, flood.stderr[-2000:]
         deadline = time.monotonic() + 5.0
         while drops.total < 10 and time.monotonic() < deadline:
@@ -81,8 +83,10 @@ def test_oversized_payloads_are_dropped_before_the_mac(tmp_path) -> None:
         assert rx.max_bytes == MAX_CONTROL_PAYLOAD
         big = subprocess.run(
             [sys.executable, "-c", FLOOD, endpoint, keys.cmd, "3", str(16 * 1024 * 1024)],
-            capture_output=True, text=True, timeout=40,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=40,
+        )
         assert big.returncode == 0, big.stderr[-2000:]
         time.sleep(0.5)
         assert drops.counts() == counts, "a 16 MiB message reached the receiver"

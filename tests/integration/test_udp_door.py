@@ -42,13 +42,19 @@ def two_hosts_router(tmp_path: Path) -> Iterator[tuple[Path, int]]:
     """``setup two-hosts`` for 127.0.0.1 and its router on a free port; yields (setup folder, port)."""
     port = free_port()
     out = tmp_path / "setup"
-    r = subprocess.run([*CLI, "setup", "two-hosts", "--router-name", "127.0.0.1", "--router-port", str(port),
-                        "--out", str(out)], capture_output=True, text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [*CLI, "setup", "two-hosts", "--router-name", "127.0.0.1", "--router-port", str(port), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     router = subprocess.Popen(
         [*CLI, "router", "--config", str(out / "router" / "bipedtele.toml"), "--listen", f"tls/127.0.0.1:{port}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert router.stdout is not None
         assert "listening on" in router.stdout.readline()
@@ -68,8 +74,9 @@ def _udp_only(setup: Path, host: str, port: int) -> zenoh.Session:
     """A session over the router's UDP listener with ``host``'s user and password, and no certificate."""
     net = _net(setup, host)
     password = Path(net.password_file).read_text().strip()
-    bare = NetworkConfig(mode="client", connect=[f"udp/127.0.0.1:{port}"], user=net.user, password=password,
-                         timeout_s=5.0)  # fmt: skip
+    bare = NetworkConfig(
+        mode="client", connect=[f"udp/127.0.0.1:{port}"], user=net.user, password=password, timeout_s=5.0
+    )
     return zenoh.open(zenoh_config(bare))
 
 

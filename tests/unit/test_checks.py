@@ -31,8 +31,12 @@ def test_the_type_check_fails_on_a_planted_type_error_and_a_missing_internal_imp
     env = {**os.environ, "TYPECHECK_PLANT": str(plant), "TYPECHECK_STAGE": str(tmp_path / "stage")}
     res = subprocess.run(
         ["bash", "scripts/typecheck.sh", "--cache-dir", str(tmp_path / "cache")],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=280,
-    )  # fmt: skip
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=280,
+    )
     out = res.stdout + res.stderr
     assert res.returncode == 1, out
     assert 'Module "bipedtele.messages" has no attribute "no_such_name"' in out, out
@@ -48,12 +52,23 @@ def test_ruff_lint_and_format_fail_on_planted_errors(tmp_path: Path) -> None:
     ugly = tmp_path / "ugly.py"
     ugly.write_text('"""A module."""\n\nx = {  "a":1 }\n')
     res = subprocess.run(
-        [str(Path(sys.executable).parent / "ruff"), "format", "--check", "--config", str(ROOT / "pyproject.toml"), str(ugly)],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+        [
+            str(Path(sys.executable).parent / "ruff"),
+            "format",
+            "--check",
+            "--config",
+            str(ROOT / "pyproject.toml"),
+            str(ugly),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert res.returncode == 1 and "would be reformatted" in res.stdout, res.stdout + res.stderr
     res = subprocess.run(
         [str(Path(sys.executable).parent / "ruff"), "check", "--config", str(ROOT / "pyproject.toml"), str(bad)],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert res.returncode == 1 and "F401" in res.stdout, res.stdout + res.stderr

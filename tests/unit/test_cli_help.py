@@ -15,8 +15,9 @@ COMMANDS = sorted(ep.name for ep in entry_points(group="bipedtele.commands"))
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("command", COMMANDS)
 def test_help_of_every_sub_command(command: str) -> None:
-    res = subprocess.run([sys.executable, "-m", "bipedtele.cli", command, "--help"],
-                         capture_output=True, text=True, timeout=50, cwd="/")  # fmt: skip
+    res = subprocess.run(
+        [sys.executable, "-m", "bipedtele.cli", command, "--help"], capture_output=True, text=True, timeout=50, cwd="/"
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     assert "usage:" in res.stdout
 

@@ -277,9 +277,13 @@ def test_memory_parameters_are_checked() -> None:
     cs = ClockSync(16)
     assert cs.memory_s == 60.0 and cs.drift_ppm == 50.0
     for kw in (
-        {"memory_s": 0.0}, {"memory_s": float("inf")}, {"drift_ppm": -1.0}, {"drift_ppm": float("nan")},
-        {"tolerance_s": -0.001}, {"tolerance_rel": float("inf")},
-    ):  # fmt: skip
+        {"memory_s": 0.0},
+        {"memory_s": float("inf")},
+        {"drift_ppm": -1.0},
+        {"drift_ppm": float("nan")},
+        {"tolerance_s": -0.001},
+        {"tolerance_rel": float("inf")},
+    ):
         with pytest.raises(ValueError, match="allowed"):
             ClockSync(16, **kw)  # type: ignore[arg-type]
 

@@ -50,9 +50,15 @@ def make(
     drops = DropCounter("test/clock")
     cell = peer if peer is not None else [None]
     link = ClockLink(
-        sent.append, ME, sync=sync, drops=drops, clock=clk.wall, monotonic=clk.mono,
-        peer_sid=lambda: cell[0], **kw,
-    )  # fmt: skip
+        sent.append,
+        ME,
+        sync=sync,
+        drops=drops,
+        clock=clk.wall,
+        monotonic=clk.mono,
+        peer_sid=lambda: cell[0],
+        **kw,
+    )
     return link, sent, clk, drops
 
 

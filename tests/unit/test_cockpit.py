@@ -94,8 +94,13 @@ def test_endpoints_and_websocket_protocol() -> None:
                     else:
                         frames.append(msg.data)
                 await ws.send_str('{"type": "joy", "x": -0.5, "y": 1}')
-                for bad in ("nope", '{"type": "joy", "x": 1.5, "y": 0}', '{"type": "x"}',
-                            '{"type": "joy", "x": true, "y": 0}', "[" * 2000):  # fmt: skip
+                for bad in (
+                    "nope",
+                    '{"type": "joy", "x": 1.5, "y": 0}',
+                    '{"type": "x"}',
+                    '{"type": "joy", "x": true, "y": 0}',
+                    "[" * 2000,
+                ):
                     await ws.send_str(bad)
                 await ws.send_bytes(b"\x00")
                 await ws.send_str('{"type": "joy", "x": 0.25, "y": -0.75}')
@@ -117,8 +122,14 @@ def test_endpoints_and_websocket_protocol() -> None:
         assert t == 12.5 and frame[19:] == b"\xff\xd8fakejpeg"
         stats = server.stats
         assert stats["bad_messages"] == 6
-        assert set(stats["bad_by_reason"]) == {"not_json", "out_of_range", "unknown_type",
-                                                "bad_number", "too_long", "binary"}  # fmt: skip
+        assert set(stats["bad_by_reason"]) == {
+            "not_json",
+            "out_of_range",
+            "unknown_type",
+            "bad_number",
+            "too_long",
+            "binary",
+        }
         # The driving browser left: the stick is centred.
         for _ in range(100):
             joy = server.joystick()
@@ -192,9 +203,14 @@ def test_websocket_needs_this_pages_origin() -> None:
         url = _u(server, "ws")
         port = server.port
         assert asyncio.run(_ws_status(url)) == 403  # no Origin (not a browser page of ours)
-        for origin in ("http://evil.example", f"http://evil.example:{port}", "null",
-                       f"http://127.0.0.1:{port + 1 if port < 65535 else port - 1}",  # another local site
-                       f"file://127.0.0.1:{port}", f"http://localhost:{port}"):  # fmt: skip
+        for origin in (
+            "http://evil.example",
+            f"http://evil.example:{port}",
+            "null",
+            f"http://127.0.0.1:{port + 1 if port < 65535 else port - 1}",  # another local site
+            f"file://127.0.0.1:{port}",
+            f"http://localhost:{port}",
+        ):
             # (localhost is allowed, but this request's Host is 127.0.0.1: not this page)
             assert asyncio.run(_ws_status(url, origin)) == 403, origin
         assert asyncio.run(_ws_status(url, f"http://127.0.0.1:{port}")) == 101
@@ -268,8 +284,14 @@ def test_client_cap_refuses_the_next_browser_clearly() -> None:
 @pytest.mark.timeout(30)
 def test_no_framing_headers_on_every_response() -> None:
     with CockpitServer() as server:
-        for url in (server.url, _u(server, "static/app.js"), _u(server, "healthz"),
-                    _u(server, "video/none.jpg"), server.base_url, _u(server, "ws")):  # fmt: skip
+        for url in (
+            server.url,
+            _u(server, "static/app.js"),
+            _u(server, "healthz"),
+            _u(server, "video/none.jpg"),
+            server.base_url,
+            _u(server, "ws"),
+        ):
             status, headers, _ = _request(url)
             assert status in (200, 400, 403, 404), url
             csp = headers.get("Content-Security-Policy", "")
@@ -299,13 +321,18 @@ def test_port_in_use_and_bad_parameters() -> None:
 
 @pytest.mark.parametrize(
     ("text", "reason"),
-    [("{", "not_json"), ('{"type":"joy","x":null,"y":0}', "bad_number"),
-     ('{"type":"joy","x":0,"y":-1.01}', "out_of_range"), ("[1]", "unknown_type"),
-     ('{"type":"hand","release":1}', "bad_hand"), ('{"type":"hand"}', "bad_hand"),
-     ('{"type":"pad","src":"mouse","x":0,"y":0,"held":true}', "bad_pad"),
-     ('{"type":"pad","src":"gamepad","x":0,"y":0,"held":1}', "bad_pad"),
-     ('{"type":"pad","src":"gamepad","x":2,"y":0,"held":true}', "out_of_range")],
-)  # fmt: skip
+    [
+        ("{", "not_json"),
+        ('{"type":"joy","x":null,"y":0}', "bad_number"),
+        ('{"type":"joy","x":0,"y":-1.01}', "out_of_range"),
+        ("[1]", "unknown_type"),
+        ('{"type":"hand","release":1}', "bad_hand"),
+        ('{"type":"hand"}', "bad_hand"),
+        ('{"type":"pad","src":"mouse","x":0,"y":0,"held":true}', "bad_pad"),
+        ('{"type":"pad","src":"gamepad","x":0,"y":0,"held":1}', "bad_pad"),
+        ('{"type":"pad","src":"gamepad","x":2,"y":0,"held":true}', "out_of_range"),
+    ],
+)
 def test_parse_in_rejects(text: str, reason: str) -> None:
     with pytest.raises(ValueError, match=reason):
         _parse_in(text)

@@ -137,9 +137,10 @@ def test_cockpit_process_serves_like_the_thread() -> None:
 
         async def drive() -> list[str]:
             got: list[str] = []
-            async with aiohttp.ClientSession() as cs, cs.ws_connect(
-                f"{cockpit.base_url}ws?token={cockpit.token}", origin=cockpit.base_url.rstrip("/")
-            ) as ws:  # fmt: skip
+            async with (
+                aiohttp.ClientSession() as cs,
+                cs.ws_connect(f"{cockpit.base_url}ws?token={cockpit.token}", origin=cockpit.base_url.rstrip("/")) as ws,
+            ):
                 end = time.monotonic() + 5
                 while time.monotonic() < end and not {"samples", "video"} <= set(got):
                     msg = await ws.receive(timeout=5)

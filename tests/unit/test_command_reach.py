@@ -159,8 +159,14 @@ def test_a_robot_held_by_another_operator_is_told_as_held_not_the_acl(caplog: py
     clock, sent = Clock(), [0]
     holder: list[str | None] = ["alice"]
     released = [False]
-    reach = CommandReach(lambda: sent[0], clock=clock, robot_id="nao1", user="bob",
-                         holder=lambda: holder[0], released=lambda: released[0])  # fmt: skip
+    reach = CommandReach(
+        lambda: sent[0],
+        clock=clock,
+        robot_id="nao1",
+        user="bob",
+        holder=lambda: holder[0],
+        released=lambda: released[0],
+    )
     for _ in range(40):  # 2 s of status heard, no feedback acknowledging bob
         reach.on_heard()
         run(reach, clock, sent, 0.05, None)

@@ -43,8 +43,21 @@ def test_scaled_models_have_every_delay_multiplied(tmp_path: Path) -> None:
 
 def test_dry_run_starts_the_proxy_with_the_scaled_delays(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run_dir = tmp_path / "run"
-    assert main(["demo", "--dry-run", "--run-dir", str(run_dir), "--delay", "const:150ms,uniform:200ms:20ms",
-                 "--delay-scale", "2"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "demo",
+                "--dry-run",
+                "--run-dir",
+                str(run_dir),
+                "--delay",
+                "const:150ms,uniform:200ms:20ms",
+                "--delay-scale",
+                "2",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     proxy = next(line for line in out.splitlines() if line.startswith("# process proxy"))
     assert "--forward const:300ms" in proxy and "--backward uniform:400ms:40ms" in proxy
@@ -70,8 +83,18 @@ def test_status_line_format() -> None:
 
 def test_status_line_tells_the_link_in_words() -> None:
     st = LiveStatus(passes_total=10)
-    st.add("leader/state", {"t": 1.0, "link": "ok", "fb_age_ms": 312.4, "loss_pct": 0.04, "rx_kbps": 850.2,
-                            "video_fps": 9.8, "video_quality": 60})  # fmt: skip
+    st.add(
+        "leader/state",
+        {
+            "t": 1.0,
+            "link": "ok",
+            "fb_age_ms": 312.4,
+            "loss_pct": 0.04,
+            "rx_kbps": 850.2,
+            "video_fps": 9.8,
+            "video_quality": 60,
+        },
+    )
     assert format_status(st, 5.0).endswith(
         "| err - | link ok: fb age 312 ms, loss 0.0 %, 850 kbit/s, video 9.8 fps q60"
     )

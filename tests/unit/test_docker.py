@@ -111,8 +111,9 @@ def test_router_healthcheck_is_healthy_with_a_router_and_unhealthy_without(tmp_p
     with open(tmp_path / "router.log", "wb") as log:
         router = subprocess.Popen(
             [sys.executable, "-m", "bipedtele.cli", "router", "--listen", f"tcp/127.0.0.1:{port}"],
-            stdout=log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
     try:
         deadline = time.monotonic() + 60.0
         while True:
@@ -168,9 +169,10 @@ def _dockerignored(rel: str, patterns: list[str]) -> bool:
 def test_dockerfile_copies_only_what_is_in_the_build_context() -> None:
     ignore = ROOT / ".dockerignore"
     patterns = [
-        line.strip() for line in (ignore.read_text().splitlines() if ignore.exists() else [])
+        line.strip()
+        for line in (ignore.read_text().splitlines() if ignore.exists() else [])
         if line.strip() and not line.startswith("#")
-    ]  # fmt: skip
+    ]
     copies = []
     for line in DOCKERFILE.read_text().splitlines():
         if line.startswith("COPY ") and "--from=" not in line:

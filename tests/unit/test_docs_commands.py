@@ -69,8 +69,11 @@ def two_hosts(tmp_path_factory: pytest.TempPathFactory) -> Path:
     where = tmp_path_factory.mktemp("setup")
     proc = subprocess.run(
         [*BIPEDTELE, "setup", "two-hosts", "--router-name", "router.example.org"],
-        cwd=where, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+        cwd=where,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     return where / "two-hosts"
 

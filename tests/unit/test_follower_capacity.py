@@ -30,9 +30,12 @@ DT = 0.01
 
 class Sim:
     def __init__(
-        self, cap_bps: float = math.inf, base_h2: Callable[[float], float] = lambda t: 0.18, loss: float = 0.0,
+        self,
+        cap_bps: float = math.inf,
+        base_h2: Callable[[float], float] = lambda t: 0.18,
+        loss: float = 0.0,
         video_want_bps: float = 800_000.0,
-    ) -> None:  # fmt: skip
+    ) -> None:
         self.t = 1000.0
         self.cap = cap_bps
         self.base_h2 = base_h2
@@ -109,10 +112,16 @@ class Sim:
             _, counters, ts = self.statuses.popleft()
             b.on_leader_status(counters, ts)
         b.update()
-        self.log.append({
-            "t": t, "tx": b.tx_bps(), "video_budget": -1.0 if vb is None else vb, "queue_s": self.queue_s(),
-            "limited": float(b.limited), "cap": b.capacity_bps,
-        })  # fmt: skip
+        self.log.append(
+            {
+                "t": t,
+                "tx": b.tx_bps(),
+                "video_budget": -1.0 if vb is None else vb,
+                "queue_s": self.queue_s(),
+                "limited": float(b.limited),
+                "cap": b.capacity_bps,
+            }
+        )
         self.t += DT
 
     def run(self, seconds: float) -> list[dict[str, float]]:

@@ -65,10 +65,14 @@ def test_the_token_holder_watches(live: LiveView) -> None:
         ("a wrong token", "ws://127.0.0.1:{port}/?token=AAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAA", {}, "refused_token"),
         ("a foreign web page", "{url}", {"Origin": "https://evil.example.com"}, "refused_origin"),
         ("a page on another port", "{url}", {"Origin": "http://127.0.0.1:1"}, "refused_origin"),
-        ("DNS rebinding", "{url}", {"Host": "evil.example.com:{port}", "Origin": "http://evil.example.com:{port}"},
-         "refused_host"),
+        (
+            "DNS rebinding",
+            "{url}",
+            {"Host": "evil.example.com:{port}", "Origin": "http://evil.example.com:{port}"},
+            "refused_host",
+        ),
     ],
-)  # fmt: skip
+)
 def test_a_client_without_the_token_or_from_elsewhere_gets_nothing(
     live: LiveView, why: str, url: str, headers: dict[str, str], counter: str
 ) -> None:

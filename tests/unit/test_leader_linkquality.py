@@ -29,8 +29,17 @@ def make() -> tuple[LinkQuality, Clock]:
     return LinkQuality(feedback_timeout_s=0.5, clock=clock), clock
 
 
-def feed(lq: LinkQuality, clock: Clock, seconds: float, *, delay: float = 0.2, seq: list[int] | None = None,
-         skip_every: int = 0, hz: float = 50.0, sid: int = 7) -> list[bool]:  # fmt: skip
+def feed(
+    lq: LinkQuality,
+    clock: Clock,
+    seconds: float,
+    *,
+    delay: float = 0.2,
+    seq: list[int] | None = None,
+    skip_every: int = 0,
+    hz: float = 50.0,
+    sid: int = 7,
+) -> list[bool]:
     """``seconds`` of feedback at ``hz``, each sent ``delay`` before it arrives; every
     ``skip_every``-th is lost on the way. Returns whether each arrival was accepted."""
     seq = seq if seq is not None else [0]
@@ -225,9 +234,15 @@ def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> No
     dev.connect()
     lq, clock = make()
     newest: list[tuple[Feedback, float]] = []
-    loop = LeaderLoop(dev, None, cfg.control, lambda c: None,
-                      FeedbackInbox(source=lambda: newest[-1] if newest else None),
-                      cfg=cfg.leader, clock=clock)  # fmt: skip
+    loop = LeaderLoop(
+        dev,
+        None,
+        cfg.control,
+        lambda c: None,
+        FeedbackInbox(source=lambda: newest[-1] if newest else None),
+        cfg=cfg.leader,
+        clock=clock,
+    )
     for k in range(1, 101):  # 100 ticks, two feedback arrive before each
         for j in (2 * k - 1, 2 * k):
             fb = _fb(j, clock.t - 0.1)

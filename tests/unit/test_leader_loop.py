@@ -44,8 +44,9 @@ class FeedbackSource:
         if self.latest is None or self.latest[0].t != s:
             self.seq = k + 1
             z = list(self.z_fn(s))
-            fb = Feedback(sid=7, seq=self.seq, t=s, z_e=z, eta=[0.5 * z[0] + 1.0, 0.5 * z[1] - 1.0], h1_s=self.h1,
-                          state="walking")  # fmt: skip
+            fb = Feedback(
+                sid=7, seq=self.seq, t=s, z_e=z, eta=[0.5 * z[0] + 1.0, 0.5 * z[1] - 1.0], h1_s=self.h1, state="walking"
+            )
             self.latest = (fb, s + self.h2_fn(s))
         return self.latest
 
@@ -96,9 +97,14 @@ def test_force_follows_eq31_with_the_delayed_z_e():
 
 def test_force_law_against_hand_computed_numbers():
     f = leader_force(
-        [0.01, -0.02], [0.1, 0.05], [1.0, -2.0], k_m=[0.4, 0.4], k_g=[160.0, 200.0],
-        alpha_m=[20.0, 25.0], g_m=[0.3, 0.0],
-    )  # fmt: skip
+        [0.01, -0.02],
+        [0.1, 0.05],
+        [1.0, -2.0],
+        k_m=[0.4, 0.4],
+        k_g=[160.0, 200.0],
+        alpha_m=[20.0, 25.0],
+        g_m=[0.3, 0.0],
+    )
     # forward: -0.4 (1.6 - 1.0) + 0.3 - 20 * 0.1 = -1.94; turn: -0.4 (-4 + 2) - 25 * 0.05 = -0.45
     assert f.tolist() == pytest.approx([-1.94, -0.45])
 

@@ -107,10 +107,12 @@ def test_browser_joystick_maps_up_to_forward_and_right_to_right_turn():
 def test_course_from_leader_then_world_then_default():
     cfg = load_config("default", ["leader.pilot_obstacles=[[1.5, 0.2, 0.1]]"])
     assert course_from_config(cfg) == [Obstacle(1.5, 0.2, 0.1)]
-    world = SimpleNamespace(obstacles=[
-        SimpleNamespace(shape="cylinder", position=[2.0, -0.1, 0.25], size=[0.12, 0.5]),
-        {"shape": "box", "position": [3.0, 0.1, 0.25], "size": [0.3, 0.4, 0.5]},
-    ])  # fmt: skip
+    world = SimpleNamespace(
+        obstacles=[
+            SimpleNamespace(shape="cylinder", position=[2.0, -0.1, 0.25], size=[0.12, 0.5]),
+            {"shape": "box", "position": [3.0, 0.1, 0.25], "size": [0.3, 0.4, 0.5]},
+        ]
+    )
     fake = SimpleNamespace(sections={"leader": load_config("default").leader, "world": world})
     assert course_from_config(fake) == [Obstacle(2.0, -0.1, 0.12), Obstacle(3.0, 0.1, 0.25)]
     empty = SimpleNamespace(sections={"leader": load_config("default").leader, "world": SimpleNamespace(obstacles=[])})
@@ -166,8 +168,9 @@ class Unicycle:
 
     def publish(self, t: float) -> None:
         self.seq += 1
-        fb = Feedback(seq=self.seq, t=t, z_e=[self.v, self.w], pose=[self.x, self.y, self.yaw],
-                      sonar=[2.55, 2.55], h1_s=self.h1)  # fmt: skip
+        fb = Feedback(
+            seq=self.seq, t=t, z_e=[self.v, self.w], pose=[self.x, self.y, self.yaw], sonar=[2.55, 2.55], h1_s=self.h1
+        )
         self.fbs.append((t + self.h2, fb))
 
     def latest(self, t: float):
@@ -257,8 +260,14 @@ class TracedUnicycle(Unicycle):
     def publish(self, t: float) -> None:
         self.seq += 1
         self._fb_at = max(self._fb_at, t + self.h2f(t))
-        fb = Feedback(seq=self.seq, t=t, eta=[self.v, self.w], pose=[self.x, self.y, self.yaw],
-                      sonar=[2.55, 2.55], h1_s=self.h1f(t))  # fmt: skip
+        fb = Feedback(
+            seq=self.seq,
+            t=t,
+            eta=[self.v, self.w],
+            pose=[self.x, self.y, self.yaw],
+            sonar=[2.55, 2.55],
+            h1_s=self.h1f(t),
+        )
         self.fbs.append((self._fb_at, fb))
 
 
@@ -298,11 +307,18 @@ def test_predicting_pilot_cruises_fast_under_the_intercontinental_trace(scale: f
             t_recv, fb = got
         op.update(t, fb)
         robot.command(t, op.intended)
-        op.observe_sample(LeaderSample(  # what the leader loop's sample carries after each command
-            t=t, t_device=t, ref_v=float(op.intended[0]), ref_w=float(op.intended[1]), enable=True,
-            h1_ms=1e3 * robot.h1f(t), h2_ms=1e3 * robot.h2f(t),
-            feedback_age_ms=None if fb is None else 1e3 * (t - t_recv),
-        ))  # fmt: skip
+        op.observe_sample(
+            LeaderSample(  # what the leader loop's sample carries after each command
+                t=t,
+                t_device=t,
+                ref_v=float(op.intended[0]),
+                ref_w=float(op.intended[1]),
+                enable=True,
+                h1_ms=1e3 * robot.h1f(t),
+                h2_ms=1e3 * robot.h2f(t),
+                feedback_age_ms=None if fb is None else 1e3 * (t - t_recv),
+            )
+        )
         robot.step(t, dt, course)
         robot.publish(t)
         turns.append(float(op.intended[1]))

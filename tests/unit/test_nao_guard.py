@@ -66,8 +66,11 @@ def test_the_guard_is_one_file_python2_can_parse_with_only_qi_and_the_standard_l
 
 
 def _python27() -> str | None:
-    candidates = [shutil.which("python2.7"), shutil.which("python2"),
-                  *sorted(glob.glob(os.path.expanduser("~/.pyenv/versions/2.7*/bin/python")))]  # fmt: skip
+    candidates = [
+        shutil.which("python2.7"),
+        shutil.which("python2"),
+        *sorted(glob.glob(os.path.expanduser("~/.pyenv/versions/2.7*/bin/python"))),
+    ]
     for exe in candidates:
         if not exe:
             continue

@@ -132,8 +132,14 @@ def test_netem_args_realise_each_model() -> None:
     assert netem_args(parse_delay_model("const:150ms")) == ["delay", "150000us", "limit", "10000"]
     assert netem_args(parse_delay_model("uniform:150ms:30ms")) == ["delay", "150000us", "30000us", "limit", "10000"]
     assert netem_args(parse_delay_model("normal:150ms:20ms")) == [
-        "delay", "150000us", "20000us", "distribution", "normal", "limit", "10000",
-    ]  # fmt: skip
+        "delay",
+        "150000us",
+        "20000us",
+        "distribution",
+        "normal",
+        "limit",
+        "10000",
+    ]
     trace = parse_delay_model("trace:intercontinental:h1")
     assert netem_args(trace, 0.0)[:2] == ["delay", "133160us"]  # first row of the shipped trace
     assert netem_args(trace, 0.05)[:2] == ["delay", "132870us"]
@@ -156,8 +162,18 @@ def test_replay_times_are_the_trace_rows_looped() -> None:
 def test_demo_dry_run_prints_the_netem_plan_over_time(tmp_path: Path) -> None:
     trace = tmp_path / "trace.csv"
     trace.write_text("t_s,h1_ms,h2_ms\n0.0,100,200\n0.1,110,190\n0.2,120.5,180\n")
-    res = _demo("--delay-backend", "netem", "--dry-run", "--delay-trace", str(trace), "--duration", "0.45",
-                "--headless", "--run-dir", str(tmp_path / "run"))  # fmt: skip
+    res = _demo(
+        "--delay-backend",
+        "netem",
+        "--dry-run",
+        "--delay-trace",
+        str(trace),
+        "--duration",
+        "0.45",
+        "--headless",
+        "--run-dir",
+        str(tmp_path / "run"),
+    )
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
     head = next(line for line in lines if line.startswith("# netem backend:"))
@@ -176,23 +192,33 @@ def test_demo_dry_run_prints_the_netem_plan_over_time(tmp_path: Path) -> None:
     assert f"ip netns exec {l_ns} " in procs["leader"] and 'network.connect=["tcp/10.233.0.2:' in procs["leader"]
     setup = lines[lines.index("# setup") + 1 : lines.index("# setup") + 12]
     assert setup == [
-        f"ip netns add {l_ns}", f"ip netns add {f_ns}",
+        f"ip netns add {l_ns}",
+        f"ip netns add {f_ns}",
         f"ip link add {l_dev} type veth peer name {f_dev}",
-        f"ip link set {l_dev} netns {l_ns}", f"ip link set {f_dev} netns {f_ns}",
-        f"ip -n {l_ns} addr add 10.233.0.1/30 dev {l_dev}", f"ip -n {f_ns} addr add 10.233.0.2/30 dev {f_dev}",
-        f"ip -n {l_ns} link set lo up", f"ip -n {f_ns} link set lo up",
-        f"ip -n {l_ns} link set {l_dev} up", f"ip -n {f_ns} link set {f_dev} up",
-    ]  # fmt: skip
+        f"ip link set {l_dev} netns {l_ns}",
+        f"ip link set {f_dev} netns {f_ns}",
+        f"ip -n {l_ns} addr add 10.233.0.1/30 dev {l_dev}",
+        f"ip -n {f_ns} addr add 10.233.0.2/30 dev {f_dev}",
+        f"ip -n {l_ns} link set lo up",
+        f"ip -n {f_ns} link set lo up",
+        f"ip -n {l_ns} link set {l_dev} up",
+        f"ip -n {f_ns} link set {f_dev} up",
+    ]
     tc = [line for line in lines if re.match(r"^\d+\.\d{3} tc ", line)]
     L = f"tc -n {l_ns} qdisc {{}} dev {l_dev} root netem delay {{}} limit 10000"
     F = f"tc -n {f_ns} qdisc {{}} dev {f_dev} root netem delay {{}} limit 10000"
     assert tc == [
-        "0.000 " + L.format("add", "100000us"), "0.000 " + F.format("add", "200000us"),
-        "0.100 " + L.format("change", "110000us"), "0.100 " + F.format("change", "190000us"),
-        "0.200 " + L.format("change", "120500us"), "0.200 " + F.format("change", "180000us"),
-        "0.300 " + L.format("change", "100000us"), "0.300 " + F.format("change", "200000us"),  # looped
-        "0.400 " + L.format("change", "110000us"), "0.400 " + F.format("change", "190000us"),
-    ]  # fmt: skip
+        "0.000 " + L.format("add", "100000us"),
+        "0.000 " + F.format("add", "200000us"),
+        "0.100 " + L.format("change", "110000us"),
+        "0.100 " + F.format("change", "190000us"),
+        "0.200 " + L.format("change", "120500us"),
+        "0.200 " + F.format("change", "180000us"),
+        "0.300 " + L.format("change", "100000us"),
+        "0.300 " + F.format("change", "200000us"),  # looped
+        "0.400 " + L.format("change", "110000us"),
+        "0.400 " + F.format("change", "190000us"),
+    ]
     assert lines[-2:] == [f"ip netns del {l_ns}", f"ip netns del {f_ns}"]
     assert not (tmp_path / "run").exists()  # a dry run starts nothing
 
@@ -233,20 +259,59 @@ def test_loss_bursts_rate_and_queue_become_netem_options() -> None:
     assert impairment_args() == []
     extra = impairment_args(loss="1%", rate="300kbit", queue="64kB")
     assert netem_args(parse_delay_model("const:150ms"), 0.0, extra) == [
-        "delay", "150000us", "loss", "random", "1%", "rate", "300000bit", "limit", "42",
-    ]  # fmt: skip
+        "delay",
+        "150000us",
+        "loss",
+        "random",
+        "1%",
+        "rate",
+        "300000bit",
+        "limit",
+        "42",
+    ]
     assert netem_args(parse_delay_model("const:150ms"), 0.0, ["loss", "random", "1%"])[-2:] == ["limit", "10000"]
     with pytest.raises(ConfigError, match="ge:p=P,r=R"):
         impairment_args(loss="ge:q=1%")
     assert tc_commands("apply", "eth0", "150ms", loss="ge:p=1%,r=30%", rate="600kbit", queue="32kB") == [
-        ["tc", "qdisc", "replace", "dev", "eth0", "root", "netem", "delay", "150ms",
-         "loss", "gemodel", "1%", "30%", "100%", "0%", "rate", "600000bit", "limit", "21"],
-    ]  # fmt: skip
+        [
+            "tc",
+            "qdisc",
+            "replace",
+            "dev",
+            "eth0",
+            "root",
+            "netem",
+            "delay",
+            "150ms",
+            "loss",
+            "gemodel",
+            "1%",
+            "30%",
+            "100%",
+            "0%",
+            "rate",
+            "600000bit",
+            "limit",
+            "21",
+        ],
+    ]
 
 
 def test_dry_run_prints_loss_bursts_and_rate() -> None:
-    res = _netem("apply", "--dev", "lo", "--delay", "150ms", "--loss", "ge:p=1%,r=30%", "--rate", "600kbit",
-                 "--queue", "64kB", "--dry-run")  # fmt: skip
+    res = _netem(
+        "apply",
+        "--dev",
+        "lo",
+        "--delay",
+        "150ms",
+        "--loss",
+        "ge:p=1%,r=30%",
+        "--rate",
+        "600kbit",
+        "--queue",
+        "64kB",
+        "--dry-run",
+    )
     assert res.returncode == 0, res.stderr
     assert (
         res.stdout.strip()
@@ -263,8 +328,15 @@ def test_replay_schedule_keeps_the_impairments_on_every_change() -> None:
 
     link = VethLink(tag="abcd")
     up = impairment_args(rate="300kbit", queue="64kB")
-    steps = list(schedule(link, parse_delay_model("const:10ms"), TraceDelay([0.0, 0.1], [0.1, 0.2]), 0.25,
-                          extra={FOLLOWER: up, LEADER: impairment_args(loss="1%")}))  # fmt: skip
+    steps = list(
+        schedule(
+            link,
+            parse_delay_model("const:10ms"),
+            TraceDelay([0.0, 0.1], [0.1, 0.2]),
+            0.25,
+            extra={FOLLOWER: up, LEADER: impairment_args(loss="1%")},
+        )
+    )
     assert [s.t for s in steps] == pytest.approx([0.0, 0.0, 0.1, 0.2])
     for s in steps:
         tail = " ".join(s.command).split(" netem ", 1)[1]
@@ -278,9 +350,24 @@ def test_demo_netem_backend_carries_loss_and_rate_caps(tmp_path: Path) -> None:
     """`demo --delay-backend netem --loss --rate-up --rate-down` (dry run): every qdisc carries them."""
     trace = tmp_path / "trace.csv"
     trace.write_text("t_s,h1_ms,h2_ms\n0.0,100,200\n0.1,110,190\n")
-    res = _demo("--delay-backend", "netem", "--dry-run", "--delay-trace", str(trace), "--duration", "0.25",
-                "--headless", "--loss", "1%", "--rate-up", "2mbit", "--rate-down", "300kbit",
-                "--run-dir", str(tmp_path / "run"))  # fmt: skip
+    res = _demo(
+        "--delay-backend",
+        "netem",
+        "--dry-run",
+        "--delay-trace",
+        str(trace),
+        "--duration",
+        "0.25",
+        "--headless",
+        "--loss",
+        "1%",
+        "--rate-up",
+        "2mbit",
+        "--rate-down",
+        "300kbit",
+        "--run-dir",
+        str(tmp_path / "run"),
+    )
     assert res.returncode == 0, res.stderr
     tc = [line for line in res.stdout.splitlines() if re.match(r"^\d+\.\d{3} tc ", line)]
     assert tc and all("loss random 1%" in line for line in tc), tc
@@ -288,6 +375,14 @@ def test_demo_netem_backend_carries_loss_and_rate_caps(tmp_path: Path) -> None:
     assert all(line.endswith("rate 300000bit limit 42") for line in tc if "btdf-" in line), tc
     procs = [line for line in res.stdout.splitlines() if line.startswith("# process ")]
     assert procs and all('network.links="split"' in line for line in procs), procs
-    res = _demo("--delay-backend", "netem", "--dry-run", "--headless", "--outage", "at=5s,for=3s",
-                "--run-dir", str(tmp_path / "r2"))  # fmt: skip
+    res = _demo(
+        "--delay-backend",
+        "netem",
+        "--dry-run",
+        "--headless",
+        "--outage",
+        "at=5s,for=3s",
+        "--run-dir",
+        str(tmp_path / "r2"),
+    )
     assert res.returncode == 2 and "--outage" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr

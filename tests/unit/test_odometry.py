@@ -70,8 +70,9 @@ def _write_run(folder: Path, pause: bool = False) -> None:
                 t = t_start + i / RATE
                 pose, rate = _pulsed_walk(t, t_start)
                 pose = _moved(pose, offset)
-                fb = Feedback(sid=3, seq=i, t=t, ref=list(REF), eta=[V, rate], pose=list(pose), T=2 * STEP,
-                              state="walking")  # fmt: skip
+                fb = Feedback(
+                    sid=3, seq=i, t=t, ref=list(REF), eta=[V, rate], pose=list(pose), T=2 * STEP, state="walking"
+                )
                 lead.write("feedback/recv", fb, t + h)
                 if i % round(STEP * RATE) == 0:  # a touchdown ends every step
                     n_ff += 1
@@ -81,8 +82,16 @@ def _write_run(folder: Path, pause: bool = False) -> None:
                 offset = np.asarray(_moved(_pulsed_walk(t_start + steps * STEP, t_start)[0], offset))
                 for i in range(round(3.0 * RATE) - 10):
                     t = t_start + steps * STEP + 0.5 + i / RATE
-                    fb = Feedback(sid=3, seq=1000 + i, t=t, ref=[0.0, 0.0], eta=[0.0, 0.0], pose=list(offset),
-                                  T=2 * STEP, state="standing")  # fmt: skip
+                    fb = Feedback(
+                        sid=3,
+                        seq=1000 + i,
+                        t=t,
+                        ref=[0.0, 0.0],
+                        eta=[0.0, 0.0],
+                        pose=list(offset),
+                        T=2 * STEP,
+                        state="standing",
+                    )
                     lead.write("feedback/recv", fb, t + h)
         for n, t in enumerate((102.0, 105.0, end - 0.1), start=1):
             lead.write("events", {"event": "pass", "n": n}, t)
@@ -179,9 +188,15 @@ def test_sim_nao_footfalls_reach_the_recording_through_the_loop() -> None:
         return Command(sid=7, seq=seq[0], t=clock[0], ref=[5.0, 10.0], h2_s=0.1), clock[0]
 
     with SimNao(cfg) as robot:
-        loop = FollowerLoop(robot, cfg.section("control"), cfg.section("follower"),
-                            command_inbox(cfg.section("follower"), source=latest), lambda m: None,
-                            now=lambda: clock[0], on_event=lambda n, d: events.append((n, d)))  # fmt: skip
+        loop = FollowerLoop(
+            robot,
+            cfg.section("control"),
+            cfg.section("follower"),
+            command_inbox(cfg.section("follower"), source=latest),
+            lambda m: None,
+            now=lambda: clock[0],
+            on_event=lambda n, d: events.append((n, d)),
+        )
         sent = []  # (time, turn rate sent to the robot [deg/s])
         for _ in range(round(12.0 / loop.dt)):
             tel = loop.tick()

@@ -68,8 +68,11 @@ def _version(python: str) -> tuple[int, int] | None:
     try:
         out = subprocess.run(
             [python, "-c", "import sys; print(sys.version_info[0], sys.version_info[1])"],
-            capture_output=True, text=True, timeout=30, check=True,
-        ).stdout  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=True,
+        ).stdout
     except (OSError, subprocess.SubprocessError):
         return None
     major, minor = out.split()
@@ -113,8 +116,10 @@ def second_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _pip(venv: Path, *args: str) -> subprocess.CompletedProcess[str]:
     proc = subprocess.run(
         [str(venv / "bin" / "python"), "-m", "pip", "--disable-pip-version-check", *args],
-        capture_output=True, text=True, timeout=400,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=400,
+    )
     assert proc.returncode == 0, f"pip {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     return proc
 
@@ -126,8 +131,11 @@ def _bipedtele(venv: Path, *args: str, timeout: float = 120) -> subprocess.Compl
 def test_the_second_python_is_not_3_11(second_venv: Path) -> None:
     out = subprocess.run(
         [str(second_venv / "bin" / "python"), "-c", "import sys, bipedtele; print(sys.version_info[:2] >= (3, 12))"],
-        capture_output=True, text=True, timeout=60, check=True,
-    ).stdout  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    ).stdout
     assert out.strip() == "True"
 
 
@@ -143,8 +151,10 @@ def test_router_starts_and_listens(second_venv: Path) -> None:
         port = s.getsockname()[1]
     proc = subprocess.Popen(
         [str(second_venv / "bin" / "bipedtele"), "router", "--listen", f"tcp/127.0.0.1:{port}"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         assert proc.stdout is not None
         deadline = time.monotonic() + 60
@@ -201,10 +211,24 @@ def test_operator_unit_tests_pass_on_the_second_python(second_venv: Path) -> Non
     missing = [f for f in files if not Path(f).is_file()]
     assert not missing, missing
     proc = subprocess.run(
-        [str(second_venv / "bin" / "python"), "-m", "pytest", "-q", "-p", "no:cacheprovider",
-         "-m", "not compute", "--timeout", "300", *files],
-        capture_output=True, text=True, timeout=500, cwd=ROOT,
-    )  # fmt: skip
+        [
+            str(second_venv / "bin" / "python"),
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-m",
+            "not compute",
+            "--timeout",
+            "300",
+            *files,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=500,
+        cwd=ROOT,
+    )
     tail = proc.stdout[-4000:] + proc.stderr[-2000:]
     assert proc.returncode == 0, tail
     summary = proc.stdout.strip().splitlines()[-1]

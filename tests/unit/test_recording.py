@@ -262,10 +262,11 @@ def test_three_processes_starting_together_leave_three_readable_recordings(tmp_p
     folder = tmp_path / "runs"
     start = time.time() + 1.5  # all three open their recording at this moment
     procs = [
-        subprocess.Popen([sys.executable, "-c", SAME_MOMENT, str(folder), str(k), repr(start)],
-                         stdout=subprocess.PIPE, text=True)
+        subprocess.Popen(
+            [sys.executable, "-c", SAME_MOMENT, str(folder), str(k), repr(start)], stdout=subprocess.PIPE, text=True
+        )
         for k in range(3)
-    ]  # fmt: skip
+    ]
     outs = [p.communicate(timeout=30)[0].strip() for p in procs]
     assert [p.returncode for p in procs] == [0, 0, 0]
     files = sorted(folder.iterdir())

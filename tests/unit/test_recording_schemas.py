@@ -59,24 +59,62 @@ EVENTS = [
 def write_every_topic(path: Path) -> list[tuple[str, Any]]:
     """One message (or more) of each topic the leader and the follower write, built with
     the real message classes, through a Recorder; returns what was written, in order."""
-    cmd = Command(sid=11, seq=5, t=T, ref=[5.0, -4.0], x_m=[0.01, -0.02], dx_m=[0.1, 0.0],
-                  h2_s=0.2, alpha_m=[3.0, 2.5], enable=True)  # fmt: skip
-    fb = Feedback(sid=22, seq=9, t=T + 0.1, z_e=[4.0, -3.0], z_r=[4.1, -2.9], eta=[3.9, -3.2],
-                  ref=[5.0, -4.0], pose=[0.5, -0.1, 0.2], sonar=[2.5, 5.0], f_v=[0.0, 0.3],
-                  h1_s=0.15, s_e=[1.0, 1.0], s_r=[2.0, 2.0], T=0.5, eps=0.05, state="walking",
-                  cmd_seq=4)  # fmt: skip
-    frames = [VideoFrame(sid=22, seq=i, t=T + i, camera="head", width=320, height=240,
-                         t_capture=T + i - 0.0125, jpeg=JPEG) for i in range(3)]  # fmt: skip
-    f_status = Status(sid=22, seq=3, t=T, role="follower", state="walking",
-                      counters={"falls": 1, "collisions": 0, "drop_stale": 2}, text="ok")  # fmt: skip
+    cmd = Command(
+        sid=11,
+        seq=5,
+        t=T,
+        ref=[5.0, -4.0],
+        x_m=[0.01, -0.02],
+        dx_m=[0.1, 0.0],
+        h2_s=0.2,
+        alpha_m=[3.0, 2.5],
+        enable=True,
+    )
+    fb = Feedback(
+        sid=22,
+        seq=9,
+        t=T + 0.1,
+        z_e=[4.0, -3.0],
+        z_r=[4.1, -2.9],
+        eta=[3.9, -3.2],
+        ref=[5.0, -4.0],
+        pose=[0.5, -0.1, 0.2],
+        sonar=[2.5, 5.0],
+        f_v=[0.0, 0.3],
+        h1_s=0.15,
+        s_e=[1.0, 1.0],
+        s_r=[2.0, 2.0],
+        T=0.5,
+        eps=0.05,
+        state="walking",
+        cmd_seq=4,
+    )
+    frames = [
+        VideoFrame(sid=22, seq=i, t=T + i, camera="head", width=320, height=240, t_capture=T + i - 0.0125, jpeg=JPEG)
+        for i in range(3)
+    ]
+    f_status = Status(
+        sid=22,
+        seq=3,
+        t=T,
+        role="follower",
+        state="walking",
+        counters={"falls": 1, "collisions": 0, "drop_stale": 2},
+        text="ok",
+    )
     l_status = Status(sid=11, seq=7, t=T, role="leader", state="running", counters={"commands": 100})
     written: list[tuple[str, Any]] = [
-        ("cmd/sent", cmd), ("cmd/recv", cmd), ("feedback/recv", fb), ("feedback/sent", fb),
+        ("cmd/sent", cmd),
+        ("cmd/recv", cmd),
+        ("feedback/recv", fb),
+        ("feedback/sent", fb),
         *[("video/recv", f) for f in frames],
-        ("status/recv", f_status), ("status/sent", l_status),
-        ("leader/state", leader_state(1)), ("leader/state", leader_state(2)),
+        ("status/recv", f_status),
+        ("status/sent", l_status),
+        ("leader/state", leader_state(1)),
+        ("leader/state", leader_state(2)),
         *[("events", e) for e in EVENTS],
-    ]  # fmt: skip
+    ]
     with Recorder(path, jpeg_every=2, metadata={"role": "leader"}) as rec:
         for topic, msg in written:
             assert rec.write(topic, msg, T + 1.0)
@@ -117,12 +155,17 @@ def test_every_channel_has_a_json_schema_and_every_message_validates(tmp_path: P
     write_every_topic(path)
     channels, messages = channels_and_messages(path)
     expected = {
-        "cmd/sent": "bipedtele.Command", "cmd/recv": "bipedtele.Command",
-        "feedback/recv": "bipedtele.Feedback", "feedback/sent": "bipedtele.Feedback",
-        "video/recv": "foxglove.CompressedImage", "video/recv/header": "bipedtele.VideoFrameHeader",
-        "status/recv": "bipedtele.Status", "status/sent": "bipedtele.Status",
-        "leader/state": "bipedtele.LeaderState", "events": "bipedtele.Event",
-    }  # fmt: skip
+        "cmd/sent": "bipedtele.Command",
+        "cmd/recv": "bipedtele.Command",
+        "feedback/recv": "bipedtele.Feedback",
+        "feedback/sent": "bipedtele.Feedback",
+        "video/recv": "foxglove.CompressedImage",
+        "video/recv/header": "bipedtele.VideoFrameHeader",
+        "status/recv": "bipedtele.Status",
+        "status/sent": "bipedtele.Status",
+        "leader/state": "bipedtele.LeaderState",
+        "events": "bipedtele.Event",
+    }
     assert {topic: schema.name for topic, (_, schema) in channels.items()} == expected
     for topic, (channel, schema) in channels.items():
         assert channel.message_encoding == "json", topic
@@ -130,9 +173,17 @@ def test_every_channel_has_a_json_schema_and_every_message_validates(tmp_path: P
         assert json.loads(schema.data)["type"] == "object", topic
     counts = validate_all(messages)
     assert counts == {
-        "cmd/sent": 1, "cmd/recv": 1, "feedback/recv": 1, "feedback/sent": 1, "video/recv": 2,
-        "video/recv/header": 1, "status/recv": 1, "status/sent": 1, "leader/state": 2, "events": 7,
-    }  # fmt: skip
+        "cmd/sent": 1,
+        "cmd/recv": 1,
+        "feedback/recv": 1,
+        "feedback/sent": 1,
+        "video/recv": 2,
+        "video/recv/header": 1,
+        "status/recv": 1,
+        "status/sent": 1,
+        "leader/state": 2,
+        "events": 7,
+    }
 
 
 def test_video_is_a_foxglove_compressed_image(tmp_path: Path) -> None:
@@ -181,11 +232,17 @@ def test_recordings_written_before_the_schemas_still_read(tmp_path: Path) -> Non
     with open(path, "wb") as f:
         w = Writer(f)
         w.start(profile="bipedtele", library="old")
-        ids = {t: w.register_channel(topic=t, message_encoding="msgpack", schema_id=0)
-               for t in ("cmd/sent", "video/recv", "leader/state")}  # fmt: skip
+        ids = {
+            t: w.register_channel(topic=t, message_encoding="msgpack", schema_id=0)
+            for t in ("cmd/sent", "video/recv", "leader/state")
+        }
         for topic, data in (("cmd/sent", cmd), ("video/recv", frame), ("leader/state", {"t": T, "h1_ms": None})):
-            w.add_message(ids[topic], log_time=int(T * 1e9), publish_time=int(T * 1e9),
-                          data=msgpack.packb(data, use_bin_type=True))  # fmt: skip
+            w.add_message(
+                ids[topic],
+                log_time=int(T * 1e9),
+                publish_time=int(T * 1e9),
+                data=msgpack.packb(data, use_bin_type=True),
+            )
         w.finish()
     got = [(r.topic, r.data) for r in read_records(path)]
     assert got == [("cmd/sent", cmd), ("video/recv", frame), ("leader/state", {"t": T, "h1_ms": None})]
@@ -198,12 +255,22 @@ def test_undecodable_json_payloads_are_skipped(tmp_path: Path) -> None:
     with open(path, "wb") as f:
         w = Writer(f)
         w.start(profile="bipedtele", library="test")
-        sid = w.register_schema(name="foxglove.CompressedImage", encoding="jsonschema",
-                                data=json.dumps({"type": "object", "properties": {"data": {"type": "string", "contentEncoding": "base64"}}}).encode())  # fmt: skip
+        sid = w.register_schema(
+            name="foxglove.CompressedImage",
+            encoding="jsonschema",
+            data=json.dumps(
+                {"type": "object", "properties": {"data": {"type": "string", "contentEncoding": "base64"}}}
+            ).encode(),
+        )
         ev = w.register_channel(topic="events", message_encoding="json", schema_id=0)
         img = w.register_channel(topic="video/recv", message_encoding="json", schema_id=sid)
-        for cid, payload in ((ev, b'{"event": "a"}'), (ev, b"{not json"), (ev, b"[1, 2]"),
-                             (img, b'{"k": "video", "data": "***"}'), (ev, b'{"event": "b"}')):  # fmt: skip
+        for cid, payload in (
+            (ev, b'{"event": "a"}'),
+            (ev, b"{not json"),
+            (ev, b"[1, 2]"),
+            (img, b'{"k": "video", "data": "***"}'),
+            (ev, b'{"event": "b"}'),
+        ):
             w.add_message(cid, log_time=1, publish_time=1, data=payload)
         w.finish()
     assert [r.data for r in read_records(path)] == [{"event": "a"}, {"event": "b"}]
@@ -268,10 +335,24 @@ def test_a_demo_recording_has_typed_channels_that_validate(tmp_path: Path) -> No
     message of every channel valid against its schema."""
     run_dir, record = tmp_path / "run", tmp_path / "leader.mcap"
     proc = subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", "demo", "--headless", "--quiet", "--duration", "8",
-         "--run-dir", str(run_dir), "--record", str(record)],
-        capture_output=True, text=True, timeout=240,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "demo",
+            "--headless",
+            "--quiet",
+            "--duration",
+            "8",
+            "--run-dir",
+            str(run_dir),
+            "--record",
+            str(record),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     channels, messages = channels_and_messages(record)
     leader = validate_all(messages)

@@ -82,8 +82,15 @@ def test_roles_hold_only_for_sessions_opened_on_a_stream_link(tmp_path: Path) ->
     """A session over the router's UDP listener alone (no certificate possible) matches no role."""
     creds = tmp_path / "creds.txt"
     creds.write_text("alice:a\nnao1:n\n")
-    net = NetworkConfig(mode="router", listen=["tls/0.0.0.0:7447"], links="split", credentials_file=str(creds),
-                        publishers_allowed=["alice"], followers_allowed=["nao1"], routers_allowed=["router-b"])  # fmt: skip
+    net = NetworkConfig(
+        mode="router",
+        listen=["tls/0.0.0.0:7447"],
+        links="split",
+        credentials_file=str(creds),
+        publishers_allowed=["alice"],
+        followers_allowed=["nao1"],
+        routers_allowed=["router-b"],
+    )
     acl = access_control_json(net)
     assert acl is not None
     roles = [s for s in acl["subjects"] if "usernames" in s]

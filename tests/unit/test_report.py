@@ -39,8 +39,13 @@ def _synthetic(path: Path) -> None:
         # Follower status: session 9 had 2 falls before the recording, then one more and two
         # obstacle contacts; it restarts as session 10 and falls once.
         for t, sid, falls, coll in ((100.2, 9, 2, 0), (103.2, 9, 3, 2), (106.0, 10, 0, 0), (107.0, 10, 1, 0)):
-            st = Status(sid=sid, t=t, role="follower", state="walking",
-                        counters={"falls": falls, "collisions": coll, "cmd_accepted": 5})  # fmt: skip
+            st = Status(
+                sid=sid,
+                t=t,
+                role="follower",
+                state="walking",
+                counters={"falls": falls, "collisions": coll, "cmd_accepted": 5},
+            )
             rec.write("status/recv", st, t)
         rec.write("events", {"event": "fall"}, 103.0)
         rec.write("events", {"event": "pass_done", "n": 1}, 105.0)
@@ -142,8 +147,10 @@ def test_cli_prints_writes_json_and_plots(tmp_path: Path, capsys: pytest.Capture
     data = json.loads(out_json.read_text())
     assert data == compute_report(read_records(path))
     assert sorted(p.name for p in plots.iterdir()) == [
-        "fig11_coordination.png", "fig12_tracking.png", "fig9_delay.png",
-    ]  # fmt: skip
+        "fig11_coordination.png",
+        "fig12_tracking.png",
+        "fig9_delay.png",
+    ]
 
 
 @pytest.mark.parametrize("content", [None, b"", b"garbage, not an mcap file"])

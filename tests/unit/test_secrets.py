@@ -36,8 +36,14 @@ def test_make_certs_from_another_folder_keeps_the_ca_key_off_the_copied_files(tm
     out = tmp_path / "certs"
     hosts_files = sorted(p.name for p in out.iterdir() if p.is_file())
     assert hosts_files == [
-        "ca.pem", "follower.key", "follower.pem", "leader.key", "leader.pem", "router.key", "router.pem",
-    ]  # fmt: skip
+        "ca.pem",
+        "follower.key",
+        "follower.pem",
+        "leader.key",
+        "leader.pem",
+        "router.key",
+        "router.pem",
+    ]
     ca_key = out / "ca-private" / "ca.key"
     assert ca_key.is_file() and _mode(ca_key) == 0o600 and _mode(ca_key.parent) == 0o700
     assert "keep it off the hosts" in res.stdout
@@ -68,8 +74,17 @@ def test_script_and_setup_command_make_the_same_kind_of_certificates(tmp_path: P
 
     def shape(folder: Path, name: str) -> list[str]:
         text = _openssl("x509", "-in", str(folder / f"{name}.pem"), "-noout", "-text")
-        keep = ("Public Key Algorithm", "ASN1 OID", "CA:TRUE", "CA:FALSE", "Digital Signature", "TLS Web", "DNS:",
-                "Issuer:", "Subject:")  # fmt: skip
+        keep = (
+            "Public Key Algorithm",
+            "ASN1 OID",
+            "CA:TRUE",
+            "CA:FALSE",
+            "Digital Signature",
+            "TLS Web",
+            "DNS:",
+            "Issuer:",
+            "Subject:",
+        )
         # (not any line starting "CA:": a key identifier's hex is such a line 1 time in 256)
         return [line.strip() for line in text.splitlines() if line.strip().startswith(keep)]
 
@@ -80,8 +95,11 @@ def test_script_and_setup_command_make_the_same_kind_of_certificates(tmp_path: P
 @pytest.mark.parametrize("how", ["script", "command"])
 def test_message_key_is_64_hex_mode_0600_never_overwritten(tmp_path: Path, how: str) -> None:
     key = tmp_path / "secrets" / "message.key"
-    cmd = [str(MAKE_KEY), str(key)] if how == "script" else [
-        sys.executable, "-m", "bipedtele.cli", "setup", "message-key", str(key)]  # fmt: skip
+    cmd = (
+        [str(MAKE_KEY), str(key)]
+        if how == "script"
+        else [sys.executable, "-m", "bipedtele.cli", "setup", "message-key", str(key)]
+    )
     if how == "command":
         key.parent.mkdir()
     res = _run(cmd, cwd=tmp_path)

@@ -16,8 +16,9 @@ FB = "bipedtele/nao1/feedback"
 
 
 def test_hkdf_rfc5869_test_case_1() -> None:
-    okm = hkdf_sha256(bytes.fromhex("0b" * 22), bytes.fromhex("000102030405060708090a0b0c"),
-                      bytes.fromhex("f0f1f2f3f4f5f6f7f8f9"), 42)  # fmt: skip
+    okm = hkdf_sha256(
+        bytes.fromhex("0b" * 22), bytes.fromhex("000102030405060708090a0b0c"), bytes.fromhex("f0f1f2f3f4f5f6f7f8f9"), 42
+    )
     assert okm.hex() == ("3cb25f25faacd57a90434f64d0362f2a2d2d0a90cf1a5a4c5db02d56ecc4c5bf34007208d5b887185865")
 
 
@@ -117,8 +118,9 @@ def test_a_replayed_old_hello_completes_nothing_and_its_traffic_is_old_session()
         assert _deliver(follower, gate, c or b"") == "old_session"
     assert follower.peer_sid == 33 and gate.bound_sid == 33
     # a replayed old follower answer (echoing leader 1's nonce) completes nothing at leader 2
-    old_answer = Hello(sid=22, seq=1, t=1e9, role="follower", nonce=bytes(32 * [7]), peer_sid=11,
-                       peer_nonce=captured_hellos[0].nonce)  # fmt: skip
+    old_answer = Hello(
+        sid=22, seq=1, t=1e9, role="follower", nonce=bytes(32 * [7]), peer_sid=11, peer_nonce=captured_hellos[0].nonce
+    )
     before = leader2.completed
     leader2.on_hello(old_answer)
     assert leader2.completed == before
@@ -314,7 +316,15 @@ def test_the_leader_learns_its_follower_sessions_watch_epoch_from_the_handshake(
     assert leader.peer_watch_epoch is None
     _exchange(leader, follower)
     assert leader.complete and leader.peer_watch_epoch == b"FOL1"
-    old = Hello(sid=21, seq=9, t=1e9, role="follower", nonce=bytes(32 * [5]), peer_sid=11,
-                peer_nonce=leader.nonce, watch=b"OLD!")  # fmt: skip
+    old = Hello(
+        sid=21,
+        seq=9,
+        t=1e9,
+        role="follower",
+        nonce=bytes(32 * [5]),
+        peer_sid=11,
+        peer_nonce=leader.nonce,
+        watch=b"OLD!",
+    )
     leader.on_hello(old)
     assert leader.peer_sid == 22 and leader.peer_watch_epoch == b"FOL1"

@@ -43,13 +43,30 @@ def _toml(path: Path) -> dict:
 
 def test_each_host_folder_holds_its_own_files_only(hosts: Path) -> None:
     expect = {
-        "router": {"bipedtele.toml", "certs/ca.pem", "certs/router.pem", "certs/router.key",
-                   "secrets/router-credentials.txt"},
-        "robot": {"bipedtele.toml", "certs/ca.pem", "certs/follower.pem", "certs/follower.key",
-                  "secrets/follower.pw", "secrets/message.key"},
-        "operator": {"bipedtele.toml", "certs/ca.pem", "certs/leader.pem", "certs/leader.key",
-                     "secrets/leader.pw", "secrets/message.key"},
-    }  # fmt: skip
+        "router": {
+            "bipedtele.toml",
+            "certs/ca.pem",
+            "certs/router.pem",
+            "certs/router.key",
+            "secrets/router-credentials.txt",
+        },
+        "robot": {
+            "bipedtele.toml",
+            "certs/ca.pem",
+            "certs/follower.pem",
+            "certs/follower.key",
+            "secrets/follower.pw",
+            "secrets/message.key",
+        },
+        "operator": {
+            "bipedtele.toml",
+            "certs/ca.pem",
+            "certs/leader.pem",
+            "certs/leader.key",
+            "secrets/leader.pw",
+            "secrets/message.key",
+        },
+    }
     assert {p.name for p in hosts.iterdir()} == {"router", "robot", "operator", "ca-private"}
     for host, files in expect.items():
         got = {str(p.relative_to(hosts / host)) for p in (hosts / host).rglob("*") if p.is_file()}
@@ -203,8 +220,11 @@ def test_router_named_by_ip_gets_an_ip_certificate(tmp_path: Path) -> None:
     assert _toml(out / "robot" / "bipedtele.toml")["network"]["connect"] == ["tls/127.0.0.1:7447"]
     text = subprocess.run(
         ["openssl", "x509", "-in", str(out / "router" / "certs" / "router.pem"), "-noout", "-text"],
-        capture_output=True, text=True, check=True, timeout=30,
-    ).stdout  # fmt: skip
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=30,
+    ).stdout
     assert "IP Address:127.0.0.1" in text
     server = _ctx_server(out / "router", "router")
     client = _ctx_client(out / "operator", "leader", out / "operator" / "certs" / "ca.pem")
@@ -217,8 +237,14 @@ def test_make_certs_keeps_the_ca_key_apart(tmp_path: Path) -> None:
     files = make_certs(tmp_path / "certs", ["router.example.org", "192.0.2.1"])
     assert files.ca_key == tmp_path / "certs" / "ca-private" / "ca.key"
     assert sorted(p.name for p in (tmp_path / "certs").iterdir() if p.is_file()) == [
-        "ca.pem", "follower.key", "follower.pem", "leader.key", "leader.pem", "router.key", "router.pem",
-    ]  # fmt: skip
+        "ca.pem",
+        "follower.key",
+        "follower.pem",
+        "leader.key",
+        "leader.pem",
+        "router.key",
+        "router.pem",
+    ]
     assert _mode(files.ca_key) == 0o600 and _mode(files.ca_key.parent) == 0o700
     with pytest.raises(ConfigError, match="exists"):
         make_certs(tmp_path / "certs", ["router.example.org"])  # never overwritten
@@ -250,8 +276,12 @@ def test_refuses_a_non_empty_folder_and_bad_arguments(tmp_path: Path) -> None:
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=60, cwd=cwd,
-    )  # fmt: skip
+        [sys.executable, "-m", "bipedtele.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=cwd,
+    )
 
 
 def test_command_prints_one_folder_and_one_command_per_host(tmp_path: Path) -> None:
@@ -292,10 +322,21 @@ def test_router_and_health_run_from_the_written_folders(tmp_path: Path) -> None:
         place.mkdir()
         os.rename(out / host, place / host)
     router = subprocess.Popen(
-        [sys.executable, "-m", "bipedtele.cli", "router", "--config", "router/bipedtele.toml",
-         "--set", f'network.listen=["tls/127.0.0.1:{port}"]'],
-        cwd=router_host, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "router",
+            "--config",
+            "router/bipedtele.toml",
+            "--set",
+            f'network.listen=["tls/127.0.0.1:{port}"]',
+        ],
+        cwd=router_host,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert router.stdout is not None
         line = router.stdout.readline()

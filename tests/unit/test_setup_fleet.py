@@ -41,22 +41,43 @@ def _key(path: Path) -> str:
 def test_each_host_folder_holds_its_own_files_only(fleet: Path) -> None:
     certs = {"certs/ca.pem"}
     assert {p.name for p in fleet.iterdir()} == {
-        "router", "robot-nao1", "robot-nao2", "operator-alice", "operator-bob", "ca-private"
-    }  # fmt: skip
+        "router",
+        "robot-nao1",
+        "robot-nao2",
+        "operator-alice",
+        "operator-bob",
+        "ca-private",
+    }
     assert _files(fleet / "router") == certs | {
-        "certs/router.pem", "certs/router.key", "secrets/router-credentials.txt", "bipedtele.toml"
-    }  # fmt: skip
+        "certs/router.pem",
+        "certs/router.key",
+        "secrets/router-credentials.txt",
+        "bipedtele.toml",
+    }
     for r in ROBOTS:
         assert _files(fleet / f"robot-{r}") == certs | {
-            f"certs/{r}.pem", f"certs/{r}.key", f"secrets/{r}.pw", "secrets/message.key", "bipedtele.toml"
-        }  # fmt: skip
+            f"certs/{r}.pem",
+            f"certs/{r}.key",
+            f"secrets/{r}.pw",
+            "secrets/message.key",
+            "bipedtele.toml",
+        }
     assert _files(fleet / "operator-alice") == certs | {
-        "certs/alice.pem", "certs/alice.key", "secrets/alice.pw", "secrets/nao1.key", "nao1.toml"
-    }  # fmt: skip
+        "certs/alice.pem",
+        "certs/alice.key",
+        "secrets/alice.pw",
+        "secrets/nao1.key",
+        "nao1.toml",
+    }
     assert _files(fleet / "operator-bob") == certs | {
-        "certs/bob.pem", "certs/bob.key", "secrets/bob.pw", "secrets/nao1.key", "secrets/nao2.key",
-        "nao1.toml", "nao2.toml",
-    }  # fmt: skip
+        "certs/bob.pem",
+        "certs/bob.key",
+        "secrets/bob.pw",
+        "secrets/nao1.key",
+        "secrets/nao2.key",
+        "nao1.toml",
+        "nao2.toml",
+    }
     assert _files(fleet / "ca-private") == {"ca.key", "ca.pem", "README.txt"}
 
 
@@ -100,9 +121,13 @@ def test_router_acl_binds_each_operator_to_its_robots(fleet: Path) -> None:
 
 
 def test_each_profile_names_its_robot_user_and_key(fleet: Path, tmp_path: Path) -> None:
-    cases = [("robot-nao1/bipedtele.toml", "nao1", "nao1"), ("robot-nao2/bipedtele.toml", "nao2", "nao2"),
-             ("operator-alice/nao1.toml", "nao1", "alice"), ("operator-bob/nao1.toml", "nao1", "bob"),
-             ("operator-bob/nao2.toml", "nao2", "bob")]  # fmt: skip
+    cases = [
+        ("robot-nao1/bipedtele.toml", "nao1", "nao1"),
+        ("robot-nao2/bipedtele.toml", "nao2", "nao2"),
+        ("operator-alice/nao1.toml", "nao1", "alice"),
+        ("operator-bob/nao1.toml", "nao1", "bob"),
+        ("operator-bob/nao2.toml", "nao2", "bob"),
+    ]
     robot_key = {r: _key(fleet / f"robot-{r}/secrets/message.key") for r in ROBOTS}
     for profile, robot, user in cases:
         cfg = load_config(fleet / profile)  # from another working folder: paths are the profile's
@@ -137,23 +162,46 @@ def test_refuses_bad_assignments(tmp_path: Path) -> None:
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", *args], capture_output=True, text=True, timeout=60, cwd=cwd,
-    )  # fmt: skip
+        [sys.executable, "-m", "bipedtele.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=cwd,
+    )
 
 
 def test_command_prints_each_host_and_its_commands(tmp_path: Path) -> None:
-    res = _cli("setup", "fleet", "--router-name", NAME, "--robot", "nao1", "--robot", "nao2",
-               "--operator", "alice=nao1", "--operator", "bob=nao2,nao1", "--out", "f", cwd=tmp_path)  # fmt: skip
+    res = _cli(
+        "setup",
+        "fleet",
+        "--router-name",
+        NAME,
+        "--robot",
+        "nao1",
+        "--robot",
+        "nao2",
+        "--operator",
+        "alice=nao1",
+        "--operator",
+        "bob=nao2,nao1",
+        "--out",
+        "f",
+        cwd=tmp_path,
+    )
     assert res.returncode == 0, res.stderr
-    for cmd in ("bipedtele router --config router/bipedtele.toml",
-                "bipedtele follower --config robot-nao2/bipedtele.toml",
-                "bipedtele leader --config operator-alice/nao1.toml",
-                "bipedtele leader --config operator-bob/nao2.toml",
-                "bipedtele leader --config operator-bob/nao1.toml"):  # fmt: skip
+    for cmd in (
+        "bipedtele router --config router/bipedtele.toml",
+        "bipedtele follower --config robot-nao2/bipedtele.toml",
+        "bipedtele leader --config operator-alice/nao1.toml",
+        "bipedtele leader --config operator-bob/nao2.toml",
+        "bipedtele leader --config operator-bob/nao1.toml",
+    ):
         assert cmd in res.stdout, res.stdout
-    for args, match in ((["--operator", "alice=nao3"], "not a --robot"),
-                        (["--operator", "alice=nao1", "--operator", "alice=nao1"], "given twice"),
-                        (["--operator", "alice"], "NAME=ROBOT")):  # fmt: skip
+    for args, match in (
+        (["--operator", "alice=nao3"], "not a --robot"),
+        (["--operator", "alice=nao1", "--operator", "alice=nao1"], "given twice"),
+        (["--operator", "alice"], "NAME=ROBOT"),
+    ):
         bad = _cli("setup", "fleet", "--router-name", NAME, "--robot", "nao1", *args, "--out", "g", cwd=tmp_path)
         assert bad.returncode == 2 and bad.stdout == "", bad.stdout
         assert len(bad.stderr.strip().splitlines()) == 1 and match in bad.stderr, bad.stderr
@@ -166,9 +214,14 @@ def test_observers_get_watch_keys_only(tmp_path: Path) -> None:
     out = write_fleet(tmp_path / "f", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"carol": ("nao1", "nao2")}).out
     folder = out / "observer-carol"
     assert _files(folder) == {
-        "certs/ca.pem", "certs/carol.pem", "certs/carol.key", "secrets/carol.pw",
-        "secrets/nao1.watch", "secrets/nao2.watch", "bipedtele.toml",
-    }  # fmt: skip
+        "certs/ca.pem",
+        "certs/carol.pem",
+        "certs/carol.key",
+        "secrets/carol.pw",
+        "secrets/nao1.watch",
+        "secrets/nao2.watch",
+        "bipedtele.toml",
+    }
     for r in ROBOTS:
         master = read_key_file(str(out / f"robot-{r}/secrets/message.key"))
         assert read_key_file(str(folder / f"secrets/{r}.watch"), "watch_key_dir") == watch_key(master)
@@ -186,9 +239,14 @@ def test_sites_write_a_router_each_linked_to_the_sites_before(tmp_path: Path) ->
     from bipedtele.tools.setup_fleet import write_sites
 
     sites = {"lab1": "r1.example.org", "lab2": "r2.example.org", "lab3": "10.0.0.3"}
-    out = write_sites(tmp_path / "s", sites, {"nao1": "lab1", "nao2": "lab2"},
-                      {"alice": ("lab1", ["nao1"]), "bob": ("lab3", ["nao2", "nao1"])}, 7460,
-                      {"carol": ("lab2", ["nao1"])}).out  # fmt: skip
+    out = write_sites(
+        tmp_path / "s",
+        sites,
+        {"nao1": "lab1", "nao2": "lab2"},
+        {"alice": ("lab1", ["nao1"]), "bob": ("lab3", ["nao2", "nao1"])},
+        7460,
+        {"carol": ("lab2", ["nao1"])},
+    ).out
     nets = {s: load_config(out / f"router-{s}" / "bipedtele.toml").get(NetworkConfig) for s in sites}
     assert nets["lab1"].connect == [] and not nets["lab1"].router_user
     assert nets["lab2"].connect == ["tls/r1.example.org:7460"] and nets["lab2"].router_user == "site-lab2"
@@ -198,14 +256,21 @@ def test_sites_write_a_router_each_linked_to_the_sites_before(tmp_path: Path) ->
     assert nets["lab3"].publishers_allowed == ["bob@nao2", "bob@nao1"] and nets["lab3"].followers_allowed == []
     assert nets["lab2"].observers_allowed == ["carol@nao1"]
     users = {s: [ln.split(":")[0] for ln in Path(nets[s].credentials_file).read_text().splitlines()] for s in sites}
-    assert users == {"lab1": ["nao1", "alice", "site-lab2", "site-lab3"], "lab2": ["nao2", "carol", "site-lab3"],
-                     "lab3": ["bob"]}  # fmt: skip
+    assert users == {
+        "lab1": ["nao1", "alice", "site-lab2", "site-lab3"],
+        "lab2": ["nao2", "carol", "site-lab3"],
+        "lab3": ["bob"],
+    }
     lab1_creds = dict(ln.split(":", 1) for ln in Path(nets["lab1"].credentials_file).read_text().splitlines())
     assert Path(nets["lab2"].router_password_file).read_text().strip() == lab1_creds["site-lab2"]
     for s in sites:
         pem = out / f"router-{s}" / "certs" / f"router-{s}.pem"
-        text = subprocess.run(["openssl", "x509", "-in", str(pem), "-noout", "-subject", "-ext", "subjectAltName"],
-                              capture_output=True, text=True, check=True).stdout  # fmt: skip
+        text = subprocess.run(
+            ["openssl", "x509", "-in", str(pem), "-noout", "-subject", "-ext", "subjectAltName"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
         assert f"CN = router-{s}" in text and sites[s] in text, text
     bob = load_config(out / "operator-bob" / "nao2.toml").get(NetworkConfig)
     assert bob.connect == ["tls/10.0.0.3:7460"]  # his own site's router, whatever the robot's site
@@ -228,16 +293,34 @@ def test_sites_refusals(tmp_path: Path) -> None:
         with pytest.raises(ConfigError, match=match):
             write_sites(tmp_path / "n", sites, robots, ops)
     assert not (tmp_path / "n").exists()
-    res = _cli("setup", "sites", "--site", "lab1=r1.example.org", "--site", "lab2=r2.example.org",
-               "--robot", "nao1", "--operator", "alice@lab1=nao1", "--out", "x", cwd=tmp_path)  # fmt: skip
+    res = _cli(
+        "setup",
+        "sites",
+        "--site",
+        "lab1=r1.example.org",
+        "--site",
+        "lab2=r2.example.org",
+        "--robot",
+        "nao1",
+        "--operator",
+        "alice@lab1=nao1",
+        "--out",
+        "x",
+        cwd=tmp_path,
+    )
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "NAME@SITE" in res.stderr
     with pytest.raises(ConfigError, match="router_user/router_password_file: allowed: both"):
         zenoh_config(NetworkConfig(mode="router", router_user="site-lab2"))
 
 
 def _subject(pem: Path) -> str:
-    out = subprocess.run(["openssl", "x509", "-in", str(pem), "-noout", "-subject", "-fingerprint"],
-                         capture_output=True, text=True, check=True, timeout=30).stdout  # fmt: skip
+    out = subprocess.run(
+        ["openssl", "x509", "-in", str(pem), "-noout", "-subject", "-fingerprint"],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=30,
+    ).stdout
     return out.strip()
 
 

@@ -70,9 +70,12 @@ def test_the_shipped_traces_are_regenerated_byte_for_byte_with_their_statistics(
 def test_bad_shaper_specs_are_one_line_errors(tmp_path: Path) -> None:
     bad = tmp_path / "bad.txt"
     bad.write_text("10\nabc\n")
-    for rate, burst, what in (("mahimahi:" + str(bad), None, "not an integer ms"),
-                              ("mahimahi:/nonexistent", None, "cannot read"),
-                              ("none", "16kB", "without a rate"), ("mahimahi:lte", "16kB", "a burst with a rate")):  # fmt: skip
+    for rate, burst, what in (
+        ("mahimahi:" + str(bad), None, "not an integer ms"),
+        ("mahimahi:/nonexistent", None, "cannot read"),
+        ("none", "16kB", "without a rate"),
+        ("mahimahi:lte", "16kB", "a burst with a rate"),
+    ):
         with pytest.raises(ConfigError, match=what) as err:
             build_shaper(rate, "64kB", burst)
         assert "\n" not in str(err.value) and "allowed" in str(err.value)

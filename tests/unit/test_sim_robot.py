@@ -179,10 +179,21 @@ def test_reset_on_leader_is_refused_for_a_real_nao(tmp_path) -> None:
     import sys
 
     proc = subprocess.run(
-        [sys.executable, "-m", "bipedtele.cli", "follower", "--robot", "naoqi", "--reset-on-leader",
-         "--set", f'record.dir="{tmp_path}"'],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "bipedtele.cli",
+            "follower",
+            "--robot",
+            "naoqi",
+            "--reset-on-leader",
+            "--set",
+            f'record.dir="{tmp_path}"',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "--reset-on-leader" in lines[0] and "simulator" in lines[0], proc.stderr

@@ -64,8 +64,7 @@ def test_the_schema_is_the_struct_with_a_description_for_every_field() -> None:
 def test_a_recorded_sample_validates_and_reads_back(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     full = full_sample()
-    sparse = LeaderSample(t=T + 1, seq=2, gain=math.nan, force_v=math.inf, enable=False,
-                          h2_ms=np.float64(5.0))  # type: ignore[arg-type]  # fmt: skip
+    sparse = LeaderSample(t=T + 1, seq=2, gain=math.nan, force_v=math.inf, enable=False, h2_ms=np.float64(5.0))  # type: ignore[arg-type]
     with Recorder(path) as rec:
         assert rec.write("leader/state", full, T)
         assert rec.write("leader/state", sparse, T + 1)
@@ -124,8 +123,9 @@ def test_the_leader_loop_makes_one_sample_per_command() -> None:
     dev = SimFalcon()
     dev.connect()
     sent: list[Command] = []
-    loop = LeaderLoop(dev, op, cfg.control, sent.append, FeedbackInbox(), cfg=cfg.leader,
-                      clock=lambda: T, on_sample=seen.append)  # fmt: skip
+    loop = LeaderLoop(
+        dev, op, cfg.control, sent.append, FeedbackInbox(), cfg=cfg.leader, clock=lambda: T, on_sample=seen.append
+    )
     loop.run_for(0.5)
     assert len(seen) == len(sent) == 50 and observed == seen
     assert all(isinstance(s, LeaderSample) for s in seen)

@@ -68,9 +68,14 @@ def test_the_model_predicts_pybullets_accelerations_in_free_flight() -> None:
             lin, ang = pb.getBaseVelocity(rob, physicsClientId=c)
             js = pb.getJointStates(rob, joints, physicsClientId=c)
             q, v = state_from_pybullet(
-                np.array(pos), np.array(orn), np.array(lin), np.array(ang),
-                np.array([s[0] for s in js]), np.array([s[1] for s in js]), com,
-            )  # fmt: skip
+                np.array(pos),
+                np.array(orn),
+                np.array(lin),
+                np.array(ang),
+                np.array([s[0] for s in js]),
+                np.array([s[1] for s in js]),
+                com,
+            )
             u = rng.uniform(-1.0, 1.0, 12)
             aff = model.affine(q, v, "")
             pb.setJointMotorControlArray(rob, joints, pb.TORQUE_CONTROL, forces=u.tolist(), physicsClientId=c)

@@ -128,7 +128,7 @@ def test_access_control_roles_deny_by_default(tmp_path: Path) -> None:
         ("ingress", "declare_liveliness_subscriber"),
     ):
         for key in ("**", f"{root}/feedback", f"{root}/presence/leader/x", f"{root}/presence/*/*"):
-            assert not _allowed(acl, "viewer", flow, message, key), (flow, message, key)  # fmt: skip
+            assert not _allowed(acl, "viewer", flow, message, key), (flow, message, key)
     # a leader-only ACL: the follower user has no role at all
     only = access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["leader"]))
     assert only is not None and not _allowed(only, "follower", "ingress", "put", f"{root}/feedback")
@@ -139,8 +139,11 @@ def test_a_user_bound_to_a_robot_reaches_that_robot_only(tmp_path: Path) -> None
     nao1 and nothing else; before, every leader of a router could command every robot on it."""
     creds = tmp_path / "c.txt"
     creds.write_text("alice:a\ncarol:c\ndave:d\nf1:x\nf2:y\n")
-    net = NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice@nao1", "carol@nao2", "carol@nao3", "dave"],
-                        followers_allowed=["f1@nao1", "f2@nao2"])  # fmt: skip
+    net = NetworkConfig(
+        credentials_file=str(creds),
+        publishers_allowed=["alice@nao1", "carol@nao2", "carol@nao3", "dave"],
+        followers_allowed=["f1@nao1", "f2@nao2"],
+    )
     acl = access_control_json(net)
     assert acl is not None
     for r in acl["rules"]:
@@ -340,8 +343,9 @@ def test_zenoh_log_lines_become_refusal_records(caplog: pytest.LogCaptureFixture
     got = [(r.levelno, r.getMessage()) for r in caplog.records]
     assert got[0] == (logging.INFO, "refused a session from 127.0.0.1:58934: user/password refused: wrong password")
     assert got[1] == (
-        logging.INFO, "refused a session from 127.0.0.1:47258 (Common Name: leader): user/password refused: unknown user"
-    )  # fmt: skip
+        logging.INFO,
+        "refused a session from 127.0.0.1:47258 (Common Name: leader): user/password refused: unknown user",
+    )
     assert got[2][1].startswith("refused a TLS connection: no client certificate presented")
     assert got[3][1].startswith("refused a TLS connection: client certificate not signed by this router's CA")
     assert "Hint" not in got[2][1] + got[3][1]
@@ -359,8 +363,12 @@ def test_an_observer_receives_video_and_status_and_puts_nothing(tmp_path: Path) 
     command, feedback or clock key at all."""
     creds = tmp_path / "c.txt"
     creds.write_text("alice:a\nnao1:b\ncarol:c\neve:d\n")
-    net = NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice@nao1"],
-                        followers_allowed=["nao1@nao1"], observers_allowed=["carol@nao1", "eve"])  # fmt: skip
+    net = NetworkConfig(
+        credentials_file=str(creds),
+        publishers_allowed=["alice@nao1"],
+        followers_allowed=["nao1@nao1"],
+        observers_allowed=["carol@nao1", "eve"],
+    )
     acl = access_control_json(net)
     assert acl is not None
     for k in ("video", "status"):
@@ -382,5 +390,6 @@ def test_an_observer_receives_video_and_status_and_puts_nothing(tmp_path: Path) 
     with pytest.raises(ConfigError, match="observers_allowed: set without"):
         access_control_json(NetworkConfig(credentials_file=str(creds), observers_allowed=["carol"]))
     with pytest.raises(ConfigError, match="observers_allowed = 'mallory': not a user"):
-        access_control_json(NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice"],
-                                          observers_allowed=["mallory"]))  # fmt: skip
+        access_control_json(
+            NetworkConfig(credentials_file=str(creds), publishers_allowed=["alice"], observers_allowed=["mallory"])
+        )

@@ -31,10 +31,16 @@ FB, STATUS = 380, 600
 
 class CellSim:
     def __init__(
-        self, cap: Callable[[float], float], *, base_s: Callable[[float], float] = lambda t: 0.04,
-        queue_bytes: int = 64_000, want_bps: float = 800_000.0, video_delivered: float = 1.0,
-        fb_loss_ppm: int = 0, status_s: float = 0.5,
-    ) -> None:  # fmt: skip
+        self,
+        cap: Callable[[float], float],
+        *,
+        base_s: Callable[[float], float] = lambda t: 0.04,
+        queue_bytes: int = 64_000,
+        want_bps: float = 800_000.0,
+        video_delivered: float = 1.0,
+        fb_loss_ppm: int = 0,
+        status_s: float = 0.5,
+    ) -> None:
         self.t = 0.0
         self.cap, self.base_s, self.qmax = cap, base_s, queue_bytes
         self.want, self.video_delivered, self.fb_loss_ppm = want_bps, video_delivered, fb_loss_ppm
@@ -117,8 +123,11 @@ class CellSim:
             self.to_follower.append((t + self.base_s(t), "h2", h2))
         if t >= self.next_leader_st and self.newest_fb_sent is not None:
             self.next_leader_st = t + self.status_s
-            counters = {"rx_bps": round(sum(b for _, b in self.rx) / 2.0), "fb_loss_ppm": self.fb_loss_ppm,
-                        "fb_age_ms": round(1000.0 * (t - self.newest_fb_sent))}  # fmt: skip
+            counters = {
+                "rx_bps": round(sum(b for _, b in self.rx) / 2.0),
+                "fb_loss_ppm": self.fb_loss_ppm,
+                "fb_age_ms": round(1000.0 * (t - self.newest_fb_sent)),
+            }
             self.to_follower.append((t + self.base_s(t), "status", (counters, t)))
         while self.to_follower and self.to_follower[0][0] <= t:
             _, kind, what = self.to_follower.popleft()
@@ -136,8 +145,16 @@ class CellSim:
             self._leader()
             b = self.budget
             vb = b.video_budget_bps()
-            self.log.append({"t": self.t, "cap": b.capacity_bps, "video": -1.0 if vb is None else vb,
-                             "tx": b.tx_bps(), "limited": float(b.limited), "queue_s": self.queue_bits / 1e6})  # fmt: skip
+            self.log.append(
+                {
+                    "t": self.t,
+                    "cap": b.capacity_bps,
+                    "video": -1.0 if vb is None else vb,
+                    "tx": b.tx_bps(),
+                    "limited": float(b.limited),
+                    "queue_s": self.queue_bits / 1e6,
+                }
+            )
             self.t += DT
         return self.log[n0:]
 
@@ -183,8 +200,14 @@ def test_in_a_gap_the_follower_stops_adding_to_the_paths_queue() -> None:
 def _trace_video(loss_ppm: int, delivered: float) -> tuple[float, dict[str, int]]:
     """Mean video budget [bit/s] over 100 s of the shipped trace after the start, and the rules' counts."""
     model = parse_delay_model("trace:intercontinental:h2")
-    sim = CellSim(lambda t: math.inf, base_s=lambda t: model.delay_s(t), queue_bytes=10**9,
-                  video_delivered=delivered, fb_loss_ppm=loss_ppm, want_bps=600_000.0)  # fmt: skip
+    sim = CellSim(
+        lambda t: math.inf,
+        base_s=lambda t: model.delay_s(t),
+        queue_bytes=10**9,
+        video_delivered=delivered,
+        fb_loss_ppm=loss_ppm,
+        want_bps=600_000.0,
+    )
     sim.run(20.0)
     log = sim.run(100.0)
     video = [min(600_000.0, r["video"] if r["video"] >= 0 else 600_000.0) for r in log]

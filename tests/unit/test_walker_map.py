@@ -34,8 +34,16 @@ def _synthetic(limit_tau: float = 3.5) -> dict[str, Any]:
     rho = [[[0.7 + 0.03 * s + 0.04 * t - 0.05 * (c - 0.8) for c in T] for t in tau] for s in sigma]
     lc = [[[t >= limit_tau for _ in T] for t in tau] for _ in sigma]
     fallen = [[[False for _ in T] for _ in tau] for _ in sigma]
-    return {"format": TABLE_FORMAT, "sigma": sigma, "tau": tau, "T": T, "eps": 0.05, "rho": rho,
-            "limit_cycle": lc, "fallen": fallen}  # fmt: skip
+    return {
+        "format": TABLE_FORMAT,
+        "sigma": sigma,
+        "tau": tau,
+        "T": T,
+        "eps": 0.05,
+        "rho": rho,
+        "limit_cycle": lc,
+        "fallen": fallen,
+    }
 
 
 def _check_choices(table: WalkerTable, cfg: ControlConfig) -> int:
@@ -152,8 +160,9 @@ def test_walker_chooser_is_fast() -> None:
 @pytest.mark.timeout(300)
 def test_table_command_regenerates_a_tiny_table(tmp_path: Path) -> None:
     out = tmp_path / "t.json"
-    rc = main(["poincare", "--table", str(out), "--sigma", "0", "--tau", "0,4", "--T", "0.8", "--warmup", "6",
-               "--jobs", "2"])  # fmt: skip
+    rc = main(
+        ["poincare", "--table", str(out), "--sigma", "0", "--tau", "0,4", "--T", "0.8", "--warmup", "6", "--jobs", "2"]
+    )
     assert rc == 0
     data = json.loads(out.read_text())
     tab = load_walker_table(out)
