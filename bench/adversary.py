@@ -44,10 +44,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping
-from bipedtele.recordformat import RecordingError, read_records
+from bipedtele.recording.format import RecordingError, read_records
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 REPO = Path(__file__).resolve().parent.parent

@@ -21,11 +21,13 @@ import time
 from typing import Any
 
 import numpy as np
-from bipedtele.control.compare import REGIMES, CompareParams, regime_inputs, run_compare, simulate
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import ci95
 from bipedtele.control.schemes import scheme_class, scheme_names
+from bipedtele.studies.compare import run_compare
+from bipedtele.studies.compare_kernel import regime_inputs, simulate
+from bipedtele.studies.regimes import REGIMES, CompareParams
 
 SETTINGS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("defaults", {}),
@@ -86,8 +88,8 @@ def main() -> None:
         f"{cp.study.duration_s:g} s: {wall:.0f} s wall ({periods * cells / wall:.0f} periods/s of {args.runs} runs)"
     )
     if args.walker_runs > 0:
-        from bipedtele.config import load_config
-        from bipedtele.follower.sim.walker_compare import run_walker_compare
+        from bipedtele.config.profile import load_config
+        from bipedtele.studies.walker_compare import run_walker_compare
 
         t1 = time.perf_counter()
         result["walker"] = run_walker_compare(load_config("default"), runs=args.walker_runs, seed=args.seed)

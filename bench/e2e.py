@@ -61,11 +61,11 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+from bipedtele.config.sections import NetworkConfig
 from bipedtele.leader.app import COCKPIT_TOKEN_ENV
-from bipedtele.messages import Command, Feedback, encode
-from bipedtele.recordformat import read_records
-from bipedtele.sections import NetworkConfig
-from bipedtele.zenohsession import open_session
+from bipedtele.link.messages import Command, Feedback, encode
+from bipedtele.link.zenohsession import open_session
+from bipedtele.recording.format import read_records
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 PING, PONG = "benche2e/ping", "benche2e/pong"
@@ -433,7 +433,7 @@ window.__g2g = {load: [], paint: [], recv: []};
 
 def render_time(n: int = 30) -> list[float]:
     """Seconds per head-camera render of the sim NAO (pybullet, QVGA), in this process."""
-    from bipedtele.config import load_config
+    from bipedtele.config.profile import load_config
     from bipedtele.follower.robot import make_robot
 
     out = []

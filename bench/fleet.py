@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.recordformat import RecordingError, read_records
+from bipedtele.recording.format import RecordingError, read_records
 from bipedtele.tools.setup_fleet import write_fleet
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]

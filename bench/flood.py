@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.recordformat import RecordingError, read_records
+from bipedtele.recording.format import RecordingError, read_records
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 ROBOT = "nao1"
@@ -74,7 +74,7 @@ def attack(endpoint: str, size: int, rate: float, seconds: float, target: str = 
     wire (they are in clear), else a session key's magic and a random key id; then random bytes.
     """
     import zenoh
-    from bipedtele import auth
+    from bipedtele.link import auth
 
     magic = getattr(auth, "SESSION_MAGIC", auth.MAC_MAGIC)  # what genuine commands carry
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 import argparse
 import time
 
-from bipedtele.delayestimate import DelayEstimator
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command
-from bipedtele.transport import Stamper
+from bipedtele.link.delayestimate import DelayEstimator
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command
+from bipedtele.link.transport import Stamper
 
 
 def main() -> None:

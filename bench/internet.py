@@ -89,9 +89,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.delaymodels import parse_delay_model
-from bipedtele.recordformat import Record, read_records
-from bipedtele.shapers import load_mahimahi, mahimahi_stats
+from bipedtele.link.delaymodels import parse_delay_model
+from bipedtele.link.shapers import load_mahimahi, mahimahi_stats
+from bipedtele.recording.format import Record, read_records
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
 from bipedtele.tools.report import compute_report
 

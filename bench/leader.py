@@ -32,20 +32,20 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bipedtele.config import load_config
-from bipedtele.inbox import FeedbackInbox
+from bipedtele.config.profile import load_config
 from bipedtele.leader.app import COCKPIT_TOKEN_ENV, LeaderApp
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import make_operator
-from bipedtele.messages import Feedback
+from bipedtele.link.inbox import FeedbackInbox
+from bipedtele.link.messages import Feedback
 
 PEER = textwrap.dedent(
     """
     import sys, time, numpy as np, cv2
-    from bipedtele.sections import NetworkConfig
-    from bipedtele.transport import Keys, Publishers, open_session, declare_presence
-    from bipedtele.messages import Feedback, VideoFrame
+    from bipedtele.config.sections import NetworkConfig
+    from bipedtele.link.transport import Keys, Publishers, open_session, declare_presence
+    from bipedtele.link.messages import Feedback, VideoFrame
     port, robot, seconds = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
     net = NetworkConfig(connect=[f"tcp/127.0.0.1:{port}"])
     keys = Keys(robot)

@@ -21,12 +21,12 @@ import math
 import time
 
 import numpy as np
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.online import solve_exact
-from bipedtele.delaymodels import parse_delay_model
 from bipedtele.leader.operator import make_operator
 from bipedtele.leader.operators.pilot import course_from_config
-from bipedtele.messages import Feedback
+from bipedtele.link.delaymodels import parse_delay_model
+from bipedtele.link.messages import Feedback
 from bipedtele.telemetry import LeaderSample
 
 

@@ -24,10 +24,10 @@ import aiohttp
 import msgpack
 import numpy as np
 from bipedtele.leader.cockpit import CockpitServer
-from bipedtele.messages import Command, Feedback, VideoFrame
-from bipedtele.recordformat import message_to_dict
-from bipedtele.recording import Recorder
-from bipedtele.schemas import LEADER_STATE_FIELDS
+from bipedtele.link.messages import Command, Feedback, VideoFrame
+from bipedtele.recording.format import message_to_dict
+from bipedtele.recording.recorder import Recorder
+from bipedtele.recording.schemas import LEADER_STATE_FIELDS
 
 N = 20_000
 

@@ -1,7 +1,7 @@
 """Where stability matters: the torque walker with settings held constant against the online choice (30).
 
 One command, deterministic (simulated time, the real follower loop, the reduced study's
-operator and leader; :func:`~bipedtele.follower.sim.walker_study.walker_run`):
+operator and leader; :func:`~bipedtele.studies.walker_study.walker_run`):
 
     .venv/bin/python bench/stability_pair.py [--seconds 30] [--case intercontinental]
 
@@ -26,14 +26,14 @@ import argparse
 import dataclasses
 
 import numpy as np
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.reduced import StudyParams
-from bipedtele.control.study import CASES, case_inputs
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.torque_config import TorqueConfig
-from bipedtele.follower.sim.walker_study import WalkerRun, walker_run
+from bipedtele.studies.study import CASES, case_inputs
+from bipedtele.studies.walker_study import WalkerRun, walker_run
 
 #: The torque walker's reduced model, identified by ``bipedtele calibrate --robot sim-torque`` (docs/method.md).
 TORQUE_DP, TORQUE_K_V = 1.0, 1.3356

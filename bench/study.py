@@ -16,7 +16,7 @@ import time
 import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser, solve_exact
-from bipedtele.control.study import CASES, StudyParams, run_study
+from bipedtele.studies.study import CASES, StudyParams, run_study
 
 
 def _pcts(samples: list[float]) -> str:

@@ -1,6 +1,6 @@
 """Benchmark: round trip of a Command leader -> follower -> leader over Zenoh (loopback,
 two processes) against a bare zenoh-python ping-pong of the same payload size, unsealed and
-sealed (AES-256-GCM, ``bipedtele.auth``), the cost of sealing one message against the HMAC
+sealed (AES-256-GCM, ``bipedtele.link.auth``), the cost of sealing one message against the HMAC
 it replaced, and the accuracy of `bipedtele delay-proxy`.
 
     .venv/bin/python bench/transport.py [--quick] [--no-proxy]
@@ -35,15 +35,15 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from bipedtele.auth import MessageAuth
-from bipedtele.delayestimate import DelayEstimator
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command, Feedback, encode
-from bipedtele.receivers import LatestReceiver, Received
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, Publishers, Stamper
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.auth import MessageAuth
+from bipedtele.link.delayestimate import DelayEstimator
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command, Feedback, encode
+from bipedtele.link.receivers import LatestReceiver, Received
+from bipedtele.link.transport import Keys, Publishers, Stamper
+from bipedtele.link.zenohsession import open_session
 
 BARE_PING, BARE_PONG = "benchbare/ping", "benchbare/pong"
 #: The sealed runs' key (a benchmark's, not a secret) and robot id.

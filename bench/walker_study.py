@@ -14,12 +14,12 @@ import argparse
 import os
 import time
 
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.study import CASES
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.sim.config import SimConfig
-from bipedtele.follower.sim.walker_study import run_walker_study
+from bipedtele.studies.study import CASES
+from bipedtele.studies.walker_study import run_walker_study
 
 
 def main() -> None:

@@ -7,7 +7,7 @@ programs without importing them.
 
 Every bad argument or config value ends the program with one line on stderr naming what is
 wrong and what is allowed, and exit code 2. A network link that cannot be set up (no
-router, TLS or user/password refused: :class:`bipedtele.linkcheck.LinkError`) is not a
+router, TLS or user/password refused: :class:`bipedtele.link.linkcheck.LinkError`) is not a
 config error: one line saying which failure it is, and exit code 1.
 """
 
@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from bipedtele import __version__
-from bipedtele.config import Config, ConfigError, load_config
-from bipedtele.linkcheck import LinkError
+from bipedtele.config.profile import Config, ConfigError, load_config
+from bipedtele.link.linkcheck import LinkError
 
 __all__ = [
     "EXTRAS",

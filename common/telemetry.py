@@ -5,7 +5,7 @@ leader program fills the prediction and follower-status fields; the operator mod
 pilot's predictor), the cockpit (JSON), the recorder (channel ``leader/state``, see
 ``docs/recording.md``) and the readers of a recording (``bipedtele report``, the demo's
 status line) all take this one type. Its JSON Schema, with the units of every field, is
-:func:`msgspec.json.schema` of the class (:func:`bipedtele.schemas.leader_state_schema`).
+:func:`msgspec.json.schema` of the class (:func:`bipedtele.recording.schemas.leader_state_schema`).
 
 Every field but ``t`` defaults to None, so that a recording written by an older version,
 which lacks some keys, still decodes (:func:`sample_from_map`). Numbers that were not
@@ -74,7 +74,7 @@ class LeaderSample(msgspec.Struct, kw_only=True, omit_defaults=True):
     link_lost_s : float or None
         State ``lost``: time since the last feedback arrived [s].
     control_link : str or None
-        The link that carries control from this leader (:func:`bipedtele.relink.describe_control`:
+        The link that carries control from this leader (:func:`bipedtele.link.relink.describe_control`:
         ``udp``, ``tls``, ``tcp``, ``PROTO (shared)`` when control moved onto another link,
         ``none``); unset without a router (peer mode) or before the session opened.
     fb_age_ms : float or None
@@ -288,7 +288,7 @@ def sample_from_map(data: Mapping[str, Any]) -> LeaderSample | None:
     Parameters
     ----------
     data : Mapping
-        A ``leader/state`` record's map (:func:`bipedtele.recording.read_records`).
+        A ``leader/state`` record's map (:func:`bipedtele.recording.recorder.read_records`).
 
     Returns
     -------

@@ -24,9 +24,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, add_foxglove_arg, config_from_args
-from bipedtele.config import Config, ConfigError
+from bipedtele.config.profile import Config, ConfigError
+from bipedtele.config.sections import ClockConfig, RobotConfig
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.capacity import FeedbackPlan, UplinkBudget
 from bipedtele.follower.config import FollowerConfig
@@ -36,15 +36,15 @@ from bipedtele.follower.realtime import RealtimeStepper
 from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot, robot_names, robot_part
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
-from bipedtele.gate import SequenceGate
-from bipedtele.inbox import CommandInbox
-from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, encode
-from bipedtele.node import Node, StepClock
+from bipedtele.link.auth import MAC_OVERHEAD
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.inbox import CommandInbox
+from bipedtele.link.messages import Command, Feedback, Message, Status, VideoFrame, encode
+from bipedtele.link.node import Node, StepClock
+from bipedtele.link.receivers import LatestReceiver, Received
+from bipedtele.link.relink import control_code
+from bipedtele.link.transport import MessagePublisher
 from bipedtele.pacer import Pacer
-from bipedtele.receivers import LatestReceiver, Received
-from bipedtele.relink import control_code
-from bipedtele.sections import ClockConfig, RobotConfig
-from bipedtele.transport import MessagePublisher
 
 __all__ = ["FollowerApp", "add_follower_parser"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from bipedtele.config import param
+from bipedtele.config.profile import param
 from bipedtele.follower.robot import Camera, robot_names
 
 __all__ = ["FollowerConfig"]

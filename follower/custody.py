@@ -2,7 +2,7 @@
 
 Several operators may be named for one robot (``bipedtele setup fleet --operator
 alice=nao1 --operator bob=nao1``). The robot follows one leader session at a time (the
-command gate, :class:`bipedtele.gate.SequenceGate`); :class:`CustodyGate` adds who may
+command gate, :class:`bipedtele.link.gate.SequenceGate`); :class:`CustodyGate` adds who may
 be that session:
 
 - The first operator whose command is accepted **holds** the robot.
@@ -16,7 +16,7 @@ be that session:
 - A released leader's own stops, once another holds the robot, are dropped quietly
   (``released``), not counted as refusals.
 
-Operators are told apart by :attr:`bipedtele.messages.Command.operator`, the leader's
+Operators are told apart by :attr:`bipedtele.link.messages.Command.operator`, the leader's
 router login. It is authenticated as far as the message key goes: the operators of one
 robot share its key (docs/fleet.md), so this is a rule among them against mistakes (two
 people driving one robot), not a barrier between them; the router's ACL keeps everyone
@@ -34,8 +34,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command, Message
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command, Message
 
 __all__ = ["CUSTODY_REASONS", "CustodyGate", "refused_line"]
 

@@ -2,7 +2,7 @@
 
 Every control period ``dt`` the loop
 
-1. takes the newest admitted command from its :class:`~bipedtele.inbox.CommandInbox`,
+1. takes the newest admitted command from its :class:`~bipedtele.link.inbox.CommandInbox`,
    which owns every check on a command (too old, an outage's backlog, reordered, a new
    leader session) and feeds the forward-delay estimator h1 (1 s moving average,
    docs/method.md), whether the loop runs in the program or alone;
@@ -24,7 +24,7 @@ Safety: with no new command for ``watchdog_s`` (local receive time) the robot st
 stands (``watchdog_stops``, event ``watchdog_stop``); a command with ``enable`` false, the
 operator releasing, stops it as a normal end (``operator_stops``, event ``operator_stop``).
 No outage's backlog reaches the robot (the inbox refuses it: ``cmd_backlog``,
-``cmd_reordered``; :mod:`bipedtele.inbox`), nor a command stamped too far ahead (``future``).
+``cmd_reordered``; :mod:`bipedtele.link.inbox`), nor a command stamped too far ahead (``future``).
 A fall (torso tilt) stops it, is counted (every fall) and **latches**: the robot walks again
 only after the operator re-arms (a command with ``enable`` false, then true) once it stands
 again. Every delay is clamped at >= 0 before the estimators and control laws see it, so no
@@ -56,14 +56,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from bipedtele.clock import conservative_delays
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.equivalent import EquivalentFollower
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reference import RealFollowerReference
 from bipedtele.control.schemes import make_scheme
 from bipedtele.control.schemes.runtime import FollowerPort, received
-from bipedtele.drops import DropCounter
 from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.capacity import FeedbackPlan
 from bipedtele.follower.config import FollowerConfig
@@ -71,8 +69,10 @@ from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.report import FollowerTelemetry, feedback_message, pair
 from bipedtele.follower.robot import FollowerRobot, RobotObservation, WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
-from bipedtele.inbox import COMMAND_COUNTERS, CommandInbox
-from bipedtele.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
+from bipedtele.link.clock import conservative_delays
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.inbox import COMMAND_COUNTERS, CommandInbox
+from bipedtele.link.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
 
 __all__ = ["FollowerLoop", "FollowerTelemetry", "command_inbox"]
 
@@ -561,7 +561,7 @@ def command_inbox(cfg: FollowerConfig, **kwargs: Any) -> CommandInbox:
     """Return a command inbox with the ``[follower]`` section's take checks.
 
     ``max_cmd_age_s``, ``watchdog_s`` and a :class:`~bipedtele.follower.backlog.DelayBaseline`
-    over ``backlog_window_s``; ``kwargs`` go to :class:`~bipedtele.inbox.CommandInbox`
+    over ``backlog_window_s``; ``kwargs`` go to :class:`~bipedtele.link.inbox.CommandInbox`
     (``source`` for a loop run alone; the admission checks).
     """
     baseline = DelayBaseline(window_s=cfg.backlog_window_s, relearn_s=cfg.backlog_window_s)

@@ -1,7 +1,7 @@
 """What the follower loop reports: its telemetry and the Feedback it publishes.
 
 :class:`FollowerTelemetry` is what the loop did in its last tick; :func:`feedback_message`
-turns it into the :class:`~bipedtele.messages.Feedback` the leader receives (every value
+turns it into the :class:`~bipedtele.link.messages.Feedback` the leader receives (every value
 finite and within the message's bounds, docs/network.md).
 """
 
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 from bipedtele.follower.robot import RobotObservation, WalkCommand
-from bipedtele.messages import MAX_SPEED, Feedback
+from bipedtele.link.messages import MAX_SPEED, Feedback
 
 __all__ = ["FollowerTelemetry", "feedback_message", "pair"]
 

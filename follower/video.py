@@ -34,7 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 from bipedtele.follower.robot import Camera, FollowerRobot
-from bipedtele.messages import MAX_VIDEO_PARTS, VideoFrame, new_session_id
+from bipedtele.link.messages import MAX_VIDEO_PARTS, VideoFrame, new_session_id
 
 __all__ = ["VideoStreamer"]
 

@@ -19,7 +19,7 @@ router down?)``), and a run in which none ever got through ends with exit code
 
 :class:`~bipedtele.leader.linkquality.LinkQuality` measures the link from what arrives
 (feedback age, loss, goodput, video rate); it judges, for the feedback inbox
-(:class:`~bipedtele.inbox.FeedbackInbox`, where every check on feedback is made), whether a
+(:class:`~bipedtele.link.inbox.FeedbackInbox`, where every check on feedback is made), whether a
 feedback is young enough: one older than its bound is refused (counted as the drop
 ``fb_too_old``) and never reaches the loop; the link state in the
 sample (``link``) is its verdict, and the leader's Status carries ``rx_bps``,
@@ -40,13 +40,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bipedtele.auth import MAC_OVERHEAD
 from bipedtele.cli import add_config_args, add_foxglove_arg, config_from_args
-from bipedtele.config import Config, ConfigError
+from bipedtele.config.profile import Config, ConfigError
+from bipedtele.config.sections import ClockConfig, NetworkConfig, RobotConfig
 from bipedtele.control.config import ControlConfig
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import DeviceError, LeaderDevice, PadInput, device_names, make_device
 from bipedtele.leader.linkquality import LinkQuality, LinkReport
@@ -58,12 +55,15 @@ from bipedtele.leader.reach import CommandReach
 from bipedtele.leader.report import fill_link, link_counters
 from bipedtele.leader.report import summary as report_summary
 from bipedtele.leader.videoparts import FrameAssembler
-from bipedtele.messages import Command, Feedback, Message, Status, VideoFrame, encode
-from bipedtele.node import Node, StepClock
-from bipedtele.receivers import LatestReceiver, Received
-from bipedtele.sections import ClockConfig, NetworkConfig, RobotConfig
+from bipedtele.link.auth import MAC_OVERHEAD
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.inbox import FeedbackInbox
+from bipedtele.link.messages import Command, Feedback, Message, Status, VideoFrame, encode
+from bipedtele.link.node import Node, StepClock
+from bipedtele.link.receivers import LatestReceiver, Received
+from bipedtele.link.transport import PresenceWatcher, Publishers
 from bipedtele.telemetry import LeaderSample
-from bipedtele.transport import PresenceWatcher, Publishers
 
 __all__ = ["LeaderApp", "add_leader_parser"]
 
@@ -84,7 +84,7 @@ class _Aux:
 
     Status out, follower status in, presence, events of the operator's progress, the
     command-reach check. (Clock pings run in their own
-    :class:`~bipedtele.clocklink.ClockLink` thread.)
+    :class:`~bipedtele.link.clocklink.ClockLink` thread.)
     """
 
     def __init__(

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from bipedtele.config import param
+from bipedtele.config.profile import param
 from bipedtele.leader.device import device_names
 from bipedtele.leader.operator import operator_names
 

@@ -3,7 +3,7 @@
 Every haptic tick (1 kHz by default) the loop
 
 1. reads the handle (x_m, dx_m);
-2. takes the newest admitted feedback from its :class:`~bipedtele.inbox.FeedbackInbox`,
+2. takes the newest admitted feedback from its :class:`~bipedtele.link.inbox.FeedbackInbox`,
    which owns every check on it and feeds the backward-delay estimator h2 (1 s moving
    average of ``t_recv - feedback.t``) with every feedback admitted, whether the loop runs
    in the program or alone; h1 is the follower's own estimate (``feedback.h1_s``); in ntp
@@ -51,13 +51,13 @@ from bipedtele.control.config import ControlConfig
 from bipedtele.control.leader_law import leader_force
 from bipedtele.control.schemes import make_scheme
 from bipedtele.control.schemes.runtime import LeaderPort, received
-from bipedtele.delayestimate import conservative_delays
-from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.blind import BlindGuard
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operator import Operator
-from bipedtele.messages import Command, Feedback, new_session_id
+from bipedtele.link.delayestimate import conservative_delays
+from bipedtele.link.inbox import FeedbackInbox
+from bipedtele.link.messages import Command, Feedback, new_session_id
 from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.telemetry import LeaderSample
 

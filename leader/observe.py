@@ -8,7 +8,7 @@
 Logs in with an observer's profile (``bipedtele setup fleet --observer carol=nao1,nao2``),
 receives each robot's video (``bipedtele/<id>/video``) and Status (``.../status``, the
 follower's and its leaders'), each verified with the robot's watch key
-(:func:`bipedtele.auth.watch_key`), and serves them in the cockpit page: one video tile per
+(:func:`bipedtele.link.auth.watch_key`), and serves them in the cockpit page: one video tile per
 robot and camera (``<id>/<camera>``), and per robot its state, who holds it and its
 leaders' operators in the page's table. It declares no publisher and holds no message key:
 it has nothing to command with, and the router's ACL refuses its puts (docs/fleet.md).
@@ -32,20 +32,20 @@ from pathlib import Path
 from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.config import ConfigError
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
+from bipedtele.config.profile import ConfigError
+from bipedtele.config.sections import NetworkConfig, RobotConfig
 from bipedtele.leader.cockpit.server import CockpitServer
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.videoparts import FrameAssembler
-from bipedtele.linkcheck import LinkError
-from bipedtele.messages import Status, VideoFrame
-from bipedtele.receivers import LatestReceiver, MessageReceiver, Received
-from bipedtele.sections import NetworkConfig, RobotConfig
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.messages import Status, VideoFrame
+from bipedtele.link.receivers import LatestReceiver, MessageReceiver, Received
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.tools.fleetstatus import watch_auths, watched_robots
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
 
 __all__ = ["Watched", "add_observe_parser", "main"]
 

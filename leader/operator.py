@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 from bipedtele.parts import PART_GROUPS, Part, Parts
 from bipedtele.telemetry import LeaderSample
 
@@ -146,7 +146,7 @@ class OperatorContext:
 
     Attributes
     ----------
-    cfg : bipedtele.config.Config
+    cfg : bipedtele.config.profile.Config
         Loaded profile (``[leader]`` and ``[control]`` are used).
     workspace_m : float
         The device's workspace half-width [m].
@@ -212,7 +212,7 @@ def make_operator(
     ----------
     name : str
         Operator model (one of :func:`operator_names`).
-    cfg : bipedtele.config.Config
+    cfg : bipedtele.config.profile.Config
         Loaded profile (``[leader]`` and ``[control]`` are used).
     workspace_m : float
         The device's workspace half-width [m].

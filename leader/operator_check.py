@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 from bipedtele.leader.operator import Operator
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 from bipedtele.telemetry import LeaderSample
 
 __all__ = ["OperatorContractError", "check_operator"]

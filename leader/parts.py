@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from bipedtele.config import param
+from bipedtele.config.profile import param
 from bipedtele.leader.device import DevicePart
 from bipedtele.leader.operator import OperatorPart
 from bipedtele.parts import lazy

@@ -3,7 +3,7 @@
 A router whose access control refuses this leader's commands (logged in as a user that is
 not in ``network.publishers_allowed``, a wrong key in the command ACL) lets the session
 open and may even forward feedback: nothing fails, the robot simply never moves. The
-follower says in every :class:`~bipedtele.messages.Feedback` which command it applies
+follower says in every :class:`~bipedtele.link.messages.Feedback` which command it applies
 (``cmd_seq``); this module watches that.
 
 A feedback *acknowledges* this leader when its ``cmd_seq`` is one of the sequence numbers
@@ -66,8 +66,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from bipedtele.auth import BAD_MAC_LINE, KEY_REASONS, NO_MAC_LINE, UNEXPECTED_MAC_LINE
-from bipedtele.messages import Feedback
+from bipedtele.link.auth import BAD_MAC_LINE, KEY_REASONS, NO_MAC_LINE, UNEXPECTED_MAC_LINE
+from bipedtele.link.messages import Feedback
 
 __all__ = ["ABSENT", "HELD", "KEY_MISMATCH", "LOST", "REFUSED", "STALLED", "CommandReach"]
 

@@ -12,12 +12,12 @@ import math
 from pathlib import Path
 
 import numpy as np
-from bipedtele.drops import DropCounter
 from bipedtele.leader.linkquality import LinkQuality, LinkReport
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Operator
 from bipedtele.leader.reach import KEY_MISMATCH, CommandReach
-from bipedtele.messages import MAX_SEQ
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import MAX_SEQ
 from bipedtele.telemetry import LeaderSample
 
 __all__ = ["fill_link", "link_counters", "summary"]

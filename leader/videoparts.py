@@ -15,8 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from bipedtele.drops import DropCounter
-from bipedtele.messages import MAX_JPEG_BYTES, VideoFrame
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import MAX_JPEG_BYTES, VideoFrame
 
 __all__ = ["FrameAssembler"]
 

@@ -48,6 +48,6 @@ else
     check_rc $compute_rc "unit, compute" || exit $?
     echo "test.sh: pytest took $(( $(date +%s) - start )) s in all (budget: under 1800 s)"
 fi
-.venv/bin/ruff check common leader follower tests bench docs/hooks || exit 1
-.venv/bin/ruff format --check common leader follower configs docker tests bench docs/hooks || exit 1
+.venv/bin/ruff check common leader follower studies tests bench docs/hooks || exit 1
+.venv/bin/ruff format --check common leader follower studies configs docker tests bench docs/hooks || exit 1
 scripts/typecheck.sh || exit 1  # mypy -p bipedtele, the package as installed

@@ -19,7 +19,7 @@ for entry in common/*; do
     case "$entry" in */__pycache__) continue ;; esac
     ln -s "$root/$entry" "$stage/bipedtele/"
 done
-for part in leader follower configs; do
+for part in leader follower configs studies; do
     ln -s "$root/$part" "$stage/bipedtele/$part"
 done
 if [[ -n "${TYPECHECK_PLANT:-}" ]]; then
@@ -27,6 +27,6 @@ if [[ -n "${TYPECHECK_PLANT:-}" ]]; then
 fi
 rel=${stage#"$root"/}  # mypy names files under the working folder relative to it
 MYPYPATH="$stage" .venv/bin/mypy -p bipedtele "$@" 2>&1 |
-    sed -e "s#^\($stage\|$rel\)/bipedtele/\(leader\|follower\|configs\)/#\2/#" \
+    sed -e "s#^\($stage\|$rel\)/bipedtele/\(leader\|follower\|configs\|studies\)/#\2/#" \
         -e "s#^\($stage\|$rel\)/bipedtele/#common/#"
 exit "${PIPESTATUS[0]}"

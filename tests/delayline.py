@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import deque
 from typing import Generic, TypeVar
 
-from bipedtele.delaymodels import ConstDelay, DelayModel
+from bipedtele.link.delaymodels import ConstDelay, DelayModel
 
 __all__ = ["DelayLine"]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any, Literal
 
-from bipedtele.configfields import param
+from bipedtele.config.fields import param
 from bipedtele.control.schemenames import scheme_names
 
 __all__ = ["ControlConfig"]

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from bipedtele.control.config import ControlConfig
-from bipedtele.messages import MAX_DELAY_S, MAX_TIME, MIN_TIME
+from bipedtele.link.messages import MAX_DELAY_S, MAX_TIME, MIN_TIME
 
 __all__ = [
     "MAX_SCHEDULED_DELAY_S",

@@ -10,7 +10,7 @@ from __future__ import annotations
 from importlib import metadata
 from typing import Any
 
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 
 __all__ = ["walker_backend"]
 

@@ -25,7 +25,7 @@ def add_config_parser(sub: Any) -> None:
     """Add ``bipedtele config [--config F] [--set K=V]``.
 
     It validates a profile and prints it as JSON (secrets shown as ``"***"``; paths as
-    resolved, see :mod:`bipedtele.config`).
+    resolved, see :mod:`bipedtele.config.profile`).
     """
     p = sub.add_parser("config", help="validate a config profile and print it as JSON (secrets shown as ***)")
     add_config_args(p)

@@ -26,8 +26,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bipedtele.config import ConfigError
-from bipedtele.delaymodels import ALLOWED_SPECS, DelayModel, parse_delay_model
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.delaymodels import ALLOWED_SPECS, DelayModel, parse_delay_model
 
 __all__ = ["DelayProxy", "DirectionStats", "add_delay_proxy_parser", "parse_hostport"]
 

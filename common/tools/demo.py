@@ -46,8 +46,8 @@ from pathlib import Path
 from typing import IO, Any
 
 from bipedtele.cli import OneLineParser, add_config_args
-from bipedtele.config import ConfigError, load_config
-from bipedtele.delaymodels import (
+from bipedtele.config.profile import ConfigError, load_config
+from bipedtele.link.delaymodels import (
     MAX_DELAY_S,
     ConstDelay,
     DelayModel,
@@ -56,9 +56,9 @@ from bipedtele.delaymodels import (
     UniformDelay,
     parse_delay_model,
 )
-from bipedtele.foxglovelive import parse_address
-from bipedtele.impairments import parse_loss, parse_outage, parse_rate
+from bipedtele.link.impairments import parse_loss, parse_outage, parse_rate
 from bipedtele.parts import PART_GROUPS
+from bipedtele.recording.foxglovelive import parse_address
 from bipedtele.shutdown import shutdown_on_signals
 from bipedtele.tools.demoplan import DemoPlan
 from bipedtele.tools.demostatus import StatusPrinter
@@ -141,7 +141,7 @@ def run_demo(
     ``passes_total``, elapsed, h1 + h2, falls, contacts, running speed errors) is written
     about once a second while the leader runs.
     """
-    from bipedtele.recordformat import read_records
+    from bipedtele.recording.format import read_records
     from bipedtele.tools.report import compute_report, format_report
 
     plan.run_dir.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bipedtele.delaymodels import parse_delay_model
+from bipedtele.link.delaymodels import parse_delay_model
 from bipedtele.tools.netem_trace import schedule
 from bipedtele.tools.netns import FOLLOWER, LEADER, MIDDLE, SIDE_A, SIDE_B, EmulatedLink, VethLink
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from bipedtele.recordformat import RecordDecoder
+from bipedtele.recording.format import RecordDecoder
 from bipedtele.telemetry import LeaderSample, link_words, sample_from_map
 from mcap.stream_reader import StreamReader
 

@@ -8,7 +8,7 @@ For each robot (``--robot``, else one per ``<id>.watch`` file in ``[network]
 watch_key_dir``, else the profile's ``[robot] id``): who is present (liveliness tokens
 ``bipedtele/<id>/presence/<role>/<zid>``), and the newest
 Status of its follower and of each leader, verified with the robot's watch key
-(:func:`bipedtele.auth.watch_key`): the follower's state, the leader's state and
+(:func:`bipedtele.link.auth.watch_key`): the follower's state, the leader's state and
 operator, and the leader's link figures (age of the newest feedback, feedback loss,
 bit rate received). Status arrives at 2 Hz; ``--seconds`` is how long it listens.
 
@@ -28,17 +28,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bipedtele.auth import MessageAuth, load_message_auth, load_watch_auths
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.config import ConfigError
-from bipedtele.drops import DropCounter
-from bipedtele.linkcheck import LinkError
-from bipedtele.messages import Status
-from bipedtele.receivers import MessageReceiver
-from bipedtele.relink import control_name
-from bipedtele.sections import NetworkConfig, RobotConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.config.profile import ConfigError
+from bipedtele.config.sections import NetworkConfig, RobotConfig
+from bipedtele.link.auth import MessageAuth, load_message_auth, load_watch_auths
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.messages import Status
+from bipedtele.link.receivers import MessageReceiver
+from bipedtele.link.relink import control_name
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 
 __all__ = ["RobotView", "add_status_parser", "fleet_view", "format_table", "watch_auths", "watched_robots"]
 

@@ -20,11 +20,11 @@ import sys
 from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.config import ConfigError
-from bipedtele.linkcheck import LinkError
-from bipedtele.sections import NetworkConfig, RobotConfig
-from bipedtele.transport import Keys, PresenceWatcher
-from bipedtele.zenohsession import open_session
+from bipedtele.config.profile import ConfigError
+from bipedtele.config.sections import NetworkConfig, RobotConfig
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.transport import Keys, PresenceWatcher
+from bipedtele.link.zenohsession import open_session
 
 __all__ = ["add_health_parser", "check_health"]
 

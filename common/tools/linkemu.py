@@ -3,7 +3,7 @@
 Forwards Ethernet frames between two interfaces through raw ``AF_PACKET`` sockets, one
 bound to each, like a two-port bridge: ARP, IPv4, IPv6, TCP, TLS, UDP and QUIC all run end
 to end and see the emulated round trip, retransmissions and losses included. Each
-direction applies its own :class:`bipedtele.impairments.Direction` (delay model, loss,
+direction applies its own :class:`bipedtele.link.impairments.Direction` (delay model, loss,
 rate cap with a byte queue, outages); frames of one direction are never reordered.
 
 One thread, one selector loop: frames are read as they arrive, judged by the model at
@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bipedtele.config import ConfigError
-from bipedtele.delaymodels import ALLOWED_SPECS, parse_delay_model
-from bipedtele.impairments import (
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.delaymodels import ALLOWED_SPECS, parse_delay_model
+from bipedtele.link.impairments import (
     ALLOWED_LOSS,
     ALLOWED_OUTAGE,
     ALLOWED_QUEUE,
@@ -54,7 +54,7 @@ from bipedtele.impairments import (
     parse_queue,
     parse_rate,
 )
-from bipedtele.shapers import ALLOWED_TRACE, TokenBucket, TraceRate, load_mahimahi
+from bipedtele.link.shapers import ALLOWED_TRACE, TokenBucket, TraceRate, load_mahimahi
 
 __all__ = ["LinkEmulator", "add_link_emu_parser", "build_direction", "build_shaper", "disable_offloads", "run"]
 

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.tools.netem_trace import impairment_args
 
 __all__ = ["add_netem_parser", "netem_available", "tc_commands"]
@@ -55,7 +55,7 @@ def tc_commands(
         Jitter distribution, one of ``DISTRIBUTIONS`` (needs a jitter).
     loss : str
         Like ``0.1%`` (random), or a Gilbert-Elliott burst model ``ge:p=1%,r=30%`` (the
-        packet emulator's specs, :mod:`bipedtele.impairments`).
+        packet emulator's specs, :mod:`bipedtele.link.impairments`).
     rate, queue : str
         A rate cap like ``600kbit`` and its queue like ``64kB`` (netem's ``rate`` and
         ``limit`` in packets of 1500 bytes).

@@ -4,7 +4,7 @@ h1 (leader -> follower) is the netem delay on the leader's end (its egress), h2 
 follower's end. A constant model is one qdisc setting; ``uniform``/``normal`` models map
 to netem's own jitter (``delay MEAN HALFWIDTH`` / ``delay MEAN STD distribution normal``);
 a trace is replayed by ``tc qdisc change`` at the trace's own sample times (looped like
-:class:`~bipedtele.delaymodels.TraceDelay`). netem applies a packet's delay when the
+:class:`~bipedtele.link.delaymodels.TraceDelay`). netem applies a packet's delay when the
 packet is queued, so each packet sees the delay in force when it was sent, like the
 user-space proxy.
 
@@ -25,8 +25,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO
 
-from bipedtele.delaymodels import ConstDelay, DelayModel, NormalDelay, TraceDelay, UniformDelay
-from bipedtele.impairments import GilbertElliott, RandomLoss, parse_loss, parse_queue, parse_rate
+from bipedtele.link.delaymodels import ConstDelay, DelayModel, NormalDelay, TraceDelay, UniformDelay
+from bipedtele.link.impairments import GilbertElliott, RandomLoss, parse_loss, parse_queue, parse_rate
 from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
 
 __all__ = ["NETEM_LIMIT", "NetemReplayer", "impairment_args", "netem_args", "replay_times", "schedule"]
@@ -44,7 +44,7 @@ def _us(seconds: float) -> str:
 def impairment_args(loss: str | None = None, rate: str | None = None, queue: str | None = None) -> list[str]:
     """Netem options for loss, a rate cap and its queue, from the packet emulator's specs.
 
-    The same specs as ``bipedtele link-emu`` (:mod:`bipedtele.impairments`), so a netem
+    The same specs as ``bipedtele link-emu`` (:mod:`bipedtele.link.impairments`), so a netem
     kernel runs the conditions the user-space emulator runs: random loss (``1%``) becomes
     ``loss random 1%``; Gilbert-Elliott (``ge:p=1%,r=30%,bad=100%,good=0%``) becomes
     netem's ``loss gemodel p r 1-h 1-k`` (h, k: the probability that a packet gets

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.equivalent import equivalent_max_real
 

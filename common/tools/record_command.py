@@ -7,9 +7,9 @@ import logging
 import sys
 from typing import Any
 
-from bipedtele.config import ConfigError
-from bipedtele.recordformat import RecordingError
-from bipedtele.recordrepair import repair
+from bipedtele.config.profile import ConfigError
+from bipedtele.recording.format import RecordingError
+from bipedtele.recording.repair import repair
 
 __all__ = ["add_record_parser"]
 

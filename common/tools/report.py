@@ -57,7 +57,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bipedtele.recordformat import Record, RecordingError, read_records
+from bipedtele.recording.format import Record, RecordingError, read_records
 from bipedtele.tools.plots import require_matplotlib
 from bipedtele.tools.reportdata import Run, collect, delay_source, task_window
 from bipedtele.tools.reportplots import fictitious_intervals, plot_report
@@ -111,7 +111,7 @@ def compute_report(records: Iterable[Record], follower: Iterable[Record] | None 
     Parameters
     ----------
     records : iterable of Record
-        A leader's or a follower's recording (see :func:`bipedtele.recording.read_records`).
+        A leader's or a follower's recording (see :func:`bipedtele.recording.recorder.read_records`).
     follower : iterable of Record, optional
         The follower's recording of the same run: its ``footfall`` events give the exact
         odometry speed errors when ``records`` has none (a leader's file). Its clock is

@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bipedtele.recordformat import Record
+from bipedtele.recording.format import Record
 from bipedtele.telemetry import LeaderSample, sample_from_map
 
 __all__ = ["EVENT_ALIASES", "Run", "collect", "delay_source", "task_window"]

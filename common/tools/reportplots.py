@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from bipedtele.recordformat import Record
+from bipedtele.recording.format import Record
 from bipedtele.tools.reportdata import Run, collect, delay_source, task_window
 
 if TYPE_CHECKING:

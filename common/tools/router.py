@@ -4,13 +4,13 @@ For internet runs: leader and follower connect as clients to the router, which c
 require TLS (mutual where configured) and user/password authentication
 (``[network] credentials_file``) and give each user a role (``publishers_allowed``:
 leaders, ``followers_allowed``: followers) enforced by a deny-by-default Zenoh access
-control (:mod:`bipedtele.acl`). The router reads only the router settings of a profile
+control (:mod:`bipedtele.link.acl`). The router reads only the router settings of a profile
 (the client login of a shared profile is ignored).
 
 With no ``--listen`` and no ``listen`` in the profile it listens on
 ``tcp/127.0.0.1:7447`` only (this host). Listening on another address without TLS and
 user/password authentication logs a warning. Each refused session is logged with its
-reason and, where Zenoh reports it, the peer's address (:mod:`bipedtele.zenohlog`).
+reason and, where Zenoh reports it, the peer's address (:mod:`bipedtele.link.zenohlog`).
 See docs/network.md.
 """
 
@@ -22,13 +22,13 @@ import logging
 from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.config import ConfigError
-from bipedtele.linkcheck import split_endpoint
-from bipedtele.linkevents import RouterLinkLog
-from bipedtele.sections import NetworkConfig
+from bipedtele.config.profile import ConfigError
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.linkcheck import split_endpoint
+from bipedtele.link.linkevents import RouterLinkLog
+from bipedtele.link.zenohlog import ZenohLogBridge
+from bipedtele.link.zenohsession import open_session
 from bipedtele.shutdown import shutdown_on_signals
-from bipedtele.zenohlog import ZenohLogBridge
-from bipedtele.zenohsession import open_session
 
 __all__ = ["DEFAULT_LISTEN", "add_router_parser", "exposure_warnings", "router_endpoints"]
 

@@ -15,7 +15,7 @@ Sub-commands:
 
 Certificates are made by the ``openssl`` command (OpenSSL 1.1.1 or later), so this works
 from an installed package as well as from the repository. Paths in the written profiles
-are relative to the profile's folder (see :mod:`bipedtele.config`), so a folder can be
+are relative to the profile's folder (see :mod:`bipedtele.config.profile`), so a folder can be
 copied anywhere and used from any working folder.
 """
 
@@ -36,8 +36,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from bipedtele.auth import write_message_key
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.auth import write_message_key
 
 __all__ = [
     "FOLLOWER_USER",
@@ -93,7 +93,7 @@ def make_message_key(path: str | Path) -> Path:
         ``path`` exists (a key is never overwritten: both ends must hold the same one).
     """
     path = Path(path)
-    write_message_key(path)  # the one writer of key files (bipedtele.auth reads them)
+    write_message_key(path)  # the one writer of key files (bipedtele.link.auth reads them)
     return path
 
 

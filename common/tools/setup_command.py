@@ -10,7 +10,7 @@ import argparse
 import os
 from typing import Any
 
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.tools.setup import HOSTS, TwoHosts, make_certs, make_message_key, write_two_hosts
 from bipedtele.tools.setup_fleet import Fleet, parse_at, parse_operator, write_fleet, write_sites
 

@@ -10,7 +10,7 @@ writes one folder per host (``DIR/router/``, ``DIR/robot-<id>/``, ``DIR/operator
 ``DIR/observer-<name>/``)
 and the CA in ``DIR/ca-private/`` (keep it off the hosts). What it sets up:
 
-- **Per-robot authority in the router's ACL** (:mod:`bipedtele.acl`): each operator is a
+- **Per-robot authority in the router's ACL** (:mod:`bipedtele.link.acl`): each operator is a
   leader only of the robots named for it (``publishers_allowed = ["alice@nao1", ...]``),
   each robot logs in as its own user, a follower of its own keys only
   (``followers_allowed = ["nao1@nao1", ...]``). A leader cannot command, see or hear a
@@ -22,7 +22,7 @@ and the CA in ``DIR/ca-private/`` (keep it off the hosts). What it sets up:
 - **Observers** (``observers_allowed = ["carol@nao1", ...]``): receive the video and
   status of their robots and put nothing; they hold each robot's *watch key*
   (``secrets/<id>.watch``, derived one-way from the robot's message key,
-  :func:`bipedtele.auth.watch_key`), which verifies video and status and signs nothing a
+  :func:`bipedtele.link.auth.watch_key`), which verifies video and status and signs nothing a
   robot obeys. ``bipedtele observe --config observer-carol/bipedtele.toml``: their video
   and status in the cockpit; ``bipedtele status --config ...``: the fleet view.
 - One profile per operator and robot: ``operator-alice/nao1.toml``. Every user has its own
@@ -47,8 +47,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bipedtele.auth import watch_key
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.auth import watch_key
 from bipedtele.tools.setup import (
     FOLLOWER_USER,
     LEADER_USER,

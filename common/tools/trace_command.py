@@ -34,9 +34,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from bipedtele.config import ConfigError
-from bipedtele.recordformat import Record, read_records
-from bipedtele.shapers import MTU
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.shapers import MTU
+from bipedtele.recording.format import Record, read_records
 
 __all__ = ["add_trace_parser", "path_trace", "write_mahimahi"]
 

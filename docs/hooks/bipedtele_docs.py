@@ -4,7 +4,7 @@
   sub-command, generated from the argument parsers that the ``bipedtele.commands`` entry
   points build (the same ones ``bipedtele`` runs), nested sub-commands included.
 - The API pages: mkdocstrings reads the package's source statically (griffe); the installed
-  name ``bipedtele`` maps to the repository's ``common/``, ``leader/``, ``follower/`` and
+  name ``bipedtele`` maps to the repository's ``common/``, ``leader/``, ``follower/``, ``studies/`` and
   ``configs/`` folders (``[tool.setuptools] package-dir``), so a tree of links under
   ``build/api-src/bipedtele`` gives it the installed layout.
 """
@@ -25,7 +25,7 @@ API_SRC = ROOT / "build" / "api-src"
 MARKER = "<!-- cli-reference -->"
 
 #: The package-dir mapping of pyproject.toml: installed sub-package -> repository folder.
-SUBPACKAGES = {"leader": "leader", "follower": "follower", "configs": "configs"}
+SUBPACKAGES = {"leader": "leader", "follower": "follower", "studies": "studies", "configs": "configs"}
 
 
 @event_priority(100)  # before mkdocstrings reads its handler's paths (a fresh clone has none)

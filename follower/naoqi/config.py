@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from bipedtele.config import ConfigError, param
+from bipedtele.config.profile import ConfigError, param
 from bipedtele.follower.robot import RobotPart
 from bipedtele.parts import lazy
 

@@ -12,7 +12,7 @@ import logging
 from typing import Any
 
 from bipedtele.cli import add_config_args, config_from_args
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.follower.naoqi import nao_guard
 from bipedtele.follower.naoqi.config import NaoqiConfig
 

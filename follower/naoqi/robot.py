@@ -40,7 +40,7 @@ import time
 from typing import Any, ClassVar
 
 import numpy as np
-from bipedtele.config import Config, resolve_section
+from bipedtele.config.profile import Config, resolve_section
 from bipedtele.follower.naoqi.answers import as_bool, as_floats, decode_image
 from bipedtele.follower.naoqi.config import NaoqiConfig
 from bipedtele.follower.naoqi.gait import move_config_for, walk_limits

@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 import pybullet as pb
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.hybrid import rho_hybrid
 from bipedtele.follower.sim.config import SimConfig

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from bipedtele.config import param
+from bipedtele.config.profile import param
 from bipedtele.follower.robot import RobotPart
 from bipedtele.parts import lazy
 

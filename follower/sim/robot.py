@@ -31,7 +31,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pybullet as pb
-from bipedtele.config import Config, resolve_section
+from bipedtele.config.profile import Config, resolve_section
 from bipedtele.follower.robot import (
     Camera,
     FollowerRobot,

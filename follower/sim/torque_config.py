@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from bipedtele.config import param
+from bipedtele.config.profile import param
 from bipedtele.follower.robot import RobotPart
 from bipedtele.parts import lazy
 

@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import pybullet as pb
-from bipedtele.config import Config, resolve_section
+from bipedtele.config.profile import Config, resolve_section
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.flcontrol import FeedbackLinearising, FlInput, FlOutput, FlState, MotorLimits
 from bipedtele.follower.sim.gait import AROLL, ROLL, YAW

@@ -29,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from bipedtele.config import param
+from bipedtele.config.profile import param
 
 __all__ = ["TASK_COURSE", "Obstacle", "WorldConfig"]
 

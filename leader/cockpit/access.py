@@ -41,13 +41,13 @@ from collections.abc import Awaitable, Callable
 from urllib.parse import urlsplit
 
 from aiohttp import web
-from bipedtele.drops import DropCounter
-from bipedtele.foxglovews import parse_host
 from bipedtele.leader.cockpit.guard import (
     Guard,
     GuardedHandler,
     Limits,
 )
+from bipedtele.link.drops import DropCounter
+from bipedtele.recording.foxglovews import parse_host
 
 #: Host names always allowed in the ``Host`` header (loopback).
 LOCAL_HOSTS: tuple[str, ...] = ("localhost", "127.0.0.1", "::1")

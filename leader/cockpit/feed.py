@@ -18,9 +18,9 @@ from collections.abc import Callable
 from typing import Any
 
 from aiohttp import WSMsgType, web
-from bipedtele.drops import DropCounter
 from bipedtele.leader.cockpit.access import Access
 from bipedtele.leader.cockpit.protocol import _VIDEO_MAGIC, SAMPLE_KEYS, EncodedSample, _parse_in, _sample_json
+from bipedtele.link.drops import DropCounter
 from bipedtele.telemetry import LeaderSample
 
 LOG = logging.getLogger("bipedtele.leader.cockpit")

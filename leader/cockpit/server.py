@@ -42,8 +42,6 @@ from importlib import resources
 from typing import Any
 
 from aiohttp import web
-from bipedtele.drops import DropCounter
-from bipedtele.foxglovews import parse_host
 from bipedtele.leader.cockpit.access import LOCAL_HOSTS, check_token
 from bipedtele.leader.cockpit.feed import Feed, _Client
 from bipedtele.leader.cockpit.guard import (
@@ -58,6 +56,8 @@ from bipedtele.leader.cockpit.guard import (
 from bipedtele.leader.cockpit.protocol import PAD_SOURCES, SAMPLE_KEYS, EncodedSample
 from bipedtele.leader.cockpit.protocol import _parse_in as _parse_in
 from bipedtele.leader.cockpit.protocol import _sample_json as _sample_json
+from bipedtele.link.drops import DropCounter
+from bipedtele.recording.foxglovews import parse_host
 from bipedtele.telemetry import LeaderSample
 
 __all__ = ["LOCAL_HOSTS", "PAD_SOURCES", "SAMPLE_KEYS", "CockpitServer", "EncodedSample", "check_token"]

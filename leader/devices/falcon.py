@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
-from bipedtele.config import Config, resolve_section
+from bipedtele.config.profile import Config, resolve_section
 from bipedtele.leader.device import (
     DeviceError,
     DeviceNotConnectedError,

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 from bipedtele.leader.operator import Hand, Operator, OperatorContext
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 
 __all__ = ["BrowserOperator"]
 

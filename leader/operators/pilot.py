@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from bipedtele.leader.operator import Hand, Operator, OperatorContext
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, PredictedPose
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 from bipedtele.telemetry import LeaderSample
 
 __all__ = ["DEFAULT_COURSE", "PREDICT_MODES", "Obstacle", "PilotOperator", "course_from_config"]
@@ -372,7 +372,7 @@ def _obstacle_from(item: Any) -> Obstacle:
 
 
 def course_from_config(cfg: Any) -> list[Obstacle]:
-    """Return the pilot's obstacles from a loaded :class:`bipedtele.config.Config`.
+    """Return the pilot's obstacles from a loaded :class:`bipedtele.config.profile.Config`.
 
     ``[leader] pilot_obstacles`` when not empty; otherwise ``obstacles`` of the
     ``[world]`` section read as plain data (the leader never imports follower code);

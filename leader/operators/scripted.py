@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from bipedtele.leader.operator import Hand, Operator, OperatorContext
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 
 __all__ = ["ScriptedOperator"]
 

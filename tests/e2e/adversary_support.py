@@ -126,7 +126,7 @@ def drops(c: dict[str, int], *reasons: str) -> int:
 
 def recorded_feedback(path: Path) -> list[tuple[float, str]]:
     """``(t, state)`` of the ``feedback/sent`` records a running follower has flushed so far."""
-    from bipedtele.recordformat import RecordingError, read_records
+    from bipedtele.recording.format import RecordingError, read_records
 
     try:
         return [(r.data["t"], r.data["state"]) for r in read_records(path) if r.topic == "feedback/sent"]
@@ -187,8 +187,8 @@ class Attacker:
     def session(self) -> Iterator[Any]:
         from contextlib import ExitStack
 
-        from bipedtele.sections import NetworkConfig
-        from bipedtele.zenohsession import open_session
+        from bipedtele.config.sections import NetworkConfig
+        from bipedtele.link.zenohsession import open_session
 
         a = self.args
         logins = {"a": (a.user, a.password)}
@@ -243,7 +243,7 @@ def _decode(payload: bytes) -> Any:
     Tries the payload, then every suffix that starts with a msgpack map header within
     the first 80 bytes (a signed payload carries the plain message after its tag).
     """
-    from bipedtele.messages import MessageError, decode
+    from bipedtele.link.messages import MessageError, decode
 
     for i in range(min(len(payload), 80)):
         b = payload[i]
@@ -264,7 +264,7 @@ def _bounded(seconds: float) -> float:
 
 def cmd_commands(a: argparse.Namespace) -> dict[str, Any]:
     """Commands on each key expression in turn, alternating among ``--sids`` own session ids."""
-    from bipedtele.messages import Command, encode
+    from bipedtele.link.messages import Command, encode
 
     att = Attacker(a)
     keys = [k.replace("{root}", f"bipedtele/{a.robot_id}") for k in a.keys.split(",")]
@@ -303,7 +303,7 @@ def _wait_for(pred: Any, seconds: float) -> bool:
 def cmd_poison(a: argparse.Namespace) -> dict[str, Any]:
     """One command with the leader's sid and the largest sequence number."""
     import msgspec
-    from bipedtele.messages import Command, encode
+    from bipedtele.link.messages import Command, encode
 
     att = Attacker(a)
     seen: list[Any] = []
@@ -326,7 +326,7 @@ def cmd_future(a: argparse.Namespace) -> dict[str, Any]:
     message of its kind arrived (or, if none comes within 0.5 s, after the last one seen).
     """
     import msgspec
-    from bipedtele.messages import Command, Feedback, encode
+    from bipedtele.link.messages import Command, Feedback, encode
 
     att = Attacker(a)
     kinds = {"cmd": Command, "feedback": Feedback}
@@ -364,7 +364,7 @@ def cmd_future(a: argparse.Namespace) -> dict[str, Any]:
 
 def cmd_stream(a: argparse.Namespace) -> dict[str, Any]:
     """A plausible leader or follower stream from a peer whose clock is ``--shift`` s ahead."""
-    from bipedtele.messages import Command, Feedback, encode
+    from bipedtele.link.messages import Command, Feedback, encode
 
     att = Attacker(a)
     n = 0
@@ -400,7 +400,7 @@ def cmd_stream(a: argparse.Namespace) -> dict[str, Any]:
 
 def cmd_clock_forge(a: argparse.Namespace) -> dict[str, Any]:
     """Forged clock answers: to seen pings (forged t2/t3) and to pings never sent."""
-    from bipedtele.messages import ClockPing, ClockPong, Command, Feedback, encode
+    from bipedtele.link.messages import ClockPing, ClockPong, Command, Feedback, encode
 
     att = Attacker(a)
     sids: dict[str, int] = {}  # role -> sid, learned from cmd (leader) and feedback (follower)
@@ -485,7 +485,7 @@ def cmd_clock_forge(a: argparse.Namespace) -> dict[str, Any]:
 
 def cmd_flood(a: argparse.Namespace) -> dict[str, Any]:
     """ClockPings at ``--rate`` for ``--seconds`` (in 10 ms bursts); counts the answers to them."""
-    from bipedtele.messages import ClockPing, ClockPong, encode
+    from bipedtele.link.messages import ClockPing, ClockPong, encode
 
     att = Attacker(a)
     answered: Counter[int] = Counter()
@@ -542,7 +542,7 @@ def _flip(payload: bytes) -> bytes | None:
 def cmd_compromised(a: argparse.Namespace) -> dict[str, Any]:
     """Replays, re-stamped copies of signed payloads and unsigned forgeries, on cmd and feedback."""
     import msgspec
-    from bipedtele.messages import Command, encode
+    from bipedtele.link.messages import Command, encode
 
     att = Attacker(a)
     seen: dict[str, deque[tuple[float, bytes]]] = {"cmd": deque(maxlen=2000), "feedback": deque(maxlen=2000)}

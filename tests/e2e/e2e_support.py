@@ -24,13 +24,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from bipedtele.drops import DropCounter
-from bipedtele.messages import Feedback, Status
-from bipedtele.receivers import MessageReceiver, Received
-from bipedtele.recordformat import Record, read_records
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import Feedback, Status
+from bipedtele.link.receivers import MessageReceiver, Received
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
+from bipedtele.recording.format import Record, read_records
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]
 HERE = Path(__file__).resolve().parent

@@ -22,7 +22,8 @@ from collections.abc import Callable
 
 import msgpack
 import zenoh
-from bipedtele.messages import (
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.messages import (
     SCHEMA_VERSION,
     ClockPing,
     Command,
@@ -32,9 +33,8 @@ from bipedtele.messages import (
     VideoFrame,
     encode,
 )
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 
 # What each receiver expects on each key; a *valid* message of another kind is garbage there.
 WRONG_KIND: dict[str, type[Message]] = {

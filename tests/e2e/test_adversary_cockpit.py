@@ -27,12 +27,12 @@ from urllib.parse import urlsplit
 
 import aiohttp
 import pytest
-from bipedtele.drops import DropCounter
-from bipedtele.messages import Command, Status
-from bipedtele.receivers import MessageReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import Command, Status
+from bipedtele.link.receivers import MessageReceiver
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 from e2e_support import HERE, Monitor, Proc, Procs, client_args, free_port, start_router, wait_until
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]

@@ -218,7 +218,7 @@ def test_clock_skew_beyond_the_one_way_delay_does_not_crash(procs: Procs, tmp_pa
     running, the follower walks under the skewed leader's commands, and the leader's
     delays and damping stay valid (h2 >= 0, alpha_m >= alpha_m_min).
     """
-    from bipedtele.config import load_config
+    from bipedtele.config.profile import load_config
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     f_rec, l_rec = tmp_path / "follower.mcap", tmp_path / "leader.mcap"
@@ -313,7 +313,7 @@ def test_forged_clock_answers_change_neither_damping_nor_offset(procs: Procs, tm
     proxy's delays, the follower keeps accepting commands and walking, and every forged
     answer is counted as a drop by the node it was addressed to.
     """
-    from bipedtele.config import load_config
+    from bipedtele.config.profile import load_config
     from bipedtele.control.damping import schedule_damping
 
     r_port, p_port = free_port(), free_port()

@@ -21,9 +21,9 @@ from typing import Any
 
 import pytest
 from adversary_support import make_key_file, recorded_feedback, wait_recorded_state
-from bipedtele.auth import BAD_MAC_LINE, NO_MAC_LINE, UNEXPECTED_MAC_LINE
 from bipedtele.leader.reach import KEY_MISMATCH
-from bipedtele.messages import MessageError, decode
+from bipedtele.link.auth import BAD_MAC_LINE, NO_MAC_LINE, UNEXPECTED_MAC_LINE
+from bipedtele.link.messages import MessageError, decode
 from e2e_support import (
     NO_BLIND_STOP,
     NO_VIDEO,

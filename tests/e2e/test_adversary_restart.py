@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 from adversary_support import counters, drops, make_key_file, wait_recorded_state
-from bipedtele.messages import Feedback, MessageError, decode
+from bipedtele.link.messages import Feedback, MessageError, decode
 from e2e_support import (
     NO_VIDEO,
     Procs,
@@ -207,7 +207,7 @@ def test_a_restarted_leader_never_shows_replayed_feedback_as_live(procs: Procs, 
 FORGE = textwrap.dedent(
     """
     import json, sys, threading, time, msgspec, zenoh
-    from bipedtele.messages import Command, decode, encode
+    from bipedtele.link.messages import Command, decode, encode
     ep, key, dseq, dt, wait_s = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
     c = zenoh.Config()
     c.insert_json5("mode", '"client"')

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bipedtele.delaymodels import parse_delay_model
-from bipedtele.recordformat import read_records
+from bipedtele.link.delaymodels import parse_delay_model
+from bipedtele.recording.format import read_records
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

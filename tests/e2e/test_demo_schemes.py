@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bipedtele.recordformat import read_records
+from bipedtele.recording.format import read_records
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from bipedtele.messages import Status
+from bipedtele.link.messages import Status
 from e2e_support import (
     HERE,
     Monitor,

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.config import ControlConfig
 from bipedtele.leader.parts import PadConfig
 from e2e_support import HERE, Procs, free_port, records, start_follower, start_leader, start_router

@@ -33,7 +33,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from bipedtele.recordformat import read_records
+from bipedtele.recording.format import read_records
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
 from bipedtele.tools.setup_fleet import write_sites
 from e2e_support import HERE, Procs

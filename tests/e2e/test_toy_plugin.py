@@ -34,7 +34,7 @@ ENV = {"PYTHONPATH": os.pathsep.join([str(PLUGIN), os.environ.get("PYTHONPATH", 
 
 _CONTRACTS = """
 import json
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.check import check_robot
 from bipedtele.follower.robot import ROBOTS, make_robot
 from bipedtele.leader.check import check_device

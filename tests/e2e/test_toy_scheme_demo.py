@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bipedtele.recordformat import read_records
-from bipedtele.recording import read_metadata
+from bipedtele.recording.format import read_records
+from bipedtele.recording.recorder import read_metadata
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from bipedtele.recordformat import read_records
+from bipedtele.recording.format import read_records
 from bipedtele.tools.netns import SIDE_A, SIDE_B, EmulatedLink, NetnsError
 from e2e_support import HERE, Procs
 

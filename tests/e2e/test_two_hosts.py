@@ -23,7 +23,7 @@ Refused clients: a client with a wrong password, and a client with the right pas
 no client certificate, cannot open a Zenoh session at all; the mutual-TLS handshake or the
 user/password exchange is rejected by the router before any session exists, so such a
 client never receives a single message, and each is told which refusal it met
-(``bipedtele.linkcheck.LinkError`` kinds ``credentials`` and ``tls_client_cert``). A client
+(``bipedtele.link.linkcheck.LinkError`` kinds ``credentials`` and ``tls_client_cert``). A client
 with valid credentials, same path, does get in.
 """
 

@@ -36,7 +36,7 @@ from typing import Any
 
 import pytest
 from adversary_support import counters, recorded_feedback, wait_recorded_state
-from bipedtele.recordformat import read_records
+from bipedtele.recording.format import read_records
 from e2e_support import CLI, HERE, NO_VIDEO, Proc, Procs, walking_script
 
 SPOOF = str(HERE / "udp_spoof.py")

@@ -17,14 +17,14 @@ import json
 import sys
 import time
 
-from bipedtele.config import ConfigError
-from bipedtele.drops import DropCounter
-from bipedtele.linkcheck import LinkError
-from bipedtele.messages import Command, Feedback
-from bipedtele.receivers import MessageReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, Publishers, Stamper
-from bipedtele.zenohsession import open_session
+from bipedtele.config.profile import ConfigError
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.messages import Command, Feedback
+from bipedtele.link.receivers import MessageReceiver
+from bipedtele.link.transport import Keys, Publishers, Stamper
+from bipedtele.link.zenohsession import open_session
 
 
 def main(argv: list[str] | None = None) -> int:

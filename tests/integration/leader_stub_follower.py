@@ -18,15 +18,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/: the delay line
 
-from bipedtele.delayestimate import DelayEstimator
-from bipedtele.delaymodels import ConstDelay
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command, Feedback, new_session_id
-from bipedtele.receivers import LatestReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, Publishers, declare_presence
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.delayestimate import DelayEstimator
+from bipedtele.link.delaymodels import ConstDelay
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command, Feedback, new_session_id
+from bipedtele.link.receivers import LatestReceiver
+from bipedtele.link.transport import Keys, Publishers, declare_presence
+from bipedtele.link.zenohsession import open_session
 from delayline import DelayLine
 
 TAU = 0.3  # s

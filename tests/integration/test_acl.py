@@ -29,12 +29,12 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from bipedtele.drops import DropCounter
-from bipedtele.messages import ClockPing, Command, Feedback, Status, VideoFrame, encode
-from bipedtele.receivers import MessageReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, PresenceWatcher, Publishers, Stamper, declare_presence
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import ClockPing, Command, Feedback, Status, VideoFrame, encode
+from bipedtele.link.receivers import MessageReceiver
+from bipedtele.link.transport import Keys, PresenceWatcher, Publishers, Stamper, declare_presence
+from bipedtele.link.zenohsession import open_session
 
 COMMAND_FORMS = ["**", "bipedtele/**", "bipedtele/*/*", "bipedtele/nao1/*", "bipedtele/*/cmd", "bipedtele/nao1/cmd"]
 USERS = {"leader": "lpw", "follower": "fpw", "viewer": "vpw"}

@@ -2,7 +2,7 @@
 
 The router runs as printed (TLS with mutual certificates, passwords, the written ACL).
 Robots and leaders are real Zenoh sessions logged in from their written profiles, publishing
-Status and video the way the programs do (:class:`bipedtele.transport.Publishers` with the
+Status and video the way the programs do (:class:`bipedtele.link.transport.Publishers` with the
 robot's message key: video and status under its watch key) and declaring presence.
 """
 
@@ -19,13 +19,13 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from bipedtele.auth import MacError, MessageAuth, load_message_auth, read_key_file, watch_key
-from bipedtele.config import load_config
-from bipedtele.messages import Command, Status, VideoFrame, encode
-from bipedtele.sections import NetworkConfig
+from bipedtele.config.profile import load_config
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.auth import MacError, MessageAuth, load_message_auth, read_key_file, watch_key
+from bipedtele.link.messages import Command, Status, VideoFrame, encode
+from bipedtele.link.transport import Keys, Publishers, declare_presence
+from bipedtele.link.zenohsession import open_session
 from bipedtele.tools.setup_fleet import write_fleet
-from bipedtele.transport import Keys, Publishers, declare_presence
-from bipedtele.zenohsession import open_session
 from fleet_support import Tap, free_port, written_router
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]

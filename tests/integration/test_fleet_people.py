@@ -23,11 +23,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from bipedtele.config import load_config
-from bipedtele.linkcheck import LinkError
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.config.profile import load_config
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 from test_acl import Tap, _until, free_port
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]

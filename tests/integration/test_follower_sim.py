@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.loop import FollowerLoop, FollowerTelemetry, command_inbox
 from bipedtele.follower.robot import make_robot
-from bipedtele.messages import Command
+from bipedtele.link.messages import Command
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 

@@ -18,14 +18,14 @@ import textwrap
 import time
 
 import pytest
-from bipedtele.auth import MessageAuth
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import VideoFrame
-from bipedtele.receivers import LatestReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.auth import MessageAuth
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import VideoFrame
+from bipedtele.link.receivers import LatestReceiver
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 
 pytestmark = pytest.mark.timeout(60)
 KEY = bytes(range(32))
@@ -33,8 +33,8 @@ KEY = bytes(range(32))
 SENDER = textwrap.dedent(
     """
     import json, os, sys, time, zenoh
-    from bipedtele.auth import MessageAuth
-    from bipedtele.messages import VideoFrame, encode
+    from bipedtele.link.auth import MessageAuth
+    from bipedtele.link.messages import VideoFrame, encode
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
     c.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.damping import schedule_damping
-from bipedtele.recordformat import read_records
+from bipedtele.recording.format import read_records
 
 HERE = Path(__file__).parent
 D1, D2, SWITCH, SILENT, TOTAL = 0.05, 0.4, 3.5, 6.5, 9.0

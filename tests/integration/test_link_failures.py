@@ -4,7 +4,7 @@ looked the same, "Unable to connect ... Timeout!", after the whole open timeout)
 A real ``bipedtele router`` requires mutual TLS (certificates from
 ``scripts/make-certs.sh``, router certificate for the name ``localhost`` only) and
 user/password authentication. Clients with one thing wrong each get a
-:class:`~bipedtele.transport.LinkError` of their own kind and message: a name that does
+:class:`~bipedtele.link.transport.LinkError` of their own kind and message: a name that does
 not resolve, nothing listening, a router certificate from another CA, a router dialled by
 an IP address its certificate does not name, no client certificate, a client certificate
 from another CA, a wrong password, no password. The implementation bounds each to a few
@@ -28,9 +28,9 @@ from pathlib import Path
 
 import pytest
 from bipedtele import cli
-from bipedtele.linkcheck import LinkError
-from bipedtele.sections import NetworkConfig
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.zenohsession import open_session
 
 REPO = Path(__file__).resolve().parents[2]
 

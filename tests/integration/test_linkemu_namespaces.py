@@ -257,8 +257,8 @@ def test_demo_packet_backend_dry_run_prints_the_plan(tmp_path: Path) -> None:
 # Zenoh sessions built by the project (zenoh_config): B listens, A connects and publishes.
 ZENOH_SINK = """
 import sys, time, zenoh
-from bipedtele.sections import NetworkConfig
-from bipedtele.zenohsession import zenoh_config
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.zenohsession import zenoh_config
 net = NetworkConfig(mode="peer", listen=["tcp/0.0.0.0:5301"], connect=[])
 got = []
 with zenoh.open(zenoh_config(net)) as s, s.declare_subscriber("bt/shm", lambda x: got.append(len(x.payload.to_bytes()))):
@@ -271,8 +271,8 @@ print(len(got), sum(got))
 
 ZENOH_SOURCE = """
 import sys, time, zenoh
-from bipedtele.sections import NetworkConfig
-from bipedtele.zenohsession import zenoh_config
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.zenohsession import zenoh_config
 net = NetworkConfig(mode="peer", listen=[], connect=["tcp/" + sys.argv[1] + ":5301"])
 with zenoh.open(zenoh_config(net)) as s:
     pub = s.declare_publisher("bt/shm")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
 from bipedtele.follower.naoqi import NaoqiConfig, NaoqiRobot, move_config_for
 from bipedtele.follower.naoqi.session import UserTokenAuthenticatorFactory
 from bipedtele.follower.robot import (

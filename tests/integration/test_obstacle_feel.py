@@ -24,14 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import make_robot
-from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operators.scripted import ScriptedOperator
-from bipedtele.messages import Command, Feedback
+from bipedtele.link.inbox import FeedbackInbox
+from bipedtele.link.messages import Command, Feedback
 
 pytestmark = [pytest.mark.slow, pytest.mark.compute, pytest.mark.timeout(300)]  # compute: deterministic, simulated time
 

@@ -1,6 +1,6 @@
 """A recording cut by ``kill -9`` is made readable by the standard MCAP reader (issue 32, item 8).
 
-A real writer process (the :class:`~bipedtele.recording.Recorder`, flushing every 0.1 s)
+A real writer process (the :class:`~bipedtele.recording.recorder.Recorder`, flushing every 0.1 s)
 records commands until it is killed with SIGKILL mid-run. The standard reader (the ``mcap``
 package's ``make_reader``, as Foxglove and other tools read) gets no summary from the cut
 file; ``bipedtele record repair`` rewrites it, and the standard reader then reads every
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
-from bipedtele.recording import read_metadata, read_records
+from bipedtele.recording.recorder import read_metadata, read_records
 from mcap.reader import make_reader
 
 pytestmark = pytest.mark.timeout(120)
@@ -28,8 +28,8 @@ pytestmark = pytest.mark.timeout(120)
 WRITER = textwrap.dedent(
     """
     import sys, time
-    from bipedtele.messages import Command
-    from bipedtele.recording import Recorder
+    from bipedtele.link.messages import Command
+    from bipedtele.recording.recorder import Recorder
     rec = Recorder(sys.argv[1], flush_s=0.1, metadata={"role": "b32b-writer"})
     seq = 0
     while True:  # until killed

@@ -1,7 +1,7 @@
-"""A split-layout client session reopens itself after a forged datagram (bipedtele.relink), on loopback.
+"""A split-layout client session reopens itself after a forged datagram (bipedtele.link.relink), on loopback.
 
 A real ``bipedtele router`` (TCP with ``links = "split"``: it also listens on UDP) in its
-own process; in the test, a :class:`~bipedtele.relink.RelinkSession` client with a
+own process; in the test, a :class:`~bipedtele.link.relink.RelinkSession` client with a
 subscriber, a liveliness token and a liveliness subscriber, and a plain client that
 publishes and watches the token. Forged datagrams (raw socket, root only) with the real
 UDP link's addresses: a Close to the client's UDP port, then garbage to the router's.
@@ -20,9 +20,9 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from bipedtele.relink import RelinkSession
-from bipedtele.sections import NetworkConfig
-from bipedtele.zenohsession import open_raw, open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.relink import RelinkSession
+from bipedtele.link.zenohsession import open_raw, open_session
 from test_acl import Tap, _until, free_port
 
 SPOOF = Path(__file__).resolve().parents[1] / "e2e" / "udp_spoof.py"

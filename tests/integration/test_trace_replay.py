@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 import pytest
-from bipedtele.messages import Feedback
-from bipedtele.recording import Recorder
+from bipedtele.link.messages import Feedback
+from bipedtele.recording.recorder import Recorder
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from bipedtele.delaymodels import TraceDelay, parse_delay_model
+from bipedtele.link.delaymodels import TraceDelay, parse_delay_model
 
 ZPEER = Path(__file__).with_name("zpeer.py")
 
@@ -205,10 +205,10 @@ SENDER = r'''
 import json, sys, time
 import msgspec
 import zenoh
-from bipedtele.auth import load_message_auth
-from bipedtele.messages import Command, encode
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, Publishers, Stamper, open_session
+from bipedtele.link.auth import load_message_auth
+from bipedtele.link.messages import Command, encode
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.transport import Keys, Publishers, Stamper, open_session
 
 spec = json.loads(open(sys.argv[1]).read())
 net = NetworkConfig(connect=[spec["connect"]], message_key_file=spec.get("key_file", ""))
@@ -246,13 +246,13 @@ def run_sender(tmp_path: Path, spec: dict[str, Any]) -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(90)
 def test_mac_drops_unsigned_and_forged_messages_before_decoding(tmp_path: Path) -> None:
-    from bipedtele.auth import MessageAuth, load_message_auth, write_message_key
-    from bipedtele.drops import DropCounter
-    from bipedtele.messages import Command, encode
-    from bipedtele.receivers import MessageReceiver
-    from bipedtele.sections import NetworkConfig
-    from bipedtele.transport import Keys, Stamper
-    from bipedtele.zenohsession import open_session
+    from bipedtele.config.sections import NetworkConfig
+    from bipedtele.link.auth import MessageAuth, load_message_auth, write_message_key
+    from bipedtele.link.drops import DropCounter
+    from bipedtele.link.messages import Command, encode
+    from bipedtele.link.receivers import MessageReceiver
+    from bipedtele.link.transport import Keys, Stamper
+    from bipedtele.link.zenohsession import open_session
 
     key_file = tmp_path / "message.key"
     write_message_key(key_file)
@@ -303,14 +303,14 @@ def test_mac_drops_unsigned_and_forged_messages_before_decoding(tmp_path: Path) 
 @pytest.mark.slow
 @pytest.mark.timeout(90)
 def test_send_time_sanity(tmp_path: Path) -> None:
-    from bipedtele.clock import ClockSync
-    from bipedtele.delayestimate import DelayEstimator
-    from bipedtele.drops import DropCounter
-    from bipedtele.messages import Command
-    from bipedtele.receivers import MessageReceiver
-    from bipedtele.sections import NetworkConfig
-    from bipedtele.transport import Keys
-    from bipedtele.zenohsession import open_session
+    from bipedtele.config.sections import NetworkConfig
+    from bipedtele.link.clock import ClockSync
+    from bipedtele.link.delayestimate import DelayEstimator
+    from bipedtele.link.drops import DropCounter
+    from bipedtele.link.messages import Command
+    from bipedtele.link.receivers import MessageReceiver
+    from bipedtele.link.transport import Keys
+    from bipedtele.link.zenohsession import open_session
 
     keys = Keys("nao1")
     unsynced = ClockSync()

@@ -17,14 +17,14 @@ import textwrap
 import time
 
 import pytest
-from bipedtele.auth import MessageAuth
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command
-from bipedtele.receivers import MAX_CONTROL_PAYLOAD, MAX_ZENOH_MESSAGE, LatestReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.auth import MessageAuth
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command
+from bipedtele.link.receivers import MAX_CONTROL_PAYLOAD, MAX_ZENOH_MESSAGE, LatestReceiver
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session
 
 pytestmark = pytest.mark.timeout(60)
 

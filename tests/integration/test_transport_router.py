@@ -13,13 +13,13 @@ import time
 from pathlib import Path
 
 import pytest
-from bipedtele.drops import DropCounter
-from bipedtele.linkcheck import LinkError
-from bipedtele.messages import Command, Status
-from bipedtele.receivers import MessageReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, Publishers, Stamper
-from bipedtele.zenohsession import open_session
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.linkcheck import LinkError
+from bipedtele.link.messages import Command, Status
+from bipedtele.link.receivers import MessageReceiver
+from bipedtele.link.transport import Keys, Publishers, Stamper
+from bipedtele.link.zenohsession import open_session
 
 
 def free_port() -> int:

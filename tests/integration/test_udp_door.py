@@ -26,10 +26,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from bipedtele.config import load_config
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import open_session, zenoh_config
+from bipedtele.config.profile import load_config
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import open_session, zenoh_config
 from test_acl import Tap, free_port
 
 CLI = [sys.executable, "-m", "bipedtele.cli"]

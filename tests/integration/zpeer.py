@@ -30,10 +30,11 @@ from typing import Any
 
 import msgpack
 import zenoh
-from bipedtele.delayestimate import DelayEstimator
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import (
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.delayestimate import DelayEstimator
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import (
     ClockPing,
     ClockPong,
     Command,
@@ -43,10 +44,9 @@ from bipedtele.messages import (
     VideoFrame,
     encode,
 )
-from bipedtele.receivers import LatestReceiver, MessageReceiver
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys, MessagePublisher, Publishers, Stamper, declare_presence
-from bipedtele.zenohsession import open_session
+from bipedtele.link.receivers import LatestReceiver, MessageReceiver
+from bipedtele.link.transport import Keys, MessagePublisher, Publishers, Stamper, declare_presence
+from bipedtele.link.zenohsession import open_session
 
 KEY_TYPES: dict[str, Any] = {
     "cmd": Command,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from bipedtele.messages import Message, encode
+from bipedtele.link.messages import Message, encode
 
 KEY = "bipedtele/nao1/cmd"
 

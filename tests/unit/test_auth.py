@@ -10,7 +10,9 @@ import struct
 from pathlib import Path
 
 import pytest
-from bipedtele.auth import (
+from bipedtele.config.profile import ConfigError
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.auth import (
     MAC_MAGIC,
     MAC_OVERHEAD,
     MacError,
@@ -18,9 +20,7 @@ from bipedtele.auth import (
     load_message_auth,
     write_message_key,
 )
-from bipedtele.config import ConfigError
-from bipedtele.messages import Command, MessageError, decode, encode
-from bipedtele.sections import NetworkConfig
+from bipedtele.link.messages import Command, MessageError, decode, encode
 from cryptography.hazmat.primitives.ciphers.aead import AESGCM
 
 KEY = bytes(range(32))
@@ -169,7 +169,7 @@ def test_missing_or_unreadable_key_file_is_refused(tmp_path: Path) -> None:
 def test_the_watch_key_verifies_video_and_status_and_signs_nothing_the_robot_obeys(tmp_path: Path) -> None:
     """An observer's key (issue 23): derived one-way from the message key, different from it;
     what it signs fails the master key's check, and a leader's and a follower's derivations agree."""
-    from bipedtele.auth import WatchAuth, load_watch_auths, read_key_file, watch_key
+    from bipedtele.link.auth import WatchAuth, load_watch_auths, read_key_file, watch_key
 
     master = MessageAuth(KEY)
     wk = watch_key(KEY)
@@ -197,7 +197,7 @@ def test_each_session_seals_video_under_a_watch_key_of_its_own() -> None:
     epoch in clear and open under HKDF(watch key, epoch); the watch key's holder (an observer)
     opens every session's, one session's key opens that session's only, and a leader pinned
     to its bound follower's epoch refuses an earlier session's frames as ``old_session``."""
-    from bipedtele.auth import WATCH_MAGIC, WatchAuth, session_watch_key, watch_key
+    from bipedtele.link.auth import WATCH_MAGIC, WatchAuth, session_watch_key, watch_key
 
     topic = "bipedtele/nao1/video"
     master = MessageAuth(KEY)

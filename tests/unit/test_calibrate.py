@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
 from bipedtele.follower.sim.calibrate import model_dp
 
 

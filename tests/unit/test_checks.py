@@ -22,7 +22,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 def test_the_type_check_fails_on_a_planted_type_error_and_a_missing_internal_import(tmp_path: Path) -> None:
     plant = tmp_path / "plant.py"
     plant.write_text(
-        "from bipedtele.messages import Command, no_such_name\n"
+        "from bipedtele.link.messages import Command, no_such_name\n"
         "from bipedtele.no_such_module import thing\n"
         "\n"
         "def speed(cmd: Command) -> int:\n"
@@ -39,7 +39,7 @@ def test_the_type_check_fails_on_a_planted_type_error_and_a_missing_internal_imp
     )
     out = res.stdout + res.stderr
     assert res.returncode == 1, out
-    assert 'Module "bipedtele.messages" has no attribute "no_such_name"' in out, out
+    assert 'Module "bipedtele.link.messages" has no attribute "no_such_name"' in out, out
     assert 'module named "bipedtele.no_such_module"' in out, out
     assert "Incompatible return value type" in out, out
     assert "common/_planted.py:5" in out, out  # named as the repository's file

@@ -5,8 +5,8 @@ from __future__ import annotations
 import random
 
 import pytest
-from bipedtele.clock import ClockSync
-from bipedtele.delayestimate import DelayEstimator, conservative_delays
+from bipedtele.link.clock import ClockSync
+from bipedtele.link.delayestimate import DelayEstimator, conservative_delays
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
-from bipedtele.clock import ClockSync
+from bipedtele.link.clock import ClockSync
 
 PEER = 9
 HOLD = 0.001  # responder hold time [s]

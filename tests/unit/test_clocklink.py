@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from bipedtele.clock import ClockSync
-from bipedtele.clocklink import ClockLink
-from bipedtele.drops import DropCounter
-from bipedtele.messages import ClockPing, ClockPong, Message
+from bipedtele.link.clock import ClockSync
+from bipedtele.link.clocklink import ClockLink
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import ClockPing, ClockPong, Message
 
 ME, PEER, EVIL = 1111, 2222, 3333
 OFFSET = 5.0  # the peer's clock is 5 s ahead of ours
@@ -23,7 +23,7 @@ OFFSET = 5.0  # the peer's clock is 5 s ahead of ours
 
 @dataclass(frozen=True)
 class Rec:
-    """Same shape as bipedtele.transport.Received."""
+    """Same shape as bipedtele.link.transport.Received."""
 
     msg: Any
     t_recv: float

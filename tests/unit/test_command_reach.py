@@ -6,7 +6,7 @@ import logging
 
 import pytest
 from bipedtele.leader.reach import LOST, REFUSED, STALLED, CommandReach
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 
 FOLLOWER = 77
 

@@ -8,11 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bipedtele.cli import main
-from bipedtele.control.compare import REGIMES, CompareParams, Regime, regime_inputs, run_compare, simulate
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import StudyParams
 from bipedtele.control.schemes import scheme_class, scheme_names
+from bipedtele.studies.compare import run_compare
+from bipedtele.studies.compare_kernel import regime_inputs, simulate
+from bipedtele.studies.regimes import REGIMES, CompareParams, Regime
 
 pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError, load_config, param, profile_names
+from bipedtele.config.profile import ConfigError, load_config, param, profile_names
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -160,8 +160,8 @@ def test_override_and_shipped_profile_paths_stay_relative_to_the_working_folder(
 
 
 def test_network_paths_in_a_profile_file_follow_the_file(tmp_path: Path) -> None:
-    """The real [network] files (marked path=True in common/sections.py) follow the profile."""
-    from bipedtele.sections import NetworkConfig
+    """The real [network] files (marked path=True in common/config/sections.py) follow the profile."""
+    from bipedtele.config.sections import NetworkConfig
 
     marked = {f.name for f in dataclasses.fields(NetworkConfig) if f.metadata.get("path")}
     assert {"tls_root_ca", "tls_cert", "tls_key", "password_file", "credentials_file"} <= marked

@@ -13,11 +13,11 @@ import re
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
+from bipedtele.config.sections import NetworkConfig
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.leader.config import LeaderConfig
-from bipedtele.sections import NetworkConfig
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -44,7 +44,7 @@ def test_the_product_reads_no_section_by_name() -> None:
     """``.section("...")`` is the untyped way: none in the product's code (the docstring of
     ``Config`` shows it once)."""
     found = []
-    for part in ("common", "leader", "follower", "bench", "docker"):
+    for part in ("common", "leader", "follower", "studies", "bench", "docker"):
         for path in sorted((ROOT / part).rglob("*.py")):
             for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
                 if re.search(r"\.section\(\"[a-z_]+\"\)", line) and not line.lstrip().startswith(">>>"):

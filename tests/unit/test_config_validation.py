@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 import pytest
-from bipedtele.config import Config, ConfigError, load_config, param, parse_section, resolve_section
+from bipedtele.config.profile import Config, ConfigError, load_config, param, parse_section, resolve_section
 
 pytestmark = pytest.mark.timeout(30)
 

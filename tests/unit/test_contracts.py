@@ -9,7 +9,7 @@ the full checker.
 from __future__ import annotations
 
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.check import check_robot
 from bipedtele.follower.robot import make_robot, robot_names, robot_part
 from bipedtele.leader.check import check_device

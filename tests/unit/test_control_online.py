@@ -134,7 +134,7 @@ def test_speed_loop_model_switch(caplog: pytest.LogCaptureFixture) -> None:
 
 
 def test_old_model_name_fails_with_the_allowed_values() -> None:
-    from bipedtele.config import ConfigError, load_config
+    from bipedtele.config.profile import ConfigError, load_config
 
     with pytest.raises(ConfigError) as err:
         load_config("default", ['control.hybrid_model="calibrated"'])

@@ -12,7 +12,7 @@ from bipedtele.control.calibration import Calibration
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.hybrid import rho_hybrid
 from bipedtele.control.online import OnlineChooser
-from bipedtele.control.study import CASES, StudyParams, run_case
+from bipedtele.studies.study import CASES, StudyParams, run_case
 
 pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
 
@@ -135,7 +135,7 @@ def test_orbit_offset_is_the_resets_share_of_the_error() -> None:
 
 @pytest.mark.timeout(240)
 def test_sensitivity_command_writes_one_table(tmp_path: Path) -> None:
-    from bipedtele.control.study import SENSITIVITY
+    from bipedtele.studies.study import SENSITIVITY
 
     out, md = tmp_path / "sens.json", tmp_path / "sens.md"
     rc = main(["study", "--sensitivity", "--runs", "2", "--duration", "3", "--json", str(out), "--markdown", str(md)])

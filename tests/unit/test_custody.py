@@ -6,8 +6,8 @@ import logging
 
 import pytest
 from bipedtele.follower.custody import CustodyGate
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command, Status, decode, encode
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command, Status, decode, encode
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -20,7 +20,7 @@ from bipedtele.control.damping import (
     schedule_damping,
     schedule_damping_array,
 )
-from bipedtele.delayestimate import DelayEstimator
+from bipedtele.link.delayestimate import DelayEstimator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

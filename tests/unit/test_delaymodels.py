@@ -6,8 +6,8 @@ import statistics
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError
-from bipedtele.delaymodels import (
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.delaymodels import (
     ConstDelay,
     NormalDelay,
     TraceDelay,

@@ -10,7 +10,7 @@ import pytest
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.delivery import InFlight
 from bipedtele.follower.video import VideoStreamer
-from bipedtele.messages import VideoFrame
+from bipedtele.link.messages import VideoFrame
 
 pytestmark = pytest.mark.timeout(30)
 

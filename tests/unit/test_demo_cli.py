@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 from bipedtele.cli import main
-from bipedtele.config import ConfigError
-from bipedtele.delaymodels import parse_delay_model
-from bipedtele.messages import Feedback
-from bipedtele.recording import Recorder
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.delaymodels import parse_delay_model
+from bipedtele.link.messages import Feedback
+from bipedtele.recording.recorder import Recorder
 from bipedtele.tools.demo import parse_delay_scale, scale_delay_spec
 from bipedtele.tools.demostatus import LiveStatus, RecordingTail, StatusPrinter, format_status
 

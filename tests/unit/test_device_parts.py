@@ -7,14 +7,14 @@ import subprocess
 import sys
 
 import pytest
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
 from bipedtele.leader.device import device_names, device_part
 
 pytestmark = pytest.mark.timeout(120)
 
 _PROBE = """
 import sys
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
 cfg = load_config("default")
 cfg.section("joystick"); cfg.section("falcon")
 import bipedtele.follower.app, bipedtele.tools.router

@@ -72,7 +72,7 @@ def test_planted_broken_link_anchor_and_orphan_page_fail_the_build(tmp_path: Pat
     shutil.copy(ROOT / "mkdocs.yml", project / "mkdocs.yml")
     shutil.copy(ROOT / "CHANGELOG.md", project / "CHANGELOG.md")
     shutil.copytree(ROOT / "docs", project / "docs", ignore=shutil.ignore_patterns("__pycache__"))
-    for folder in ("common", "leader", "follower", "configs"):  # the API pages' sources (2 MB)
+    for folder in ("common", "leader", "follower", "studies", "configs"):  # the API pages' sources (2 MB)
         shutil.copytree(ROOT / folder, project / folder, ignore=shutil.ignore_patterns("__pycache__"))
     # the unchanged copy builds: what fails below is what was planted
     assert _build(project, tmp_path / "clean").returncode == 0

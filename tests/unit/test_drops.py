@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 
 import pytest
-from bipedtele.drops import DropCounter
+from bipedtele.link.drops import DropCounter
 
 
 class FakeClock:
@@ -31,7 +31,7 @@ def test_counts_per_reason_and_total() -> None:
 def test_logs_once_per_reason_per_interval(caplog: pytest.LogCaptureFixture) -> None:
     clock = FakeClock()
     d = DropCounter("rx", log_interval_s=5.0, clock=clock)
-    with caplog.at_level(logging.WARNING, logger="bipedtele.drops"):
+    with caplog.at_level(logging.WARNING, logger="bipedtele.link.drops"):
         for _ in range(10):
             d.drop("stale")
         d.drop("bad_field")
@@ -59,7 +59,7 @@ def test_unauthentic_messages_amid_genuine_ones_read_as_an_attack_not_a_key_mism
     clock = FakeClock()
     d = DropCounter("follower", log_interval_s=0.0, clock=clock)
     key_line = "bipedtele/nao1/cmd: MAC mismatch: the two sides hold different message keys (wrong tag)"
-    with caplog.at_level(logging.WARNING, logger="bipedtele.drops"):
+    with caplog.at_level(logging.WARNING, logger="bipedtele.link.drops"):
         d.drop("bad_mac", key_line)  # nothing genuine yet: the keys may well differ
         d.authentic()
         clock.t = 1.0

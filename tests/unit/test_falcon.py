@@ -129,10 +129,10 @@ def test_device_contract_and_registration():
 
 def test_fake_falcon_drives_a_full_leader_loop():
     from bipedtele.control.config import ControlConfig
-    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.config import LeaderConfig
     from bipedtele.leader.loop import LeaderLoop
-    from bipedtele.messages import Feedback
+    from bipedtele.link.inbox import FeedbackInbox
+    from bipedtele.link.messages import Feedback
 
     lib = FakeFalconLib(homing_packets=2)
     sent = []

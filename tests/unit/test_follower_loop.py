@@ -10,11 +10,11 @@ import math
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import RobotError
 from bipedtele.follower.supervisor import RobotSupervisor
-from bipedtele.messages import Command, Feedback, Status
+from bipedtele.link.messages import Command, Feedback, Status
 from fakes.kinematic_robot import KinematicRobot
 
 pytestmark = pytest.mark.timeout(60)
@@ -443,7 +443,7 @@ def test_h1_is_fed_once_by_the_loop_with_every_command_it_takes() -> None:
 
 
 def test_status_carries_the_drop_counts_passed_in() -> None:
-    from bipedtele.drops import DropCounter
+    from bipedtele.link.drops import DropCounter
 
     robot = KinematicRobot()
     robot.connect()

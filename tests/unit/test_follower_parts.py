@@ -12,7 +12,7 @@ from bipedtele.control.reference import RealFollowerReference
 from bipedtele.follower.fictitious import FictitiousForce
 from bipedtele.follower.robot import RobotError
 from bipedtele.follower.video import VideoStreamer
-from bipedtele.messages import VideoFrame
+from bipedtele.link.messages import VideoFrame
 from fakes.kinematic_robot import KinematicRobot
 
 pytestmark = pytest.mark.timeout(30)

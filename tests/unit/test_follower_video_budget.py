@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 from bipedtele.follower.video import LEVELS, VideoStreamer
-from bipedtele.messages import VideoFrame, encode
+from bipedtele.link.messages import VideoFrame, encode
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -1,6 +1,6 @@
 """The live view is guarded like the cockpit: a token, Host and Origin checks, loopback unless asked.
 
-A real :class:`~bipedtele.foxglovelive.LiveView` (its aiohttp server in its thread) fed as the
+A real :class:`~bipedtele.recording.foxglovelive.LiveView` (its aiohttp server in its thread) fed as the
 recorder feeds it, and real WebSocket clients (``tests/e2e/foxglove_client.py``): only the
 token holder from no web page, Foxglove's web app or the server's own origin watches; the
 others are refused before anything is sent (403) and get nothing. The e2e run with both
@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).parent.parent / "e2e"))
 from foxglove_client import Seen, watch
 
 pytest.importorskip("aiohttp")
-from bipedtele.foxglovelive import LiveView, check_bind
+from bipedtele.recording.foxglovelive import LiveView, check_bind
 
 pytestmark = pytest.mark.timeout(60)
 

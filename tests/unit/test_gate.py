@@ -5,8 +5,8 @@ from __future__ import annotations
 import threading
 
 import pytest
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import MAX_SEQ, Command
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import MAX_SEQ, Command
 
 
 class FakeClock:

@@ -11,10 +11,10 @@ from __future__ import annotations
 import logging
 
 import pytest
-from bipedtele.auth import BAD_MAC_LINE, NO_MAC_LINE, UNEXPECTED_MAC_LINE
-from bipedtele.gate import SequenceGate
 from bipedtele.leader.reach import KEY_MISMATCH, REFUSED, CommandReach
-from bipedtele.messages import Command, Feedback
+from bipedtele.link.auth import BAD_MAC_LINE, NO_MAC_LINE, UNEXPECTED_MAC_LINE
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command, Feedback
 
 
 class Clock:

@@ -12,16 +12,16 @@ import math
 import random
 
 import pytest
-from bipedtele.delayestimate import DelayEstimator
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command
-from bipedtele.transport import Stamper
+from bipedtele.link.delayestimate import DelayEstimator
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command
+from bipedtele.link.transport import Stamper
 
 pytestmark = pytest.mark.timeout(60)
 
 
 class _Rules:
-    """The gate's rules, one per line (module docstring of bipedtele.gate)."""
+    """The gate's rules, one per line (module docstring of bipedtele.link.gate)."""
 
     def __init__(self, takeover: float, rate: float, margin: int) -> None:
         self.takeover, self.rate, self.margin = takeover, rate, margin

@@ -6,9 +6,9 @@ import itertools
 import math
 
 import pytest
-from bipedtele.config import ConfigError
-from bipedtele.delaymodels import ConstDelay, TraceDelay, parse_delay_model
-from bipedtele.impairments import (
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.delaymodels import ConstDelay, TraceDelay, parse_delay_model
+from bipedtele.link.impairments import (
     Direction,
     GilbertElliott,
     NoLoss,

@@ -51,10 +51,11 @@ def _under(modules: list[str], pkg: str) -> list[str]:
 
 @pytest.mark.timeout(300)
 def test_the_core_imports_neither_role_nor_the_tools() -> None:
-    got = _probe("bipedtele", "bipedtele.tools", "bipedtele.leader", "bipedtele.follower")
+    got = _probe("bipedtele", "bipedtele.tools", "bipedtele.leader", "bipedtele.follower", "bipedtele.studies")
     assert len(got["imported"]) > 20  # the whole core was walked
-    assert "bipedtele.control.study" in got["imported"]
+    assert "bipedtele.control.reduced" in got["imported"]
     assert _under(got["imported"], "bipedtele.tools") == []
+    assert _under(got["loaded"], "bipedtele.studies") == []
     assert _under(got["loaded"], "bipedtele.leader") == []
     assert _under(got["loaded"], "bipedtele.follower") == []
     assert _under(got["loaded"], "bipedtele.tools") == []
@@ -66,7 +67,7 @@ def test_the_core_imports_neither_role_nor_the_tools() -> None:
 @pytest.mark.timeout(300)
 def test_control_is_pure() -> None:
     got = _probe("bipedtele.control")
-    assert "bipedtele.control.study" in got["imported"]
+    assert "bipedtele.control.reduced" in got["imported"]
     assert "bipedtele.control.commands" not in got["imported"]  # no sub-commands in control
     assert "bipedtele.cli" not in got["loaded"]  # no argument parsing
 
@@ -77,6 +78,14 @@ def test_the_tools_import_neither_role() -> None:
     assert "bipedtele.tools.demo" in got["imported"]
     assert _under(got["loaded"], "bipedtele.leader") == []
     assert _under(got["loaded"], "bipedtele.follower") == []
+
+
+@pytest.mark.timeout(300)
+def test_the_studies_may_drive_the_simulated_robot_but_never_load_the_leader() -> None:
+    got = _probe("bipedtele.studies")
+    assert "bipedtele.studies.walker_compare" in got["imported"]
+    assert "bipedtele.follower.sim.robot" in got["loaded"]  # the walker cells drive the simulated NAO
+    assert _under(got["loaded"], "bipedtele.leader") == []
 
 
 @pytest.mark.timeout(300)
@@ -95,7 +104,12 @@ def test_the_leader_never_loads_the_follower() -> None:
 
 def _module_imports(repo: Path, *, deep: bool = False) -> dict[str, set[str]]:
     """Module -> the bipedtele modules it imports (module level, not TYPE_CHECKING; ``deep``: in functions too)."""
-    roots = {"common": "bipedtele", "leader": "bipedtele.leader", "follower": "bipedtele.follower"}
+    roots = {
+        "common": "bipedtele",
+        "leader": "bipedtele.leader",
+        "follower": "bipedtele.follower",
+        "studies": "bipedtele.studies",
+    }
     files: dict[str, Path] = {}
     for folder, pkg in roots.items():
         for path in (repo / folder).rglob("*.py"):
@@ -183,7 +197,7 @@ def test_no_import_circle() -> None:
     assert _cycles(graph) == []
     deep = _module_imports(repo, deep=True)
     core = {m: {d for d in deps if not d.startswith(_ROLES)} for m, deps in deep.items() if not m.startswith(_ROLES)}
-    assert "bipedtele.sections" in core["bipedtele.config"]
+    assert "bipedtele.config.sections" in core["bipedtele.config.profile"]
     assert _cycles(core) == []
 
 

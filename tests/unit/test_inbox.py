@@ -13,19 +13,19 @@ from typing import Any
 
 import numpy as np
 import pytest
-from bipedtele.auth import MessageAuth
-from bipedtele.clock import ClockSync
-from bipedtele.config import load_config
-from bipedtele.drops import DropCounter
+from bipedtele.config.profile import load_config
 from bipedtele.follower.backlog import DelayBaseline
 from bipedtele.follower.custody import CustodyGate
 from bipedtele.follower.loop import FollowerLoop, command_inbox
-from bipedtele.gate import SequenceGate
-from bipedtele.inbox import COMMAND_COUNTERS, CommandInbox, FeedbackInbox, LatestInbox, Received
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
-from bipedtele.messages import Command, Feedback, Status, encode
-from bipedtele.receivers import LatestReceiver
+from bipedtele.link.auth import MessageAuth
+from bipedtele.link.clock import ClockSync
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.inbox import COMMAND_COUNTERS, CommandInbox, FeedbackInbox, LatestInbox, Received
+from bipedtele.link.messages import Command, Feedback, Status, encode
+from bipedtele.link.receivers import LatestReceiver
 from fake_zenoh_session import FakeSession, Payload
 from fakes.kinematic_robot import KinematicRobot
 

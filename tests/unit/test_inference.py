@@ -1,4 +1,4 @@
-"""Paired intervals, Holm's correction and TOST (bipedtele.control.inference) against hand-computed examples.
+"""Paired intervals, Holm's correction and TOST (bipedtele.studies.inference) against hand-computed examples.
 
 The t distribution with 4 degrees of freedom has a closed form, used here instead of a
 library: ``F(t) = 1/2 + (3/4) a (1 - a^2/3)`` with ``a = t / sqrt(t^2 + 4)``.
@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from bipedtele.control.inference import holm, judge_family, paired_difference, tost_p
+from bipedtele.studies.inference import holm, judge_family, paired_difference, tost_p
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -123,10 +123,10 @@ def test_registered_and_passes_the_device_contract():
 
 def test_fake_stream_drives_a_full_leader_loop():
     from bipedtele.control.config import ControlConfig
-    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.config import LeaderConfig
     from bipedtele.leader.loop import LeaderLoop
-    from bipedtele.messages import Feedback
+    from bipedtele.link.inbox import FeedbackInbox
+    from bipedtele.link.messages import Feedback
 
     fake = FakeInputDevice(ff=(ecodes.FF_CONSTANT,))
     sent = []

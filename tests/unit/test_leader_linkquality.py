@@ -5,11 +5,11 @@ from __future__ import annotations
 import logging
 
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.leader.app import LeaderApp, fill_link, link_counters
 from bipedtele.leader.linkquality import LinkQuality, link_words
-from bipedtele.messages import MAX_SEQ, Feedback, Status, VideoFrame, encode
-from bipedtele.receivers import Received
+from bipedtele.link.messages import MAX_SEQ, Feedback, Status, VideoFrame, encode
+from bipedtele.link.receivers import Received
 from bipedtele.telemetry import LINK_STATES, LeaderSample
 
 T0 = 1_790_000_000.0
@@ -223,11 +223,11 @@ def test_the_program_counts_what_arrives_and_hears_the_followers_status() -> Non
 def test_the_summary_counts_feedback_that_arrived_and_what_the_loop_used() -> None:
     """Issue 19: the summary said "4486 feedback received" for a run in which 8281 arrived
     (the loop takes the newest at each tick; several can arrive between two)."""
-    from bipedtele.drops import DropCounter
-    from bipedtele.inbox import FeedbackInbox
     from bipedtele.leader.devices.sim_falcon import SimFalcon
     from bipedtele.leader.loop import LeaderLoop
     from bipedtele.leader.report import summary as _summary
+    from bipedtele.link.drops import DropCounter
+    from bipedtele.link.inbox import FeedbackInbox
 
     cfg = load_config("default", [])
     dev = SimFalcon()

@@ -6,15 +6,15 @@ import threading
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.damping import schedule_damping
 from bipedtele.control.leader_law import leader_force
-from bipedtele.inbox import FeedbackInbox
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Hand
 from bipedtele.leader.operators.scripted import ScriptedOperator
-from bipedtele.messages import Command, Feedback
+from bipedtele.link.inbox import FeedbackInbox
+from bipedtele.link.messages import Command, Feedback
 
 T0 = 1_700_000_000.0
 

@@ -8,15 +8,15 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from bipedtele.config import ConfigError, load_config
-from bipedtele.inbox import FeedbackInbox
+from bipedtele.config.profile import ConfigError, load_config
 from bipedtele.leader.devices.sim_falcon import SimFalcon
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Hand, make_operator
 from bipedtele.leader.operators.browser import BrowserOperator
 from bipedtele.leader.operators.pilot import DEFAULT_COURSE, Obstacle, PilotOperator, course_from_config
 from bipedtele.leader.operators.scripted import ScriptedOperator
-from bipedtele.messages import Command, Feedback
+from bipedtele.link.inbox import FeedbackInbox
+from bipedtele.link.messages import Command, Feedback
 from bipedtele.telemetry import LeaderSample
 
 K_G = [160.0, 200.0]
@@ -290,7 +290,7 @@ def test_predicting_pilot_cruises_fast_under_the_intercontinental_trace(scale: f
     alternating, clear of the obstacles, and one change of turn direction per pass (the
     slalom's own), no more. The robot's speeds lag its reference by 1 s, twice the
     predictor's 0.5 s: the model is not the plant."""
-    from bipedtele.delaymodels import parse_delay_model
+    from bipedtele.link.delaymodels import parse_delay_model
 
     cfg = load_config("localhost-delay")
     course = course_from_config(cfg)

@@ -1,4 +1,4 @@
-"""The released handle's stability margin (bipedtele.control.margin, ``bipedtele margin``).
+"""The released handle's stability margin (bipedtele.studies.margin, ``bipedtele margin``).
 
 The bisection (simulated released handle, time-domain) is checked against the analytic
 crossing of the characteristic equation on a loop where both are known: a fast equivalent
@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import pytest
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.margin import (
+from bipedtele.studies.margin import (
     DelayProcess,
     LoopParams,
     critical_delay,

@@ -9,7 +9,7 @@ import msgpack
 import msgspec
 import msgspec.inspect as mi
 import pytest
-from bipedtele.messages import (
+from bipedtele.link.messages import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,
     ClockPong,

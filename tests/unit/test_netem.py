@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.tools.netem import netem_available, tc_commands
 
 pytestmark = pytest.mark.timeout(60)
@@ -126,7 +126,7 @@ def _demo(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[st
 
 
 def test_netem_args_realise_each_model() -> None:
-    from bipedtele.delaymodels import parse_delay_model
+    from bipedtele.link.delaymodels import parse_delay_model
     from bipedtele.tools.netem_trace import netem_args
 
     assert netem_args(parse_delay_model("const:150ms")) == ["delay", "150000us", "limit", "10000"]
@@ -147,7 +147,7 @@ def test_netem_args_realise_each_model() -> None:
 
 
 def test_replay_times_are_the_trace_rows_looped() -> None:
-    from bipedtele.delaymodels import TraceDelay, parse_delay_model
+    from bipedtele.link.delaymodels import TraceDelay, parse_delay_model
     from bipedtele.tools.netem_trace import replay_times
 
     trace = TraceDelay([0.0, 0.1, 0.2], [0.1, 0.11, 0.12])  # period 0.3 s
@@ -250,7 +250,7 @@ def test_demo_netem_backend_refused_in_one_line_where_it_cannot_run(tmp_path: Pa
 
 def test_loss_bursts_rate_and_queue_become_netem_options() -> None:
     """The packet emulator's specs realised by netem (issue 19: the netem backend does the same)."""
-    from bipedtele.delaymodels import parse_delay_model
+    from bipedtele.link.delaymodels import parse_delay_model
     from bipedtele.tools.netem_trace import impairment_args, netem_args
 
     assert impairment_args(loss="1%") == ["loss", "random", "1%"]
@@ -322,7 +322,7 @@ def test_dry_run_prints_loss_bursts_and_rate() -> None:
 
 
 def test_replay_schedule_keeps_the_impairments_on_every_change() -> None:
-    from bipedtele.delaymodels import TraceDelay, parse_delay_model
+    from bipedtele.link.delaymodels import TraceDelay, parse_delay_model
     from bipedtele.tools.netem_trace import impairment_args, schedule
     from bipedtele.tools.netns import FOLLOWER, LEADER, VethLink
 

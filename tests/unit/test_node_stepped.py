@@ -6,8 +6,8 @@ import inspect
 import threading
 
 import pytest
-from bipedtele.config import load_config
-from bipedtele.node import Node, StepClock
+from bipedtele.config.profile import load_config
+from bipedtele.link.node import Node, StepClock
 
 pytestmark = pytest.mark.timeout(60)
 

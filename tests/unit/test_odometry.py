@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bipedtele.cli import main
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.odometry import StepSampler
-from bipedtele.messages import Command, Feedback
-from bipedtele.recordformat import Record, read_records
-from bipedtele.recording import Recorder
+from bipedtele.link.messages import Command, Feedback
+from bipedtele.recording.format import Record, read_records
+from bipedtele.recording.recorder import Recorder
 from bipedtele.tools.report import compute_report
 
 pytestmark = pytest.mark.timeout(120)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
 from bipedtele.leader.operator import Operator, make_operator, operator_names
 from bipedtele.leader.operator_check import OperatorContractError, check_operator
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -16,6 +16,7 @@ FOLDERS = {
     "leader": "bipedtele/leader",
     "follower": "bipedtele/follower",
     "configs": "bipedtele/configs",
+    "studies": "bipedtele/studies",
 }
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.leader.check import check_device
 from bipedtele.leader.device import DEVICES, DeviceError, PadInput, make_device
 

@@ -6,7 +6,7 @@ import re
 from pathlib import Path
 
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.robot import ROBOTS, RobotPart, make_robot, robot_names
 from bipedtele.leader.device import DEVICES, DevicePart
 from bipedtele.leader.operator import OPERATORS, OperatorPart

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bipedtele.cli import main
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.poincare import (

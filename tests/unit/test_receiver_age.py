@@ -11,11 +11,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from bipedtele.delayestimate import DelayEstimator
-from bipedtele.drops import DropCounter
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import Command
-from bipedtele.receivers import LatestReceiver, Received
+from bipedtele.link.delayestimate import DelayEstimator
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import Command
+from bipedtele.link.receivers import LatestReceiver, Received
 from fake_zenoh_session import FakeSession
 
 T0 = 1_700_000_000.0

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bipedtele.config import load_config
-from bipedtele.messages import Command, Feedback, VideoFrame
-from bipedtele.recordfiles import new_recording_path, open_recording
-from bipedtele.recordformat import RecordingError, read_metadata, read_records
-from bipedtele.recording import Recorder
+from bipedtele.config.profile import load_config
+from bipedtele.link.messages import Command, Feedback, VideoFrame
+from bipedtele.recording.files import new_recording_path, open_recording
+from bipedtele.recording.format import RecordingError, read_metadata, read_records
+from bipedtele.recording.recorder import Recorder
 
 
 def test_round_trip_messages_dicts_and_metadata(tmp_path: Path) -> None:
@@ -140,7 +140,7 @@ def test_truncated_file_reads_up_to_the_cut(tmp_path: Path) -> None:
 CHILD = textwrap.dedent(
     """
     import sys, time
-    from bipedtele.recording import Recorder
+    from bipedtele.recording.recorder import Recorder
     rec = Recorder(sys.argv[1], flush_s=0.5, metadata={"role": "child"})
     i = 0
     while True:
@@ -246,7 +246,7 @@ def test_a_recorder_that_recorded_nothing_leaves_no_file(tmp_path: Path) -> None
 SAME_MOMENT = textwrap.dedent(
     """
     import sys, time
-    from bipedtele.recordfiles import open_recording
+    from bipedtele.recording.files import open_recording
     folder, who, start = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
     time.sleep(max(0.0, start - time.time()))
     with open_recording(folder, "leader", metadata={"role": "leader"}) as rec:

@@ -14,10 +14,10 @@ from typing import Any
 
 import msgpack
 import pytest
-from bipedtele.messages import Command, Feedback, Status, VideoFrame
-from bipedtele.recordformat import message_to_dict, read_records
-from bipedtele.recording import Recorder
-from bipedtele.schemas import EVENT_FIELDS, LEADER_STATE_FIELDS, dataclass_schema
+from bipedtele.link.messages import Command, Feedback, Status, VideoFrame
+from bipedtele.recording.format import message_to_dict, read_records
+from bipedtele.recording.recorder import Recorder
+from bipedtele.recording.schemas import EVENT_FIELDS, LEADER_STATE_FIELDS, dataclass_schema
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 from mcap.writer import Writer

@@ -10,9 +10,9 @@ from types import SimpleNamespace
 
 import pytest
 import zenoh
-from bipedtele.acl import access_control_json, stream_protocols
-from bipedtele.relink import control_code, control_link, control_name, describe_control, relink_control
-from bipedtele.sections import NetworkConfig
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.acl import access_control_json, stream_protocols
+from bipedtele.link.relink import control_code, control_link, control_name, describe_control, relink_control
 from bipedtele.tools.fleetstatus import RobotView, format_table
 
 BE, REL = zenoh.Reliability.BEST_EFFORT, zenoh.Reliability.RELIABLE

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bipedtele.cli import main
-from bipedtele.messages import Command, Feedback, Status
-from bipedtele.recordformat import read_records
-from bipedtele.recording import Recorder
+from bipedtele.link.messages import Command, Feedback, Status
+from bipedtele.recording.format import read_records
+from bipedtele.recording.recorder import Recorder
 from bipedtele.telemetry import LeaderSample
 from bipedtele.tools.report import REPORT_KEYS, compute_report, fictitious_intervals, plot_report
 

@@ -1,7 +1,7 @@
 """The real loops' ports and the comparison's many-run wiring give the same outputs, for every scheme.
 
 ``LeaderPort`` / ``FollowerPort`` (one run, shape ``(2,)``) against the same scheme methods
-called on all runs at once as :mod:`bipedtele.control.compare` calls them (shape ``(n,
+called on all runs at once as :mod:`bipedtele.studies.compare` calls them (shape ``(n,
 2)``, one :class:`EnergyCounter` for the runs, counted by the scheme as the loops count it), over a seeded sequence of messages:
 the speed the handle follows, the robot's command, and every field the next messages carry
 agree to 1e-12 on every period.
@@ -13,7 +13,6 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from bipedtele.control.compare import REGIMES, CompareParams, regime_inputs, simulate
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import StudyParams
@@ -21,6 +20,8 @@ from bipedtele.control.schemes import scheme_class, scheme_names
 from bipedtele.control.schemes.paper import Paper
 from bipedtele.control.schemes.ports import EnergyCounter
 from bipedtele.control.schemes.runtime import FollowerPort, LeaderPort
+from bipedtele.studies.compare_kernel import regime_inputs, simulate
+from bipedtele.studies.regimes import REGIMES, CompareParams
 
 CFG = ControlConfig()
 K_M = np.asarray(CFG.k_m, dtype=float)

@@ -110,8 +110,8 @@ def test_message_key_is_64_hex_mode_0600_never_overwritten(tmp_path: Path, how: 
     again = _run(cmd, cwd=tmp_path)
     assert again.returncode == 2 and "exists" in again.stderr and len(again.stderr.strip().splitlines()) == 1
     assert key.read_text() == text
-    from bipedtele.auth import load_message_auth
-    from bipedtele.sections import NetworkConfig
+    from bipedtele.config.sections import NetworkConfig
+    from bipedtele.link.auth import load_message_auth
 
     assert load_message_auth(NetworkConfig(message_key_file=str(key))) is not None
 

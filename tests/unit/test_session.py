@@ -5,10 +5,10 @@ from __future__ import annotations
 import struct
 
 import pytest
-from bipedtele.auth import SESSION_MAGIC, MacError, MessageAuth, hkdf_sha256
-from bipedtele.gate import SequenceGate
-from bipedtele.messages import ZERO_NONCE, Command, Feedback, Hello, decode, encode
-from bipedtele.session import Handshake, session_info
+from bipedtele.link.auth import SESSION_MAGIC, MacError, MessageAuth, hkdf_sha256
+from bipedtele.link.gate import SequenceGate
+from bipedtele.link.messages import ZERO_NONCE, Command, Feedback, Hello, decode, encode
+from bipedtele.link.session import Handshake, session_info
 
 MASTER = MessageAuth(bytes(range(32)))
 CMD = "bipedtele/nao1/cmd"
@@ -281,9 +281,9 @@ def test_the_leaders_video_passes_only_the_bound_follower_session() -> None:
     """Issue 32, item 4: an earlier follower session's frames (replayed) never reach the screen."""
     from types import SimpleNamespace
 
-    from bipedtele.messages import VideoFrame
-    from bipedtele.session import LIVE_MAX_AGE_S, PeerBound, live_checks
-    from bipedtele.transport import Keys
+    from bipedtele.link.messages import VideoFrame
+    from bipedtele.link.session import LIVE_MAX_AGE_S, PeerBound, live_checks
+    from bipedtele.link.transport import Keys
 
     hs = SimpleNamespace(peer_sid=None)
     node = SimpleNamespace(keys=Keys("nao1"), handshake=hs, role="leader")

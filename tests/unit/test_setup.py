@@ -14,8 +14,8 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from bipedtele.auth import load_message_auth
-from bipedtele.config import ConfigError, load_config
+from bipedtele.config.profile import ConfigError, load_config
+from bipedtele.link.auth import load_message_auth
 from bipedtele.tools.setup import make_certs, task_course, write_two_hosts
 
 pytestmark = pytest.mark.timeout(120)

@@ -9,12 +9,12 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from bipedtele.acl import access_control_json, login_file
-from bipedtele.auth import load_message_auth
-from bipedtele.config import ConfigError, load_config
-from bipedtele.sections import NetworkConfig, RobotConfig
+from bipedtele.config.profile import ConfigError, load_config
+from bipedtele.config.sections import NetworkConfig, RobotConfig
+from bipedtele.link.acl import access_control_json, login_file
+from bipedtele.link.auth import load_message_auth
+from bipedtele.link.zenohsession import zenoh_config
 from bipedtele.tools.setup_fleet import parse_operator, write_fleet
-from bipedtele.zenohsession import zenoh_config
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -209,7 +209,7 @@ def test_command_prints_each_host_and_its_commands(tmp_path: Path) -> None:
 
 
 def test_observers_get_watch_keys_only(tmp_path: Path) -> None:
-    from bipedtele.auth import read_key_file, watch_key
+    from bipedtele.link.auth import read_key_file, watch_key
 
     out = write_fleet(tmp_path / "f", NAME, ROBOTS, {"alice": ("nao1",)}, 7451, {"carol": ("nao1", "nao2")}).out
     folder = out / "observer-carol"

@@ -1,13 +1,13 @@
-"""Token bucket (the kernel's tbf) and mahimahi capacity traces (common/shapers.py), deterministic."""
+"""Token bucket (the kernel's tbf) and mahimahi capacity traces (common/link/shapers.py), deterministic."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-from bipedtele.config import ConfigError
-from bipedtele.impairments import RateQueue
-from bipedtele.shapers import (
+from bipedtele.config.profile import ConfigError
+from bipedtele.link.impairments import RateQueue
+from bipedtele.link.shapers import (
     MTU,
     SHIPPED_MAHIMAHI,
     SHIPPED_RECIPES,

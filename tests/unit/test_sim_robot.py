@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pybullet as pb
 import pytest
-from bipedtele.config import ConfigError, parse_section
+from bipedtele.config.profile import ConfigError, parse_section
 from bipedtele.follower.check import RobotContractError, check_robot
 from bipedtele.follower.robot import (
     FollowerRobot,

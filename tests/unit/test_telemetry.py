@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from bipedtele.leader.cockpit import SAMPLE_KEYS
 from bipedtele.leader.cockpit.server import _sample_json
-from bipedtele.recordformat import read_records
-from bipedtele.recording import Recorder
-from bipedtele.schemas import LEADER_STATE, LEADER_STATE_FIELDS, leader_state_schema
+from bipedtele.recording.format import read_records
+from bipedtele.recording.recorder import Recorder
+from bipedtele.recording.schemas import LEADER_STATE, LEADER_STATE_FIELDS, leader_state_schema
 from bipedtele.telemetry import LeaderSample, sample_from_map, sample_to_json
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
@@ -108,12 +108,12 @@ def test_cockpit_json_keeps_the_page_keys_and_nulls_non_finite_numbers() -> None
 
 
 def test_the_leader_loop_makes_one_sample_per_command() -> None:
-    from bipedtele.config import load_config
-    from bipedtele.inbox import FeedbackInbox
+    from bipedtele.config.profile import load_config
     from bipedtele.leader.devices.sim_falcon import SimFalcon
     from bipedtele.leader.loop import LeaderLoop
     from bipedtele.leader.operators.scripted import ScriptedOperator
-    from bipedtele.messages import Command
+    from bipedtele.link.inbox import FeedbackInbox
+    from bipedtele.link.messages import Command
 
     cfg = load_config("default", [])
     seen: list[LeaderSample] = []

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from bipedtele.acl import access_control_json
-from bipedtele.config import ConfigError, load_config
-from bipedtele.sections import NetworkConfig
-from bipedtele.transport import Keys
-from bipedtele.zenohsession import zenoh_config
+from bipedtele.config.profile import ConfigError, load_config
+from bipedtele.config.sections import NetworkConfig
+from bipedtele.link.acl import access_control_json
+from bipedtele.link.transport import Keys
+from bipedtele.link.zenohsession import zenoh_config
 
 
 def test_keys() -> None:
@@ -269,7 +269,7 @@ def test_router_listens_on_loopback_by_default_and_warns_when_exposed() -> None:
 
 
 def test_split_endpoint() -> None:
-    from bipedtele.linkcheck import split_endpoint
+    from bipedtele.link.linkcheck import split_endpoint
 
     assert split_endpoint("tls/router.example.org:7447") == ("tls", "router.example.org", 7447)
     assert split_endpoint("tcp/[::1]:7447#iface=lo") == ("tcp", "::1", 7447)
@@ -283,7 +283,7 @@ def test_check_endpoint_tls_to_a_plain_tcp_server() -> None:
     import socket
     import threading
 
-    from bipedtele.linkcheck import check_endpoint
+    from bipedtele.link.linkcheck import check_endpoint
 
     server = socket.create_server(("127.0.0.1", 0))
     port = server.getsockname()[1]
@@ -330,7 +330,7 @@ _ZENOH_LINES = [
 def test_zenoh_log_lines_become_refusal_records(caplog: pytest.LogCaptureFixture) -> None:
     import logging
 
-    from bipedtele.zenohlog import ZenohLogBridge, parse_line
+    from bipedtele.link.zenohlog import ZenohLogBridge, parse_line
 
     assert parse_line("not a zenoh line") is None
     level, thread, target, msg = parse_line(_ZENOH_LINES[1]) or (0, "", "", "")

@@ -19,9 +19,9 @@ from collections import deque
 from collections.abc import Callable
 
 import pytest
-from bipedtele.delaymodels import parse_delay_model
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.delivery import DeliveryRate
+from bipedtele.link.delaymodels import parse_delay_model
 
 pytestmark = pytest.mark.timeout(60)
 

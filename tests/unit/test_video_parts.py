@@ -8,11 +8,11 @@ import time
 
 import numpy as np
 import pytest
-from bipedtele.drops import DropCounter
 from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.follower.video import MIN_PART_BYTES, VideoStreamer
 from bipedtele.leader.videoparts import FrameAssembler
-from bipedtele.messages import MAX_JPEG_BYTES, VideoFrame
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import MAX_JPEG_BYTES, VideoFrame
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bipedtele.cli import main
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.study import CASES, StudyParams, case_inputs
 from bipedtele.follower.sim.calibrate import calibrate
 from bipedtele.follower.sim.poincare import MapSettings
-from bipedtele.follower.sim.walker_study import run_walker_study, walker_run
+from bipedtele.studies.study import CASES, StudyParams, case_inputs
+from bipedtele.studies.walker_study import run_walker_study, walker_run
 
 pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
 

@@ -11,11 +11,11 @@ import itertools
 import math
 
 import pytest
-from bipedtele.config import load_config
+from bipedtele.config.profile import load_config
 from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import WalkCommand, WalkRefusedError
 from bipedtele.follower.walkstate import TRANSITIONS, WalkEvent, WalkState, next_state
-from bipedtele.messages import Command, Status
+from bipedtele.link.messages import Command, Status
 from fakes.kinematic_robot import KinematicRobot
 
 pytestmark = pytest.mark.timeout(60)

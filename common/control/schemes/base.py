@@ -20,7 +20,7 @@ A scheme decides, and nothing else differs between schemes:
 Every law is written once with numpy broadcasting: the real loops call it on one run
 (arrays of shape ``(2,)``, ``[forward, turn]``), the reduced-model comparison on many runs
 at once (shape ``(n, 2)``); scalars (``gain``, ``dt``) broadcast. The runners
-(:mod:`bipedtele.control.schemes.runtime`, :mod:`bipedtele.control.compare`) only call these
+(:mod:`bipedtele.control.schemes.runtime`, :mod:`bipedtele.studies.compare`) only call these
 methods: none of them asks a scheme what kind it is. Units as in
 :mod:`~bipedtele.control.schemes.ports`. docs/schemes.md gives each scheme's equations and
 source, and how a new one is written.

@@ -23,7 +23,7 @@ from bipedtele.control.schemes.ports import (
     leader_passivity,
     leader_power,
 )
-from bipedtele.messages import MAX_ENERGY
+from bipedtele.link.messages import MAX_ENERGY
 
 __all__ = ["Passivity"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.sim.config import SimConfig
@@ -127,7 +127,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def walker_torque(robot: str, cfg: Any) -> TorqueConfig | None:
     """``--robot``: None for the position walker (``sim``), the profile's ``[torque]`` for ``sim-torque``."""
-    from bipedtele.config import resolve_section
+    from bipedtele.config.profile import resolve_section
 
     return resolve_section(cfg, TorqueConfig, "torque") if robot == "sim-torque" else None
 

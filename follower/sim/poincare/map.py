@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.poincare.newton import NewtonResult, solve_fixed_point

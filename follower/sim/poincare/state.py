@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.follower.sim.config import SimConfig
 from bipedtele.follower.sim.model import LEG_JOINTS
 from bipedtele.follower.sim.robot import SimNao

@@ -7,7 +7,7 @@ import logging
 from collections.abc import Sequence
 from typing import Any
 
-from bipedtele.config import ConfigError
+from bipedtele.config.profile import ConfigError
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.walker_map import TABLE_FORMAT
 from bipedtele.follower.sim.config import SimConfig

@@ -11,7 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 from bipedtele.leader.operator import Operator, OperatorContext, OperatorPart
-from bipedtele.messages import Feedback
+from bipedtele.link.messages import Feedback
 
 
 class ToyCruise(Operator):

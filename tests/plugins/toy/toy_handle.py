@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
-from bipedtele.config import Config, param, resolve_section
+from bipedtele.config.profile import Config, param, resolve_section
 from bipedtele.leader.device import (
     DeviceNotConnectedError,
     DevicePart,

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from bipedtele.config import Config, param, resolve_section
+from bipedtele.config.profile import Config, param, resolve_section
 from bipedtele.follower.robot import (
     FollowerRobot,
     RobotNotConnectedError,

@@ -1,0 +1,120 @@
+"""``bipedtele compare``: every control scheme side by side, paired, over delay regimes.
+
+The computing is :mod:`bipedtele.studies.compare` (pure); this module parses the arguments,
+writes the JSON, markdown and figure, shows a progress bar and prints the time it took.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+from bipedtele.cli import add_config_args, config_from_args
+from bipedtele.config.profile import ConfigError
+from bipedtele.control.config import ControlConfig
+from bipedtele.studies.control_commands import progress_bar, save_figure, write_json, write_text
+from bipedtele.tools.backends import walker_backend
+from bipedtele.tools.plots import require_matplotlib
+
+__all__ = ["add_compare_parser"]
+
+
+def _names(given: list[str] | None, allowed: list[str], flag: str) -> tuple[str, ...] | None:
+    if not given:
+        return None
+    for name in given:
+        if name not in allowed:
+            raise ConfigError(f"{flag} {name}: allowed: {', '.join(allowed)}")
+    return tuple(given)
+
+
+def _run_compare(args: argparse.Namespace) -> int:
+    from bipedtele.control.reduced import StudyParams
+    from bipedtele.control.schemes import scheme_names
+    from bipedtele.studies.compare import compare_markdown, compare_steps, run_compare
+    from bipedtele.studies.regimes import MARGIN_SCALES, REGIMES, CompareParams
+
+    if args.runs < 2:
+        raise ConfigError(f"--runs {args.runs}: allowed: >= 2")
+    if args.walker_runs != 0 and args.walker_runs < 2:
+        raise ConfigError(f"--walker-runs {args.walker_runs}: allowed: 0 (none) or >= 2")
+    if not args.walker_duration >= 2.0:
+        raise ConfigError(f"--walker-duration {args.walker_duration}: allowed: >= 2 s")
+    if args.jobs < 1:
+        raise ConfigError(f"--jobs {args.jobs}: allowed: >= 1")
+    if not args.duration >= 1.0:
+        raise ConfigError(f"--duration {args.duration}: allowed: >= 1 s")
+    schemes = _names(args.schemes, scheme_names(), "--schemes")
+    by_name = {r.name: r for r in REGIMES}
+    regime_names = _names(args.regimes, list(by_name), "--regimes")
+    regimes = REGIMES if regime_names is None else tuple(by_name[n] for n in regime_names)
+    margin = () if args.no_margin else MARGIN_SCALES
+    if args.plot:
+        require_matplotlib("--plot")
+    control = config_from_args(args).get(ControlConfig)
+    cp = CompareParams(study=StudyParams(duration_s=args.duration))
+    n_schemes = len(set(schemes or scheme_names()) | {"paper"})
+    total = compare_steps(round(args.duration / cp.study.dt), n_schemes, len(regimes), len(margin))
+    started = time.monotonic()
+    with progress_bar(total, "compare") as update:
+        result = run_compare(
+            args.runs, args.seed, control, cp, schemes=schemes, regimes=regimes, margin_scales=margin, progress=update
+        )
+    if args.walker_runs > 0:
+        result["walker"] = _walker_cells(args, config_from_args(args), schemes, regimes)
+    if args.json:
+        write_json(args.json, result)
+    table = compare_markdown(result)
+    if args.markdown:
+        write_text(args.markdown, table, "--markdown")
+    if args.plot:
+        from bipedtele.tools.plots import plot_compare
+
+        save_figure(plot_compare(result), args.plot)
+    if args.json != "-" and args.markdown != "-":
+        sys.stdout.write(table)
+        sys.stdout.write(f"compare: {time.monotonic() - started:.0f} s\n")
+    return 0
+
+
+def _walker_cells(args: argparse.Namespace, cfg: Any, schemes: tuple[str, ...] | None, regimes: Any) -> Any:
+    """Run the walker cells through the backend the follower package registers (the core never imports it)."""
+    backend = walker_backend("bipedtele.compare_backends", "--walker-runs", "0, or with the follower package")
+    from bipedtele.control.schemes import scheme_names
+
+    names = set(schemes) | {"paper"} if schemes else set(scheme_names())
+    total = args.walker_runs * len(regimes) * len(names)
+    with progress_bar(total, "walker") as update:
+        return backend(
+            cfg,
+            runs=args.walker_runs,
+            seed=args.seed,
+            duration_s=args.walker_duration,
+            schemes=schemes,
+            regimes=regimes,
+            jobs=args.jobs,
+            progress=update,
+        )
+
+
+def add_compare_parser(sub: Any) -> None:
+    """Add ``bipedtele compare [--runs N] [--schemes ...] [--regimes ...] [--json F] [--markdown F] [--plot F]``."""
+    p = sub.add_parser("compare", help="every control scheme side by side, paired, over delay regimes")
+    p.add_argument("--runs", type=int, default=200, help="paired runs per scheme and regime (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run (default 60)")
+    p.add_argument("--schemes", nargs="+", metavar="NAME", help="schemes to run (default: every registered one)")
+    p.add_argument("--regimes", nargs="+", metavar="NAME", help="delay regimes (default: all)")
+    p.add_argument("--no-margin", action="store_true", help="skip the stability-margin runs")
+    p.add_argument(
+        "--walker-runs", type=int, default=10, help="paired runs per cell on the pybullet walker (default 10; 0: none)"
+    )
+    p.add_argument("--walker-duration", type=float, default=12.0, help="simulated seconds per walker run (default 12)")
+    p.add_argument("--jobs", type=int, default=2, help="processes for the walker runs (default 2)")
+    p.add_argument("--json", metavar="FILE", help="write the result as JSON ('-' for stdout)")
+    p.add_argument("--markdown", metavar="FILE", help="write the table as markdown ('-' for stdout)")
+    p.add_argument("--plot", metavar="FILE.png", help="write the paired differences as a figure")
+    add_config_args(p)
+    p.set_defaults(func=_run_compare)

@@ -1,0 +1,239 @@
+"""The comparison's runner: one scheme over one regime's inputs on the reduced closed loop.
+
+Every registered scheme (:mod:`bipedtele.control.schemes`) runs the same ``runs`` operators
+(intentions, hand) over the same delays and losses of a regime, so run ``i`` of one scheme
+and run ``i`` of another differ only by the scheme: the differences are paired. The loop is
+the study's (:mod:`bipedtele.studies.study`: simulated operator and handle (1), (31)-(32);
+one message per period each way, the newest kept; the real follower's reduced hybrid model
+(20), (22), (12) with the impact reset and ``(sigma_r, T)`` changed only at impacts), with
+the scheme's own port laws (:class:`~bipedtele.control.schemes.base.Scheme`, called on all
+runs at once, arrays of shape ``(runs, 2)``): the damping both sides use, the leader's force
+and the follower's command from what arrived, what each side sends (``z_e`` of the reduced
+model's equivalent follower, the robot's speed, or a wave: the scheme picks), and the
+passivity controllers.
+
+Metrics per run (channels ``forward`` [cm/s] and ``turn`` [deg/s]):
+
+* ``*_error``: time mean of ``|k_g x_m(t - h1) - eta|``, eqs. (6), (10) (the operator's
+  command as received against the robot's speed);
+* ``*_intent_error``: time mean of ``|intended speed - eta|``: what the operator wanted
+  against what the robot did (the coordination error also falls when the force drags the
+  handle towards the robot; this one does not);
+* ``*_force_error``: RMS of the coupling force felt less ``k_m (k_g x_m - eta)``, the force
+  with no delay (transparency) [N];
+* ``*_effort``: time mean of the operator's hand force ``|f_h|`` [N];
+* ``*_po_leader``, ``*_po_follower``: the least value of each port's passivity observer
+  [N cm or N deg] (negative: the channel gave out energy nobody put in);
+* ``peak``: the largest robot speed, and ``unstable``: ``peak`` above ``unstable_factor``
+  times the largest intended speed (such runs are left out of the other means and counted).
+
+The **stability margin** of a scheme is the largest delay scale of the shipped trace
+(``margin_scales`` from x1 on; x0, no delay, is reported as the reference) up to which at
+most 5 % of the runs oscillate at every scale, in runs
+where the operator lets go of the handle mid-run (the hand holds no longer; what is left is
+the handle, the link and the robot): a run oscillates when the released handle still moves
+(RMS speed over the last quarter above ``oscillation_m_s``) or the robot's speed leaves the
+bound of ``unstable``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.equivalent import equivalent_matrices
+from bipedtele.control.linalg import zoh2
+from bipedtele.control.online import OnlineChooser
+from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, hybrid_zoh
+from bipedtele.control.schemes import Scheme
+from bipedtele.control.schemes.ports import EnergyCounter
+from bipedtele.studies.regimes import CompareParams, Regime
+from bipedtele.studies.study import DelayCase, case_inputs
+
+__all__ = ["RegimeInputs", "regime_inputs", "simulate"]
+
+
+@dataclass(frozen=True)
+class RegimeInputs:
+    """What one regime feeds every scheme: delays, losses and the operators (paired)."""
+
+    h1: np.ndarray
+    h2: np.ndarray
+    lost1: np.ndarray
+    lost2: np.ndarray
+    switch: np.ndarray
+    intent: np.ndarray
+
+
+def regime_inputs(regime: Regime, runs: int, seed: int, cfg: ControlConfig, params: StudyParams) -> RegimeInputs:
+    """Draw a regime's delays, losses and operators (seeded; equal for every scheme)."""
+    inp = case_inputs(DelayCase(regime.name, regime.h1, regime.h2, regime.description), runs, seed, cfg, params)
+    h1, h2 = inp.h1 * regime.scale, inp.h2 * regime.scale
+    if regime.step_s is not None:
+        before, after = regime.step_s
+        late = np.arange(h1.size) >= h1.size // 2
+        h1 = np.where(late, after, before).astype(float)
+        h2 = h1.copy()
+    rng = np.random.default_rng([seed, 7])
+    lost1 = rng.random(h1.size) < regime.loss
+    lost2 = rng.random(h2.size) < regime.loss
+    return RegimeInputs(h1, h2, lost1, lost2, inp.switch, inp.intent)
+
+
+def _equivalent_steps(s_e_k: np.ndarray, cfg: ControlConfig, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact ZOH of (29) for every distinct ``sigma_e`` of the run, and which one each step uses."""
+    uniq, inverse = np.unique(s_e_k, axis=0, return_inverse=True)
+    a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
+    phi, gam = zoh2(a_eq, b_eq, dt)
+    return phi, gam, inverse.reshape(-1)
+
+
+class _Loop:
+    """State of ``n`` paired runs of one scheme on one regime."""
+
+    def __init__(self, scheme: Scheme, inp: RegimeInputs, cfg: ControlConfig, cp: CompareParams) -> None:
+        p = cp.study
+        self.scheme, self.cfg, self.dt = scheme, cfg, p.dt
+        self.n = n = inp.switch.shape[0]
+        self.ch1 = channel(inp.h1, p.dt, p.window_s, inp.lost1)
+        self.ch2 = channel(inp.h2, p.dt, p.window_s, inp.lost2)
+        self.alpha_k, self.s_e_k = scheme.damping(self.ch1.estimate, self.ch2.estimate)
+        self.phi_eq, self.gam_eq, self.eq_index = _equivalent_steps(self.s_e_k, cfg, p.dt)
+        w = round(cp.wave_window_s / p.dt)  # this runner's window, passed to the scheme (docs/schemes.md)
+        self.gain1, self.gain2 = scheme.received_gains(self.ch1.idx, w), scheme.received_gains(self.ch2.idx, w)
+        self.leader = SimulatedLeader(inp.switch, inp.intent, cfg, p)
+        self.k_g = np.asarray(cfg.k_g, dtype=float)
+        self.k_m = np.asarray(cfg.k_m, dtype=float)
+        self.dp = np.array([cfg.dp, cfg.dp_turn])
+        self.eq = np.zeros((n, 2, 2))  # [eta_e, z_e] per channel
+        self.eq_k = -1  # the period eq was last advanced to
+        self.hy = np.zeros((n, 2, 2))  # [eta, z_r] per channel
+        self.phase = 0.0
+        self.cmd_buf = np.zeros((self.ch1.ring, n, 2))  # k_g x_m sent
+        self.wave_buf = np.zeros((self.ch1.ring, n, 2))  # u_m sent
+        self.ein_m_buf = np.zeros((self.ch1.ring, n, 2))  # leader port's input energy sent
+        self.fb_buf = np.zeros((self.ch2.ring, n, 2))  # z_e, eta or v_s sent back
+        self.ein_s_buf = np.zeros((self.ch2.ring, n, 2))
+        self.port_m, self.port_s = EnergyCounter((n, 2)), EnergyCounter((n, 2))
+        self.sums = {m: np.zeros((n, 2)) for m in ("error", "intent", "force2", "effort")}
+        self.peak = np.zeros(n)
+        self.late_from = round(0.75 * inp.h1.size)
+        self.late_v2 = np.zeros((n, 2))
+
+    def _received(self, buf: np.ndarray, idx: int, ring: int) -> np.ndarray:
+        return buf[idx % ring] if idx >= 0 else np.zeros((self.n, 2))
+
+    def leader_tick(self, k: int, t: float) -> None:
+        """Advance the leader: feel what arrived, move the handle, send the command (the scheme's laws)."""
+        i2, ring2 = int(self.ch2.idx[k]), self.ch2.ring
+        scheme, k_m = self.scheme, self.k_m
+        r_now = self.k_g * self.leader.x
+        law = scheme.leader_force(r_now, self._received(self.fb_buf, i2, ring2), self.gain2[k], k_m)
+        ein_s_rx = self._received(self.ein_s_buf, i2, ring2)
+        law = scheme.limit_leader(law, r_now, self.port_m, ein_s_rx, k_m, self.dt)
+        f_m = law.force
+        self.port_m.add(f_m * r_now, self.dt, ein_s_rx)  # every scheme's port, for its observer metric (P_m)
+        eta = self.hy[..., 0]
+        self.sums["force2"] += (f_m - k_m * (r_now - eta)) ** 2
+        # the simulated handle renders the force: it follows r - F/k_m (law.followed(), to rounding)
+        x = self.leader.step(t, r_now - f_m / k_m, self.alpha_k[k])
+        self.sums["effort"] += np.abs(self.leader.f_h)
+        if k >= self.late_from:
+            self.late_v2 += self.leader.v**2
+        r_m = self.k_g * x
+        slot = k % self.ch1.ring
+        self.cmd_buf[slot] = r_m
+        self.ein_m_buf[slot] = self.port_m.e_in
+        wave = scheme.command_wave(r_m, law, k_m)
+        if wave is not None:
+            self.wave_buf[slot] = wave
+
+    def _equivalent(self, k: int, ref: np.ndarray) -> np.ndarray:
+        """Advance the reduced model's equivalent follower (29) to period ``k`` on ``ref``; return ``z_e``.
+
+        Advanced once per period however often the scheme asks (and never for a scheme that
+        does not ask: it is the comparison's costliest step).
+        """
+        if self.eq_k != k:
+            self.eq_k = k
+            j = self.eq_index[k]
+            self.eq = (
+                np.einsum("cij,ncj->nci", self.phi_eq[j], self.eq) + self.gam_eq[j][None, :, :, 0] * ref[:, :, None]
+            )
+        return np.asarray(self.eq[:, :, 1])
+
+    def follower_tick(self, k: int, hybrid: tuple[np.ndarray, np.ndarray]) -> None:
+        """Advance the follower: take the newest command, drive the robot, send the feedback (the scheme's laws)."""
+        i1, ring1 = int(self.ch1.idx[k]), self.ch1.ring
+        scheme, k_m = self.scheme, self.k_m
+        ref = self._received(self.cmd_buf, i1, ring1)
+        eta = self.hy[..., 0]
+        c = scheme.follower_command(ref, self._received(self.wave_buf, i1, ring1), self.gain1[k], eta, k_m)
+        ein_m_rx = self._received(self.ein_m_buf, i1, ring1)
+        c = scheme.limit_follower(c, eta, self.port_s, ein_m_rx, k_m, self.dt)
+        self.port_s.add(-k_m * (c - eta) * c, self.dt, ein_m_rx)  # P_s (ports.follower_power)
+        phi_h, gam_h = hybrid
+        h0 = phi_h[..., 0, 0] * self.hy[..., 0] + phi_h[..., 0, 1] * self.hy[..., 1] + gam_h[..., 0] * c
+        h1 = phi_h[..., 1, 0] * self.hy[..., 0] + phi_h[..., 1, 1] * self.hy[..., 1] + gam_h[..., 1] * c
+        self.hy = np.stack([h0, h1], -1)
+        self.fb_buf[k % self.ch2.ring] = scheme.feedback_signal(lambda: self._equivalent(k, ref), self.hy[..., 0], k_m)
+        self.ein_s_buf[k % self.ch2.ring] = self.port_s.e_in
+        self.sums["error"] += np.abs(ref - self.hy[..., 0])
+        lead = self.leader
+        self.sums["intent"] += np.abs(lead.intent[lead.rows, lead.seg] - self.hy[..., 0])
+        self.peak = np.maximum(self.peak, np.abs(self.hy[..., 0]).max(axis=1))
+
+
+def simulate(
+    scheme: Scheme,
+    inp: RegimeInputs,
+    cfg: ControlConfig,
+    cp: CompareParams,
+    chooser: OnlineChooser,
+    *,
+    release: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, np.ndarray]:
+    """Run one scheme over one regime's inputs; return every metric per run (``(runs,)`` arrays).
+
+    With ``release`` the operator lets go of the handle at ``cp.release_fraction`` of the
+    run; ``released_motion`` is then the handle's RMS speed over the last quarter [m/s]
+    (largest axis) and ``oscillating`` whether it exceeds ``cp.oscillation_m_s``.
+    """
+    p = cp.study
+    k_steps = inp.h1.size
+    loop = _Loop(scheme, inp, cfg, cp)
+    if release:
+        loop.leader.release_t = cp.release_fraction * k_steps * p.dt
+    choice = chooser.choose(loop.s_e_k[0])
+    hybrid = hybrid_zoh(np.repeat(choice.s_r[None, :], loop.n, axis=0), cfg, p.dt)
+    T, phase = choice.T, 0.0
+    report_every = max(1, k_steps // 50)
+    for k in range(k_steps):
+        loop.leader_tick(k, k * p.dt)
+        loop.follower_tick(k, hybrid)
+        phase += p.dt
+        if phase >= T - 1e-9:  # impact: reset, then the next cycle's parameters (30)
+            loop.hy[..., 0] *= loop.dp
+            phase -= T
+            choice = chooser.choose(loop.s_e_k[k])
+            hybrid = hybrid_zoh(np.repeat(choice.s_r[None, :], loop.n, axis=0), cfg, p.dt)
+            T = choice.T
+        if progress is not None and (k + 1) % report_every == 0:
+            progress(report_every)
+    out: dict[str, np.ndarray] = {}
+    for c, ch in enumerate(("forward", "turn")):
+        out[f"{ch}_error"] = loop.sums["error"][:, c] / k_steps
+        out[f"{ch}_intent_error"] = loop.sums["intent"][:, c] / k_steps
+        out[f"{ch}_force_error"] = np.sqrt(loop.sums["force2"][:, c] / k_steps)
+        out[f"{ch}_effort"] = loop.sums["effort"][:, c] / k_steps
+        out[f"{ch}_po_leader"] = loop.port_m.min_observer[:, c]
+        out[f"{ch}_po_follower"] = loop.port_s.min_observer[:, c]
+    out["peak"] = loop.peak
+    limit = cp.unstable_factor * max(p.forward_range[1], p.turn_max)
+    out["unstable"] = ~np.isfinite(loop.peak) | (loop.peak > limit)
+    out["released_motion"] = np.sqrt(loop.late_v2 / max(1, k_steps - loop.late_from)).max(axis=1)
+    out["oscillating"] = out["unstable"] | ~(out["released_motion"] <= cp.oscillation_m_s)
+    return out
