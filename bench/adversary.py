@@ -142,6 +142,48 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     return a
 
 
+def _start_nodes(run: Run, r_port: int, p_port: int, f_rec: Path, l_rec: Path) -> None:
+    """Router, delay proxy (leader side), follower and a walking scripted leader."""
+    r_ep = f"tcp/127.0.0.1:{r_port}"
+    client = ["--set", 'network.mode="client"', "--set", "network.listen=[]"]
+    run.start("router", [*CLI, "router", "--listen", r_ep])
+    run.wait_log("router", "listening on", 30)
+    delays = ["--forward", f"const:{FWD_S * 1000:g}ms", "--backward", f"const:{BWD_S * 1000:g}ms"]
+    run.start(
+        "proxy", [*CLI, "delay-proxy", "--listen", f"127.0.0.1:{p_port}", "--target", f"127.0.0.1:{r_port}", *delays]
+    )
+    run.wait_log("proxy", "listening on", 30)
+    follower = ["--set", "follower.camera_fps=0", "--set", "follower.feedback_rate_hz=1000", "--record", str(f_rec)]
+    run.start("follower", [*CLI, "follower", *client, "--set", f'network.connect=["{r_ep}"]', *NTP, *follower])
+    script = ["--set", "leader.script=[[0, 5, 0], [600, 5, 0]]", "--set", 'leader.script_interp="step"']
+    leader = ["--operator", "scripted", *script, "--set", "leader.cockpit=false", "--record", str(l_rec)]
+    run.start(
+        "leader", [*CLI, "leader", *client, "--set", f'network.connect=["tcp/127.0.0.1:{p_port}"]', *NTP, *leader]
+    )
+
+
+def _attacks(run: Run, a: argparse.Namespace, r_ep: str, marks: dict[str, float], reports: dict[str, Any]) -> None:
+    """The flood, future-stamped messages and forged clock answers, one after the other; ``marks`` and ``reports`` filled."""
+    marks["flood"] = time.time()
+    flood = ["flood", "--connect", r_ep, "--rate", f"{a.flood_rate:g}", "--seconds", f"{a.flood_s:g}"]
+    reports["flood"] = run.attack("flood", flood)
+    marks["flood_end"] = marks["flood"] + float(reports["flood"].get("elapsed_s", a.flood_s))
+    time.sleep(2.0)
+    marks["future"] = time.time()
+    future = ["future", "--connect", r_ep, "--targets", "feedback,cmd", "--gap", "0.5", "--seconds", "5"]
+    reports["future"] = run.attack("future", future)
+    if run.alive("follower"):
+        stream = ["stream", "--connect", r_ep, "--kind", "cmd", "--shift", "1.0", "--rate", "50", "--seconds", "3"]
+        reports["stream"] = run.attack("stream", stream)
+    marks["future_end"] = time.time()
+    time.sleep(1.0)
+    marks["forged"] = time.time()
+    if run.alive("follower") and run.alive("leader"):
+        forge = ["clock-forge", "--connect", r_ep, "--offset", "5", "--back-s", f"{BWD_S:g}", "--seconds", "6"]
+        reports["forged"] = run.attack("forge", [*forge, "--rate", "4"])
+    marks["forged_end"] = time.time()
+
+
 def _attack_run(
     a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path
 ) -> tuple[dict[str, float], dict[str, Any], dict[str, bool]]:
@@ -151,68 +193,11 @@ def _attack_run(
     """
     run = Run(folder)
     r_port, p_port = free_port(), free_port()
-    r_ep = f"tcp/127.0.0.1:{r_port}"
-    client = ["--set", 'network.mode="client"', "--set", "network.listen=[]"]
     marks: dict[str, float] = {}
     reports: dict[str, dict[str, Any]] = {}
     survived: dict[str, bool] = {}
     try:
-        run.start("router", [*CLI, "router", "--listen", r_ep])
-        run.wait_log("router", "listening on", 30)
-        run.start(
-            "proxy",
-            [
-                *CLI,
-                "delay-proxy",
-                "--listen",
-                f"127.0.0.1:{p_port}",
-                "--target",
-                f"127.0.0.1:{r_port}",
-                "--forward",
-                f"const:{FWD_S * 1000:g}ms",
-                "--backward",
-                f"const:{BWD_S * 1000:g}ms",
-            ],
-        )
-        run.wait_log("proxy", "listening on", 30)
-        run.start(
-            "follower",
-            [
-                *CLI,
-                "follower",
-                *client,
-                "--set",
-                f'network.connect=["{r_ep}"]',
-                *NTP,
-                "--set",
-                "follower.camera_fps=0",
-                "--set",
-                "follower.feedback_rate_hz=1000",
-                "--record",
-                str(f_rec),
-            ],
-        )
-        run.start(
-            "leader",
-            [
-                *CLI,
-                "leader",
-                *client,
-                "--set",
-                f'network.connect=["tcp/127.0.0.1:{p_port}"]',
-                *NTP,
-                "--operator",
-                "scripted",
-                "--set",
-                "leader.script=[[0, 5, 0], [600, 5, 0]]",
-                "--set",
-                'leader.script_interp="step"',
-                "--set",
-                "leader.cockpit=false",
-                "--record",
-                str(l_rec),
-            ],
-        )
+        _start_nodes(run, r_port, p_port, f_rec, l_rec)
         end = time.monotonic() + 60
         while not _walking(f_rec):
             if time.monotonic() > end or not (run.alive("follower") and run.alive("leader")):
@@ -221,42 +206,7 @@ def _attack_run(
         time.sleep(1.0)
         marks["baseline"] = time.time()
         time.sleep(a.baseline_s)
-        marks["flood"] = time.time()
-        reports["flood"] = run.attack(
-            "flood", ["flood", "--connect", r_ep, "--rate", f"{a.flood_rate:g}", "--seconds", f"{a.flood_s:g}"]
-        )
-        marks["flood_end"] = marks["flood"] + float(reports["flood"].get("elapsed_s", a.flood_s))
-        time.sleep(2.0)
-        marks["future"] = time.time()
-        reports["future"] = run.attack(
-            "future", ["future", "--connect", r_ep, "--targets", "feedback,cmd", "--gap", "0.5", "--seconds", "5"]
-        )
-        if run.alive("follower"):
-            reports["stream"] = run.attack(
-                "stream",
-                ["stream", "--connect", r_ep, "--kind", "cmd", "--shift", "1.0", "--rate", "50", "--seconds", "3"],
-            )
-        marks["future_end"] = time.time()
-        time.sleep(1.0)
-        marks["forged"] = time.time()
-        if run.alive("follower") and run.alive("leader"):
-            reports["forged"] = run.attack(
-                "forge",
-                [
-                    "clock-forge",
-                    "--connect",
-                    r_ep,
-                    "--offset",
-                    "5",
-                    "--back-s",
-                    f"{BWD_S:g}",
-                    "--seconds",
-                    "6",
-                    "--rate",
-                    "4",
-                ],
-            )
-        marks["forged_end"] = time.time()
+        _attacks(run, a, f"tcp/127.0.0.1:{r_port}", marks, reports)
         time.sleep(1.0)
         marks["end"] = time.time()
         survived = {n: run.alive(n) for n in ("follower", "leader")}

@@ -269,72 +269,61 @@ def message_sizes() -> tuple[int, int]:
 # --------------------------------------------------------------------------- 1. overhead
 
 
+def _overhead_run(
+    st: Stack, rate_hz: float, seconds: float, sizes: tuple[int, int]
+) -> tuple[list[Any], list[Any], list[float]]:
+    """Echo, follower and a walking leader on ``st``'s stack; the recordings' records and the bare ping-pong's round trips."""
+    cmd_size, fb_size = sizes
+    f_rec, l_rec = st.folder / "follower.mcap", st.folder / "leader.mcap"
+    echo = ["--echo", st.router_ep, "--fb-size", str(fb_size), "--seconds", str(seconds + 120)]
+    st.start("echo", [sys.executable, __file__, *echo], "ready")
+    rates = ["--set", f"follower.control_rate_hz={rate_hz:g}", "--set", f"follower.feedback_rate_hz={rate_hz:g}"]
+    follower = [
+        "follower",
+        *client_args(st.router_ep),
+        "--set",
+        "follower.camera_fps=0",
+        *rates,
+        "--record",
+        str(f_rec),
+    ]
+    st.start("follower", [*CLI, *follower], "ready")
+    stop = threading.Event()
+    bare: list[float] = []
+    pinger = threading.Thread(target=bare_pingpong, args=(st.proxy_ep, cmd_size, 50.0, stop, bare))
+    pinger.start()
+    try:
+        script = [
+            "--operator",
+            "scripted",
+            "--set",
+            "leader.script=[[0, 5, 0], [600, 5, 0]]",
+            "--set",
+            "leader.cockpit=false",
+        ]
+        leader = ["leader", *client_args(st.proxy_ep), *script, "--duration", f"{seconds:g}", "--record", str(l_rec)]
+        st.start("leader", [*CLI, *leader], "leader ready")
+        st.procs["leader"].wait(timeout=seconds + 60)
+    finally:
+        stop.set()
+        pinger.join()
+    st.stop("follower")
+    return list(read_records(l_rec)), list(read_records(f_rec)), bare
+
+
 def overhead(rate_hz: float, seconds: float, keep: bool) -> dict[str, list[float]]:
+    """Command to feedback through a real router and the delay proxy at 0 ms: the overhead's parts [s]."""
     cmd_size, fb_size = message_sizes()
     with stack(keep) as st:
-        f_rec, l_rec = st.folder / "follower.mcap", st.folder / "leader.mcap"
-        st.start(
-            "echo",
-            [
-                sys.executable,
-                __file__,
-                "--echo",
-                st.router_ep,
-                "--fb-size",
-                str(fb_size),
-                "--seconds",
-                str(seconds + 120),
-            ],
-            "ready",
-        )
-        st.start(
-            "follower",
-            [
-                *CLI,
-                "follower",
-                *client_args(st.router_ep),
-                "--set",
-                "follower.camera_fps=0",
-                "--set",
-                f"follower.control_rate_hz={rate_hz:g}",
-                "--set",
-                f"follower.feedback_rate_hz={rate_hz:g}",
-                "--record",
-                str(f_rec),
-            ],
-            "ready",
-        )
-        stop = threading.Event()
-        bare: list[float] = []
-        pinger = threading.Thread(target=bare_pingpong, args=(st.proxy_ep, cmd_size, 50.0, stop, bare))
-        pinger.start()
-        try:
-            st.start(
-                "leader",
-                [
-                    *CLI,
-                    "leader",
-                    *client_args(st.proxy_ep),
-                    "--operator",
-                    "scripted",
-                    "--set",
-                    "leader.script=[[0, 5, 0], [600, 5, 0]]",
-                    "--set",
-                    "leader.cockpit=false",
-                    "--duration",
-                    f"{seconds:g}",
-                    "--record",
-                    str(l_rec),
-                ],
-                "leader ready",
-            )
-            st.procs["leader"].wait(timeout=seconds + 60)
-        finally:
-            stop.set()
-            pinger.join()
-        st.stop("follower")
-        leader_recs, follower_recs = list(read_records(l_rec)), list(read_records(f_rec))
+        leader_recs, follower_recs, bare = _overhead_run(st, rate_hz, seconds, (cmd_size, fb_size))
+    return _overhead_parts(leader_recs, follower_recs, bare, (cmd_size, fb_size))
 
+
+def _overhead_parts(
+    leader_recs: list[Any], follower_recs: list[Any], bare: list[float], sizes: tuple[int, int]
+) -> dict[str, list[float]]:
+    """Each command's path split into its parts, from both recordings [s]."""
+    cmd_size, fb_size = sizes
     sent = {r.data["seq"]: r.t_recv for r in leader_recs if r.topic == "cmd/sent"}
     first_fb: dict[int, float] = {}
     for r in leader_recs:

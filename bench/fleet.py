@@ -211,6 +211,31 @@ def holds(pairs: list[dict[str, Any]], rate_hz: float) -> dict[str, bool]:
     return {"rate": rate, "delay": delay, "holds": rate and delay}
 
 
+def _start_pairs(procs: Procs, robots: list[str], port: int, logs: Path, rates: tuple[float, float]) -> None:
+    """The router, every robot's follower, then every operator's walking scripted leader (each ready)."""
+    rate_hz, camera_fps = rates
+    procs.start(
+        "router",
+        [*CLI, "router", "--config", "router/bipedtele.toml", "--set", f'network.listen=["tls/127.0.0.1:{port}"]'],
+    )
+    procs.wait_log("router", "listening", 30)
+    for k, r in enumerate(robots, 1):
+        rate = ["--set", f"follower.control_rate_hz={rate_hz:g}", "--set", f"follower.feedback_rate_hz={rate_hz:g}"]
+        camera = ["--set", f"follower.camera_fps={camera_fps:g}", "--record", str(logs / f"follower{k}.mcap")]
+        procs.start(f"follower{k}", [*CLI, "follower", "--config", f"robot-{r}/bipedtele.toml", *rate, *camera])
+    for k in range(1, len(robots) + 1):
+        procs.wait_log(f"follower{k}", "ready", 90)
+    script = ["--set", "leader.script=[[0, 5, 5], [3600, 5, 5]]", "--set", 'leader.script_interp="step"']
+    for k, r in enumerate(robots, 1):
+        rest = ["--set", "leader.cockpit=false", "--record", str(logs / f"leader{k}.mcap")]
+        procs.start(
+            f"leader{k}",
+            [*CLI, "leader", "--config", f"operator-op{k}/{r}.toml", "--operator", "scripted", *script, *rest],
+        )
+    for k in range(1, len(robots) + 1):
+        procs.wait_log(f"leader{k}", "leader ready", 60)
+
+
 def run_fleet(n: int, seconds: float, rate_hz: float, camera_fps: float, work: Path) -> dict[str, Any]:
     """Set up and run ``n`` pairs; return every figure."""
     port = free_port()
@@ -228,53 +253,7 @@ def run_fleet(n: int, seconds: float, rate_hz: float, camera_fps: float, work: P
     procs = Procs(logs, fleet.out)
     out: dict[str, Any] = {"pairs": n}
     try:
-        procs.start(
-            "router",
-            [*CLI, "router", "--config", "router/bipedtele.toml", "--set", f'network.listen=["tls/127.0.0.1:{port}"]'],
-        )
-        procs.wait_log("router", "listening", 30)
-        for k, r in enumerate(robots, 1):
-            procs.start(
-                f"follower{k}",
-                [
-                    *CLI,
-                    "follower",
-                    "--config",
-                    f"robot-{r}/bipedtele.toml",
-                    "--set",
-                    f"follower.control_rate_hz={rate_hz:g}",
-                    "--set",
-                    f"follower.feedback_rate_hz={rate_hz:g}",
-                    "--set",
-                    f"follower.camera_fps={camera_fps:g}",
-                    "--record",
-                    str(logs / f"follower{k}.mcap"),
-                ],
-            )
-        for k in range(1, n + 1):
-            procs.wait_log(f"follower{k}", "ready", 90)
-        for k, r in enumerate(robots, 1):
-            procs.start(
-                f"leader{k}",
-                [
-                    *CLI,
-                    "leader",
-                    "--config",
-                    f"operator-op{k}/{r}.toml",
-                    "--operator",
-                    "scripted",
-                    "--set",
-                    "leader.script=[[0, 5, 5], [3600, 5, 5]]",
-                    "--set",
-                    'leader.script_interp="step"',
-                    "--set",
-                    "leader.cockpit=false",
-                    "--record",
-                    str(logs / f"leader{k}.mcap"),
-                ],
-            )
-        for k in range(1, n + 1):
-            procs.wait_log(f"leader{k}", "leader ready", 60)
+        _start_pairs(procs, robots, port, logs, (rate_hz, camera_fps))
         end = time.monotonic() + 90
         while not all(_walking(logs / f"follower{k}.mcap") for k in range(1, n + 1)):
             if time.monotonic() > end:

@@ -226,56 +226,19 @@ def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) ->
     run = Run(folder)
     key = folder / "message.key"
     ep = f"tcp/127.0.0.1:{free_port()}"
-    common = [
-        "--set",
-        'network.mode="client"',
-        "--set",
-        f'network.connect=["{ep}"]',
-        "--set",
-        "network.listen=[]",
-        "--set",
-        f'network.message_key_file="{key}"',
-        "--set",
-        'clock.mode="synced"',
-    ]
+    common = ["--set", 'network.mode="client"', "--set", f'network.connect=["{ep}"]', "--set", "network.listen=[]"]
+    common += ["--set", f'network.message_key_file="{key}"', "--set", 'clock.mode="synced"']
     names = ("follower", "leader", "router")
     got: dict[str, Any] = {"report": {}, "marks": {}, "peaks": {}}
     try:
         subprocess.run([*CLI, "setup", "message-key", str(key)], check=True, capture_output=True, timeout=30)
         run.start("router", [*CLI, "router", "--listen", ep])
         run.wait_log("router", "listening on", 30)
-        run.start(
-            "follower",
-            [
-                *CLI,
-                "follower",
-                *common,
-                "--set",
-                f"follower.camera_fps={a.video_fps:g}",
-                "--set",
-                'follower.cameras=["head"]',
-                "--record",
-                str(f_rec),
-            ],
-        )
-        run.start(
-            "leader",
-            [
-                *CLI,
-                "leader",
-                *common,
-                "--operator",
-                "scripted",
-                "--set",
-                "leader.script=[[0, 5, 0], [600, 5, 0]]",
-                "--set",
-                'leader.script_interp="step"',
-                "--set",
-                "leader.cockpit=false",
-                "--record",
-                str(l_rec),
-            ],
-        )
+        camera = ["--set", f"follower.camera_fps={a.video_fps:g}", "--set", 'follower.cameras=["head"]']
+        run.start("follower", [*CLI, "follower", *common, *camera, "--record", str(f_rec)])
+        script = ["--set", "leader.script=[[0, 5, 0], [600, 5, 0]]", "--set", 'leader.script_interp="step"']
+        leader = ["--operator", "scripted", *script, "--set", "leader.cockpit=false", "--record", str(l_rec)]
+        run.start("leader", [*CLI, "leader", *common, *leader])
         end = time.monotonic() + 90
         while not _walking(f_rec):
             if time.monotonic() > end or any(run.procs[n].poll() is not None for n in ("follower", "leader")):
@@ -288,23 +251,8 @@ def _flood_run(a: argparse.Namespace, folder: Path, f_rec: Path, l_rec: Path) ->
         sample(run, time.monotonic() + a.baseline_s, peaks["baseline"])
         marks["baseline_end"] = time.time()
         peaks["flood"] = dict.fromkeys(names, 0.0)
-        attacker = run.start(
-            "attacker",
-            [
-                sys.executable,
-                __file__,
-                "--attack",
-                ep,
-                "--size",
-                str(a.size),
-                "--flood-rate",
-                f"{a.flood_rate:g}",
-                "--flood-s",
-                f"{a.flood_s:g}",
-                "--target",
-                a.target,
-            ],
-        )
+        flood = ["--size", str(a.size), "--flood-rate", f"{a.flood_rate:g}", "--flood-s", f"{a.flood_s:g}"]
+        attacker = run.start("attacker", [sys.executable, __file__, "--attack", ep, *flood, "--target", a.target])
         end = time.monotonic() + a.flood_s + 30.0
         while attacker.poll() is None and time.monotonic() < end:
             sample(run, time.monotonic() + 0.5, peaks["flood"])

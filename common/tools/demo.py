@@ -501,6 +501,28 @@ def add_demo_parser(sub: Any) -> None:
     p.add_argument("--json", default=None, metavar="F", help="write the report as JSON")
     p.add_argument("--run-dir", default=None, metavar="DIR", help="folder for logs and recordings")
     p.add_argument(
+        "--scheme",
+        default=None,
+        metavar="NAME",
+        help="control scheme of both sides (default: the profile's, the paper's; docs/schemes.md lists them)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
+    p.add_argument(
+        "--foxglove",
+        default=None,
+        metavar="[HOST:]PORT",
+        help="watch live in Foxglove: the leader on PORT, the follower on PORT+1 (extra foxglove)",
+    )
+    p.add_argument(
+        "--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing"
+    )
+    _add_link_args(p)
+    p.set_defaults(func=_run)
+
+
+def _add_link_args(p: OneLineParser) -> None:
+    """Add the emulated link's options: backend, loss, rate caps, outages, delay scale."""
+    p.add_argument(
         "--delay-backend",
         default="proxy",
         choices=BACKENDS,
@@ -536,20 +558,3 @@ def add_demo_parser(sub: Any) -> None:
         metavar="K",
         help="multiply every delay of the chosen models by K (0 to 10; e.g. 2: the trace with its delays doubled)",
     )
-    p.add_argument(
-        "--scheme",
-        default=None,
-        metavar="NAME",
-        help="control scheme of both sides (default: the profile's, the paper's; docs/schemes.md lists them)",
-    )
-    p.add_argument("--quiet", action="store_true", help="no live status line while the demo runs")
-    p.add_argument(
-        "--foxglove",
-        default=None,
-        metavar="[HOST:]PORT",
-        help="watch live in Foxglove: the leader on PORT, the follower on PORT+1 (extra foxglove)",
-    )
-    p.add_argument(
-        "--dry-run", action="store_true", help="print the plan (processes, netem commands over time); start nothing"
-    )
-    p.set_defaults(func=_run)

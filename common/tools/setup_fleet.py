@@ -359,9 +359,26 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
             cmds.append(cmd)
         commands[name] = tuple(cmds)
 
+    commands.update(_write_observers(root, plan, port, certs.ca_pem, (person, passwords, keys), head))
+
+    keep_ca_only(root, certs, "fleet")
+    return commands
+
+
+def _write_observers(
+    root: Path,
+    plan: _Plan,
+    port: int,
+    ca_pem: Path,
+    secrets_of: tuple[dict[str, tuple[Path, Path]], dict[str, str], dict[str, str]],
+    head: Callable[[str, str, str], str],
+) -> dict[str, tuple[str, ...]]:
+    """Write each observer's folder (certificate, password, the watch keys of its robots, profile); its commands."""
+    person, passwords, keys = secrets_of
+    commands: dict[str, tuple[str, ...]] = {}
     for obs, (site, ids) in plan.observers.items():
         name, router = f"observer-{obs}", plan.routers[site]
-        folder = host_folder(root, name, certs.ca_pem, person[obs])
+        folder = host_folder(root, name, ca_pem, person[obs])
         write_private(folder / "secrets" / f"{obs}.pw", passwords[obs] + "\n")
         for r in ids:
             write_private(folder / "secrets" / f"{r}.watch", watch_key(bytes.fromhex(keys[r].strip())).hex() + "\n")
@@ -381,8 +398,6 @@ def _fill(root: Path, plan: _Plan, port: int) -> dict[str, tuple[str, ...]]:
             ),
         )
         commands[name] = (cmd, fleet)
-
-    keep_ca_only(root, certs, "fleet")
     return commands
 
 

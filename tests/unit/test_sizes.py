@@ -45,16 +45,10 @@ MAX_FUNCTION_LINES = 80
 #: were reformatted (the compressed lines had hidden their length).
 KNOWN: dict[str, str] = {
     "bench/internet.py": "the internet bench: its rows, runs and report to be split by job",
-    "bench/adversary.py:_attack_run": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "bench/e2e.py:overhead": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "bench/fleet.py:run_fleet": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "bench/flood.py:_flood_run": "long once its # fmt: skip lines were reformatted: to be split by job",
     "bench/internet.py:main": "long once its # fmt: skip lines were reformatted: to be split by job",
     "bench/internet.py:run_condition": "long once its # fmt: skip lines were reformatted: to be split by job",
     "common/link/node.py:Node.receive": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "common/tools/demo.py:add_demo_parser": "long once its # fmt: skip lines were reformatted: to be split by job",
     "common/tools/netns.py": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "common/tools/setup_fleet.py:_fill": "long once its # fmt: skip lines were reformatted: to be split by job",
     "leader/app.py": "long once its # fmt: skip lines were reformatted: to be split by job",
     "leader/app.py:LeaderApp.run": "long once its # fmt: skip lines were reformatted: to be split by job",
     "leader/reach.py:CommandReach.check": "long once its # fmt: skip lines were reformatted: to be split by job",
