@@ -47,12 +47,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.equivalent import equivalent_matrices
-from bipedtele.control.linalg import zoh2
+from bipedtele.control.follower_step import FollowerCommand, FollowerController, equivalent_steps
+from bipedtele.control.leader_step import LeaderController, LeaderFeedback, LeaderHandle
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, hybrid_zoh
 from bipedtele.control.schemes import Scheme
-from bipedtele.control.schemes.ports import EnergyCounter
 from bipedtele.link.delaymodels import DelayModel, NormalDelay, TraceDelay, UniformDelay, parse_delay_model
 from bipedtele.studies.regimes import CompareParams, Regime
 from bipedtele.studies.study import DelayCase, case_inputs
@@ -159,8 +158,7 @@ def _equivalent_steps(s_e_k: np.ndarray, cfg: ControlConfig, dt: float) -> tuple
     ``s_e_k`` has shape (runs, K, 2); the index returned has shape (runs, K).
     """
     uniq, inverse = np.unique(s_e_k.reshape(-1, 2), axis=0, return_inverse=True)
-    a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
-    phi, gam = zoh2(a_eq, b_eq, dt)
+    phi, gam = equivalent_steps(uniq, cfg, dt)
     return phi, gam, inverse.reshape(s_e_k.shape[:2])
 
 
@@ -181,23 +179,24 @@ class _Loop:
         self.ch2 = channel(inp.h2, p.dt, p.window_s, inp.lost2)
         self.alpha_k, self.s_e_k = _per_run_damping(scheme, self.ch1.estimate, self.ch2.estimate)
         self.phi_eq, self.gam_eq, self.eq_index = _equivalent_steps(self.s_e_k, cfg, p.dt)
-        w = round(cp.wave_window_s / p.dt)  # this runner's window, passed to the scheme (docs/schemes.md)
+        w = round(cfg.wave_window_s / p.dt)  # every runner's window, passed to the scheme (docs/schemes.md)
         self.gain1 = np.stack([scheme.received_gains(row, w) for row in self.ch1.idx])[..., None]
         self.gain2 = np.stack([scheme.received_gains(row, w) for row in self.ch2.idx])[..., None]
         self.leader = SimulatedLeader(inp.switch, inp.intent, cfg, p)
         self.k_g = np.asarray(cfg.k_g, dtype=float)
         self.k_m = np.asarray(cfg.k_m, dtype=float)
         self.dp = np.array([cfg.dp, cfg.dp_turn])
-        self.eq = np.zeros((n, 2, 2))  # [eta_e, z_e] per channel
-        self.eq_k = -1  # the period eq was last advanced to
+        # the controllers' steps, every port observed (the comparison reports each port's observer)
+        self.lead_ctl = LeaderController(scheme, self.k_m, observe_every_port=True)
+        self.foll_ctl = FollowerController(scheme, self.k_m, observe_every_port=True)
+        self.lead_state, self.foll_state = self.lead_ctl.initial(n), self.foll_ctl.initial(n)
+        self.eq_k = -1  # the period the equivalent follower was last advanced to
         self.hy = np.zeros((n, 2, 2))  # [eta, z_r] per channel
-        self.phase = 0.0
         self.cmd_buf = np.zeros((self.ch1.ring, n, 2))  # k_g x_m sent
         self.wave_buf = np.zeros((self.ch1.ring, n, 2))  # u_m sent
         self.ein_m_buf = np.zeros((self.ch1.ring, n, 2))  # leader port's input energy sent
         self.fb_buf = np.zeros((self.ch2.ring, n, 2))  # z_e, eta or v_s sent back
         self.ein_s_buf = np.zeros((self.ch2.ring, n, 2))
-        self.port_m, self.port_s = EnergyCounter((n, 2)), EnergyCounter((n, 2))
         self.sums = {m: np.zeros((n, 2)) for m in ("error", "intent", "force2", "effort")}
         self.peak = np.zeros(n)
         self.late_from = round(0.75 * inp.h1.shape[1])
@@ -209,15 +208,15 @@ class _Loop:
         return np.where((idx >= 0)[:, None], buf[idx % ring, self.rows], 0.0)
 
     def leader_tick(self, k: int, t: float) -> None:
-        """Advance the leader: feel what arrived, move the handle, send the command (the scheme's laws)."""
+        """Advance the leader: the step's force from what arrived, the handle moves, the command it sends."""
         i2, ring2 = self.ch2.idx[:, k], self.ch2.ring
-        scheme, k_m = self.scheme, self.k_m
+        k_m = self.k_m
         r_now = self.k_g * self.leader.x
-        law = scheme.leader_force(r_now, self._received(self.fb_buf, i2, ring2), self.gain2[:, k], k_m)
-        ein_s_rx = self._received(self.ein_s_buf, i2, ring2)
-        law = scheme.limit_leader(law, r_now, self.port_m, ein_s_rx, k_m, self.dt)
+        fb = LeaderFeedback(
+            self._received(self.fb_buf, i2, ring2), self._received(self.ein_s_buf, i2, ring2), self.gain2[:, k]
+        )
+        self.lead_state, law = self.lead_ctl.force(self.lead_state, LeaderHandle(r_now, self.dt), fb)
         f_m = law.force
-        self.port_m.add(f_m * r_now, self.dt, ein_s_rx)  # every scheme's port, for its observer metric (P_m)
         eta = self.hy[..., 0]
         self.sums["force2"] += (f_m - k_m * (r_now - eta)) ** 2
         # the simulated handle renders the force: it follows r - F/k_m (law.followed(), to rounding)
@@ -228,13 +227,13 @@ class _Loop:
         r_m = self.k_g * x
         slot = k % self.ch1.ring
         self.cmd_buf[slot] = r_m
-        self.ein_m_buf[slot] = self.port_m.e_in
-        wave = scheme.command_wave(r_m, law, k_m)
-        if wave is not None:
-            self.wave_buf[slot] = wave
+        cmd = self.lead_ctl.command(self.lead_state, r_m)  # sent once the handle moved
+        self.ein_m_buf[slot] = cmd.energy
+        if cmd.wave is not None:
+            self.wave_buf[slot] = cmd.wave
 
     def _equivalent(self, k: int, ref: np.ndarray) -> np.ndarray:
-        """Advance the reduced model's equivalent follower (29) to period ``k`` on ``ref``; return ``z_e``.
+        """Advance the step's equivalent follower (29) to period ``k`` on ``ref``; return ``z_e``.
 
         Advanced once per period however often the scheme asks (and never for a scheme that
         does not ask: it is the comparison's costliest step).
@@ -242,25 +241,25 @@ class _Loop:
         if self.eq_k != k:
             self.eq_k = k
             j = self.eq_index[:, k]
-            self.eq = np.einsum("ncij,ncj->nci", self.phi_eq[j], self.eq) + self.gam_eq[j][..., 0] * ref[:, :, None]
-        return np.asarray(self.eq[:, :, 1])
+            self.foll_state = self.foll_ctl.equivalent(self.foll_state, ref, (self.phi_eq[j], self.gam_eq[j]), None)
+        return np.asarray(self.foll_state.eq[:, :, 1])
 
     def follower_tick(self, k: int, hybrid: tuple[np.ndarray, np.ndarray]) -> None:
-        """Advance the follower: take the newest command, drive the robot, send the feedback (the scheme's laws)."""
+        """Advance the follower: the step's command from the newest arrived, the robot moves, the feedback it sends."""
         i1, ring1 = self.ch1.idx[:, k], self.ch1.ring
-        scheme, k_m = self.scheme, self.k_m
         ref = self._received(self.cmd_buf, i1, ring1)
         eta = self.hy[..., 0]
-        c = scheme.follower_command(ref, self._received(self.wave_buf, i1, ring1), self.gain1[:, k], eta, k_m)
-        ein_m_rx = self._received(self.ein_m_buf, i1, ring1)
-        c = scheme.limit_follower(c, eta, self.port_s, ein_m_rx, k_m, self.dt)
-        self.port_s.add(-k_m * (c - eta) * c, self.dt, ein_m_rx)  # P_s (ports.follower_power)
+        cmd = FollowerCommand(
+            ref, self._received(self.wave_buf, i1, ring1), self._received(self.ein_m_buf, i1, ring1), self.gain1[:, k]
+        )
+        self.foll_state, c, _ = self.foll_ctl.command(self.foll_state, cmd, eta, self.dt)
         phi_h, gam_h = hybrid
         h0 = phi_h[..., 0, 0] * self.hy[..., 0] + phi_h[..., 0, 1] * self.hy[..., 1] + gam_h[..., 0] * c
         h1 = phi_h[..., 1, 0] * self.hy[..., 0] + phi_h[..., 1, 1] * self.hy[..., 1] + gam_h[..., 1] * c
         self.hy = np.stack([h0, h1], -1)
-        self.fb_buf[k % self.ch2.ring] = scheme.feedback_signal(lambda: self._equivalent(k, ref), self.hy[..., 0], k_m)
-        self.ein_s_buf[k % self.ch2.ring] = self.port_s.e_in
+        fb = self.foll_ctl.feedback(self.foll_state, self.hy[..., 0], lambda: self._equivalent(k, ref))
+        self.fb_buf[k % self.ch2.ring] = fb.signal
+        self.ein_s_buf[k % self.ch2.ring] = fb.energy
         self.sums["error"] += np.abs(ref - self.hy[..., 0])
         lead = self.leader
         self.sums["intent"] += np.abs(lead.intent[lead.rows, lead.seg] - self.hy[..., 0])
@@ -340,8 +339,8 @@ def simulate(
         out[f"{ch}_intent_error"] = loop.sums["intent"][:, c] / k_steps
         out[f"{ch}_force_error"] = np.sqrt(loop.sums["force2"][:, c] / k_steps)
         out[f"{ch}_effort"] = loop.sums["effort"][:, c] / k_steps
-        out[f"{ch}_po_leader"] = loop.port_m.min_observer[:, c]
-        out[f"{ch}_po_follower"] = loop.port_s.min_observer[:, c]
+        out[f"{ch}_po_leader"] = loop.lead_state.min_observer[:, c]
+        out[f"{ch}_po_follower"] = loop.foll_state.min_observer[:, c]
     out["peak"] = loop.peak
     limit = cp.unstable_factor * max(p.forward_range[1], p.turn_max)
     out["unstable"] = ~np.isfinite(loop.peak) | (loop.peak > limit)
