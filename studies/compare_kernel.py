@@ -56,7 +56,7 @@ from bipedtele.link.delaymodels import DelayModel, NormalDelay, TraceDelay, Unif
 from bipedtele.studies.regimes import CompareParams, Regime
 from bipedtele.studies.study import DelayCase, case_inputs
 
-__all__ = ["RegimeInputs", "regime_inputs", "simulate"]
+__all__ = ["RegimeInputs", "controllers", "regime_inputs", "simulate"]
 
 
 @dataclass(frozen=True)
@@ -168,6 +168,20 @@ def _per_run_damping(scheme: Scheme, est1: np.ndarray, est2: np.ndarray) -> tupl
     return np.stack([a for a, _ in pairs]), np.stack([s for _, s in pairs])
 
 
+def controllers(scheme: Scheme, cfg: ControlConfig) -> tuple[LeaderController, FollowerController]:
+    """Return the leader's and the follower's steps as the comparison runs them.
+
+    The real loops' steps (:mod:`bipedtele.control.leader_step`,
+    :mod:`bipedtele.control.follower_step`) with every port's energy counted, whatever the
+    scheme (the comparison reports each port's passivity observer), and no speed limit.
+    """
+    k_m = np.asarray(cfg.k_m, dtype=float)
+    return (
+        LeaderController(scheme, k_m, observe_every_port=True),
+        FollowerController(scheme, k_m, observe_every_port=True),
+    )
+
+
 class _Loop:
     """State of ``n`` paired runs of one scheme on one regime."""
 
@@ -186,9 +200,7 @@ class _Loop:
         self.k_g = np.asarray(cfg.k_g, dtype=float)
         self.k_m = np.asarray(cfg.k_m, dtype=float)
         self.dp = np.array([cfg.dp, cfg.dp_turn])
-        # the controllers' steps, every port observed (the comparison reports each port's observer)
-        self.lead_ctl = LeaderController(scheme, self.k_m, observe_every_port=True)
-        self.foll_ctl = FollowerController(scheme, self.k_m, observe_every_port=True)
+        self.lead_ctl, self.foll_ctl = controllers(scheme, cfg)
         self.lead_state, self.foll_state = self.lead_ctl.initial(n), self.foll_ctl.initial(n)
         self.eq_k = -1  # the period the equivalent follower was last advanced to
         self.hy = np.zeros((n, 2, 2))  # [eta, z_r] per channel
