@@ -442,7 +442,7 @@ class LeaderApp:
 
     def _stats(self, loop: LeaderLoop, done: bool, elapsed: float, never_reached: bool) -> dict[str, Any]:
         """Return the run's figures for ``run(stats=...)``: period statistics, counters, progress."""
-        out = dict(loop.period_stats.summary(loop.dt))
+        out: dict[str, Any] = dict(loop.period_stats.summary(loop.dt))
         out.update(
             missed_ticks=loop.missed_ticks,
             commands=loop.seq,

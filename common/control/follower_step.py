@@ -17,7 +17,7 @@ energies N cm (N deg), times s. docs/architecture.md ("Controller steps").
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 from bipedtele.control.config import ControlConfig
@@ -167,7 +167,8 @@ class FollowerController:
         eta = np.asarray(eta, dtype=float)
         other_in = np.asarray(command.energy, dtype=float)
         port = port_counter(state.e_in, state.e_out, state.min_observer)
-        wanted = scheme.follower_command(command.ref, command.wave, command.gain, eta, k_m)
+        # a gain per run ((runs, 1)) broadcasts as the contract's scalar gain does
+        wanted = scheme.follower_command(command.ref, command.wave, cast(float, command.gain), eta, k_m)
         c = scheme.limit_follower(wanted, eta, port, other_in, k_m, dt)
         if self.observe_every_port:
             port.add(follower_power(c, eta, k_m), dt, other_in)

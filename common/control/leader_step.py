@@ -14,7 +14,7 @@ force limits are the runner's (the device, the plant). Units as in
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 from bipedtele.control.schemes.base import LeaderLaw, Scheme
@@ -140,7 +140,8 @@ class LeaderController:
         r_m = np.asarray(handle.r_m, dtype=float)
         other_in = np.asarray(feedback.energy, dtype=float)
         port = port_counter(state.e_in, state.e_out, state.min_observer)
-        law = scheme.leader_force(r_m, feedback.signal, feedback.gain, k_m)
+        # a gain per run ((runs, 1)) broadcasts as the contract's scalar gain does
+        law = scheme.leader_force(r_m, feedback.signal, cast(float, feedback.gain), k_m)
         law = scheme.limit_leader(law, r_m, port, other_in, k_m, dt)
         if self.observe_every_port:
             port.add(leader_power(law.force, r_m), dt, other_in)

@@ -161,7 +161,9 @@ def _window(wave_window_s: float | None) -> float:
     """Return the gain's window [s]: as given, else the control config's default."""
     if wave_window_s is not None:
         return float(wave_window_s)
-    return float(next(f.default for f in dataclasses.fields(ControlConfig) if f.name == "wave_window_s"))
+    default = next(f.default for f in dataclasses.fields(ControlConfig) if f.name == "wave_window_s")
+    assert isinstance(default, float)
+    return default
 
 
 def _row(v: np.ndarray | list[float]) -> np.ndarray:
