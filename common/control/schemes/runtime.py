@@ -119,6 +119,9 @@ class FollowerPort:
         self.state: FollowerState = self.controller.initial(1)
         self.wave_gain = scheme.gain_meter(_window(wave_window_s))
         self._cmd_key: tuple[float, float] | None = None
+        self._zoh_key: tuple[float, ...] | None = None
+        self._zoh_cfg: ControlConfig | None = None
+        self._zoh: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0))
 
     def command(
         self,
@@ -146,7 +149,10 @@ class FollowerPort:
         self, ref: np.ndarray, s_e: np.ndarray, f_hold: np.ndarray, cfg: ControlConfig, dt: float
     ) -> np.ndarray:
         """Advance the equivalent follower (29), (33) one period of ``dt`` [s] on ``ref``; return ``z_e`` [cm/s, deg/s]."""
-        zoh = equivalent_steps(_row(s_e), cfg, dt)
+        key = (*np.asarray(s_e, dtype=float).ravel().tolist(), float(dt))
+        if self._zoh_key != key or self._zoh_cfg is not cfg:  # (29) discretised again only when its inputs moved
+            self._zoh_key, self._zoh_cfg, self._zoh = key, cfg, equivalent_steps(_row(s_e), cfg, dt)
+        zoh = self._zoh
         self.state = self.controller.equivalent(self.state, _row(ref), zoh, _row(f_hold))
         return np.asarray(self.state.eq[0, :, 1])
 
