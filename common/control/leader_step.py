@@ -158,6 +158,4 @@ class LeaderController:
 
 def port_counter(e_in: np.ndarray, e_out: np.ndarray, min_observer: np.ndarray) -> EnergyCounter:
     """Return an energy counter holding copies of a state's port energy (the state stays as it was)."""
-    port = EnergyCounter(np.shape(e_in))
-    port.e_in, port.e_out, port.min_observer = e_in.copy(), e_out.copy(), min_observer.copy()
-    return port
+    return EnergyCounter.holding(e_in, e_out, min_observer)

@@ -80,8 +80,10 @@ class LeaderPort:
             self.wave_gain.update(t_sent, t_recv)
         signal = self.scheme.read_feedback(z_e, eta, wave)
         fb = LeaderFeedback(_row(signal), _row(energy), self.wave_gain.gain)
-        self.state, force, _ = self.controller.step(self.state, LeaderHandle(_row(r_m), dt), fb)
-        return np.asarray(force.follow[0])
+        r = _row(r_m)
+        # the step's force part: the command it carries is made when one is sent (outgoing)
+        self.state, law = self.controller.force(self.state, LeaderHandle(r, dt), fb)
+        return np.asarray(law.followed(r, self.k_m)[0])
 
     def outgoing(self, r_m: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
         """Return the command's ``wave`` (``u_m``) and ``energy``, each None where the scheme has no use for it."""
