@@ -47,7 +47,6 @@ the robot) it reads from callables given at construction, once per tick.
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import time
@@ -57,9 +56,9 @@ from typing import Any
 
 import numpy as np
 from bipedtele.control.config import ControlConfig
-from bipedtele.control.equivalent import EquivalentFollower
+from bipedtele.control.follower_step import FollowerState
 from bipedtele.control.online import OnlineChooser
-from bipedtele.control.reference import RealFollowerReference
+from bipedtele.control.reference import RealFollowerReference, ReferenceState
 from bipedtele.control.schemes import make_scheme
 from bipedtele.control.schemes.runtime import FollowerPort, received
 from bipedtele.follower.backlog import DelayBaseline
@@ -100,11 +99,11 @@ _COUNTERS = (
 
 @dataclass
 class _PeriodStart:
-    """The state at a period's start that a command picked up later in the period restarts from."""
+    """The state at a period's start that a command picked up later in the period restarts from (values)."""
 
     obs: RobotObservation
-    reference: RealFollowerReference
-    equivalent: EquivalentFollower
+    reference: ReferenceState
+    controller: FollowerState
 
 
 class FollowerLoop:
@@ -182,12 +181,15 @@ class FollowerLoop:
         self.chooser = OnlineChooser(control)
         #: The control scheme (``[control] scheme``): the damping sigma_e that (29) and (30) use.
         self.scheme = make_scheme(control)
-        self.port = FollowerPort(self.scheme, np.asarray(control.k_m, dtype=float))
         self.reference = RealFollowerReference(control.D, control.k_s, control.k_z, control.beta_r, self.dt)
-        self.equivalent = EquivalentFollower(control.D, control.k_s, control.beta_e, self.dt, k_z=control.k_z)
         self.fictitious = _fictitious_force(cfg)
         lim = robot.limits
         self.eta_max = np.array([lim.max_forward_m_s * CM, math.degrees(lim.max_turn_rad_s)])
+        #: The scheme's follower step (:class:`~bipedtele.control.follower_step.FollowerController`):
+        #: its law, its port, the equivalent follower (29); its state is a value.
+        self.port = FollowerPort(self.scheme, np.asarray(control.k_m, dtype=float), control.wave_window_s, self.eta_max)
+        #: Advances the step's equivalent follower (29), (33) one period: ``(ref, s_e, f_hold, cfg, dt) -> z_e``.
+        self.equivalent = self.port.equivalent
         self.telemetry = FollowerTelemetry()
         self._counts: dict[str, int] = {k: 0 for k in _COUNTERS if k not in COMMAND_COUNTERS}
         default_plan = FeedbackPlan(True, float(cfg.feedback_rate_hz), math.inf)
@@ -252,7 +254,7 @@ class FollowerLoop:
         """Forget the walk state and the latch: the robot was put back on its start pose."""
         self._counts["resets"] += 1
         self.reference.reset()
-        self.equivalent.reset()
+        self.port.state = self.port.controller.initial(1)
         self._fire(WalkEvent.RESET)
         LOG.info("new leader session: robot back on its start pose")
         self._on_event("reset", {"t": now})
@@ -296,7 +298,7 @@ class FollowerLoop:
         self._watch(obs, now)
         # The period's starting state: a command picked up later in the period re-runs
         # the control update from here (:meth:`pickup`).
-        self._period = _PeriodStart(obs, copy.deepcopy(self.reference), copy.deepcopy(self.equivalent))
+        self._period = _PeriodStart(obs, self.reference.state(), self.port.state)
         tel = self._control(now, obs)
         self._odometry(obs, now, tel.ref)
         if now >= self._next_fb:
@@ -328,8 +330,8 @@ class FollowerLoop:
             start = self._period
             if start is None:  # no tick yet: the first one takes it
                 return True
-            self.reference = copy.deepcopy(start.reference)
-            self.equivalent = copy.deepcopy(start.equivalent)
+            self.reference.restore(start.reference)
+            self.port.state = start.controller
             old_ref = self.telemetry.ref
             tel = self._control(now, start.obs)
             self._ref_sum = self._ref_sum + (np.asarray(tel.ref, dtype=float) - np.asarray(old_ref, dtype=float))
@@ -415,7 +417,7 @@ class FollowerLoop:
             sent = None
             state = "stopping" if obs.walking else "standing"
 
-        z_e = self.equivalent.step(ref, self._s_e, f_hold)
+        z_e = self.equivalent(ref, self._s_e, f_hold, self.control, self.dt)
 
         tel.t, tel.state, tel.ref, tel.eta_meas = now, state, ref, eta_meas
         tel.eta_cmd, tel.z_r, tel.z_e, tel.f_v = (
@@ -440,8 +442,9 @@ class FollowerLoop:
         cmd = self._cmd
         if cmd is None:  # not reached: called with a fresh command only
             return ref
-        c = self.port.command(ref, eta_meas, received(cmd.wave), received(cmd.energy), cmd.t, self._cmd_recv, self.dt)
-        return np.clip(c, -self.eta_max, self.eta_max)
+        return self.port.command(
+            ref, eta_meas, received(cmd.wave), received(cmd.energy), cmd.t, self._cmd_recv, self.dt
+        )
 
     def _odometry(self, obs: RobotObservation, now: float, ref: np.ndarray) -> None:
         """Emit a ``footfall`` event for a new touchdown; sum the reference applied."""

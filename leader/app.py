@@ -34,7 +34,6 @@ import logging
 import math
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -46,7 +45,7 @@ from bipedtele.config.sections import ClockConfig, NetworkConfig, RobotConfig
 from bipedtele.control.config import ControlConfig
 from bipedtele.leader.config import LeaderConfig
 from bipedtele.leader.device import DeviceError, LeaderDevice, PadInput, device_names, make_device
-from bipedtele.leader.linkquality import LinkQuality, LinkReport
+from bipedtele.leader.linkquality import LinkQuality
 from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.operator import Operator, make_operator, operator_names
 from bipedtele.leader.operators.pilot import course_from_config
@@ -54,18 +53,19 @@ from bipedtele.leader.predictor import DelayPredictor, LivePredictor
 from bipedtele.leader.reach import CommandReach
 from bipedtele.leader.report import fill_link, link_counters
 from bipedtele.leader.report import summary as report_summary
+from bipedtele.leader.side import LeaderSide
 from bipedtele.leader.videoparts import FrameAssembler
 from bipedtele.link.auth import MAC_OVERHEAD
-from bipedtele.link.drops import DropCounter
 from bipedtele.link.gate import SequenceGate
 from bipedtele.link.inbox import FeedbackInbox
 from bipedtele.link.messages import Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.link.node import Node, StepClock
-from bipedtele.link.receivers import LatestReceiver, Received
-from bipedtele.link.transport import PresenceWatcher, Publishers
+from bipedtele.link.receivers import Received
+from bipedtele.link.transport import PresenceWatcher
 from bipedtele.telemetry import LeaderSample
 
-__all__ = ["LeaderApp", "add_leader_parser"]
+# fill_link and link_counters: the link report's helpers, as this module offered them before the side thread moved
+__all__ = ["COCKPIT_TOKEN_ENV", "EXIT_NOT_REACHED", "LeaderApp", "add_leader_parser", "fill_link", "link_counters"]
 
 LOG = logging.getLogger(__name__)
 
@@ -77,148 +77,6 @@ def _make_device(cfg: Config, name: str) -> LeaderDevice:
         return make_device(name, config=cfg)
     except ValueError as exc:
         raise ConfigError(f"--device {name!r}: {exc}") from None
-
-
-class _Aux:
-    """The leader's slow duties in a side thread (about 20 Hz).
-
-    Status out, follower status in, presence, events of the operator's progress, the
-    command-reach check. (Clock pings run in their own
-    :class:`~bipedtele.link.clocklink.ClockLink` thread.)
-    """
-
-    def __init__(
-        self,
-        loop: LeaderLoop,
-        pubs: Publishers,
-        cfg: Config,
-        status_rx: LatestReceiver[Status],
-        presence: PresenceWatcher,
-        drops: DropCounter,
-        record: Callable[[str, Any, float], None],
-        reach: CommandReach | None = None,
-        link: LinkQuality | None = None,
-        hand: Callable[[], bool] | None = None,
-    ) -> None:
-        self.reach = reach
-        self.hand = hand
-        self.link = link or LinkQuality(feedback_timeout_s=cfg.get(LeaderConfig).feedback_timeout_s)
-        self._not_synced = 0  # drops counted as clock_not_synced so far
-        self.loop, self.pubs, self.cfg = loop, pubs, cfg
-        self.status_rx, self.presence = status_rx, presence
-        self.drops, self.record = drops, record
-        self.follower_status: Status | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="leader-aux", daemon=True)
-        self._status_seq = 0
-        self._passes = 0
-        self._progress_lock = threading.Lock()
-        self._released = False  # the hand last logged
-
-    def record_progress(self, now: float) -> None:
-        """Record a ``pass`` event for every pass the operator completed since the last call."""
-        op = self.loop.operator
-        if op is None:
-            return
-        with self._progress_lock:
-            prog = op.progress()
-            n = int(prog.get("passes_done", 0))
-            sides = list(prog.get("sides", []))
-            while self._passes < n:
-                self._passes += 1
-                side = sides[self._passes - 1] if len(sides) >= self._passes else ""
-                self.record("events", {"event": "pass", "n": self._passes, "side": side}, now)
-
-    def __enter__(self) -> _Aux:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-
-    def report(self, now: float | None = None) -> LinkReport:
-        """Return the link's figures and state now (presence and the follower's counters)."""
-        st = self.follower_status
-        return self.link.report(
-            now, follower_present=self.presence.alive, follower_counters=st.counters if st is not None else None
-        )
-
-    def fill(self, sample: LeaderSample) -> None:
-        """Fill the sample's fields from the follower's status, presence and the link's figures."""
-        st = self.follower_status
-        sample.follower_present = self.presence.alive
-        counters = st.counters if st is not None else {}
-        if st is not None:
-            sample.watchdog = counters.get("watchdog_stops", counters.get("watchdog", 0))
-            sample.falls = counters.get("falls", 0)
-            sample.collisions = counters.get("collisions", 0)
-            sample.follower_text = st.text
-            sample.held_by = st.held_by
-        fill_link(sample, self.report(), counters)
-
-    def _take_hand(self) -> None:
-        """Log the cockpit's Release / Take (the loop reads the hand itself; docs/fleet.md, Hand-over)."""
-        if self.hand is None:
-            return
-        released = self.hand()
-        if released != self._released:
-            self._released = released
-            robot = self.cfg.get(RobotConfig).id
-            if released:
-                LOG.info("robot %s released (cockpit): the robot stops; another operator may take it", robot)
-            else:
-                LOG.info("robot %s: Take (cockpit): driving it again once it is free", robot)
-
-    def _run(self) -> None:
-        lc, ck = self.cfg.get(LeaderConfig), self.cfg.get(ClockConfig)
-        next_status = time.monotonic()
-        text = "clock: synced" if ck.mode == "synced" else "clock: ntp (h1+h2 exact, split estimated)"
-        user = self.cfg.get(NetworkConfig).user  # who drives, for the fleet view (bipedtele status)
-        while not self._stop.wait(0.05):
-            now_m, now = time.monotonic(), time.time()
-            try:
-                got = self.status_rx.take()
-                if got is not None and got.msg.role == "follower":
-                    self.follower_status = got.msg
-                self._heard_unsynced()
-                if now_m >= next_status:
-                    next_status = now_m + 1.0 / lc.status_rate_hz
-                    counters = {f"drop_{k}": v for k, v in self.drops.counts().items()}
-                    counters.update(
-                        commands=self.loop.seq,
-                        feedback=self.loop.feedback_count,
-                        missed_ticks=self.loop.missed_ticks,
-                        blind_stops=self.loop.blind.stops,
-                    )
-                    counters.update(link_counters(self.report(now)))
-                    self._status_seq += 1
-                    blind = self.loop.blind.words()
-                    st = Status(
-                        sid=self.loop.sid,
-                        seq=self._status_seq,
-                        t=now,
-                        role="leader",
-                        state=self.loop.state,
-                        counters=counters,
-                        text=f"{text}; {blind}" if blind else text,
-                        operator=user,
-                    )
-                    self.pubs.status.put(st)
-                    self.record("status/sent", st, now)
-                self.record_progress(now)
-                self._take_hand()
-                if self.reach is not None:
-                    self.reach.check(self.presence.alive)
-            except Exception as exc:  # a bad moment on the network must not end the program
-                LOG.warning("leader side thread: %s", exc)
-
-    def _heard_unsynced(self) -> None:
-        """Messages dropped only because our clock is not synced to the peer's yet: the path works."""
-        n = self.drops.counts().get("clock_not_synced", 0)
-        if n > self._not_synced and self.reach is not None:
-            self.reach.on_heard()
-        self._not_synced = n
 
 
 #: Exit code of a run in which the follower was there but none of our commands reached it.
@@ -294,7 +152,7 @@ class LeaderApp:
                 )
             self.device.attach_cockpit(self._pad)
         self.loop: LeaderLoop | None = None
-        self.aux: _Aux | None = None
+        self.aux: LeaderSide | None = None
         try:
             operator: Operator | None = make_operator(
                 self.op_name,
@@ -487,103 +345,122 @@ class LeaderApp:
             if lc.cockpit:
                 self.cockpit = self._start_cockpit()
             recorder = node.start_recording({"operator": self.op_name, "device": self.dev_name}, jpeg_every=10)
-            # every check on feedback, h2 and the link's judgement in one inbox; too old:
-            # refused before the gate binds and h2 moves
-            fb_rx = node.receive(
-                node.keys.feedback,
-                Feedback,
-                self.fb_gate,
-                topic="feedback/recv",
-                max_age_s=self.link.max_age_s,
-                inbox=self._feedback_inbox,
-            )
-            assert isinstance(fb_rx.inbox, FeedbackInbox)
-            node.receive(node.keys.video, VideoFrame, SequenceGate(), on_message=self._on_video)
-            status_rx = node.receive(
-                node.keys.status,
-                Status,
-                SequenceGate(),
-                topic="status/recv",
-                ignore_sid=node.sid,
-                on_message=self._on_status,
-            )
-            node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
-            self.loop = loop = LeaderLoop(
-                self.device,
-                self.operator,
-                self.cfg.get(ControlConfig),
-                self._send_command,
-                fb_rx.inbox,
-                cfg=lc,
-                clock=self.clock,
-                conservative_rtt=node.round_trip,
-                on_sample=self._on_sample,
-                sid=node.sid,
-                operator_name=self.cfg.get(NetworkConfig).user,
-                feedback_age=self.link.feedback_age if self.realtime else None,
-                on_blind=node.event,
-                hand=self._hand,
-            )
-            self.aux = aux = node.enter(
-                _Aux(
-                    loop,
-                    node.pubs,
-                    self.cfg,
-                    status_rx,
-                    presence,
-                    node.drops,
-                    node.record,
-                    self.reach,
-                    self.link,
-                    hand=self._hand,
-                )
-            )
-            LOG.info(
-                "leader ready: robot %s, device %s, operator %s, %s%s",
-                self.cfg.get(RobotConfig).id,
-                self.dev_name,
-                self.op_name if self.operator is not None else "(person)",
-                "real time" if self.realtime else "as fast as possible",
-                f", cockpit {self.cockpit.url}" if self.cockpit is not None else "",
-            )
-            if self.cockpit is not None:
-                LOG.info("cockpit: open %s", self.cockpit.url)
+            loop, aux = self._wire(presence)
+            self._log_ready()
             node.event("start", {"operator": self.op_name})
             t_start = time.time()
             self._run_loop(loop)
             elapsed = time.time() - t_start
             done = loop.done
             aux.record_progress(time.time())  # the last pass may have ended the run just now
-            node.event("done" if done else "stop", {"elapsed_s": elapsed})
-            loop.send_stop()
-            never_reached = self.reach.never_acknowledged
-            if never_reached:
-                node.event("commands_not_reaching", {"commands": loop.seq})
             path = recorder.path if recorder is not None else None
-            summary = report_summary(
-                loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime, self.reach, self.link
-            )
+            summary, never_reached = self._finish(loop, done, elapsed, path)
             if stats is not None:
-                stats.update(loop.period_stats.summary(loop.dt))
-                stats.update(
-                    missed_ticks=loop.missed_ticks,
-                    commands=loop.seq,
-                    feedback=self.link.fb_arrived,
-                    feedback_used=loop.feedback_count,
-                    fb_too_old=self.link.fb_too_old,
-                    drops=node.drops.total,
-                    done=done,
-                    elapsed_s=elapsed,
-                    progress=self.operator.progress() if self.operator is not None else {},
-                    cockpit=self.cockpit.stats if self.cockpit is not None else {},
-                    acknowledged=self.reach.acknowledged,
-                    never_reached=self.reach.never_reached,
-                    never_acknowledged=never_reached,
-                    link_lost_warnings=self.reach.lost_warnings,
-                    slew_limited_ticks=loop.slew_limited_ticks,
-                )
+                stats.update(self._stats(loop, done, elapsed, never_reached))
         print(summary, flush=True)  # noqa: T201 - the program's one-line result
         return EXIT_NOT_REACHED if never_reached else 0
+
+    def _wire(self, presence: PresenceWatcher) -> tuple[LeaderLoop, LeaderSide]:
+        """Open the receivers, build the haptic loop on the feedback inbox and start the side thread."""
+        lc, node = self.lc, self.node
+        # every check on feedback, h2 and the link's judgement in one inbox; too old:
+        # refused before the gate binds and h2 moves
+        fb_rx = node.receive(
+            node.keys.feedback,
+            Feedback,
+            self.fb_gate,
+            topic="feedback/recv",
+            max_age_s=self.link.max_age_s,
+            inbox=self._feedback_inbox,
+        )
+        assert isinstance(fb_rx.inbox, FeedbackInbox)
+        node.receive(node.keys.video, VideoFrame, SequenceGate(), on_message=self._on_video)
+        status_rx = node.receive(
+            node.keys.status,
+            Status,
+            SequenceGate(),
+            topic="status/recv",
+            ignore_sid=node.sid,
+            on_message=self._on_status,
+        )
+        node.link_clocks(peer_sid=lambda: self.fb_gate.live_sid)
+        self.loop = loop = LeaderLoop(
+            self.device,
+            self.operator,
+            self.cfg.get(ControlConfig),
+            self._send_command,
+            fb_rx.inbox,
+            cfg=lc,
+            clock=self.clock,
+            conservative_rtt=node.round_trip,
+            on_sample=self._on_sample,
+            sid=node.sid,
+            operator_name=self.cfg.get(NetworkConfig).user,
+            feedback_age=self.link.feedback_age if self.realtime else None,
+            on_blind=node.event,
+            hand=self._hand,
+        )
+        side = LeaderSide(
+            loop,
+            node.pubs,
+            self.cfg,
+            status_rx,
+            presence,
+            node.drops,
+            node.record,
+            self.reach,
+            self.link,
+            hand=self._hand,
+        )
+        self.aux = aux = node.enter(side)
+        return loop, aux
+
+    def _log_ready(self) -> None:
+        LOG.info(
+            "leader ready: robot %s, device %s, operator %s, %s%s",
+            self.cfg.get(RobotConfig).id,
+            self.dev_name,
+            self.op_name if self.operator is not None else "(person)",
+            "real time" if self.realtime else "as fast as possible",
+            f", cockpit {self.cockpit.url}" if self.cockpit is not None else "",
+        )
+        if self.cockpit is not None:
+            LOG.info("cockpit: open %s", self.cockpit.url)
+
+    def _finish(self, loop: LeaderLoop, done: bool, elapsed: float, path: Path | None) -> tuple[str, bool]:
+        """Stop the robot, record the end; return the one-line summary and whether no command ever got through."""
+        node = self.node
+        node.event("done" if done else "stop", {"elapsed_s": elapsed})
+        loop.send_stop()
+        never_reached = self.reach.never_acknowledged
+        if never_reached:
+            node.event("commands_not_reaching", {"commands": loop.seq})
+        summary = report_summary(
+            loop, self.op_name, self.operator, elapsed, node.drops, path, self.realtime, self.reach, self.link
+        )
+        return summary, never_reached
+
+    def _stats(self, loop: LeaderLoop, done: bool, elapsed: float, never_reached: bool) -> dict[str, Any]:
+        """Return the run's figures for ``run(stats=...)``: period statistics, counters, progress."""
+        out: dict[str, Any] = dict(loop.period_stats.summary(loop.dt))
+        out.update(
+            missed_ticks=loop.missed_ticks,
+            commands=loop.seq,
+            feedback=self.link.fb_arrived,
+            feedback_used=loop.feedback_count,
+            fb_too_old=self.link.fb_too_old,
+            drops=self.node.drops.total,
+            done=done,
+            elapsed_s=elapsed,
+            progress=self.operator.progress() if self.operator is not None else {},
+            cockpit=self.cockpit.stats if self.cockpit is not None else {},
+            acknowledged=self.reach.acknowledged,
+            never_reached=self.reach.never_reached,
+            never_acknowledged=never_reached,
+            link_lost_warnings=self.reach.lost_warnings,
+            slew_limited_ticks=loop.slew_limited_ticks,
+        )
+        return out
 
     def _run_loop(self, loop: LeaderLoop) -> None:
         """Run the haptic loop in the main thread: paced in real time, or stepped as fast as possible."""

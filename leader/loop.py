@@ -175,7 +175,7 @@ class LeaderLoop:
         self._damp_at: tuple[float, float] | None = None
         #: The control scheme (``[control] scheme``): the damping and what the force follows.
         self.scheme = make_scheme(control)
-        self.port = LeaderPort(self.scheme, np.asarray(control.k_m, dtype=float))
+        self.port = LeaderPort(self.scheme, np.asarray(control.k_m, dtype=float), control.wave_window_s)
         self.alpha_m = self._scheme_damping(0.0, 0.0)
         self.force = np.zeros(2)
         self.force_cmd = np.zeros(2)

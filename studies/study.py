@@ -54,11 +54,11 @@ from typing import Any
 import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping_array
-from bipedtele.control.equivalent import equivalent_matrices
+from bipedtele.control.follower_step import FollowerController, equivalent_steps
 from bipedtele.control.hybrid import orbit_speed_deficit
-from bipedtele.control.linalg import zoh2
 from bipedtele.control.online import Choice, OnlineChooser
 from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, ci95, hybrid_zoh
+from bipedtele.control.schemes import scheme_class
 from bipedtele.link.delaymodels import parse_delay_model
 
 __all__ = [
@@ -253,8 +253,7 @@ class _CaseRun:
         first = self.choice_at(0)
         # (29) discretised once per distinct sigma_e of the case (closed-form 2x2 ZOH)
         uniq, inverse = np.unique(self.s_e_k, axis=0, return_inverse=True)
-        a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
-        self.phi_eq, self.gam_eq = zoh2(a_eq, b_eq, dt)
+        self.phi_eq, self.gam_eq = equivalent_steps(uniq, cfg, dt)
         self.inverse = inverse.reshape(-1)
         n_all = self.n_all = 2 * runs
         self.vp = np.zeros(n_all, dtype=bool)
@@ -270,7 +269,9 @@ class _CaseRun:
         )
         self.k_g = np.asarray(cfg.k_g, dtype=float)
         self.dp = np.array([cfg.dp, cfg.dp_turn])
-        self.eq = np.zeros((n_all, 2, 2))  # [eta_e, z_e] per channel
+        # the follower step's equivalent follower (29) (the paper's law: the robot gets ref, z_e is fed back)
+        self.follower = FollowerController(scheme_class("paper")(cfg), np.asarray(cfg.k_m, dtype=float))
+        self.foll_state = self.follower.initial(n_all)
         self.hy = np.zeros((n_all, 2, 2))  # [eta, z_r] per channel
         self.phase = np.zeros(n_all)
         self.phi_h, self.gam_h = hybrid_zoh(self.s_r, cfg, dt)
@@ -302,9 +303,10 @@ class _CaseRun:
         i1 = ch1.idx[k]
         ref = self.cmd_buf[i1 % ch1.ring] if i1 >= 0 else np.zeros((n_all, 2))
         # equivalent follower (29), shared discretisation for this step's sigma_e
-        phi_e, gam_e = self.phi_eq[self.inverse[k]], self.gam_eq[self.inverse[k]]
-        self.eq = np.einsum("cij,ncj->nci", phi_e, self.eq) + gam_e[None, :, :, 0] * ref[:, :, None]
-        self.fb_buf[k % ch2.ring] = self.eq[:, :, 1]
+        j = self.inverse[k]
+        zoh = (np.broadcast_to(self.phi_eq[j], (n_all, 2, 2, 2)), np.broadcast_to(self.gam_eq[j], (n_all, 2, 2, 2)))
+        self.foll_state = self.follower.equivalent(self.foll_state, ref, zoh, None)
+        self.fb_buf[k % ch2.ring] = self.foll_state.eq[:, :, 1]
         # real follower: hybrid speed dynamics between impacts, per-run matrices
         phi_h, gam_h, hy = self.phi_h, self.gam_h, self.hy
         h0 = phi_h[..., 0, 0] * hy[..., 0] + phi_h[..., 0, 1] * hy[..., 1] + gam_h[..., 0] * ref

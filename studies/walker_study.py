@@ -111,7 +111,7 @@ class _SchemeLeader:
     ) -> None:
         self.sim = SimulatedLeader(switch, intent, control, params)
         self.scheme = scheme_class(control.scheme)(control, worst)
-        self.port = LeaderPort(self.scheme, np.asarray(control.k_m, dtype=float))
+        self.port = LeaderPort(self.scheme, np.asarray(control.k_m, dtype=float), control.wave_window_s)
         self.h2 = DelayEstimator(params.window_s)
         self.k_g = np.asarray(control.k_g, dtype=float)
         self.dt = params.dt

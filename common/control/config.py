@@ -105,6 +105,14 @@ class ControlConfig:
         "paper",
         doc="bilateral control scheme, a registered name (docs/schemes.md; bipedtele compare runs them all)",
     )
+    wave_window_s: float = param(
+        0.5,
+        lo=0.01,
+        hi=10.0,
+        unit="s",
+        doc="window over which every runner (the real loops, the comparison, the studies) measures the "
+        "received-wave gain sqrt(1 - dh/dt) (docs/schemes.md)",
+    )
     worst_delays_s: list[float] = _pair(
         (0.7, 0.7),
         lo=0.0,

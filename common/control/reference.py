@@ -14,11 +14,20 @@ Units: forward channel in cm/s, turn channel in deg/s, times in s.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from bipedtele.control.observer import Observer
 from numpy.typing import ArrayLike
 
-__all__ = ["RealFollowerReference"]
+__all__ = ["RealFollowerReference", "ReferenceState"]
+
+
+class ReferenceState(NamedTuple):
+    """The reference model's state as a value: the commanded speed ``eta`` and the observer's ``z_r`` [cm/s, deg/s]."""
+
+    eta: np.ndarray
+    z_r: np.ndarray
 
 
 class RealFollowerReference:
@@ -53,6 +62,15 @@ class RealFollowerReference:
     def z_r(self) -> np.ndarray:
         """Observer estimate of the real speeds [cm/s, deg/s] (eq. 12)."""
         return np.asarray(self.observer.z_r)
+
+    def state(self) -> ReferenceState:
+        """Return the model's state as a value (copies): :meth:`restore` runs a period again from it."""
+        return ReferenceState(self.eta.copy(), self.observer.z_r.copy())
+
+    def restore(self, state: ReferenceState) -> None:
+        """Put the model back in ``state`` (taken by :meth:`state`)."""
+        self.eta = state.eta.copy()
+        self.observer.reset(state.z_r)
 
     def reset(self, eta: np.ndarray | None = None, z_r: np.ndarray | None = None) -> None:
         """Set the commanded speed ``eta`` and the observer state ``z_r`` (default zero)."""

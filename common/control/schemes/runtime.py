@@ -1,28 +1,36 @@
-"""A scheme's two sides in a running loop: what the leader feels, what the follower commands.
+"""A scheme's two sides in a running loop: the controller steps with one run, and the message fields.
 
 The leader loop (1 kHz) and the follower loop (its control rate) keep one of these each. They
-call the scheme's port laws (:class:`~bipedtele.control.schemes.base.Scheme`: one run, arrays
-of shape ``(2,)``) on the newest message, let the scheme count the energy at their port
-(a scheme with a passivity observer does), and say what their next message carries (a wave variable and the port's input energy, fields ``wave`` and
-``energy`` of Command and Feedback, as the scheme decides). Units as in
+hold the controller step's state (:class:`~bipedtele.control.leader_step.LeaderController`,
+:class:`~bipedtele.control.follower_step.FollowerController`: the same steps the comparison
+runs on all its runs at once, here with one run, arrays of shape ``(1, 2)``) as a value,
+measure the received-wave gain over ``[control] wave_window_s`` one message at a time, and say
+what their next message carries (a wave variable and the port's input energy, fields ``wave``
+and ``energy`` of Command and Feedback, as the scheme decides). Units as in
 :mod:`~bipedtele.control.schemes.ports`; times in s on the receiver's clock.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
-from bipedtele.control.schemes.base import LeaderLaw, Scheme
-from bipedtele.control.schemes.ports import EnergyCounter, WaveGain
+from bipedtele.control.config import ControlConfig
+from bipedtele.control.follower_step import (
+    FollowerCommand,
+    FollowerController,
+    FollowerState,
+    equivalent_steps,
+)
+from bipedtele.control.leader_step import LeaderController, LeaderFeedback, LeaderHandle
+from bipedtele.control.schemes.base import Scheme
+from bipedtele.control.schemes.ports import WaveGain
 
-__all__ = ["LOOP_WAVE_WINDOW_S", "FollowerPort", "LeaderPort", "WaveGain", "received"]
-
-#: Window over which the real loops measure the received-wave gain ``sqrt(1 - dh/dt)`` [s]
-#: (the reduced comparison uses its own, ``CompareParams.wave_window_s``; docs/schemes.md).
-LOOP_WAVE_WINDOW_S = 0.5
+__all__ = ["FollowerPort", "LeaderPort", "WaveGain", "received"]
 
 
 class LeaderPort:
-    """The scheme at the leader: the speed the force (31) follows, and what the command carries.
+    """The scheme at the leader: the leader step with one run, the speed the force (31) follows, what the command carries.
 
     Parameters
     ----------
@@ -30,14 +38,17 @@ class LeaderPort:
         The scheme in use.
     k_m : array_like
         Leader gain [N/(cm/s), N/(deg/s)] (the wave impedance ``b``).
+    wave_window_s : float
+        Window of the received-wave gain [s] (default: ``[control] wave_window_s``'s default).
     """
 
-    def __init__(self, scheme: Scheme, k_m: np.ndarray) -> None:
+    def __init__(self, scheme: Scheme, k_m: np.ndarray, wave_window_s: float | None = None) -> None:
         self.scheme = scheme
         self.k_m = np.asarray(k_m, dtype=float)
-        self.port = EnergyCounter((2,))
-        self.wave_gain = scheme.gain_meter(LOOP_WAVE_WINDOW_S)
-        self._law = LeaderLaw(np.zeros(2), None, np.zeros(2))
+        self.controller = LeaderController(scheme, self.k_m)
+        #: The step's state (a value: keep it to run a period again).
+        self.state = self.controller.initial(1)
+        self.wave_gain = scheme.gain_meter(_window(wave_window_s))
         self._fb_key: tuple[float, float] | None = None
 
     def felt_speed(
@@ -51,7 +62,7 @@ class LeaderPort:
         t_recv: float,
         dt: float,
     ) -> np.ndarray:
-        """Return the speed the force follows [cm/s, deg/s] and count this period's port energy.
+        """Return the speed the force follows [cm/s, deg/s] after this period's step.
 
         Parameters
         ----------
@@ -67,22 +78,22 @@ class LeaderPort:
         if self._fb_key != (t_sent, t_recv):
             self._fb_key = (t_sent, t_recv)
             self.wave_gain.update(t_sent, t_recv)
-        scheme, other_in = self.scheme, np.asarray(energy, dtype=float)
-        signal = scheme.read_feedback(z_e, eta, wave)
-        law = scheme.leader_force(r_m, signal, self.wave_gain.gain, self.k_m)
-        law = scheme.limit_leader(law, r_m, self.port, other_in, self.k_m, dt)
-        scheme.count_leader(self.port, law, r_m, other_in, dt)
-        self._law = law
-        return law.followed(r_m, self.k_m)
+        signal = self.scheme.read_feedback(z_e, eta, wave)
+        fb = LeaderFeedback(_row(signal), _row(energy), self.wave_gain.gain)
+        r = _row(r_m)
+        # the step's force part: the command it carries is made when one is sent (outgoing)
+        self.state, law = self.controller.force(self.state, LeaderHandle(r, dt), fb)
+        return np.asarray(law.followed(r, self.k_m)[0])
 
     def outgoing(self, r_m: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
         """Return the command's ``wave`` (``u_m``) and ``energy``, each None where the scheme has no use for it."""
-        wave = self.scheme.command_wave(r_m, self._law, self.k_m)
-        return (None if wave is None else _pair(wave)), self.scheme.energy_sent(self.port.e_in)
+        cmd = self.controller.command(self.state, _row(r_m))
+        wave = None if cmd.wave is None else _pair(cmd.wave[0])
+        return wave, self.scheme.energy_sent(cmd.energy[0])
 
 
 class FollowerPort:
-    """The scheme at the follower: the speed command given to the robot, and what the feedback carries.
+    """The scheme at the follower: the follower step with one run, the speed command, (29), what the feedback carries.
 
     Parameters
     ----------
@@ -90,14 +101,29 @@ class FollowerPort:
         The scheme in use.
     k_m : array_like
         The leader gain [N/(cm/s), N/(deg/s)] (the wave impedance ``b``, the port's effort gain).
+    wave_window_s : float
+        Window of the received-wave gain [s] (default: ``[control] wave_window_s``'s default).
+    eta_max : array_like
+        The robot's largest speeds [cm/s, deg/s]: the command is clipped to them.
     """
 
-    def __init__(self, scheme: Scheme, k_m: np.ndarray) -> None:
+    def __init__(
+        self,
+        scheme: Scheme,
+        k_m: np.ndarray,
+        wave_window_s: float | None = None,
+        eta_max: np.ndarray | float = np.inf,
+    ) -> None:
         self.scheme = scheme
         self.k_m = np.asarray(k_m, dtype=float)
-        self.port = EnergyCounter((2,))
-        self.wave_gain = scheme.gain_meter(LOOP_WAVE_WINDOW_S)
+        self.controller = FollowerController(scheme, self.k_m, eta_max=eta_max)
+        #: The step's state (a value: keep it to run a period again).
+        self.state: FollowerState = self.controller.initial(1)
+        self.wave_gain = scheme.gain_meter(_window(wave_window_s))
         self._cmd_key: tuple[float, float] | None = None
+        self._zoh_key: tuple[float, ...] | None = None
+        self._zoh_cfg: ControlConfig | None = None
+        self._zoh: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros(0))
 
     def command(
         self,
@@ -109,7 +135,7 @@ class FollowerPort:
         t_recv: float,
         dt: float,
     ) -> np.ndarray:
-        """Return the speed command for the robot [cm/s, deg/s] and count this period's port energy.
+        """Return the speed command for the robot [cm/s, deg/s] after this period's law.
 
         ``ref`` is the received ``k_g x_m(t - h1)``, ``eta`` the measured speeds; ``wave`` and
         ``energy`` the command's fields, sent at ``t_sent``, received at ``t_recv`` [s].
@@ -117,18 +143,40 @@ class FollowerPort:
         if self._cmd_key != (t_sent, t_recv):
             self._cmd_key = (t_sent, t_recv)
             self.wave_gain.update(t_sent, t_recv)
-        scheme, k_m = self.scheme, self.k_m
-        eta = np.asarray(eta, dtype=float)
-        other_in = np.asarray(energy, dtype=float)
-        c = scheme.follower_command(ref, wave, self.wave_gain.gain, eta, k_m)
-        c = scheme.limit_follower(c, eta, self.port, other_in, k_m, dt)
-        scheme.count_follower(self.port, c, eta, other_in, k_m, dt)
-        return np.asarray(c)
+        cmd = FollowerCommand(_row(ref), _row(wave), _row(energy), self.wave_gain.gain)
+        self.state, c, _ = self.controller.command(self.state, cmd, _row(eta), dt)
+        return np.asarray(c[0])
+
+    def equivalent(
+        self, ref: np.ndarray, s_e: np.ndarray, f_hold: np.ndarray, cfg: ControlConfig, dt: float
+    ) -> np.ndarray:
+        """Advance the equivalent follower (29), (33) one period of ``dt`` [s] on ``ref``; return ``z_e`` [cm/s, deg/s]."""
+        key = (*np.asarray(s_e, dtype=float).ravel().tolist(), float(dt))
+        if self._zoh_key != key or self._zoh_cfg is not cfg:  # (29) discretised again only when its inputs moved
+            self._zoh_key, self._zoh_cfg, self._zoh = key, cfg, equivalent_steps(_row(s_e), cfg, dt)
+        zoh = self._zoh
+        self.state = self.controller.equivalent(self.state, _row(ref), zoh, _row(f_hold))
+        return np.asarray(self.state.eq[0, :, 1])
 
     def outgoing(self, eta: np.ndarray) -> tuple[list[float] | None, list[float] | None]:
         """Return the feedback's ``wave`` (``v_s``) and ``energy``, each None where the scheme has no use for it."""
-        wave = self.scheme.feedback_wave(np.asarray(eta, dtype=float), self.k_m)
-        return (None if wave is None else _pair(wave)), self.scheme.energy_sent(self.port.e_in)
+        state = self.state
+        fb = self.controller.feedback(state, _row(eta), lambda: state.eq[:, :, 1])
+        return (None if fb.wave is None else _pair(fb.wave[0])), self.scheme.energy_sent(fb.energy[0])
+
+
+def _window(wave_window_s: float | None) -> float:
+    """Return the gain's window [s]: as given, else the control config's default."""
+    if wave_window_s is not None:
+        return float(wave_window_s)
+    default = next(f.default for f in dataclasses.fields(ControlConfig) if f.name == "wave_window_s")
+    assert isinstance(default, float)
+    return default
+
+
+def _row(v: np.ndarray | list[float]) -> np.ndarray:
+    """One run: a ``[forward, turn]`` pair as shape ``(1, 2)``."""
+    return np.asarray(v, dtype=float).reshape(1, 2)
 
 
 def _pair(v: np.ndarray) -> list[float]:

@@ -11,10 +11,8 @@ zero delay.
 
 The gain ``sqrt(1 - dh/dt)`` is measured by the runner over a window the runner passes
 explicitly (:meth:`~bipedtele.control.schemes.base.Scheme.gain_meter`,
-:meth:`~bipedtele.control.schemes.base.Scheme.received_gains`): for now 0.5 s in the real
-loops (:data:`~bipedtele.control.schemes.runtime.LOOP_WAVE_WINDOW_S`) and 0.1 s in the
-reduced comparison (``CompareParams.wave_window_s``); one value is to be chosen by
-measurement.
+:meth:`~bipedtele.control.schemes.base.Scheme.received_gains`): ``[control] wave_window_s``
+(:class:`~bipedtele.control.config.ControlConfig`), one setting for every runner.
 """
 
 from __future__ import annotations
