@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-__all__ = ["PairedDifference", "Verdict", "holm", "judge_family", "paired_difference", "tost_p"]
+__all__ = ["PairedDifference", "Verdict", "holm", "judge_family", "n_for_power", "paired_difference", "tost_p"]
 
 
 @dataclass(frozen=True)
@@ -222,3 +222,45 @@ def judge_family(
             verdict = "inconclusive"
         out[n] = Verdict(diffs[n], p_adj[n], float(margin), tosts[n], t_adj[n], verdict)
     return out
+
+
+def n_for_power(d_z: float, alpha: float = 0.05, power: float = 0.8, n_max: int = 100_000) -> int | None:
+    """Return the smallest number of pairs at which a paired t-test detects effect ``d_z``.
+
+    Two-sided one-sample t-test on the differences at level ``alpha`` (pass ``alpha / m``
+    for a Holm family of ``m``: its first step, the most demanding), power from the
+    noncentral t distribution with noncentrality ``d_z sqrt(n)``.
+
+    Returns
+    -------
+    int or None
+        Pairs needed (at least 2); None when ``d_z`` is 0 or not finite, or more than
+        ``n_max`` would be needed.
+
+    Raises
+    ------
+    ValueError
+        ``alpha`` or ``power`` outside (0, 1).
+    """
+    if not (0.0 < alpha < 1.0 and 0.0 < power < 1.0):
+        raise ValueError(f"alpha = {alpha!r}, power = {power!r}: allowed: both in (0, 1)")
+    if not math.isfinite(d_z) or d_z == 0.0:
+        return None
+
+    def achieved(n: int) -> float:
+        crit = float(stats.t.ppf(1.0 - alpha / 2.0, n - 1))
+        nc = abs(d_z) * math.sqrt(n)
+        return float(stats.nct.sf(crit, n - 1, nc) + stats.nct.cdf(-crit, n - 1, nc))
+
+    lo, hi = 2, 2
+    while achieved(hi) < power:
+        if hi >= n_max:
+            return None
+        lo, hi = hi, min(n_max, 2 * hi)
+    while lo < hi:  # power grows with n: the first n that reaches it
+        mid = (lo + hi) // 2
+        if achieved(mid) >= power:
+            hi = mid
+        else:
+            lo = mid + 1
+    return hi
