@@ -133,7 +133,7 @@ def add_compare_parser(sub: Any) -> None:
     p.add_argument("--regimes", nargs="+", metavar="NAME", help="delay regimes (default: all)")
     p.add_argument("--no-margin", action="store_true", help="skip the released-handle runs")
     p.add_argument(
-        "--walker-runs", type=int, default=10, help="paired runs per cell on the pybullet walker (default 10; 0: none)"
+        "--walker-runs", type=int, default=12, help="paired runs per cell on the pybullet walker (default 12; 0: none)"
     )
     p.add_argument("--walker-schemes", nargs="+", metavar="NAME", help="named schemes on the walker (default: all six)")
     p.add_argument("--walker-duration", type=float, default=12.0, help="simulated seconds per walker run (default 12)")

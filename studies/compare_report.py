@@ -35,17 +35,21 @@ def _mean(v: dict[str, Any]) -> str:
     return f"{_num(v['mean'], '.3f')} [{_num(lo, '.3f')}, {_num(hi, '.3f')}]"
 
 
-def _judged(d: dict[str, Any] | None) -> str:
-    """Return a difference as ``mean [lo, hi]; d_z; p_Holm; verdict``."""
+def _judged(d: dict[str, Any] | None, alpha: float = 0.05) -> str:
+    """Return a difference as ``mean [lo, hi]; d_z; p_Holm; verdict``.
+
+    ``differs, within margin``: the difference is real (Holm p below ``alpha``) and the
+    TOST puts it inside the equivalence margin too.
+    """
     if not d:
         return "(baseline)"
     lo, hi = d["ci95"]
     p = d["p_holm"]
     p_txt = f"{p:.1g}" if math.isfinite(p) else "-"
-    return (
-        f"{_num(d['mean'])} [{_num(lo)}, {_num(hi)}]; d_z {_num(d['d_z'], '+.2f')}; "
-        f"p_H {p_txt}; {_VERDICT.get(d['verdict'], d['verdict'])}"
-    )
+    verdict = _VERDICT.get(d["verdict"], d["verdict"])
+    if d["verdict"] == "differs" and d["tost_p_holm"] < alpha:
+        verdict = "differs, within margin"
+    return f"{_num(d['mean'])} [{_num(lo)}, {_num(hi)}]; d_z {_num(d['d_z'], '+.2f')}; p_H {p_txt}; {verdict}"
 
 
 def _header(result: dict[str, Any]) -> list[str]:
@@ -62,7 +66,8 @@ def _header(result: dict[str, Any]) -> list[str]:
         f"Differences against the baseline `{d['baseline']}` (negative: lower error than the paper's), "
         f"as mean [95 % CI]; d_z (mean over SD of the paired differences); p_H, the Holm-adjusted p within "
         f"the family (per regime and metric, every other cell); the verdict at alpha {d['alpha']:g}: "
-        f"`differs`, `equiv.` (TOST within the margin, Holm-adjusted), `?` (neither). Margins, stated before "
+        f"`differs`, `differs, within margin` (real and inside the margin: both tests reject), `equiv.` (TOST "
+        f"within the margin, Holm-adjusted), `?` (neither). Margins, stated before "
         f"the runs: {margins} (cm/s, deg/s, N); released handle {1e3 * d['released_margin_m_s']:g} mm/s.",
     ]
 
@@ -81,6 +86,26 @@ def _regime_table(regime: str, per: dict[str, Any]) -> list[str]:
             f"| `{name}` | {c.get('named') or ''} | {c['n']} ({c['unstable']}) | {_mean(c['forward_error'])} | "
             f"{diffs} | {_mean(c['forward_force_error'])} |"
         )
+    return lines
+
+
+def _named_table(result: dict[str, Any]) -> list[str]:
+    """Return the named schemes' cells against the baseline, every regime (a selection of the regime tables)."""
+    head = " | ".join(label for _, label in _TABLE_METRICS)
+    named = result["design"]["named"]
+    lines = [
+        "The named schemes, each a cell of the grid, against `paper` (a selection of the regime tables below).",
+        "",
+        f"| regime | scheme (cell) | {head} |",
+        "| --- | --- |" + " --- |" * len(_TABLE_METRICS),
+    ]
+    for regime, per in result["cells"].items():
+        for n, cell in named.items():
+            c = per.get(cell)
+            if c is None or "vs_baseline" not in c["forward_error"]:
+                continue
+            row = " | ".join(_judged(c[m]["vs_baseline"]) for m, _ in _TABLE_METRICS)
+            lines.append(f"| {regime} | {n} (`{cell}`) | {row} |")
     return lines
 
 
@@ -161,6 +186,8 @@ def compare_markdown(result: dict[str, Any]) -> str:
     and the walker cells.
     """
     lines = _header(result)
+    if all(c in next(iter(result["cells"].values()), {}) for c in result["design"]["named"].values()):
+        lines += ["", "### Named schemes", "", *_named_table(result)]
     for regime, per in result["cells"].items():
         lines += ["", *_regime_table(regime, per)]
     if result.get("main_effects"):

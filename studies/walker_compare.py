@@ -42,6 +42,11 @@ LOG = logging.getLogger(__name__)
 WALKER_METRICS: tuple[str, ...] = ("forward_error", "turn_error", "forward_intent_error", "turn_intent_error")
 
 
+def _row(x: np.ndarray, i: int) -> np.ndarray:
+    """Return run ``i``'s series: its row of a ``(runs, steps)`` array, or the one series every run shares."""
+    return np.asarray(x[i]) if np.ndim(x) == 2 else np.asarray(x)
+
+
 def _one(task: tuple[str, str, int, dict[str, Any]]) -> tuple[str, str, int, WalkerRun]:
     regime, scheme, i, kwargs = task
     control = dataclasses.replace(kwargs.pop("control"), scheme=scheme)
@@ -94,9 +99,9 @@ def run_walker_compare(
                 kwargs = {
                     "switch": inp.switch[i : i + 1],
                     "intent": inp.intent[i : i + 1],
-                    "h1": inp.h1,
-                    "h2": inp.h2,
-                    "lost": (inp.lost1, inp.lost2),
+                    "h1": _row(inp.h1, i),
+                    "h2": _row(inp.h2, i),
+                    "lost": (_row(inp.lost1, i), _row(inp.lost2, i)),
                     "control": control,
                     "follower": cfg.get(FollowerConfig),
                     "sim": cfg.get(SimConfig),
