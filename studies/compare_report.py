@@ -43,7 +43,7 @@ def _judged(d: dict[str, Any] | None, alpha: float = 0.05) -> str:
     """
     if not d:
         return "(baseline)"
-    lo, hi = d["ci95"]
+    lo, hi = d.get("ci_family") or d["ci95"]
     p = d["p_holm"]
     p_txt = f"{p:.1g}" if math.isfinite(p) else "-"
     verdict = _VERDICT.get(d["verdict"], d["verdict"])
@@ -64,7 +64,8 @@ def _header(result: dict[str, Any]) -> list[str]:
         f"controllers at both ports. Named schemes: {named}.",
         "",
         f"Differences against the baseline `{d['baseline']}` (negative: lower error than the paper's), "
-        f"as mean [95 % CI]; d_z (mean over SD of the paired differences); p_H, the Holm-adjusted p within "
+        f"as mean [family-corrected 95 % CI: Bonferroni over the family, so that all of a family's intervals "
+        f"hold together]; d_z (mean over SD of the paired differences); p_H, the Holm-adjusted p within "
         f"the family (per regime and metric, every other cell); the verdict at alpha {d['alpha']:g}: "
         f"`differs`, `differs, within margin` (real and inside the margin: both tests reject), `equiv.` (TOST "
         f"within the margin, Holm-adjusted), `?` (neither). Margins, stated before "
@@ -151,7 +152,10 @@ def _released_table(margin: dict[str, Any]) -> list[str]:
 
 
 def _in_mm(d: dict[str, Any]) -> dict[str, Any]:
-    return {**d, "mean": 1e3 * d["mean"], "ci95": [1e3 * v for v in d["ci95"]]}
+    out = {**d, "mean": 1e3 * d["mean"], "ci95": [1e3 * v for v in d["ci95"]]}
+    if d.get("ci_family"):
+        out["ci_family"] = [1e3 * v for v in d["ci_family"]]
+    return out
 
 
 def _walker_lines(walker: dict[str, Any]) -> list[str]:

@@ -23,7 +23,20 @@ pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the 
 CFG = ControlConfig()
 
 
-VERDICT_KEYS = {"n", "mean", "ci95", "sd", "p", "d_z", "p_holm", "margin", "tost_p", "tost_p_holm", "verdict"}
+VERDICT_KEYS = {
+    "n",
+    "mean",
+    "ci95",
+    "sd",
+    "p",
+    "d_z",
+    "p_holm",
+    "margin",
+    "tost_p",
+    "tost_p_holm",
+    "verdict",
+    "ci_family",
+}
 
 
 @pytest.mark.timeout(240)

@@ -88,3 +88,17 @@ def test_pairs_for_power_match_the_published_tables() -> None:
     assert n_for_power(0.0) is None and n_for_power(math.nan) is None
     with pytest.raises(ValueError, match="allowed"):
         n_for_power(0.5, alpha=1.5)
+
+
+def test_the_family_interval_by_hand() -> None:
+    from bipedtele.studies.inference import family_interval
+
+    # Differences 1..5, a family of 2 at alpha 0.05: the t interval at 1 - 0.05/2,
+    # t(0.9875, 4) = 3.4954 (tables): 3 -+ 3.4954 * sqrt(0.5)
+    lo, hi = family_interval(paired_difference(X, Y), 2)
+    assert lo == pytest.approx(3.0 - 3.4954 * math.sqrt(0.5), abs=1e-3)
+    assert hi == pytest.approx(3.0 + 3.4954 * math.sqrt(0.5), abs=1e-3)
+    # one member: the plain 95 % interval; judge_family gives each member its family's interval
+    assert family_interval(paired_difference(X, Y), 1) == pytest.approx(paired_difference(X, Y).ci95)
+    fam = judge_family({"a": (X, Y), "b": (Y, X)}, margin=1.0)
+    assert fam["a"].ci_family == pytest.approx((lo, hi), abs=1e-9)
