@@ -2,7 +2,11 @@
 
 Every registered scheme (:mod:`bipedtele.control.schemes`) runs the same ``runs`` operators
 (intentions, hand) over the same delays and losses of a regime, so run ``i`` of one scheme
-and run ``i`` of another differ only by the scheme: the differences are paired. The loop is
+and run ``i`` of another differ only by the scheme: the differences are paired. Each run
+draws its own realisation of the regime's delay process and losses (:func:`regime_inputs`),
+so the runs spread over the delays as well as over the operators; everything that follows
+from the delays (the channel, the delay estimate, the damping, the online choice (30) and
+the impact times) is each run's own. The loop is
 the study's (:mod:`bipedtele.studies.study`: simulated operator and handle (1), (31)-(32);
 one message per period each way, the newest kept; the real follower's reduced hybrid model
 (20), (22), (12) with the impact reset and ``(sigma_r, T)`` changed only at impacts), with
@@ -49,6 +53,7 @@ from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import SimulatedLeader, StudyParams, channel, hybrid_zoh
 from bipedtele.control.schemes import Scheme
 from bipedtele.control.schemes.ports import EnergyCounter
+from bipedtele.link.delaymodels import DelayModel, NormalDelay, TraceDelay, UniformDelay, parse_delay_model
 from bipedtele.studies.regimes import CompareParams, Regime
 from bipedtele.studies.study import DelayCase, case_inputs
 
@@ -57,7 +62,20 @@ __all__ = ["RegimeInputs", "regime_inputs", "simulate"]
 
 @dataclass(frozen=True)
 class RegimeInputs:
-    """What one regime feeds every scheme: delays, losses and the operators (paired)."""
+    """What one regime feeds every scheme: delays, losses and the operators, drawn per run (paired).
+
+    Attributes
+    ----------
+    h1, h2 : numpy.ndarray
+        One-way delay of the message sent at each step [s], shape (runs, K): run ``i``'s own
+        realisation of the regime's delay process.
+    lost1, lost2 : numpy.ndarray
+        Whether that message is lost, shape (runs, K), bool.
+    switch, intent : numpy.ndarray
+        The operators (:class:`~bipedtele.studies.study.CaseInputs`), one per run.
+    seed : int
+        The seed every draw came from (run ``i``'s delays and losses from ``(seed, i)``).
+    """
 
     h1: np.ndarray
     h2: np.ndarray
@@ -65,29 +83,91 @@ class RegimeInputs:
     lost2: np.ndarray
     switch: np.ndarray
     intent: np.ndarray
+    seed: int = 0
+
+
+#: Tag of the per-run delay and loss streams (``default_rng([seed, tag, run])``), apart
+#: from the operators' stream.
+_DELAY_STREAM = 35
 
 
 def regime_inputs(regime: Regime, runs: int, seed: int, cfg: ControlConfig, params: StudyParams) -> RegimeInputs:
-    """Draw a regime's delays, losses and operators (seeded; equal for every scheme)."""
-    inp = case_inputs(DelayCase(regime.name, regime.h1, regime.h2, regime.description), runs, seed, cfg, params)
-    h1, h2 = inp.h1 * regime.scale, inp.h2 * regime.scale
-    if regime.step_s is not None:
-        before, after = regime.step_s
-        late = np.arange(h1.size) >= h1.size // 2
-        h1 = np.where(late, after, before).astype(float)
-        h2 = h1.copy()
-    rng = np.random.default_rng([seed, 7])
-    lost1 = rng.random(h1.size) < regime.loss
-    lost2 = rng.random(h2.size) < regime.loss
-    return RegimeInputs(h1, h2, lost1, lost2, inp.switch, inp.intent)
+    """Draw a regime's delays, losses and operators, each run its own (seeded; equal for every scheme).
+
+    Run ``i`` draws its delays and losses from ``(seed, i)``, so the draws differ across runs,
+    are the same for every scheme given the same inputs (the pairing) and repeat with the
+    seed. A random delay model (``uniform``, ``normal``) draws every message's delay afresh
+    per run; a trace (``trace:intercontinental:h1``) is one recording, so run ``i`` reads it
+    from its own random starting offset, uniform over the trace's loop period in whole steps (its ``h1``
+    and ``h2`` columns from the same offset: one path, both directions); a step regime is
+    the same deterministic step in every run. The operators are drawn per run as the
+    study draws them (:func:`~bipedtele.studies.study.case_inputs`).
+    """
+    case = DelayCase(regime.name, regime.h1, regime.h2, regime.description)
+    inp = case_inputs(case, runs, seed, cfg, params)
+    k_steps = round(params.duration_s / params.dt)
+    t_grid = np.arange(k_steps) * params.dt
+    h1, h2 = np.empty((runs, k_steps)), np.empty((runs, k_steps))
+    lost1, lost2 = np.empty((runs, k_steps), bool), np.empty((runs, k_steps), bool)
+    models = (parse_delay_model(regime.h1), parse_delay_model(regime.h2))
+    for i in range(runs):
+        rng = np.random.default_rng([seed, _DELAY_STREAM, i])
+        if regime.step_s is not None:
+            before, after = regime.step_s
+            h1[i] = np.where(np.arange(k_steps) >= k_steps // 2, after, before)
+            h2[i] = h1[i]
+        else:
+            offset = float(rng.uniform(0.0, 1.0))  # a trace's start, as a fraction of its loop
+            h1[i] = _draw_delays(models[0], rng, t_grid, offset) * regime.scale
+            h2[i] = _draw_delays(models[1], rng, t_grid, offset) * regime.scale
+        lost1[i] = rng.random(k_steps) < regime.loss
+        lost2[i] = rng.random(k_steps) < regime.loss
+    return RegimeInputs(h1, h2, lost1, lost2, inp.switch, inp.intent, seed)
+
+
+def _draw_delays(model: DelayModel, rng: np.random.Generator, t_grid: np.ndarray, offset: float) -> np.ndarray:
+    """One realisation of a delay model at the send times ``t_grid`` [s].
+
+    A trace is read from ``offset`` (a fraction of its loop period, rounded down to a whole
+    number of steps ``t_grid[1]``) on, looped and linearly interpolated (:class:`~bipedtele.link.delaymodels.TraceDelay`); a random model draws
+    each message's delay from ``rng`` with the model's distribution (uniform: clipped at 0;
+    normal: redrawn while negative); another model (constant) is asked one message at a time.
+    """
+    n = t_grid.size
+    if isinstance(model, TraceDelay):
+        t0, period = model.t[0], model.period
+        dt = float(t_grid[1] - t_grid[0]) if n > 1 else 1.0
+        start = np.floor(offset * period / dt) * dt
+        tau = t0 + (start + t_grid) % period
+        return np.interp(tau, [*model.t, t0 + period], [*model.d, model.d[0]])
+    if isinstance(model, UniformDelay):
+        return np.maximum(0.0, rng.uniform(model.mean - model.half_width, model.mean + model.half_width, n))
+    if isinstance(model, NormalDelay):
+        d = rng.normal(model.mean, model.std, n)
+        for _ in range(64):
+            neg = d < 0.0
+            if not neg.any():
+                break
+            d[neg] = rng.normal(model.mean, model.std, int(neg.sum()))
+        return np.maximum(d, 0.0)
+    return np.array([model.delay_s(float(t)) for t in t_grid])
 
 
 def _equivalent_steps(s_e_k: np.ndarray, cfg: ControlConfig, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact ZOH of (29) for every distinct ``sigma_e`` of the run, and which one each step uses."""
-    uniq, inverse = np.unique(s_e_k, axis=0, return_inverse=True)
+    """Exact ZOH of (29) for every distinct ``sigma_e`` of the runs, and which one each run and step uses.
+
+    ``s_e_k`` has shape (runs, K, 2); the index returned has shape (runs, K).
+    """
+    uniq, inverse = np.unique(s_e_k.reshape(-1, 2), axis=0, return_inverse=True)
     a_eq, b_eq = equivalent_matrices(uniq, cfg.D, cfg.k_s, cfg.beta_e, cfg.k_z)
     phi, gam = zoh2(a_eq, b_eq, dt)
-    return phi, gam, inverse.reshape(-1)
+    return phi, gam, inverse.reshape(s_e_k.shape[:2])
+
+
+def _per_run_damping(scheme: Scheme, est1: np.ndarray, est2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the scheme's damping for each run's own delay estimates (``(runs, K)``): two ``(runs, K, 2)`` arrays."""
+    pairs = [scheme.damping(est1[i], est2[i]) for i in range(est1.shape[0])]
+    return np.stack([a for a, _ in pairs]), np.stack([s for _, s in pairs])
 
 
 class _Loop:
@@ -99,10 +179,11 @@ class _Loop:
         self.n = n = inp.switch.shape[0]
         self.ch1 = channel(inp.h1, p.dt, p.window_s, inp.lost1)
         self.ch2 = channel(inp.h2, p.dt, p.window_s, inp.lost2)
-        self.alpha_k, self.s_e_k = scheme.damping(self.ch1.estimate, self.ch2.estimate)
+        self.alpha_k, self.s_e_k = _per_run_damping(scheme, self.ch1.estimate, self.ch2.estimate)
         self.phi_eq, self.gam_eq, self.eq_index = _equivalent_steps(self.s_e_k, cfg, p.dt)
         w = round(cp.wave_window_s / p.dt)  # this runner's window, passed to the scheme (docs/schemes.md)
-        self.gain1, self.gain2 = scheme.received_gains(self.ch1.idx, w), scheme.received_gains(self.ch2.idx, w)
+        self.gain1 = np.stack([scheme.received_gains(row, w) for row in self.ch1.idx])[..., None]
+        self.gain2 = np.stack([scheme.received_gains(row, w) for row in self.ch2.idx])[..., None]
         self.leader = SimulatedLeader(inp.switch, inp.intent, cfg, p)
         self.k_g = np.asarray(cfg.k_g, dtype=float)
         self.k_m = np.asarray(cfg.k_m, dtype=float)
@@ -119,18 +200,20 @@ class _Loop:
         self.port_m, self.port_s = EnergyCounter((n, 2)), EnergyCounter((n, 2))
         self.sums = {m: np.zeros((n, 2)) for m in ("error", "intent", "force2", "effort")}
         self.peak = np.zeros(n)
-        self.late_from = round(0.75 * inp.h1.size)
+        self.late_from = round(0.75 * inp.h1.shape[1])
+        self.rows = np.arange(n)
         self.late_v2 = np.zeros((n, 2))
 
-    def _received(self, buf: np.ndarray, idx: int, ring: int) -> np.ndarray:
-        return buf[idx % ring] if idx >= 0 else np.zeros((self.n, 2))
+    def _received(self, buf: np.ndarray, idx: np.ndarray, ring: int) -> np.ndarray:
+        """Each run's newest message arrived (``idx`` per run, -1: none yet: zeros)."""
+        return np.where((idx >= 0)[:, None], buf[idx % ring, self.rows], 0.0)
 
     def leader_tick(self, k: int, t: float) -> None:
         """Advance the leader: feel what arrived, move the handle, send the command (the scheme's laws)."""
-        i2, ring2 = int(self.ch2.idx[k]), self.ch2.ring
+        i2, ring2 = self.ch2.idx[:, k], self.ch2.ring
         scheme, k_m = self.scheme, self.k_m
         r_now = self.k_g * self.leader.x
-        law = scheme.leader_force(r_now, self._received(self.fb_buf, i2, ring2), self.gain2[k], k_m)
+        law = scheme.leader_force(r_now, self._received(self.fb_buf, i2, ring2), self.gain2[:, k], k_m)
         ein_s_rx = self._received(self.ein_s_buf, i2, ring2)
         law = scheme.limit_leader(law, r_now, self.port_m, ein_s_rx, k_m, self.dt)
         f_m = law.force
@@ -138,7 +221,7 @@ class _Loop:
         eta = self.hy[..., 0]
         self.sums["force2"] += (f_m - k_m * (r_now - eta)) ** 2
         # the simulated handle renders the force: it follows r - F/k_m (law.followed(), to rounding)
-        x = self.leader.step(t, r_now - f_m / k_m, self.alpha_k[k])
+        x = self.leader.step(t, r_now - f_m / k_m, self.alpha_k[:, k])
         self.sums["effort"] += np.abs(self.leader.f_h)
         if k >= self.late_from:
             self.late_v2 += self.leader.v**2
@@ -158,19 +241,17 @@ class _Loop:
         """
         if self.eq_k != k:
             self.eq_k = k
-            j = self.eq_index[k]
-            self.eq = (
-                np.einsum("cij,ncj->nci", self.phi_eq[j], self.eq) + self.gam_eq[j][None, :, :, 0] * ref[:, :, None]
-            )
+            j = self.eq_index[:, k]
+            self.eq = np.einsum("ncij,ncj->nci", self.phi_eq[j], self.eq) + self.gam_eq[j][..., 0] * ref[:, :, None]
         return np.asarray(self.eq[:, :, 1])
 
     def follower_tick(self, k: int, hybrid: tuple[np.ndarray, np.ndarray]) -> None:
         """Advance the follower: take the newest command, drive the robot, send the feedback (the scheme's laws)."""
-        i1, ring1 = int(self.ch1.idx[k]), self.ch1.ring
+        i1, ring1 = self.ch1.idx[:, k], self.ch1.ring
         scheme, k_m = self.scheme, self.k_m
         ref = self._received(self.cmd_buf, i1, ring1)
         eta = self.hy[..., 0]
-        c = scheme.follower_command(ref, self._received(self.wave_buf, i1, ring1), self.gain1[k], eta, k_m)
+        c = scheme.follower_command(ref, self._received(self.wave_buf, i1, ring1), self.gain1[:, k], eta, k_m)
         ein_m_rx = self._received(self.ein_m_buf, i1, ring1)
         c = scheme.limit_follower(c, eta, self.port_s, ein_m_rx, k_m, self.dt)
         self.port_s.add(-k_m * (c - eta) * c, self.dt, ein_m_rx)  # P_s (ports.follower_power)
@@ -184,6 +265,42 @@ class _Loop:
         lead = self.leader
         self.sums["intent"] += np.abs(lead.intent[lead.rows, lead.seg] - self.hy[..., 0])
         self.peak = np.maximum(self.peak, np.abs(self.hy[..., 0]).max(axis=1))
+
+
+class _Cycles:
+    """Each run's walking cycle: the online choice (30) for its own ``sigma_e``, taken at its impacts.
+
+    Parameters
+    ----------
+    chooser : OnlineChooser
+        Solves (30).
+    s_e_k : numpy.ndarray
+        Each run's equivalent damping per step, (runs, K, 2).
+    cfg : ControlConfig
+        The follower's gains.
+    dt : float
+        Control period [s].
+    """
+
+    def __init__(self, chooser: OnlineChooser, s_e_k: np.ndarray, cfg: ControlConfig, dt: float) -> None:
+        self.chooser, self.s_e_k, self.cfg, self.dt = chooser, s_e_k, cfg, dt
+        first = [chooser.choose(s) for s in s_e_k[:, 0]]
+        self.s_r = np.stack([c.s_r for c in first])
+        self.T = np.array([c.T for c in first])
+        self.phase = np.zeros(len(first))
+        self.phi, self.gam = hybrid_zoh(self.s_r, cfg, dt)
+
+    def advance(self, k: int) -> np.ndarray:
+        """Advance one period after step ``k``; return which runs hit an impact (their next cycle chosen)."""
+        self.phase += self.dt
+        hit = self.phase >= self.T - 1e-9
+        if hit.any():
+            self.phase[hit] -= self.T[hit]
+            for i in np.flatnonzero(hit):
+                c = self.chooser.choose(self.s_e_k[i, k])
+                self.s_r[i], self.T[i] = c.s_r, c.T
+            self.phi[hit], self.gam[hit] = hybrid_zoh(self.s_r[hit], self.cfg, self.dt)
+        return hit
 
 
 def simulate(
@@ -203,24 +320,18 @@ def simulate(
     (largest axis) and ``oscillating`` whether it exceeds ``cp.oscillation_m_s``.
     """
     p = cp.study
-    k_steps = inp.h1.size
+    k_steps = inp.h1.shape[1]
     loop = _Loop(scheme, inp, cfg, cp)
     if release:
         loop.leader.release_t = cp.release_fraction * k_steps * p.dt
-    choice = chooser.choose(loop.s_e_k[0])
-    hybrid = hybrid_zoh(np.repeat(choice.s_r[None, :], loop.n, axis=0), cfg, p.dt)
-    T, phase = choice.T, 0.0
+    cycle = _Cycles(chooser, loop.s_e_k, cfg, p.dt)
     report_every = max(1, k_steps // 50)
     for k in range(k_steps):
         loop.leader_tick(k, k * p.dt)
-        loop.follower_tick(k, hybrid)
-        phase += p.dt
-        if phase >= T - 1e-9:  # impact: reset, then the next cycle's parameters (30)
-            loop.hy[..., 0] *= loop.dp
-            phase -= T
-            choice = chooser.choose(loop.s_e_k[k])
-            hybrid = hybrid_zoh(np.repeat(choice.s_r[None, :], loop.n, axis=0), cfg, p.dt)
-            T = choice.T
+        loop.follower_tick(k, (cycle.phi, cycle.gam))
+        hit = cycle.advance(k)
+        if hit.any():  # impact: reset; those runs take the next cycle's parameters (30)
+            loop.hy[hit, :, 0] *= loop.dp
         if progress is not None and (k + 1) % report_every == 0:
             progress(report_every)
     out: dict[str, np.ndarray] = {}

@@ -68,9 +68,10 @@ class Channel:
     Attributes
     ----------
     idx : numpy.ndarray
-        Index of the newest message arrived by step ``k`` (-1: none yet), shape (K,).
+        Index of the newest message arrived by step ``k`` (-1: none yet), shape (K,) or
+        (runs, K).
     estimate : numpy.ndarray
-        The receiver's moving-average delay estimate at step ``k`` [s], shape (K,).
+        The receiver's moving-average delay estimate at step ``k`` [s], shape as ``idx``.
     mean_s : float
         Mean one-way delay of the messages sent [s].
     ring : int
@@ -80,7 +81,7 @@ class Channel:
     """
 
     idx: np.ndarray  # newest message index arrived by step k (-1: none yet)
-    estimate: np.ndarray  # 1 s moving-average delay estimate at step k [s]
+    estimate: np.ndarray  # moving-average delay estimate at step k [s]
     mean_s: float
     ring: int  # ring-buffer length that covers every lag
     lost: int = 0
@@ -93,7 +94,21 @@ def channel(delays: np.ndarray, dt: float, window_s: float, lost: np.ndarray | N
     ``lost[n]``; the receiver keeps the newest message arrived (an older one arriving
     later is dropped, as the real transport does) and estimates the delay as the mean of
     the delays received in the last ``window_s`` [s], holding its last value across gaps.
+
+    ``delays`` (and ``lost``) of shape ``(runs, K)`` give every run its own channel: ``idx``
+    and ``estimate`` then have shape ``(runs, K)``, ``ring`` covers every run's lags,
+    ``mean_s`` is the mean over all runs and ``lost`` counts every run's losses.
     """
+    delays = np.asarray(delays, dtype=float)
+    if delays.ndim == 2:
+        rows = [channel(delays[i], dt, window_s, None if lost is None else lost[i]) for i in range(delays.shape[0])]
+        return Channel(
+            idx=np.stack([c.idx for c in rows]),
+            estimate=np.stack([c.estimate for c in rows]),
+            mean_s=float(delays.mean()),
+            ring=max(c.ring for c in rows),
+            lost=sum(c.lost for c in rows),
+        )
     k_steps = delays.shape[0]
     n = np.arange(k_steps)
     arrive = n + np.ceil(delays / dt - 1e-9).astype(int)
