@@ -104,14 +104,14 @@ class WorstDamping(Scheme):
 
 
 #: Damping axis: level -> the class that holds that damping.
-DAMPINGS: dict[str, type[Scheme]] = {
+DAMPINGS: dict[str, type] = {  # abstract halves of a scheme: a type, not a type[Scheme]
     "floor": FloorDamping,
     "ratio": RatioDamping,
     "scheduled": ScheduledDamping,
     "worst": WorstDamping,
 }
 #: Feedback axis: level -> the coupling class (port laws).
-FEEDBACKS: dict[str, type[Scheme]] = {"ze": EquivalentSpeed, "speed": MeasuredSpeed, "wave": Wave}
+FEEDBACKS: dict[str, type] = {"ze": EquivalentSpeed, "speed": MeasuredSpeed, "wave": Wave}
 #: Passivity axis: level -> whether the passivity observers and controllers act.
 PASSIVITY: dict[str, bool] = {"off": False, "on": True}
 
@@ -151,7 +151,7 @@ NAMED_CELLS: dict[str, Cell] = {
 def _compose(cell: Cell) -> type[Scheme]:
     """Return the class of one cell: the passivity mixin (if on), then the damping, then the coupling."""
     name = cell_name(cell)
-    bases: tuple[type[Scheme], ...] = (DAMPINGS[cell.damping], FEEDBACKS[cell.feedback])
+    bases: tuple[type, ...] = (DAMPINGS[cell.damping], FEEDBACKS[cell.feedback])
     if PASSIVITY[cell.passivity]:
         bases = (Passivity, *bases)
     title = f"{_DAMPING_TITLES[cell.damping]}, {_FEEDBACK_TITLES[cell.feedback]}"
