@@ -25,6 +25,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -201,6 +202,28 @@ def _released(per_scale: dict[float, dict[str, dict[str, np.ndarray]]], baseline
     return out
 
 
+_CHOOSER: list[OnlineChooser] = []  # one per process: (30)'s tables are built once
+
+
+def _chooser(cfg: ControlConfig) -> OnlineChooser:
+    if not _CHOOSER or _CHOOSER[0].cfg != cfg:
+        _CHOOSER[:] = [OnlineChooser(cfg)]
+    return _CHOOSER[0]
+
+
+def _cell_task(
+    task: tuple[Regime, str, int, int, ControlConfig, CompareParams, bool],
+    cls: type[Scheme] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[str, str, dict[str, np.ndarray]]:
+    """Simulate one cell on one regime (``cls``: its class; default the grid's cell of that name)."""
+    regime, name, runs, seed, cfg, cp, release = task
+    inp = regime_inputs(regime, runs, seed, cfg, cp.study)
+    worst = (float(np.max(inp.h1)), float(np.max(inp.h2)))
+    scheme = (cls or grid()[name])(cfg, worst)
+    return regime.name, name, simulate(scheme, inp, cfg, cp, _chooser(cfg), release=release, progress=progress)
+
+
 def _design(baseline: str, runs: int, seed: int) -> dict[str, Any]:
     return {
         "axes": {"damping": list(DAMPINGS), "feedback": list(FEEDBACKS), "passivity": list(PASSIVITY)},
@@ -231,6 +254,7 @@ def run_compare(
     cells: dict[str, type[Scheme]] | None = None,
     regimes: tuple[Regime, ...] = REGIMES,
     margin_scales: tuple[float, ...] = MARGIN_SCALES,
+    jobs: int = 1,
     progress: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Run the factorial grid (or ``cells``) on every regime (reduced model), judged against the baseline.
@@ -244,6 +268,9 @@ def run_compare(
         :func:`~bipedtele.control.schemes.factorial.grid`); the baseline is always run.
     margin_scales : tuple of float
         Delay scales of the shipped trace at which the operator lets go (``()``: none).
+    jobs : int
+        Processes over which the cells are spread (grid cells only; the results do not
+        depend on it: each cell is one deterministic simulation of the same inputs).
 
     Returns
     -------
@@ -262,27 +289,41 @@ def run_compare(
     if BASELINE not in classes:
         classes = {BASELINE: full[BASELINE], **classes}
     axes: dict[str, Cell] = {n: getattr(c, "cell", Cell("", "", "")) for n, c in classes.items()}
-    chooser = OnlineChooser(cfg)
     started = time.monotonic()
     out_cells: dict[str, dict[str, Any]] = {}
     effects: dict[str, Any] = {}
     released: dict[float, dict[str, dict[str, np.ndarray]]] = {}
     margin_regimes = tuple(Regime(f"margin-x{s:g}", f"shipped trace x{s:g}", scale=s) for s in margin_scales)
+    tasks = [(r, n, runs, seed, cfg, cp, r in margin_regimes) for r in regimes + margin_regimes for n in classes]
+    k_steps = round(cp.study.duration_s / cp.study.dt)
+    results: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+    if jobs > 1 and all(full.get(n) is c for n, c in classes.items()):
+        # the costliest cells first (those that solve (30) anew at every impact of every run)
+        tasks.sort(key=lambda t: not classes[t[1]].adapts)
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for regime_name, name, res in pool.map(_cell_task, tasks):
+                results[(regime_name, name)] = res
+                if progress is not None:
+                    progress(k_steps)
+    else:
+        for t in tasks:
+            regime_name, name, res = _cell_task(t, classes[t[1]], progress)
+            results[(regime_name, name)] = res
     for regime in regimes + margin_regimes:
-        inp = regime_inputs(regime, runs, seed, cfg, cp.study)
-        worst = (float(np.max(inp.h1)), float(np.max(inp.h2)))
         margin = regime in margin_regimes
-        per_cell = {
-            n: simulate(cls(cfg, worst), inp, cfg, cp, chooser, release=margin, progress=progress)
-            for n, cls in classes.items()
-        }
+        per_cell = {n: results[(regime.name, n)] for n in classes}
         if margin:
             released[regime.scale] = per_cell
             continue
         out_cells[regime.name] = judged_cells(per_cell, BASELINE, axes=axes)
         if set(classes) == set(full):
             effects[regime.name] = main_effects(per_cell, axes)
-        LOG.info("compare: %s done (%.0f s)", regime.name, time.monotonic() - started)
+    LOG.info(
+        "compare: %d cells x %d passes done (%.0f s)",
+        len(classes),
+        len(tasks) // len(classes),
+        time.monotonic() - started,
+    )
     return {
         "plant": "reduced",
         "seed": seed,

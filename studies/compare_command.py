@@ -79,7 +79,15 @@ def _run_compare(args: argparse.Namespace) -> int:
     started = time.monotonic()
     with progress_bar(total, "compare") as update:
         result = run_compare(
-            args.runs, args.seed, control, cp, cells=cells, regimes=regimes, margin_scales=margin, progress=update
+            args.runs,
+            args.seed,
+            control,
+            cp,
+            cells=cells,
+            regimes=regimes,
+            margin_scales=margin,
+            jobs=args.jobs,
+            progress=update,
         )
     if args.walker_runs > 0:
         result["walker"] = _walker_cells(args, config_from_args(args), walker_schemes, regimes)
@@ -133,11 +141,13 @@ def add_compare_parser(sub: Any) -> None:
     p.add_argument("--regimes", nargs="+", metavar="NAME", help="delay regimes (default: all)")
     p.add_argument("--no-margin", action="store_true", help="skip the released-handle runs")
     p.add_argument(
-        "--walker-runs", type=int, default=12, help="paired runs per cell on the pybullet walker (default 12; 0: none)"
+        "--walker-runs", type=int, default=10, help="paired runs per cell on the pybullet walker (default 10; 0: none)"
     )
     p.add_argument("--walker-schemes", nargs="+", metavar="NAME", help="named schemes on the walker (default: all six)")
     p.add_argument("--walker-duration", type=float, default=12.0, help="simulated seconds per walker run (default 12)")
-    p.add_argument("--jobs", type=int, default=2, help="processes for the walker runs (default 2)")
+    p.add_argument(
+        "--jobs", type=int, default=2, help="processes for the reduced cells and the walker runs (default 2)"
+    )
     p.add_argument("--json", metavar="FILE", help="write the result as JSON ('-' for stdout)")
     p.add_argument("--markdown", metavar="FILE", help="write the table as markdown ('-' for stdout)")
     p.add_argument("--plot", metavar="FILE.png", help="write the axes' main effects as a figure")

@@ -99,6 +99,7 @@ def test_compare_is_paired_and_deterministic_per_seed() -> None:
     strip = lambda r: {k: v for k, v in r.items() if k != "elapsed_s"}  # noqa: E731
     assert strip(a) == strip(b)
     assert strip(a) != strip(c)
+    assert strip(run_compare(3, 5, CFG, cp, jobs=2, **kw)) == strip(a)  # spread over processes: the same
     # run i of every scheme sees the same delays and the same operator
     step = next(r for r in REGIMES if r.step_s)
     inp1 = regime_inputs(step, 4, 5, CFG, cp.study)
