@@ -32,7 +32,7 @@ import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import ci95
-from bipedtele.control.schemes import Scheme
+from bipedtele.control.schemes import Scheme, factorial
 from bipedtele.control.schemes.factorial import DAMPINGS, FEEDBACKS, NAMED_CELLS, PASSIVITY, Cell, cell_name, grid
 from bipedtele.studies.compare_kernel import regime_inputs, simulate
 from bipedtele.studies.inference import judge_family, n_for_power
@@ -224,6 +224,31 @@ def _cell_task(
     return regime.name, name, simulate(scheme, inp, cfg, cp, _chooser(cfg), release=release, progress=progress)
 
 
+def _run_tasks(
+    tasks: list[tuple[Regime, str, int, int, ControlConfig, CompareParams, bool]],
+    classes: dict[str, type[Scheme]],
+    jobs: int,
+    k_steps: int,
+    progress: Callable[[int], None] | None,
+) -> dict[tuple[str, str], dict[str, np.ndarray]]:
+    """Simulate every (regime, cell) task, over ``jobs`` processes when every cell is a grid cell."""
+    results: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+    # a worker builds a cell from its name: only grid cells (composed by factorial) travel
+    if jobs > 1 and all(getattr(c, "__module__", "") == factorial.__name__ for c in classes.values()):
+        # the costliest cells first (those that solve (30) anew at every impact of every run)
+        tasks.sort(key=lambda t: not classes[t[1]].adapts)
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for regime_name, name, res in pool.map(_cell_task, tasks):
+                results[(regime_name, name)] = res
+                if progress is not None:
+                    progress(k_steps)
+    else:
+        for t in tasks:
+            regime_name, name, res = _cell_task(t, classes[t[1]], progress)
+            results[(regime_name, name)] = res
+    return results
+
+
 def _design(baseline: str, runs: int, seed: int) -> dict[str, Any]:
     return {
         "axes": {"damping": list(DAMPINGS), "feedback": list(FEEDBACKS), "passivity": list(PASSIVITY)},
@@ -295,20 +320,7 @@ def run_compare(
     released: dict[float, dict[str, dict[str, np.ndarray]]] = {}
     margin_regimes = tuple(Regime(f"margin-x{s:g}", f"shipped trace x{s:g}", scale=s) for s in margin_scales)
     tasks = [(r, n, runs, seed, cfg, cp, r in margin_regimes) for r in regimes + margin_regimes for n in classes]
-    k_steps = round(cp.study.duration_s / cp.study.dt)
-    results: dict[tuple[str, str], dict[str, np.ndarray]] = {}
-    if jobs > 1 and all(full.get(n) is c for n, c in classes.items()):
-        # the costliest cells first (those that solve (30) anew at every impact of every run)
-        tasks.sort(key=lambda t: not classes[t[1]].adapts)
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for regime_name, name, res in pool.map(_cell_task, tasks):
-                results[(regime_name, name)] = res
-                if progress is not None:
-                    progress(k_steps)
-    else:
-        for t in tasks:
-            regime_name, name, res = _cell_task(t, classes[t[1]], progress)
-            results[(regime_name, name)] = res
+    results = _run_tasks(tasks, classes, jobs, round(cp.study.duration_s / cp.study.dt), progress)
     for regime in regimes + margin_regimes:
         margin = regime in margin_regimes
         per_cell = {n: results[(regime.name, n)] for n in classes}
