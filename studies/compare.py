@@ -55,6 +55,7 @@ __all__ = [
     "judged_cells",
     "main_effects",
     "run_compare",
+    "walker_plan",
 ]
 
 LOG = logging.getLogger(__name__)
@@ -336,7 +337,7 @@ def run_compare(
         len(tasks) // len(classes),
         time.monotonic() - started,
     )
-    return {
+    result: dict[str, Any] = {
         "plant": "reduced",
         "seed": seed,
         "runs": runs,
@@ -350,6 +351,9 @@ def run_compare(
         "main_effects": effects,
         "margin": _released(released, BASELINE) if released else {},
     }
+    if all(cell_name(c) in classes for c in NAMED_CELLS.values()):
+        result["walker_plan"] = walker_plan(result)
+    return result
 
 
 def attach_power(reduced: dict[str, Any], walker: dict[str, Any], power: float = 0.8) -> None:
@@ -371,3 +375,26 @@ def attach_power(reduced: dict[str, Any], walker: dict[str, Any], power: float =
                 d = red.get(grid_name, {}).get(metric, {}).get("vs_baseline", {}).get("d_z", math.nan)
                 v["reduced_d_z"] = d
                 v["n_needed"] = n_for_power(d, ALPHA / m, power) if d is not None else None
+
+
+def walker_plan(reduced: dict[str, Any], power: float = 0.8) -> dict[str, dict[str, dict[str, int | None]]]:
+    """Return the walker runs each named scheme's claims need, from the reduced model's effect sizes.
+
+    Per regime, named scheme (not ``paper``) and judged metric: the pairs a paired t-test
+    needs for ``power`` at the walker family's first Holm step (``alpha / 5``: the five named
+    schemes against ``paper``) to detect the reduced model's ``d_z`` of the same contrast
+    (None: no effect there). The walker's own spread decides in the end: ``attach_power``
+    writes the same number beside each walker difference once it is run.
+    """
+    named = [n for n in NAMED_CELLS if n != "paper"]
+    out: dict[str, dict[str, dict[str, int | None]]] = {}
+    for regime, per in reduced["cells"].items():
+        out[regime] = {}
+        for n in named:
+            cell = per.get(cell_name(NAMED_CELLS[n]), {})
+            out[regime][n] = {
+                m: n_for_power(v["vs_baseline"]["d_z"], ALPHA / len(named), power)
+                for m, v in cell.items()
+                if isinstance(v, dict) and "vs_baseline" in v
+            }
+    return out

@@ -129,7 +129,7 @@ def _walker_cells(args: argparse.Namespace, cfg: Any, schemes: tuple[str, ...], 
 def add_compare_parser(sub: Any) -> None:
     """Add ``bipedtele compare [--runs N] [--schemes ...] [--regimes ...] [--json F] [--markdown F] [--plot F]``."""
     p = sub.add_parser("compare", help="the factorial grid of control schemes, paired, over delay regimes")
-    p.add_argument("--runs", type=int, default=100, help="paired runs per cell and regime (default 100)")
+    p.add_argument("--runs", type=int, default=30, help="paired runs per cell and regime (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run (default 60)")
     p.add_argument(
@@ -141,7 +141,10 @@ def add_compare_parser(sub: Any) -> None:
     p.add_argument("--regimes", nargs="+", metavar="NAME", help="delay regimes (default: all)")
     p.add_argument("--no-margin", action="store_true", help="skip the released-handle runs")
     p.add_argument(
-        "--walker-runs", type=int, default=10, help="paired runs per cell on the pybullet walker (default 10; 0: none)"
+        "--walker-runs",
+        type=int,
+        default=0,
+        help="paired runs per cell on the pybullet walker (default 0: none; docs/schemes.md gives the longer set)",
     )
     p.add_argument("--walker-schemes", nargs="+", metavar="NAME", help="named schemes on the walker (default: all six)")
     p.add_argument("--walker-duration", type=float, default=12.0, help="simulated seconds per walker run (default 12)")

@@ -158,6 +158,22 @@ def _in_mm(d: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _plan_lines(plan: dict[str, Any]) -> list[str]:
+    head = " | ".join(label for _, label in _TABLE_METRICS)
+    lines = [
+        "Walker runs per cell the claims need: pairs for 80 % power at the walker family's first Holm step "
+        "(0.05 / 5) to detect the reduced model's effect size of the same contrast (`-`: no effect to detect).",
+        "",
+        f"| regime | scheme | {head} |",
+        "| --- | --- |" + " --- |" * len(_TABLE_METRICS),
+    ]
+    for regime, per in plan.items():
+        for name, need in per.items():
+            row = " | ".join(str(need.get(m) or "-") for m, _ in _TABLE_METRICS)
+            lines.append(f"| {regime} | {name} | {row} |")
+    return lines
+
+
 def _walker_lines(walker: dict[str, Any]) -> list[str]:
     lines = [
         f"The pybullet walker (the real follower loop), {walker['runs']} paired runs per cell, "
@@ -198,6 +214,8 @@ def compare_markdown(result: dict[str, Any]) -> str:
         lines += ["", "### Main effects", "", *_effects_table(result["main_effects"])]
     if result.get("margin"):
         lines += ["", "### Released handle", "", *_released_table(result["margin"])]
+    if result.get("walker_plan"):
+        lines += ["", "### Walker runs needed", "", *_plan_lines(result["walker_plan"])]
     if result.get("walker"):
         lines += ["", "### Walker", "", *_walker_lines(result["walker"])]
     return "\n".join(lines) + "\n"

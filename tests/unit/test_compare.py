@@ -84,6 +84,9 @@ def test_compare_json_carries_per_cell_the_axes_intervals_corrected_p_and_tost(t
     margin = result["margin"]
     assert set(margin) == set(result["cells"]["trace"])
     assert set(margin["floor/ze"]["vs_baseline_by_scale"]) == {f"{s:g}" for s in MARGIN_SCALES}
+    plan = result["walker_plan"]["step"]
+    assert set(plan) == {"paper-constant", "pd-measured", "pd-worst-case", "wave", "tdpa"}
+    assert all(v is None or v >= 2 for v in plan["wave"].values())
     text = md.read_text()
     assert "| `floor/ze` | paper-constant |" in text and "Main effects" in text and "d_z" in text
 
