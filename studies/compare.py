@@ -1,10 +1,22 @@
-"""Paired comparison of the control schemes on the reduced closed loop, over delay regimes.
+"""Paired, factorial comparison of the control schemes on the reduced closed loop.
 
-Every registered scheme runs the same operators over the same delays and losses of each
-regime (:mod:`bipedtele.studies.regimes`), one scheme at a time through the runner
-(:mod:`bipedtele.studies.compare_kernel`, where the loop and the metrics are described);
-this module summarises the runs into paired cells, finds each scheme's stability margin and
-writes the tables (docs/schemes.md).
+Every cell of the factorial grid (:mod:`bipedtele.control.schemes.factorial`: damping x what
+is fed back x passivity controller; the named schemes are cells of it) runs the same
+operators over the same delays and losses of each regime (:mod:`bipedtele.studies.regimes`),
+one cell at a time through the runner (:mod:`bipedtele.studies.compare_kernel`, where the loop
+and the metrics are described). This module summarises the runs and judges the differences
+(:mod:`bipedtele.studies.inference`), per family (docs/schemes.md, "How the numbers are
+judged"):
+
+* **against the baseline** (``paper``, the cell ``scheduled/ze``): per regime and metric, the
+  other 23 cells' paired differences, Holm within those 23, TOST within the metric's margin;
+* **main effects** of the axes: per regime and metric, each level of an axis against the
+  baseline's level (damping ``scheduled``, feedback ``ze``, passivity ``off``), each run's
+  metric averaged over the other two axes' cells first (paired); the 6 contrasts one family;
+* **released handle**: per delay scale, the 23 paired differences of the released handle's
+  RMS speed against the baseline, one family.
+
+Unstable runs are left out of the means and of every pair they are in, and counted.
 """
 
 from __future__ import annotations
@@ -13,39 +25,145 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import ci95
-from bipedtele.control.schemes import scheme_class, scheme_names
+from bipedtele.control.schemes import Scheme, factorial
+from bipedtele.control.schemes.factorial import DAMPINGS, FEEDBACKS, NAMED_CELLS, PASSIVITY, Cell, cell_name, grid
 from bipedtele.studies.compare_kernel import regime_inputs, simulate
-from bipedtele.studies.regimes import MARGIN_SCALES, METRICS, REGIMES, CompareParams, Regime
+from bipedtele.studies.inference import judge_family, n_for_power
+from bipedtele.studies.regimes import (
+    ALPHA,
+    EQUIVALENCE_MARGINS,
+    MARGIN_SCALES,
+    METRICS,
+    REGIMES,
+    RELEASED_MARGIN_M_S,
+    CompareParams,
+    Regime,
+)
 
-__all__ = ["compare_markdown", "compare_steps", "paired_cell", "run_compare"]
+__all__ = [
+    "BASELINE",
+    "REFERENCE_LEVELS",
+    "attach_power",
+    "compare_steps",
+    "judged_cells",
+    "main_effects",
+    "run_compare",
+    "walker_plan",
+]
 
 LOG = logging.getLogger(__name__)
 
+#: The cell every other is paired against: the paper's scheme.
+BASELINE = cell_name(NAMED_CELLS["paper"])
+#: The baseline's level on each axis (the reference of the main effects).
+REFERENCE_LEVELS: dict[str, str] = NAMED_CELLS["paper"]._asdict()
 
-def paired_cell(
-    runs: dict[str, np.ndarray], base: dict[str, np.ndarray] | None, metrics: tuple[str, ...] = METRICS
-) -> dict[str, Any]:
-    """Summarise one scheme's runs of one regime: mean and 95 % interval per metric, paired against ``base``.
 
-    ``runs[m]`` holds metric ``m`` per run, ``runs["unstable"]`` the runs left out (diverged,
-    fell); run ``i`` of ``runs`` and of ``base`` share their operator and delays.
+def _named(name: str) -> str | None:
+    return next((n for n, c in NAMED_CELLS.items() if cell_name(c) == name), None)
+
+
+def _clean(runs: dict[str, np.ndarray], metric: str) -> np.ndarray:
+    """Return the metric per run, NaN where the run was unstable (left out of every mean and pair)."""
+    return np.where(runs["unstable"], np.nan, np.asarray(runs[metric], dtype=float))
+
+
+def judged_cells(
+    per_cell: dict[str, dict[str, np.ndarray]],
+    baseline: str,
+    metrics: tuple[str, ...] = METRICS,
+    margins: dict[str, float] | None = None,
+    axes: dict[str, Cell] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """Summarise one regime's cells: mean and 95 % interval per metric, judged against ``baseline``.
+
+    Parameters
+    ----------
+    per_cell : dict
+        Cell name -> metric -> values per run (``unstable``: the runs left out); run ``i``
+        of every cell shares its operator and delays.
+    baseline : str
+        The cell the others are paired against.
+    metrics : tuple of str
+        Metrics summarised; those with a margin in ``margins`` are judged, one family per
+        metric (every cell but the baseline).
+    margins : dict, optional
+        Equivalence margin per metric (default :data:`~bipedtele.studies.regimes.EQUIVALENCE_MARGINS`).
+    axes : dict, optional
+        Cell name -> its levels, written into each cell.
+
+    Returns
+    -------
+    dict
+        Cell name -> ``{"damping", "feedback", "passivity", "named", "n", "unstable", metric:
+        {"mean", "ci95", "vs_baseline"?}}``, ``vs_baseline`` as
+        :meth:`~bipedtele.studies.inference.Verdict.to_dict` gives it (``n``, ``mean``,
+        ``ci95``, ``sd``, ``p``, ``d_z``, ``p_holm``, ``margin``, ``tost_p``, ``tost_p_holm``,
+        ``verdict``).
     """
-    ok = ~runs["unstable"]
-    cell: dict[str, Any] = {"n": int(ok.sum()), "unstable": int(runs["unstable"].sum())}
-    both = ok if base is None else ok & ~base["unstable"]
+    margins = EQUIVALENCE_MARGINS if margins is None else margins
+    cells: dict[str, dict[str, Any]] = {}
+    for name, runs in per_cell.items():
+        ok = ~runs["unstable"]
+        named = _named(name) or (name if name in NAMED_CELLS else None)
+        cell: dict[str, Any] = {**(axes[name]._asdict() if axes else {}), "named": named}
+        cell.update(n=int(ok.sum()), unstable=int(runs["unstable"].sum()))
+        for m in metrics:
+            mean, ci = ci95(np.asarray(runs[m])[ok])
+            cell[m] = {"mean": mean, "ci95": ci}
+        cells[name] = cell
+    others = [n for n in per_cell if n != baseline]
     for m in metrics:
-        mean, ci = ci95(runs[m][ok])
-        cell[m] = {"mean": mean, "ci95": ci}
-        if base is not None:
-            d_mean, d_ci = ci95(runs[m][both] - base[m][both])
-            cell[m]["diff"] = {"mean": d_mean, "ci95": d_ci, "n": int(both.sum())}
-    return cell
+        if m not in margins or not others:
+            continue
+        base = _clean(per_cell[baseline], m)
+        family = judge_family({n: (_clean(per_cell[n], m), base) for n in others}, margins[m], ALPHA)
+        for n, verdict in family.items():
+            cells[n][m]["vs_baseline"] = verdict.to_dict()
+    return cells
+
+
+def main_effects(
+    per_cell: dict[str, dict[str, np.ndarray]], axes: dict[str, Cell], margins: dict[str, float] | None = None
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Return the axes' main effects per metric: each level against the reference level, paired.
+
+    A run's value at one level of an axis is its metric averaged over every cell at that
+    level (over the other two axes' levels); a run unstable in any of those cells is left
+    out. Per metric, the contrasts of all three axes form one Holm family.
+
+    Returns
+    -------
+    dict
+        Metric -> ``"axis=level"`` -> verdict map (as in :func:`judged_cells`) with ``reference``
+        the level it is taken against.
+    """
+    margins = EQUIVALENCE_MARGINS if margins is None else margins
+    levels = {"damping": list(DAMPINGS), "feedback": list(FEEDBACKS), "passivity": list(PASSIVITY)}
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for m, margin in margins.items():
+        if not all(m in r for r in per_cell.values()):
+            continue
+        pairs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for axis, lv in levels.items():
+            mean_at = {
+                level: np.mean([_clean(per_cell[n], m) for n, c in axes.items() if getattr(c, axis) == level], axis=0)
+                for level in lv
+            }
+            ref = REFERENCE_LEVELS[axis]
+            for level in lv:
+                if level != ref:
+                    pairs[f"{axis}={level}"] = (mean_at[level], mean_at[ref])
+        family = judge_family(pairs, margin, ALPHA)
+        out[m] = {k: {**v.to_dict(), "reference": REFERENCE_LEVELS[k.split("=")[0]]} for k, v in family.items()}
+    return out
 
 
 def compare_steps(runs_steps: int, schemes: int, regimes: int, margin_scales: int) -> int:
@@ -53,207 +171,224 @@ def compare_steps(runs_steps: int, schemes: int, regimes: int, margin_scales: in
     return runs_steps * schemes * (regimes + margin_scales)
 
 
-def _margin(unstable_by_scale: dict[float, float]) -> float | None:
+def _margin(oscillating_by_scale: dict[float, float]) -> float | None:
     """Largest scale >= 1 up to which at most 5 % oscillate (x0 is the no-delay reference, not counted)."""
     best: float | None = None
-    for s in sorted(k for k in unstable_by_scale if k >= 1.0):
-        if unstable_by_scale[s] > 0.05:
+    for s in sorted(k for k in oscillating_by_scale if k >= 1.0):
+        if oscillating_by_scale[s] > 0.05:
             break
         best = s
     return best
 
 
+def _released(per_scale: dict[float, dict[str, dict[str, np.ndarray]]], baseline: str) -> dict[str, dict[str, Any]]:
+    """Per cell: the margin, the oscillating share, the median released-handle speed and its test per scale."""
+    names = list(next(iter(per_scale.values())))
+    out: dict[str, dict[str, Any]] = {
+        n: {"oscillating_by_scale": {}, "released_motion_median_m_s": {}, "vs_baseline_by_scale": {}} for n in names
+    }
+    for s, per in per_scale.items():
+        key = f"{s:g}"
+        base = per[baseline]["released_motion"]
+        family = judge_family(
+            {n: (per[n]["released_motion"], base) for n in names if n != baseline}, RELEASED_MARGIN_M_S, ALPHA
+        )
+        for n in names:
+            out[n]["oscillating_by_scale"][key] = float(per[n]["oscillating"].mean())
+            out[n]["released_motion_median_m_s"][key] = float(np.median(per[n]["released_motion"]))
+            if n in family:
+                out[n]["vs_baseline_by_scale"][key] = family[n].to_dict()
+    for n in names:
+        out[n]["scale"] = _margin({s: out[n]["oscillating_by_scale"][f"{s:g}"] for s in per_scale})
+    return out
+
+
+_CHOOSER: list[OnlineChooser] = []  # one per process: (30)'s tables are built once
+
+
+def _chooser(cfg: ControlConfig) -> OnlineChooser:
+    if not _CHOOSER or _CHOOSER[0].cfg != cfg:
+        _CHOOSER[:] = [OnlineChooser(cfg)]
+    return _CHOOSER[0]
+
+
+def _cell_task(
+    task: tuple[Regime, str, int, int, ControlConfig, CompareParams, bool],
+    cls: type[Scheme] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[str, str, dict[str, np.ndarray]]:
+    """Simulate one cell on one regime (``cls``: its class; default the grid's cell of that name)."""
+    regime, name, runs, seed, cfg, cp, release = task
+    inp = regime_inputs(regime, runs, seed, cfg, cp.study)
+    worst = (float(np.max(inp.h1)), float(np.max(inp.h2)))
+    scheme = (cls or grid()[name])(cfg, worst)
+    return regime.name, name, simulate(scheme, inp, cfg, cp, _chooser(cfg), release=release, progress=progress)
+
+
+def _run_tasks(
+    tasks: list[tuple[Regime, str, int, int, ControlConfig, CompareParams, bool]],
+    classes: dict[str, type[Scheme]],
+    jobs: int,
+    k_steps: int,
+    progress: Callable[[int], None] | None,
+) -> dict[tuple[str, str], dict[str, np.ndarray]]:
+    """Simulate every (regime, cell) task, over ``jobs`` processes when every cell is a grid cell."""
+    results: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+    # a worker builds a cell from its name: only grid cells (composed by factorial) travel
+    if jobs > 1 and all(getattr(c, "__module__", "") == factorial.__name__ for c in classes.values()):
+        # the costliest cells first (those that solve (30) anew at every impact of every run)
+        tasks.sort(key=lambda t: not classes[t[1]].adapts)
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for regime_name, name, res in pool.map(_cell_task, tasks):
+                results[(regime_name, name)] = res
+                if progress is not None:
+                    progress(k_steps)
+    else:
+        for t in tasks:
+            regime_name, name, res = _cell_task(t, classes[t[1]], progress)
+            results[(regime_name, name)] = res
+    return results
+
+
+def _design(baseline: str, runs: int, seed: int) -> dict[str, Any]:
+    return {
+        "axes": {"damping": list(DAMPINGS), "feedback": list(FEEDBACKS), "passivity": list(PASSIVITY)},
+        "named": {n: cell_name(c) for n, c in NAMED_CELLS.items()},
+        "baseline": baseline,
+        "reference_levels": REFERENCE_LEVELS,
+        "alpha": ALPHA,
+        "margins": dict(EQUIVALENCE_MARGINS),
+        "released_margin_m_s": RELEASED_MARGIN_M_S,
+        "families": {
+            "vs_baseline": "per regime and metric: every other cell against the baseline, Holm within",
+            "main_effects": "per regime and metric: each axis level against the reference level (runs averaged "
+            "over the other axes' cells), the contrasts of all axes Holm within",
+            "released": "per delay scale: every other cell's released-handle RMS speed against the baseline's, "
+            "Holm within",
+        },
+        "seed": seed,
+        "runs": runs,
+    }
+
+
 def run_compare(
-    runs: int = 200,
+    runs: int = 100,
     seed: int = 0,
     cfg: ControlConfig | None = None,
     cp: CompareParams | None = None,
     *,
-    schemes: tuple[str, ...] | None = None,
+    cells: dict[str, type[Scheme]] | None = None,
     regimes: tuple[Regime, ...] = REGIMES,
     margin_scales: tuple[float, ...] = MARGIN_SCALES,
+    jobs: int = 1,
     progress: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Compare every scheme on every regime (reduced model), paired against ``paper``.
+    """Run the factorial grid (or ``cells``) on every regime (reduced model), judged against the baseline.
 
     Parameters
     ----------
     runs : int
-        Runs per scheme and regime (the same operators for every scheme).
-    schemes : tuple of str, optional
-        Registered names (default: all; ``paper`` is always run, as the reference).
+        Runs per cell and regime (the same operators and delays for every cell).
+    cells : dict, optional
+        Cell name -> scheme class (default: the whole grid,
+        :func:`~bipedtele.control.schemes.factorial.grid`); the baseline is always run.
     margin_scales : tuple of float
-        Delay scales of the shipped trace for the stability margin (``()``: none).
+        Delay scales of the shipped trace at which the operator lets go (``()``: none).
+    jobs : int
+        Processes over which the cells are spread (grid cells only; the results do not
+        depend on it: each cell is one deterministic simulation of the same inputs).
 
     Returns
     -------
     dict
-        ``{"plant": "reduced", "seed", "runs", "duration_s", "elapsed_s", "schemes": {name:
-        title}, "regimes": [...], "cells": {regime: {scheme: cell}}, "margin": {scheme:
-        {"scale", "oscillating_by_scale", "released_motion_median_m_s"}}}``; a cell holds ``n``,
-        ``unstable`` and, per metric, ``mean``, ``ci95`` and (except for ``paper``) the paired
-        ``diff`` against ``paper``.
+        ``{"plant": "reduced", "seed", "runs", "duration_s", "elapsed_s", "design", "schemes":
+        {cell: title}, "regimes": [...], "cells": {regime: {cell: cell summary}},
+        "main_effects": {regime: {metric: {"axis=level": verdict}}}, "margin": {cell: {...}}}``
+        (cell summaries: :func:`judged_cells`).
     """
     if runs < 2:
         raise ValueError(f"runs = {runs}: allowed: >= 2 (a 95 % interval needs two)")
     cfg = cfg or ControlConfig()
     cp = cp or CompareParams()
-    names = list(schemes) if schemes else scheme_names()
-    if "paper" not in names:
-        names.insert(0, "paper")
-    classes = {n: scheme_class(n) for n in names}
-    chooser = OnlineChooser(cfg)
+    full = grid()
+    classes = dict(cells) if cells else full
+    classes = classes if BASELINE in classes else {BASELINE: full[BASELINE], **classes}
+    axes: dict[str, Cell] = {n: getattr(c, "cell", Cell("", "", "")) for n, c in classes.items()}
     started = time.monotonic()
-    cells: dict[str, dict[str, Any]] = {}
-    unstable: dict[str, dict[float, float]] = {n: {} for n in names}
-    motion: dict[str, dict[float, float]] = {n: {} for n in names}
+    out_cells: dict[str, dict[str, Any]] = {}
+    effects: dict[str, Any] = {}
+    released: dict[float, dict[str, dict[str, np.ndarray]]] = {}  # scale -> cell -> runs
     margin_regimes = tuple(Regime(f"margin-x{s:g}", f"shipped trace x{s:g}", scale=s) for s in margin_scales)
+    tasks = [(r, n, runs, seed, cfg, cp, r in margin_regimes) for r in regimes + margin_regimes for n in classes]
+    results = _run_tasks(tasks, classes, jobs, round(cp.study.duration_s / cp.study.dt), progress)
     for regime in regimes + margin_regimes:
-        inp = regime_inputs(regime, runs, seed, cfg, cp.study)
-        worst = (float(inp.h1.max()), float(inp.h2.max()))
         margin = regime in margin_regimes
-        per_scheme = {
-            n: simulate(cls(cfg, worst), inp, cfg, cp, chooser, release=margin, progress=progress)
-            for n, cls in classes.items()
-        }
+        per_cell = {n: results[(regime.name, n)] for n in classes}
         if margin:
-            for n, r in per_scheme.items():
-                unstable[n][regime.scale] = float(r["oscillating"].mean())
-                motion[n][regime.scale] = float(np.median(r["released_motion"]))
+            released[regime.scale] = per_cell
             continue
-        cells[regime.name] = {
-            n: paired_cell(r, None if n == "paper" else per_scheme["paper"]) for n, r in per_scheme.items()
-        }
-        LOG.info("compare: %s done (%.0f s)", regime.name, time.monotonic() - started)
-    return {
+        out_cells[regime.name] = judged_cells(per_cell, BASELINE, axes=axes)
+        if set(classes) == set(full):
+            effects[regime.name] = main_effects(per_cell, axes)
+    LOG.info("compare: %d tasks done (%.0f s)", len(tasks), time.monotonic() - started)
+    result: dict[str, Any] = {
         "plant": "reduced",
         "seed": seed,
         "runs": runs,
         "duration_s": cp.study.duration_s,
+        "wave_window_s": cp.wave_window_s,
         "elapsed_s": time.monotonic() - started,
-        "schemes": {n: classes[n].title for n in names},
+        "design": _design(BASELINE, runs, seed),
+        "schemes": {n: classes[n].title for n in classes},
         "regimes": [{"name": r.name, "description": r.description} for r in regimes],
-        "cells": cells,
-        "margin": _margins(unstable, motion) if margin_scales else {},
+        "cells": out_cells,
+        "main_effects": effects,
+        "margin": _released(released, BASELINE) if released else {},
     }
+    if all(cell_name(c) in classes for c in NAMED_CELLS.values()):
+        result["walker_plan"] = walker_plan(result)
+    return result
 
 
-def _margins(oscillating: dict[str, dict[float, float]], motion: dict[str, dict[float, float]]) -> dict[str, Any]:
-    """Per scheme: the margin, the share of oscillating runs and the median released-handle speed per scale."""
-    return {
-        n: {
-            "scale": _margin(u),
-            "oscillating_by_scale": {f"{s:g}": v for s, v in u.items()},
-            "released_motion_median_m_s": {f"{s:g}": v for s, v in motion[n].items()},
-        }
-        for n, u in oscillating.items()
-    }
+def attach_power(reduced: dict[str, Any], walker: dict[str, Any], power: float = 0.8) -> None:
+    """Write into each walker cell, per judged metric, the pairs its claim needs (``n_needed``).
 
-
-def _fmt(v: dict[str, Any], key: str = "") -> str:
-    d = v[key] if key else v
-    if not math.isfinite(d["mean"]):
-        return "-"
-    lo, hi = d["ci95"]
-    return f"{d['mean']:.2f} [{lo:.2f}, {hi:.2f}]"
-
-
-def _walker_lines(walker: dict[str, Any]) -> list[str]:
-    """Return the walker cells as markdown: errors, paired differences against the paper, falls."""
-    lines = [
-        f"The pybullet walker (the real follower loop), {walker['runs']} paired runs per cell, "
-        f"{walker['duration_s']:g} s each, {walker['wall_s']:.0f} s wall. Coordination error per follower tick "
-        "|ref - eta| and intent error [cm/s, deg/s], mean [95 % CI] and paired difference against `paper`; "
-        "fallen runs are left out and counted.",
-        "",
-        "| regime | scheme | forward | - paper | turn | - paper | intent fwd - paper | intent turn - paper | falls |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
+    The effect size is the reduced model's ``d_z`` for the same contrast (the named scheme's
+    cell against the baseline, same regime and metric); the level is the first Holm step of
+    the walker's family, ``alpha / m`` for ``m`` contrasts. ``n_needed`` is None where the
+    reduced model shows no effect or the regime was not run there.
+    """
     for regime, per in walker["cells"].items():
-        for name, c in per.items():
-            diffs = [
-                _fmt(c[m], "diff") if "diff" in c[m] else ""
-                for m in ("forward_error", "turn_error", "forward_intent_error", "turn_intent_error")
-            ]
-            lines.append(
-                f"| {regime} | {name} | {_fmt(c['forward_error'])} | {diffs[0]} | {_fmt(c['turn_error'])} | "
-                f"{diffs[1]} | {diffs[2]} | {diffs[3]} | {c['unstable']} |"
-            )
-    return lines
+        red = reduced["cells"].get(regime, {})
+        m = max(1, sum(1 for n in per if n != "paper"))
+        for name, cell in per.items():
+            grid_name = cell_name(NAMED_CELLS[name]) if name in NAMED_CELLS else name
+            for metric, v in cell.items():
+                if not isinstance(v, dict) or "vs_baseline" not in v:
+                    continue
+                d = red.get(grid_name, {}).get(metric, {}).get("vs_baseline", {}).get("d_z", math.nan)
+                v["reduced_d_z"] = d
+                v["n_needed"] = n_for_power(d, ALPHA / m, power) if d is not None else None
 
 
-_WINNER_METRICS = (
-    ("forward_error", "coordination fwd"),
-    ("turn_error", "coordination turn"),
-    ("forward_intent_error", "intent fwd"),
-    ("turn_intent_error", "intent turn"),
-    ("forward_force_error", "force error fwd"),
-)
+def walker_plan(reduced: dict[str, Any], power: float = 0.8) -> dict[str, dict[str, dict[str, int | None]]]:
+    """Return the walker runs each named scheme's claims need, from the reduced model's effect sizes.
 
-
-def _winners(result: dict[str, Any]) -> list[str]:
-    """Per regime and metric: the scheme with the lowest mean, and whether it beats the paper for sure."""
-    head = " | ".join(label for _, label in _WINNER_METRICS)
-    lines = [
-        "Lowest mean per regime and metric (a `*`: its paired 95 % interval against `paper` lies below zero; "
-        "`paper` itself: no other scheme's lies below zero).",
-        "",
-        f"| regime | {head} |",
-        "| --- |" + " --- |" * len(_WINNER_METRICS),
-    ]
-    for regime, per in result["cells"].items():
-        row = []
-        for metric, _ in _WINNER_METRICS:
-            name = min(per, key=lambda n: per[n][metric]["mean"] if math.isfinite(per[n][metric]["mean"]) else math.inf)
-            diff = per[name][metric].get("diff")
-            sure = name == "paper" or (diff is not None and diff["ci95"][1] < 0.0)
-            row.append(f"{name}{'*' if sure and name != 'paper' else ''}")
-        lines.append(f"| {regime} | {' | '.join(row)} |")
-    return lines
-
-
-def compare_markdown(result: dict[str, Any]) -> str:
-    """Return the comparison as markdown: per regime, each scheme's errors and the paired differences."""
-    lines = [
-        f"Reduced model, {result['runs']} paired runs per scheme and regime, {result['duration_s']:g} s each, "
-        f"seed {result['seed']}. Mean [95 % CI] of the time-mean coordination error |eq. (6)| [cm/s] and "
-        "|eq. (10)| [deg/s], the paired difference against `paper` (negative: better than the paper), the "
-        "paired difference of the intent error (intended speed against the robot's), the "
-        "force error against the delay-free coupling [N, forward], and the least passivity observer at the "
-        "leader and follower ports [N cm, forward]; unstable runs are left out and counted.",
-        "",
-        "| regime | scheme | forward | - paper | turn | - paper | intent fwd - paper | intent turn - paper "
-        "| force error | PO leader / follower | unstable |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for regime, per in result["cells"].items():
-        for name, c in per.items():
-            dfw = _fmt(c["forward_error"], "diff") if "diff" in c["forward_error"] else ""
-            dtu = _fmt(c["turn_error"], "diff") if "diff" in c["turn_error"] else ""
-            ifw = _fmt(c["forward_intent_error"], "diff") if "diff" in c["forward_intent_error"] else ""
-            itu = _fmt(c["turn_intent_error"], "diff") if "diff" in c["turn_intent_error"] else ""
-            po = f"{c['forward_po_leader']['mean']:.1f} / {c['forward_po_follower']['mean']:.1f}"
-            lines.append(
-                f"| {regime} | {name} | {_fmt(c['forward_error'])} | {dfw} | {_fmt(c['turn_error'])} | {dtu} | {ifw} | {itu} | "
-                f"{_fmt(c['forward_force_error'])} | {po} | {c['unstable']} |"
-            )
-    lines += ["", *_winners(result)]
-    if result.get("walker"):
-        lines += ["", *_walker_lines(result["walker"])]
-    if result.get("margin"):
-        lines += [
-            "",
-            "Handle released mid-run: share of runs still oscillating over the last quarter (released handle's "
-            "RMS speed above the threshold) per delay scale of the shipped trace (x0: no delay, the reference), "
-            "and the median RMS [mm/s].",
-            "",
-            "| scheme | stability margin (largest scale, <= 5 % oscillating) | oscillating share by scale "
-            "| median released-handle speed by scale [mm/s] |",
-            "| --- | --- | --- | --- |",
-        ]
-        for name, m in result["margin"].items():
-            share = ", ".join(f"x{s}: {100 * v:.0f} %" for s, v in m["oscillating_by_scale"].items())
-            med = ", ".join(f"x{s}: {1e3 * v:.1f}" for s, v in m["released_motion_median_m_s"].items())
-            margin = f"x{m['scale']:g}" if m["scale"] is not None else "none (oscillates at x1)"
-            lines.append(f"| {name} | {margin} | {share} | {med} |")
-    return "\n".join(lines) + "\n"
+    Per regime, named scheme (not ``paper``) and judged metric: the pairs a paired t-test
+    needs for ``power`` at the walker family's first Holm step (``alpha / 5``: the five named
+    schemes against ``paper``) to detect the reduced model's ``d_z`` of the same contrast
+    (None: no effect there). The walker's own spread decides in the end: ``attach_power``
+    writes the same number beside each walker difference once it is run.
+    """
+    named = [n for n in NAMED_CELLS if n != "paper"]
+    out: dict[str, dict[str, dict[str, int | None]]] = {}
+    for regime, per in reduced["cells"].items():
+        out[regime] = {}
+        for n in named:
+            cell = per.get(cell_name(NAMED_CELLS[n]), {})
+            out[regime][n] = {
+                m: n_for_power(v["vs_baseline"]["d_z"], ALPHA / len(named), power)
+                for m, v in cell.items()
+                if isinstance(v, dict) and "vs_baseline" in v
+            }
+    return out

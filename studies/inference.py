@@ -36,7 +36,16 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-__all__ = ["PairedDifference", "Verdict", "holm", "judge_family", "paired_difference", "tost_p"]
+__all__ = [
+    "PairedDifference",
+    "Verdict",
+    "family_interval",
+    "holm",
+    "judge_family",
+    "n_for_power",
+    "paired_difference",
+    "tost_p",
+]
 
 
 @dataclass(frozen=True)
@@ -125,6 +134,19 @@ def tost_p(x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, mar
     return max(p_low, p_high)
 
 
+def family_interval(d: PairedDifference, m: int, alpha: float = 0.05) -> tuple[float, float]:
+    """Return the Bonferroni-corrected interval of ``d`` for a family of ``m`` differences.
+
+    The Student-t interval at level ``1 - alpha / m``: the ``m`` intervals of a family cover
+    their true differences together with probability at least ``1 - alpha`` (an interval
+    consistent with Holm's first step; NaN bounds where ``d`` has fewer than two pairs).
+    """
+    if d.n < 2 or not math.isfinite(d.sd):
+        return (math.nan, math.nan)
+    half = float(stats.t.ppf(1.0 - alpha / (2.0 * max(1, m)), d.n - 1)) * d.sd / math.sqrt(d.n)
+    return (d.mean - half, d.mean + half)
+
+
 def holm(p: Sequence[float]) -> list[float]:
     """Return Holm's step-down adjusted p-values, in the order given (NaN stays NaN, not counted).
 
@@ -159,6 +181,9 @@ class Verdict:
         Holm-adjusted TOST p-value within the family.
     verdict : str
         ``differs``, ``equivalent`` or ``inconclusive``.
+    ci_family : tuple of float
+        The family-corrected (Bonferroni, level ``1 - alpha / m``) interval of the mean
+        difference (:func:`family_interval`).
     """
 
     diff: PairedDifference
@@ -167,6 +192,7 @@ class Verdict:
     tost_p: float
     tost_p_holm: float
     verdict: str
+    ci_family: tuple[float, float] = (math.nan, math.nan)
 
     def to_dict(self) -> dict[str, Any]:
         """Return the verdict as a JSON-ready map (the difference's fields flattened)."""
@@ -178,6 +204,7 @@ class Verdict:
             tost_p=self.tost_p,
             tost_p_holm=self.tost_p_holm,
             verdict=self.verdict,
+            ci_family=list(self.ci_family),
         )
         return out
 
@@ -220,5 +247,48 @@ def judge_family(
             verdict = "equivalent"
         else:
             verdict = "inconclusive"
-        out[n] = Verdict(diffs[n], p_adj[n], float(margin), tosts[n], t_adj[n], verdict)
+        ci_family = family_interval(diffs[n], len(names), alpha)
+        out[n] = Verdict(diffs[n], p_adj[n], float(margin), tosts[n], t_adj[n], verdict, ci_family)
     return out
+
+
+def n_for_power(d_z: float, alpha: float = 0.05, power: float = 0.8, n_max: int = 100_000) -> int | None:
+    """Return the smallest number of pairs at which a paired t-test detects effect ``d_z``.
+
+    Two-sided one-sample t-test on the differences at level ``alpha`` (pass ``alpha / m``
+    for a Holm family of ``m``: its first step, the most demanding), power from the
+    noncentral t distribution with noncentrality ``d_z sqrt(n)``.
+
+    Returns
+    -------
+    int or None
+        Pairs needed (at least 2); None when ``d_z`` is 0 or not finite, or more than
+        ``n_max`` would be needed.
+
+    Raises
+    ------
+    ValueError
+        ``alpha`` or ``power`` outside (0, 1).
+    """
+    if not (0.0 < alpha < 1.0 and 0.0 < power < 1.0):
+        raise ValueError(f"alpha = {alpha!r}, power = {power!r}: allowed: both in (0, 1)")
+    if not math.isfinite(d_z) or d_z == 0.0:
+        return None
+
+    def achieved(n: int) -> float:
+        crit = float(stats.t.ppf(1.0 - alpha / 2.0, n - 1))
+        nc = abs(d_z) * math.sqrt(n)
+        return float(stats.nct.sf(crit, n - 1, nc) + stats.nct.cdf(-crit, n - 1, nc))
+
+    lo, hi = 2, 2
+    while achieved(hi) < power:
+        if hi >= n_max:
+            return None
+        lo, hi = hi, min(n_max, 2 * hi)
+    while lo < hi:  # power grows with n: the first n that reaches it
+        mid = (lo + hi) // 2
+        if achieved(mid) >= power:
+            hi = mid
+        else:
+            lo = mid + 1
+    return hi

@@ -37,6 +37,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.damping import schedule_damping_array
+from bipedtele.control.schemes import factorial
 from scipy.optimize import brentq
 
 __all__ = [
@@ -54,8 +55,8 @@ __all__ = [
 #: Damping rules of the map: the floor, a fixed damping ratio, (40) scheduled on the
 #: delays, (40) for the run's largest delays held.
 RULES: tuple[str, ...] = ("floor", "ratio", "scheduled", "worst-case")
-#: Damping ratio of the ``ratio`` rule.
-FIXED_RATIO = 0.3
+#: Damping ratio of the ``ratio`` rule (the comparison's ``ratio`` damping's).
+FIXED_RATIO = factorial.FIXED_RATIO
 
 
 @dataclass(frozen=True)
@@ -188,7 +189,7 @@ class DelayProcess:
 
 def ratio_alpha(k_pos: np.ndarray | float, mass_kg: float) -> np.ndarray:
     """Return the leader damping [N s/m] that gives the handle the damping ratio :data:`FIXED_RATIO`."""
-    return np.asarray(FIXED_RATIO * 2.0 * np.sqrt(np.asarray(k_pos, dtype=float) * mass_kg), dtype=float)
+    return factorial.ratio_damping(k_pos, mass_kg, FIXED_RATIO)
 
 
 def rule_damping(

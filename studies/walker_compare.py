@@ -26,9 +26,10 @@ from bipedtele.config.profile import Config
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.reduced import StudyParams
 from bipedtele.control.schemes import scheme_names
+from bipedtele.control.schemes.factorial import NAMED_CELLS
 from bipedtele.follower.config import FollowerConfig
 from bipedtele.follower.sim.config import SimConfig
-from bipedtele.studies.compare import paired_cell
+from bipedtele.studies.compare import judged_cells
 from bipedtele.studies.compare_kernel import regime_inputs
 from bipedtele.studies.regimes import REGIMES, Regime
 from bipedtele.studies.walker_study import WalkerRun, walker_run
@@ -39,6 +40,11 @@ LOG = logging.getLogger(__name__)
 
 #: Metrics of a walker cell.
 WALKER_METRICS: tuple[str, ...] = ("forward_error", "turn_error", "forward_intent_error", "turn_intent_error")
+
+
+def _row(x: np.ndarray, i: int) -> np.ndarray:
+    """Return run ``i``'s series: its row of a ``(runs, steps)`` array, or the one series every run shares."""
+    return np.asarray(x[i]) if np.ndim(x) == 2 else np.asarray(x)
 
 
 def _one(task: tuple[str, str, int, dict[str, Any]]) -> tuple[str, str, int, WalkerRun]:
@@ -77,8 +83,8 @@ def run_walker_compare(
     -------
     dict
         ``{"plant": "walker", "runs", "duration_s", "wall_s", "cells": {regime: {scheme: cell}}}``
-        with cells as :func:`~bipedtele.studies.compare.paired_cell` makes them (``unstable``:
-        the falls).
+        with cells as :func:`~bipedtele.studies.compare.judged_cells` makes them (``unstable``:
+        the falls; one family per regime and metric, every scheme against ``paper``).
     """
     control = cfg.get(ControlConfig)
     params = StudyParams(duration_s=duration_s)
@@ -93,9 +99,9 @@ def run_walker_compare(
                 kwargs = {
                     "switch": inp.switch[i : i + 1],
                     "intent": inp.intent[i : i + 1],
-                    "h1": inp.h1,
-                    "h2": inp.h2,
-                    "lost": (inp.lost1, inp.lost2),
+                    "h1": _row(inp.h1, i),
+                    "h2": _row(inp.h2, i),
+                    "lost": (_row(inp.lost1, i), _row(inp.lost2, i)),
                     "control": control,
                     "follower": cfg.get(FollowerConfig),
                     "sim": cfg.get(SimConfig),
@@ -116,9 +122,8 @@ def run_walker_compare(
             rs = [r for r in done[(regime.name, scheme)] if r is not None]
             per[scheme] = {m: np.array([getattr(r, m) for r in rs]) for m in WALKER_METRICS}
             per[scheme]["unstable"] = np.array([r.fell for r in rs], dtype=bool)
-        cells[regime.name] = {
-            n: paired_cell(r, None if n == "paper" else per["paper"], WALKER_METRICS) for n, r in per.items()
-        }
+        axes = {n: NAMED_CELLS[n] for n in per if n in NAMED_CELLS}
+        cells[regime.name] = judged_cells(per, "paper", WALKER_METRICS, axes=axes if len(axes) == len(per) else None)
         LOG.info("walker compare: %s done (%.0f s)", regime.name, time.monotonic() - started)
     return {
         "plant": "walker",

@@ -11,60 +11,110 @@ from bipedtele.cli import main
 from bipedtele.control.config import ControlConfig
 from bipedtele.control.online import OnlineChooser
 from bipedtele.control.reduced import StudyParams
-from bipedtele.control.schemes import scheme_class, scheme_names
+from bipedtele.control.schemes import scheme_class
+from bipedtele.control.schemes.factorial import grid
 from bipedtele.studies.compare import run_compare
 from bipedtele.studies.compare_kernel import regime_inputs, simulate
-from bipedtele.studies.regimes import REGIMES, CompareParams, Regime
+from bipedtele.studies.inference import holm
+from bipedtele.studies.regimes import EQUIVALENCE_MARGINS, MARGIN_SCALES, REGIMES, CompareParams, Regime
 
 pytestmark = pytest.mark.compute  # CPU-bound and deterministic: run beside the other unit tests (scripts/test.sh)
 
 CFG = ControlConfig()
 
 
+VERDICT_KEYS = {
+    "n",
+    "mean",
+    "ci95",
+    "sd",
+    "p",
+    "d_z",
+    "p_holm",
+    "margin",
+    "tost_p",
+    "tost_p_holm",
+    "verdict",
+    "ci_family",
+}
+
+
 @pytest.mark.timeout(240)
-def test_compare_writes_every_cell_with_paired_differences(tmp_path: Path) -> None:
+def test_compare_json_carries_per_cell_the_axes_intervals_corrected_p_and_tost(tmp_path: Path) -> None:
     out = tmp_path / "c.json"
     md = tmp_path / "c.md"
-    argv = ["compare", "--runs", "3", "--duration", "4", "--regimes", "trace", "step", "--walker-runs", "0"]
+    argv = ["compare", "--runs", "4", "--duration", "3", "--regimes", "trace", "step", "--walker-runs", "0"]
     rc = main([*argv, "--json", str(out), "--markdown", str(md)])
     assert rc == 0
     result = json.loads(out.read_text())
-    assert result["plant"] == "reduced" and result["runs"] == 3
+    design = result["design"]
+    assert result["plant"] == "reduced" and result["runs"] == 4 and design["baseline"] == "scheduled/ze"
+    assert design["margins"] == EQUIVALENCE_MARGINS and design["alpha"] == 0.05
+    assert design["named"]["paper"] == "scheduled/ze" and design["named"]["tdpa"] == "floor/speed/pc"
     assert set(result["cells"]) == {"trace", "step"}
     for per in result["cells"].values():
-        assert set(per) == set(scheme_names())
+        assert len(per) == 24
         for name, cell in per.items():
-            assert cell["n"] + cell["unstable"] == 3
-            for metric in ("forward_error", "turn_error", "forward_force_error", "forward_po_leader", "peak"):
+            assert name == f"{cell['damping']}/{cell['feedback']}" + ("/pc" if cell["passivity"] == "on" else "")
+            assert cell["n"] + cell["unstable"] == 4
+            for metric in ("forward_error", "turn_intent_error", "forward_force_error", "forward_po_leader", "peak"):
                 lo, hi = cell[metric]["ci95"]
                 assert lo <= cell[metric]["mean"] <= hi
-                assert ("diff" in cell[metric]) == (name != "paper")
-    assert set(result["margin"]) == set(scheme_names())
+            for metric, margin in EQUIVALENCE_MARGINS.items():
+                judged = cell[metric].get("vs_baseline")
+                assert (judged is None) == (name == "scheduled/ze")
+                if judged:
+                    assert set(judged) == VERDICT_KEYS and judged["margin"] == margin
+                    assert judged["verdict"] in ("differs", "equivalent", "inconclusive")
+        # the family: per regime and metric, the 23 other cells, Holm within it
+        for metric in EQUIVALENCE_MARGINS:
+            names = [n for n in per if n != "scheduled/ze"]
+            raw = [per[n][metric]["vs_baseline"]["p"] for n in names]
+            assert [per[n][metric]["vs_baseline"]["p_holm"] for n in names] == pytest.approx(holm(raw), nan_ok=True)
+    effects = result["main_effects"]["step"]["forward_error"]
+    assert set(effects) == {
+        "damping=floor",
+        "damping=ratio",
+        "damping=worst",
+        "feedback=speed",
+        "feedback=wave",
+        "passivity=on",
+    }
+    assert effects["damping=worst"]["reference"] == "scheduled" and set(effects["passivity=on"]) >= VERDICT_KEYS
+    margin = result["margin"]
+    assert set(margin) == set(result["cells"]["trace"])
+    assert set(margin["floor/ze"]["vs_baseline_by_scale"]) == {f"{s:g}" for s in MARGIN_SCALES}
+    plan = result["walker_plan"]["step"]
+    assert set(plan) == {"paper-constant", "pd-measured", "pd-worst-case", "wave", "tdpa"}
+    assert all(v is None or v >= 2 for v in plan["wave"].values())
     text = md.read_text()
-    assert "| trace | paper-constant |" in text and "stability margin" in text
+    assert "| `floor/ze` | paper-constant |" in text and "Main effects" in text and "d_z" in text
 
 
 @pytest.mark.timeout(120)
 def test_compare_is_paired_and_deterministic_per_seed() -> None:
     cp = CompareParams(study=StudyParams(duration_s=3.0))
-    kw = {"schemes": ("paper", "paper-constant"), "regimes": REGIMES[:1], "margin_scales": ()}
+    cells = {n: c for n, c in grid().items() if n in ("scheduled/ze", "floor/ze")}
+    kw = {"cells": cells, "regimes": REGIMES[:1], "margin_scales": ()}
     a = run_compare(3, 5, CFG, cp, **kw)
     b = run_compare(3, 5, CFG, cp, **kw)
     c = run_compare(3, 6, CFG, cp, **kw)
     strip = lambda r: {k: v for k, v in r.items() if k != "elapsed_s"}  # noqa: E731
     assert strip(a) == strip(b)
     assert strip(a) != strip(c)
+    assert strip(run_compare(3, 5, CFG, cp, jobs=2, **kw)) == strip(a)  # spread over processes: the same
     # run i of every scheme sees the same delays and the same operator
-    inp1 = regime_inputs(REGIMES[5], 4, 5, CFG, cp.study)
-    inp2 = regime_inputs(REGIMES[5], 4, 5, CFG, cp.study)
+    step = next(r for r in REGIMES if r.step_s)
+    inp1 = regime_inputs(step, 4, 5, CFG, cp.study)
+    inp2 = regime_inputs(step, 4, 5, CFG, cp.study)
     assert np.array_equal(inp1.intent, inp2.intent) and np.array_equal(inp1.h1, inp2.h1)
-    assert inp1.h1[0] == pytest.approx(0.3) and inp1.h1[-1] == pytest.approx(3.0)
+    assert np.ravel(inp1.h1)[0] == pytest.approx(0.3) and np.ravel(inp1.h1)[-1] == pytest.approx(3.0)
 
 
 def test_the_loss_regime_loses_messages_and_the_others_do_not() -> None:
     params = StudyParams(duration_s=20.0)
-    lossy = regime_inputs(next(r for r in REGIMES if r.loss > 0), 2, 1, CFG, params)
-    clean = regime_inputs(REGIMES[0], 2, 1, CFG, params)
+    lossy = regime_inputs(next(r for r in REGIMES if r.name == "trace"), 2, 1, CFG, params)
+    clean = regime_inputs(next(r for r in REGIMES if r.name == "satellite"), 2, 1, CFG, params)
     assert 0.03 < lossy.lost1.mean() < 0.07 and 0.03 < lossy.lost2.mean() < 0.07
     assert not clean.lost1.any() and not clean.lost2.any()
 
@@ -122,14 +172,16 @@ def test_bad_compare_arguments_exit_2_with_one_line(
 @pytest.mark.timeout(300)
 def test_the_walker_cells_run_every_scheme_paired_on_the_pybullet_follower(tmp_path: Path) -> None:
     out = tmp_path / "w.json"
-    argv = ["compare", "--runs", "2", "--duration", "2", "--regimes", "trace-loss", "--no-margin"]
-    argv += ["--schemes", "paper", "wave", "tdpa", "--walker-runs", "2", "--walker-duration", "4", "--json", str(out)]
+    argv = ["compare", "--runs", "2", "--duration", "2", "--regimes", "trace", "--no-margin", "--schemes", "paper"]
+    argv += ["--walker-schemes", "paper", "wave", "tdpa", "--walker-runs", "3", "--walker-duration", "4"]
+    argv += ["--json", str(out)]
     assert main(argv) == 0
     walker = json.loads(out.read_text())["walker"]
-    assert walker["plant"] == "walker" and walker["runs"] == 2
-    cells = walker["cells"]["trace-loss"]
+    assert walker["plant"] == "walker" and walker["runs"] == 3
+    cells = walker["cells"]["trace"]
     assert set(cells) == {"paper", "wave", "tdpa"}
     for name, cell in cells.items():
-        assert cell["n"] + cell["unstable"] == 2
+        assert cell["n"] + cell["unstable"] == 3
         assert cell["forward_error"]["mean"] > 0.0  # the robot was commanded and measured
-        assert ("diff" in cell["turn_intent_error"]) == (name != "paper")
+        assert ("vs_baseline" in cell["turn_intent_error"]) == (name != "paper")
+        assert cell["named"] == name

@@ -72,3 +72,33 @@ def test_a_family_tells_differs_equivalent_and_inconclusive() -> None:
     assert [v[n].p_holm for n in fam] == pytest.approx(holm(ps))
     d = v["shifted"].to_dict()
     assert d["verdict"] == "differs" and d["margin"] == 0.1 and len(d["ci95"]) == 2 and d["n"] == 400
+
+
+def test_pairs_for_power_match_the_published_tables() -> None:
+    from bipedtele.studies.inference import n_for_power
+
+    # Paired (one-sample) t-test, two-sided alpha 0.05, power 0.80: the tabulated sample sizes
+    # (Cohen 1988, table 2.4.1, one-sample case; G*Power gives the same) are 34 for d = 0.5,
+    # 15 for d = 0.8 and 199 for d = 0.2.
+    assert n_for_power(0.5) == 34
+    assert n_for_power(0.8) == 15
+    assert n_for_power(-0.2) == 199
+    # A stricter level needs more pairs; no effect needs infinitely many.
+    assert n_for_power(0.5, 0.05 / 5) > 34
+    assert n_for_power(0.0) is None and n_for_power(math.nan) is None
+    with pytest.raises(ValueError, match="allowed"):
+        n_for_power(0.5, alpha=1.5)
+
+
+def test_the_family_interval_by_hand() -> None:
+    from bipedtele.studies.inference import family_interval
+
+    # Differences 1..5, a family of 2 at alpha 0.05: the t interval at 1 - 0.05/2,
+    # t(0.9875, 4) = 3.4954 (tables): 3 -+ 3.4954 * sqrt(0.5)
+    lo, hi = family_interval(paired_difference(X, Y), 2)
+    assert lo == pytest.approx(3.0 - 3.4954 * math.sqrt(0.5), abs=1e-3)
+    assert hi == pytest.approx(3.0 + 3.4954 * math.sqrt(0.5), abs=1e-3)
+    # one member: the plain 95 % interval; judge_family gives each member its family's interval
+    assert family_interval(paired_difference(X, Y), 1) == pytest.approx(paired_difference(X, Y).ci95)
+    fam = judge_family({"a": (X, Y), "b": (Y, X)}, margin=1.0)
+    assert fam["a"].ci_family == pytest.approx((lo, hi), abs=1e-9)
