@@ -336,7 +336,7 @@ def run_compare(
         "seed": seed,
         "runs": runs,
         "duration_s": cp.study.duration_s,
-        "wave_window_s": cp.wave_window_s,
+        "wave_window_s": cfg.wave_window_s,  # [control] wave_window_s, every runner's
         "elapsed_s": time.monotonic() - started,
         "design": _design(BASELINE, runs, seed),
         "schemes": {n: classes[n].title for n in classes},

@@ -105,11 +105,6 @@ class CompareParams:
         Operator, handle, period and duration (the study's).
     unstable_factor : float
         A run is unstable when the robot's speed exceeds this times the largest intended one.
-    wave_window_s : float
-        Window over which the wave gain measures the delay's rate [s], passed to the scheme
-        (:meth:`~bipedtele.control.schemes.base.Scheme.received_gains`); 0.5 s, as in the real
-        loops (:data:`~bipedtele.control.schemes.runtime.LOOP_WAVE_WINDOW_S`), chosen by the
-        gain's measured bias under jitter (docs/schemes.md, "The wave gain's window").
     release_fraction : float
         In the margin runs, the operator lets go of the handle at this fraction of the run.
     oscillation_m_s : float
@@ -119,6 +114,5 @@ class CompareParams:
 
     study: StudyParams = field(default_factory=StudyParams)
     unstable_factor: float = 3.0
-    wave_window_s: float = 0.5
     release_fraction: float = 0.5
     oscillation_m_s: float = 0.002

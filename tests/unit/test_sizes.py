@@ -49,8 +49,6 @@ KNOWN: dict[str, str] = {
     "bench/internet.py:run_condition": "long once its # fmt: skip lines were reformatted: to be split by job",
     "common/link/node.py:Node.receive": "long once its # fmt: skip lines were reformatted: to be split by job",
     "common/tools/netns.py": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "leader/app.py": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "leader/app.py:LeaderApp.run": "long once its # fmt: skip lines were reformatted: to be split by job",
     "leader/reach.py:CommandReach.check": "long once its # fmt: skip lines were reformatted: to be split by job",
 }
 
