@@ -306,18 +306,7 @@ class CommandReach:
                 LOG.warning("%s %s", KEY_MISMATCH, key)
             return
         if held_by_other:
-            self._held_over = None
-            if self._warned != "held":
-                self._warned = "held"
-                self.held_warnings += 1
-                LOG.warning(
-                    "%s robot %s is held by %s: our commands are refused until %s releases it (cockpit: Release); "
-                    "we take it then",
-                    HELD,
-                    self.robot_id or "(this id)",
-                    held,
-                    held,
-                )
+            self._warn_held(str(held))
             return
         fresh = last_fresh is not None and now - last_fresh < self.window_s
         if heard and not fresh:
@@ -325,6 +314,38 @@ class CommandReach:
             return
         if heard and fresh_since is not None and now - fresh_since < self.window_s:
             return  # timely again only just now (a backlog drained): its feedback may follow
+        self._warn_unacknowledged(now, heard, last_fb, feedback)
+
+    def _warn_held(self, held: str) -> None:
+        """Say once that another operator holds the robot (our commands are refused until a release)."""
+        self._held_over = None
+        if self._warned != "held":
+            self._warned = "held"
+            self.held_warnings += 1
+            LOG.warning(
+                "%s robot %s is held by %s: our commands are refused until %s releases it (cockpit: Release); "
+                "we take it then",
+                HELD,
+                self.robot_id or "(this id)",
+                held,
+                held,
+            )
+
+    def _warn_unacknowledged(self, now: float, heard: bool, last_fb: float | None, feedback: int) -> None:
+        """Say once why no feedback acknowledges our commands: refused (the follower is heard, fresh), or lost.
+
+        Parameters
+        ----------
+        now : float
+            Now [s].
+        heard : bool
+            The follower's messages arrived within the window (fresh: the checks before
+            this one left out a stalled uplink).
+        last_fb : float or None
+            When its last feedback arrived [s].
+        feedback : int
+            Feedback heard so far.
+        """
         if heard:
             self.exposed = True
             if self._warned != "refused":
@@ -346,7 +367,8 @@ class CommandReach:
         if self._warned not in ("lost", "stalled"):
             self._warned = "lost"
             self.lost_warnings += 1
-            silent = now - (last_fb if last_fb is not None else self._since)
+            since = self._since if self._since is not None else now
+            silent = now - (last_fb if last_fb is not None else since)
             LOG.warning(
                 "%s %.1f s (path or router down?): nothing heard from the follower while its presence is "
                 "still seen; commands may or may not reach it",
