@@ -14,10 +14,16 @@ import signal
 import socket
 import subprocess
 import sys
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from bipedtele.tools.netns import EmulatedLink, VethLink
+
+class _Namespaces(Protocol):
+    """What the relay needs of a link (:class:`~bipedtele.tools.netns.VethLink`, ``EmulatedLink``)."""
+
+    def exec_prefix(self, side: str) -> list[str]:
+        """Return the command prefix that runs a program in ``side``'s namespace."""
+        ...
+
 
 __all__ = ["CockpitRelay"]
 
@@ -42,7 +48,7 @@ class CockpitRelay:
         The leader's side (``LEADER``, ``"leader"``, for a VethLink; ``SIDE_A`` for an EmulatedLink).
     """
 
-    def __init__(self, link: VethLink | EmulatedLink, port: int, side: str = "leader") -> None:
+    def __init__(self, link: _Namespaces, port: int, side: str = "leader") -> None:
         self.link, self.port, self.side = link, port, side
         self.proc: subprocess.Popen[bytes] | None = None
 
