@@ -314,6 +314,12 @@ class CommandReach:
             return
         if heard and fresh_since is not None and now - fresh_since < self.window_s:
             return  # timely again only just now (a backlog drained): its feedback may follow
+        acked_until = last_ack if last_ack is not None else self._since
+        if heard and last_fresh is not None and last_fresh - acked_until < 0.5 * self.window_s:
+            # the follower's messages stopped with its acknowledgements (a gap's start: a video
+            # frame 0.05 s after the last feedback was still "heard" 1.49 s later, and the ACL
+            # was named); a refusal shows the follower heard on, unacknowledged
+            return
         self._warn_unacknowledged(now, heard, last_fb, feedback)
 
     def _warn_held(self, held: str) -> None:
