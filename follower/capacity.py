@@ -101,6 +101,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 
 from bipedtele.follower.delivery import DeliveryRate, InFlight
+from bipedtele.follower.feedbackplan import FeedbackPlan
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -123,28 +124,6 @@ class _PendingCut:
     ceiling_bps: float | None
     t: float  # when it was cut [s]
     peak_excess_s: float  # h2 above its minimum: at the cut, then the highest since [s]
-
-
-@dataclass(frozen=True)
-class FeedbackPlan:
-    """How the follower sends its feedback now.
-
-    Attributes
-    ----------
-    ack_each_command : bool
-        Publish a Feedback at once for every command picked up between ticks (True), or
-        let the next tick's feedback acknowledge it (at most one feedback per tick).
-    rate_hz : float
-        Periodic feedback rate [Hz].
-    min_interval_s : float
-        When acknowledgements are not sent for every command: one is still sent at once
-        if the previous feedback left at least this long ago [s] (so the feedback rate,
-        periodic plus acknowledgements, stays within what the path carries).
-    """
-
-    ack_each_command: bool
-    rate_hz: float
-    min_interval_s: float = 0.0
 
 
 class UplinkBudget:
