@@ -51,13 +51,6 @@ MIN_PART_BYTES = 600  # a frame is not cut into parts smaller than this [bytes o
 LEVELS: tuple[tuple[float, float, float], ...] = (
     (1.0, 1.0, 1.0),
     (1.0, 0.6, 0.55),
-    # 3/4 size between full and half: at half size video stops at its frame rate (2 cameras
-    # x 10 frames/s) with its budget unspent, and full size at 5 frames/s per camera costs
-    # 1.4 x that, more than the uplink budget's probe (1.25 x what is sent) ever allows
-    # untested; 3/4 size at 5 frames/s costs 0.8 x, so video spends its budget and the probe
-    # goes on (on an LTE uplink video stayed at half size, 20 frames/s, 11 % of what the
-    # trace's mean capacity allows after control)
-    (0.75, 0.6, 0.33),
     (0.5, 0.6, 0.2),
     (0.5, 0.3, 0.13),
     (0.5, 0.125, 0.09),
