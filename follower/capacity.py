@@ -369,12 +369,7 @@ class UplinkBudget:
         if q.excess_s > 0.5 * tu.delay_rise_s:
             return  # a queue is still there: not the moment to ask for more
         step = max(tu.increase_bps_per_s, tu.increase_ratio * self.capacity_bps)
-        if self.ceiling_bps is None:
-            # no queue of ours seen yet (TCP's slow start): grow as the start did, within
-            # probe_gain of what is sent and delivered (below); at 3 %/s an LTE uplink's
-            # estimate took 80 s from 0.5 to 0.9 Mbit/s of its 1.95
-            step = max(step, (tu.start_growth - 1.0) * self.capacity_bps)
-        elif self.capacity_bps >= tu.drain_ratio * self.ceiling_bps:
+        if self.ceiling_bps is not None and self.capacity_bps >= tu.drain_ratio * self.ceiling_bps:
             # past what the path carried at the last cut: probe slowly (a path's capacity
             # changes now and then; a sawtooth against a known ceiling only builds queues)
             step = tu.ceiling_probe * self.capacity_bps
@@ -389,11 +384,8 @@ class UplinkBudget:
             if self.ceiling_bps is not None:
                 self.ceiling_bps = max(self.ceiling_bps, self.capacity_bps)  # frames sized to the path again
         probed = self.capacity_bps + step * dt
-        # probe near what is used and delivered (BBR's probe gain): an estimate far above
-        # them was never tested; twice the sending rate let it reach 820 kbit/s behind a
-        # 600 kbit/s token bucket, and video's next level queued 0.1 s at once
-        tested = tu.probe_gain * max(tx, best) + tu.floor_bps
-        self.capacity_bps = max(self.capacity_bps, min(probed, max(tested, known)))
+        # probe near what is used: an estimate far above the sending rate was never tested
+        self.capacity_bps = max(self.capacity_bps, min(probed, max(2.0 * tx + tu.floor_bps, known)))
 
     def _start(self, dt: float, tx: float) -> None:
         """Count ``dt`` [s] more of clear path in the start: grow video's budget, and take the capacity after ``start_s``.

@@ -15,12 +15,7 @@ own:
   samples are left out and the window's clock stops: after a gap the estimate is the last
   good one, not the collapse;
 - **samples age out over delivering time only**: ``window_s`` (10 s) of time during which
-  the path delivered, so a path whose capacity really fell is believed after that long;
-- **a token bucket's burst is not capacity**: each sample is the mean of the leader's 2 s
-  figures over ``mean_s`` (8 s) of delivering time, longer than a burst lasts at the
-  bucket's rate (16 kB at 300 kbit/s: 0.4 s), so the burst it lets through after a quiet
-  spell adds ``burst / mean_s`` (BBR's delivery rate over an interval; the leader's 2 s
-  window alone counted it as 64 kbit/s more, and the budget probed past the bucket's rate).
+  the path delivered, so a path whose capacity really fell is believed after that long.
 
 Not thread-safe: the follower's loop thread only.
 """
@@ -41,11 +36,6 @@ class DeliveryRate:
     ----------
     window_s : float
         How much delivering time [s] a sample is kept (10 s).
-    mean_s : float
-        Each sample is the mean of the leader's figures over this much delivering time [s]
-        (8 s): a token bucket's burst counts ``burst / mean_s`` above its rate (16 kB: 16
-        kbit/s), not ``burst / 2 s`` as in the leader's 2 s window (64 kbit/s, and up to
-        270 kbit/s in its first half second).
 
     Attributes
     ----------
@@ -57,13 +47,10 @@ class DeliveryRate:
         When the current stall began [s] (None: not stalled).
     """
 
-    def __init__(self, window_s: float = 10.0, mean_s: float = 8.0) -> None:
-        for name, v in (("window_s", window_s), ("mean_s", mean_s)):
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} = {v!r}: allowed: a number of seconds > 0")
+    def __init__(self, window_s: float = 10.0) -> None:
+        if not (math.isfinite(window_s) and window_s > 0):
+            raise ValueError(f"window_s = {window_s!r}: allowed: a number of seconds > 0")
         self.window_s = float(window_s)
-        self.mean_s = float(mean_s)
-        self._recent: deque[tuple[float, float]] = deque()  # (delivering time, rx) over the last mean_s
         self._active_s = 0.0  # delivering time so far [s]
         self._last_t: float | None = None
         self._max: deque[tuple[float, float]] = deque()  # (active time, bit/s), values decreasing
@@ -93,21 +80,12 @@ class DeliveryRate:
         if last is not None and not self.stalled:
             self._active_s += max(0.0, t - last)
         self.stalled, self.stall_since = False, None
-        if not (math.isfinite(rx_bps) and rx_bps >= 0):
-            return
-        # the mean of the leader's 2 s figures over mean_s: a token bucket's burst (what it
-        # lets through at once after a quiet spell) counts burst / mean_s, not burst / 2 s
-        recent = self._recent
-        recent.append((self._active_s, float(rx_bps)))
-        while recent and recent[0][0] < self._active_s - self.mean_s:
-            recent.popleft()
-        mean = sum(v for _, v in recent) / len(recent)
-        if mean <= 0:
+        if not (math.isfinite(rx_bps) and rx_bps > 0):
             return
         q = self._max
-        while q and q[-1][1] <= mean:
+        while q and q[-1][1] <= rx_bps:
             q.pop()
-        q.append((self._active_s, mean))
+        q.append((self._active_s, float(rx_bps)))
         while q and q[0][0] < self._active_s - self.window_s:
             q.popleft()
 

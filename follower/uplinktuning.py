@@ -99,10 +99,6 @@ class UplinkTuning:
         [s] above its minimum (the path's queue, one status period late).
     delivery_window_s : float
         The delivery rate's maximum is kept this long [s] of time the path delivered.
-    probe_gain : float
-        The capacity is probed up to this multiple of the larger of what is sent (over
-        ``window_s``) and what the path delivered (the delivery rate's maximum), plus
-        ``floor_bps`` [-] (BBR's probing gain, 1.25).
     lossy_ppm, rising_s_per_s : float
         With the leader's feedback loss at or above ``lossy_ppm`` [ppm], the rate rule cuts
         only while h2 rises faster than ``rising_s_per_s`` [s/s]: a lossy path whose TCP
@@ -148,7 +144,6 @@ class UplinkTuning:
     probe_s: float = 1.0
     inflight_release_s: float = 0.5
     video_queue_s: float = 0.05
-    probe_gain: float = 1.25
     lossy_ppm: float = 1000.0
     rising_s_per_s: float = 0.1
 

@@ -236,7 +236,7 @@ def test_loss_alone_never_cuts_video_on_the_intercontinental_trace(loss_ppm: int
 
 
 def test_the_delivery_rate_keeps_its_maximum_through_a_stall() -> None:
-    d = DeliveryRate(window_s=10.0, mean_s=0.25)  # each sample alone (they come every 0.5 s)
+    d = DeliveryRate(window_s=10.0)
     for k in range(20):
         d.sample(0.5 * k, 900_000.0, stalled=False)
     for k in range(20, 60):  # 20 s stalled: no aging, no samples
@@ -250,22 +250,6 @@ def test_the_delivery_rate_keeps_its_maximum_through_a_stall() -> None:
     assert d.max_bps == 300_000.0
     with pytest.raises(ValueError, match="window_s"):
         DeliveryRate(window_s=0.0)
-    with pytest.raises(ValueError, match="mean_s"):
-        DeliveryRate(mean_s=math.nan)
-
-
-def test_a_token_buckets_burst_is_not_taken_for_capacity() -> None:
-    """A 600 kbit/s bucket with a 16 kB burst: the leader's 2 s window counts the burst as
-    64 kbit/s more for 2 s after each quiet spell (and 270 kbit/s more in its first half
-    second); the delivery rate, the mean over 8 s, counts it as 16 kbit/s, under video's
-    10 % margin. Before, its maximum was the 2 s figure, 664 kbit/s or more."""
-    d = DeliveryRate()
-    t = 0.0
-    for _ in range(3):  # three bursts, each after a quiet spell: 2 s of rate + burst, 6 s at the rate
-        for k in range(80):
-            d.sample(t, 600_000.0 + (64_000.0 if k < 20 else 0.0), stalled=False)
-            t += 0.1
-    assert d.max_bps is not None and d.max_bps <= 600_000.0 * 1.03, d.max_bps
 
 
 def _after_gap(status_s: float, cap: bool) -> tuple[float, float]:
@@ -293,10 +277,7 @@ def test_the_in_flight_cap_keeps_the_robots_own_backlog_out_of_a_gap() -> None:
     stall was judged, and more queued behind the gap."""
     fresh, queued = _after_gap(0.1, cap=True)
     fresh_open, queued_open = _after_gap(0.1, cap=False)
-    # what the cap let queue drains at the path's 2 Mbit/s, then one acknowledgement cycle
-    # (a status period and a round trip of 2 x 40 ms) and a tick; the cap (twice the
-    # bandwidth-delay product) makes that about 0.5 s
-    assert fresh <= 8.0 * queued / 2e6 + 0.1 + 0.08 + 0.1 + 0.02, (fresh, queued)
+    assert fresh <= 0.5, fresh
     assert queued < queued_open and fresh < fresh_open, (queued, queued_open, fresh, fresh_open)
     # at the shipped 2 Hz status the cap must hold 0.5 s of the rate between two acknowledgements
     _, queued_2hz = _after_gap(0.5, cap=True)
