@@ -142,6 +142,7 @@ class CommandReach:
             raise ValueError(f"window_s must be > 0, got {window_s!r}")
         self.fresh_s = float(window_s if fresh_s is None else fresh_s)
         self._fresh_since: float | None = None  # fresh messages heard without a window's pause since
+        self._fresh_unacked: float | None = None  # the first fresh message after the last acknowledgement
         self._last_fresh: float | None = None
         self.stall_warnings = 0
         self._sent_seq = sent_seq
@@ -198,6 +199,8 @@ class CommandReach:
         if self._last_fresh is None or now - self._last_fresh > self.window_s:
             self._fresh_since = now
         self._last_fresh = now
+        if self._fresh_unacked is None:
+            self._fresh_unacked = now  # the first fresh message since the last acknowledgement
 
     def on_feedback(self, fb: Feedback, age_s: float | None = None) -> None:
         """Take one received feedback (any thread), ``age_s`` after it was sent [s] (None: unknown)."""
@@ -215,6 +218,7 @@ class CommandReach:
             if ok:
                 self.acknowledged += 1
                 self._last_ack = now
+                self._fresh_unacked = None
 
     def _key_problem(self, now: float) -> str | None:
         """Return the key line when messages were refused for their MAC within the window, else None."""
@@ -282,7 +286,7 @@ class CommandReach:
             self._since = now
         with self._lock:
             last_ack, last_fb, last_heard, feedback = self._last_ack, self._last_fb, self._last_heard, self.feedback
-            last_fresh, fresh_since = self._last_fresh, self._fresh_since
+            last_fresh, fresh_since, unacked = self._last_fresh, self._fresh_since, self._fresh_unacked
         recent = last_ack is not None and now - last_ack < self.window_s
         if recent:
             if self._warned is not None:
@@ -314,11 +318,12 @@ class CommandReach:
             return
         if heard and fresh_since is not None and now - fresh_since < self.window_s:
             return  # timely again only just now (a backlog drained): its feedback may follow
-        acked_until = last_ack if last_ack is not None else self._since
-        if heard and last_fresh is not None and last_fresh - acked_until < 0.5 * self.window_s:
+        if heard and (unacked is None or last_fresh is None or last_fresh - unacked < 0.5 * self.window_s):
             # the follower's messages stopped with its acknowledgements (a gap's start: a video
-            # frame 0.05 s after the last feedback was still "heard" 1.49 s later, and the ACL
-            # was named); a refusal shows the follower heard on, unacknowledged
+            # frame 0.05 s after the last feedback was still "heard" 1.49 s later; on a cellular
+            # uplink's near-zero stretch one frame trickled in 0.86 s after it, 0.85 s old, and
+            # the ACL was named); a refusal shows the follower heard on, unacknowledged, for
+            # half a window at least
             return
         self._warn_unacknowledged(now, heard, last_fb, feedback)
 
