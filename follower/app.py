@@ -144,15 +144,20 @@ class FollowerApp:
             self.pacer.notify()
 
     def _publish(self, msg: Message) -> bool:
-        """Send ``msg``; False when the uplink's in-flight cap holds it (the loop reuses its sequence number)."""
-        fb = isinstance(msg, Feedback)
-        if (fb and not self.budget.inflight.admit_feedback(self.clock())) or (
-            isinstance(msg, Status) and self.budget.inflight.over
+        """Send ``msg``; False when the uplink's in-flight cap holds it (the loop reuses its sequence number).
+
+        Over the cap a feedback never leaves, and a Status only as a probe (docs/network.md).
+        """
+        fb, inflight = isinstance(msg, Feedback), self.budget.inflight
+        if (fb and not inflight.admit_feedback(self.clock())) or (
+            isinstance(msg, Status) and not inflight.admit_probe(self.clock())
         ):
-            return False  # over the in-flight cap: the next one carries the newest state (docs/network.md)
+            return False  # over the in-flight cap: the next one carries the newest state
         pub, topic = self._outlets[type(msg)]
         self.node.send(pub, msg, topic)
-        self.budget.sent(len(encode(msg)) + self._mac_bytes, feedback=fb)
+        stamp = msg.counters.get("uplink_t_us") if isinstance(msg, Status) else None
+        # a Status counted at its stamp: the leader's echo of the stamp acknowledges it too
+        self.budget.sent(len(encode(msg)) + self._mac_bytes, feedback=fb, at=None if stamp is None else stamp / 1e6)
         if fb:
             self._fb_times.append(self.clock())
         return True
@@ -186,6 +191,8 @@ class FollowerApp:
             "uplink_excess_ms": round(1000.0 * b.excess_s),
             **{f"uplink_{k}": v for k, v in b.signals.items()},
             **b.inflight_counters(),
+            # this Status's send stamp [us]: the leader echoes the newest it received (uplink_t_echo_us)
+            "uplink_t_us": max(0, round(1e6 * now)),
         }
         if self._video is not None:
             video = self._video

@@ -101,6 +101,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 
 from bipedtele.follower.delivery import DeliveryRate, InFlight
+from bipedtele.follower.feedbackplan import FeedbackPlan
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -109,6 +110,9 @@ __all__ = ["FeedbackPlan", "UplinkBudget", "UplinkTuning"]
 
 _GROWING = 0.2  # h2 growing faster than this [s/s] is a queue of ours (a path's swing is slower)
 _TUNING = UplinkTuning.names()
+#: The leader's Status counters the budget reads: its receive rate, the feedback's loss and
+#: age, and the echo of the newest follower Status's send stamp (``uplink_t_us``) [us].
+_LEADER_KEYS = ("rx_bps", "fb_loss_ppm", "fb_age_ms", "uplink_t_echo_us")
 
 
 @dataclass
@@ -120,28 +124,6 @@ class _PendingCut:
     ceiling_bps: float | None
     t: float  # when it was cut [s]
     peak_excess_s: float  # h2 above its minimum: at the cut, then the highest since [s]
-
-
-@dataclass(frozen=True)
-class FeedbackPlan:
-    """How the follower sends its feedback now.
-
-    Attributes
-    ----------
-    ack_each_command : bool
-        Publish a Feedback at once for every command picked up between ticks (True), or
-        let the next tick's feedback acknowledge it (at most one feedback per tick).
-    rate_hz : float
-        Periodic feedback rate [Hz].
-    min_interval_s : float
-        When acknowledgements are not sent for every command: one is still sent at once
-        if the previous feedback left at least this long ago [s] (so the feedback rate,
-        periodic plus acknowledgements, stays within what the path carries).
-    """
-
-    ack_each_command: bool
-    rate_hz: float
-    min_interval_s: float = 0.0
 
 
 class UplinkBudget:
@@ -216,7 +198,7 @@ class UplinkBudget:
 
     # ------------------------------------------------------------------ inputs
 
-    def sent(self, nbytes: int, video: bool = False, *, feedback: bool = False) -> None:
+    def sent(self, nbytes: int, video: bool = False, *, feedback: bool = False, at: float | None = None) -> None:
         """Count ``nbytes`` of payload sent now (any thread).
 
         Parameters
@@ -227,10 +209,13 @@ class UplinkBudget:
             A video frame (else control: feedback, status).
         feedback : bool
             A Feedback message (its size feeds the feedback rate plan).
+        at : float, optional
+            Its send time for the in-flight count [s] (a Status: its stamp ``uplink_t_us``,
+            which the leader echoes; default now).
         """
         now = self._clock()
         self._log.add(now, nbytes, video, feedback)
-        self.inflight.sent(now, nbytes)
+        self.inflight.sent(now if at is None else min(now, at), nbytes)
 
     def on_h2(self, h2_s: float) -> None:
         """Feed the leader's feedback-path delay estimate [s] (from each command's ``h2_s``).
@@ -267,11 +252,12 @@ class UplinkBudget:
                 self.inflight.reset()
             self._leader_sid = sid
         self.leader = {
-            k: v
-            for k, v in counters.items()
-            if k in ("rx_bps", "fb_loss_ppm", "fb_age_ms") and isinstance(v, int) and not isinstance(v, bool)
+            k: v for k, v in counters.items() if k in _LEADER_KEYS and isinstance(v, int) and not isinstance(v, bool)
         }
         self._last_heard = now
+        echo = self.leader.get("uplink_t_echo_us")
+        if echo is not None and echo / 1e6 <= now:  # a Status of ours arrived: what was sent before it did too
+            self.inflight.delivered(now, echo / 1e6)
         rx = self.leader.get("rx_bps")
         if rx is None:
             return
@@ -327,6 +313,7 @@ class UplinkBudget:
         stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s
         was = self.delivery.stalled
         self.delivery.sample(ts, float(rx), stall)
+        self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most
         if stall and not was:
             self.signals["stall"] += 1
             self._undo = None  # a cut that the gap's queue caused is not judged by it
@@ -510,6 +497,7 @@ class UplinkBudget:
             "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
             "uplink_held_feedback": f.held["feedback"],
             "uplink_held_video": f.held["video"],
+            "uplink_probes": f.held["probes"],
             "uplink_tx_control_bps": round(self.tx_bps("control")),
             "uplink_queue_ms": round(1000.0 * f.queue_s),
         }

@@ -118,10 +118,15 @@ class InFlight:
 
     Over the cap video waits and feedback is held (the newest is sent once the cap opens):
     what is in flight is acknowledged once the path delivers again, and that opens the cap,
-    so nothing sent in a gap waits in the path's queue to arrive stale after it. Only when
-    no acknowledgement advanced for ``probe_s`` (what was in flight may have been lost) one
-    feedback leaves as a probe, then again after twice as long, up to ``8 probe_s`` (TCP's
-    retransmission back-off). Each acknowledgement is also a round-trip sample: its rise over the
+    so nothing sent in a gap waits in the path's queue to arrive stale after it. A feedback
+    never leaves over the cap: one sent into a stalled path can only arrive old, and the
+    operator would be shown it. Only when no acknowledgement advanced for ``probe_s`` (what
+    was in flight may have been lost) one follower Status leaves as a probe
+    (:meth:`admit_probe`), then again after twice as long, up to ``8 probe_s`` (TCP's
+    retransmission back-off); the leader echoes the newest Status's send stamp
+    (``uplink_t_us``, TCP's timestamp echo), which acknowledges everything sent before it,
+    so the first feedback leaves once the path is known to deliver and arrives fresh.
+    Each acknowledgement is also a round-trip sample: its rise over the
     minimum is the path's queue now (``queue_s``, the least of the last three samples over
     the minimum), seen a few status periods after it formed rather than through the
     leader's 1 s mean of h2 (about 0.75 s late; LEDBAT's and BBR's signal); while it
@@ -136,8 +141,8 @@ class InFlight:
     min_bytes : float
         The least cap [bytes] (a frame part and a few feedback always fit).
     probe_s : float
-        Over the cap without an acknowledgement advancing for this long [s], one feedback
-        leaves as a probe (then after 2, 4, 8 times as long).
+        Over the cap without an acknowledgement advancing for this long [s], one Status
+        leaves as a probe (then after 2, 4, 8 times as long); a feedback never does.
     rtt_window_s : float
         Window of the round trip's minimum [s].
     video_queue_s : float
@@ -180,8 +185,13 @@ class InFlight:
         self.video_queue_s = float(video_queue_s)
         #: The last round trip above its minimum [s] (the path's queue when it was acknowledged).
         self.queue_s = 0.0
-        #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or dropped).
-        self.held = {"feedback": 0, "video": 0}
+        #: Set by the budget while the path is stalled: the cap is then one message (TCP's
+        #: window after a retransmission timeout): a feedback leaves only when nothing of
+        #: ours waits in the path, so it arrives fresh; over it, Status probes only.
+        self.hold = False
+        #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or
+        #: dropped), ``status`` (not a probe); ``probes``: the Status sent over it as probes.
+        self.held = {"feedback": 0, "video": 0, "status": 0, "probes": 0}
 
     def sent(self, t: float, nbytes: int) -> None:
         """Count ``nbytes`` [bytes] sent at ``t`` [s] (any thread)."""
@@ -224,6 +234,24 @@ class InFlight:
             q.append((now, rtt))
             while q and q[0][0] < now - self._rtt_window_s:
                 q.popleft()
+        self.delivered(now, t_delivered)
+
+    def delivered(self, now: float, t_delivered: float) -> None:
+        """Take the leader's word that everything sent up to ``t_delivered`` [s] arrived (no round-trip sample).
+
+        The echo of a follower Status's send stamp: a probe, or a Status sent a status
+        period before the leader's report (too old to be a round-trip sample).
+
+        Parameters
+        ----------
+        now : float
+            When the word arrived [s].
+        t_delivered : float
+            Send time of the newest message the leader had received [s] (the follower's clock).
+        """
+        if not math.isfinite(t_delivered):
+            return
+        with self._lock:
             if t_delivered <= self._acked_t:
                 return
             self._acked_t = t_delivered
@@ -238,7 +266,7 @@ class InFlight:
         and acknowledgements); the counts of what was held stay. Called every tick while
         nobody acknowledges: a reset state is left as it is.
         """
-        if self._last_ack is None and self.rate_bps is None and not self._sent and not self._rtt:
+        if self._last_ack is None and self.rate_bps is None and not self._sent and not self._rtt and not self.hold:
             return
         with self._lock:
             self._sent.clear()
@@ -252,6 +280,7 @@ class InFlight:
         self._last_probe = self._progress = -math.inf
         self._backoff = 1.0
         self.queue_s = 0.0
+        self.hold = False
 
     @property
     def bytes(self) -> int:
@@ -275,19 +304,36 @@ class InFlight:
 
     @property
     def over(self) -> bool:
-        """True while what is in flight reaches the cap."""
-        return self.bytes >= self.cap_bytes
+        """True while what is in flight reaches the cap; while :attr:`hold` is set, while anything is in flight."""
+        return self.bytes > 0 if self.hold else self.bytes >= self.cap_bytes
 
     def admit_feedback(self, now: float) -> bool:
-        """Say whether a feedback may leave at ``now`` [s]: under the cap, or as a probe over it (see the class docstring)."""
+        """Say whether a feedback may leave at ``now`` [s]: only under the cap.
+
+        Over it the feedback is held (the next one carries the newest state): one sent
+        into a path that does not deliver arrives old, and the operator would be shown it.
+        """
+        if not self.over:
+            return True
+        self.held["feedback"] += 1
+        return False
+
+    def admit_probe(self, now: float) -> bool:
+        """Say whether a Status may leave at ``now`` [s]: under the cap, or as a probe over it.
+
+        Over the cap, with no acknowledgement advancing for ``probe_s`` (then 2, 4, 8 times
+        as long after each probe), one Status leaves: the leader's echo of it tells the
+        follower that the path delivers again, also when what was in flight was lost.
+        """
         if not self.over:
             return True
         wait = self.probe_s * self._backoff
         if now - max(self._progress, self._last_probe) >= wait:
             self._last_probe = now
             self._backoff = min(8.0, 2.0 * self._backoff)
+            self.held["probes"] += 1
             return True
-        self.held["feedback"] += 1
+        self.held["status"] += 1
         return False
 
     def admit_video(self, nbytes: int, now: float | None = None) -> bool:

@@ -101,6 +101,11 @@ class LinkReport:
         Feedback refused as older than the bound.
     max_age_s : float
         The feedback age bound in force [s].
+    status_echo_us : int or None
+        The send stamp of the newest follower Status received (its counter ``uplink_t_us``,
+        on the follower's clock) [us], echoed back in the leader's Status: it tells the
+        follower that everything it sent before that Status arrived (TCP's timestamp echo);
+        None: no follower Status with a stamp.
     """
 
     state: str
@@ -115,6 +120,7 @@ class LinkReport:
     fb_arrived: int
     fb_too_old: int
     max_age_s: float
+    status_echo_us: int | None = None
 
 
 class LinkQuality:
@@ -370,7 +376,14 @@ class LinkQuality:
             fb_arrived=arrived,
             fb_too_old=too_old,
             max_age_s=bound,
+            status_echo_us=_stamp(follower_counters),
         )
+
+
+def _stamp(counters: Mapping[str, int] | None) -> int | None:
+    """Return the follower Status's send stamp ``uplink_t_us`` [us] (None: missing or not an int)."""
+    v = None if counters is None else counters.get("uplink_t_us")
+    return v if isinstance(v, int) and not isinstance(v, bool) and v >= 0 else None
 
 
 def _capacity_limited(rx_bps: float | None, counters: Mapping[str, int] | None, ratio: float) -> bool:

@@ -142,6 +142,7 @@ class CommandReach:
             raise ValueError(f"window_s must be > 0, got {window_s!r}")
         self.fresh_s = float(window_s if fresh_s is None else fresh_s)
         self._fresh_since: float | None = None  # fresh messages heard without a window's pause since
+        self._fresh_unacked: float | None = None  # the first fresh message after the last acknowledgement
         self._last_fresh: float | None = None
         self.stall_warnings = 0
         self._sent_seq = sent_seq
@@ -198,6 +199,8 @@ class CommandReach:
         if self._last_fresh is None or now - self._last_fresh > self.window_s:
             self._fresh_since = now
         self._last_fresh = now
+        if self._fresh_unacked is None:
+            self._fresh_unacked = now  # the first fresh message since the last acknowledgement
 
     def on_feedback(self, fb: Feedback, age_s: float | None = None) -> None:
         """Take one received feedback (any thread), ``age_s`` after it was sent [s] (None: unknown)."""
@@ -215,6 +218,7 @@ class CommandReach:
             if ok:
                 self.acknowledged += 1
                 self._last_ack = now
+                self._fresh_unacked = None
 
     def _key_problem(self, now: float) -> str | None:
         """Return the key line when messages were refused for their MAC within the window, else None."""
@@ -282,7 +286,7 @@ class CommandReach:
             self._since = now
         with self._lock:
             last_ack, last_fb, last_heard, feedback = self._last_ack, self._last_fb, self._last_heard, self.feedback
-            last_fresh, fresh_since = self._last_fresh, self._fresh_since
+            last_fresh, fresh_since, unacked = self._last_fresh, self._fresh_since, self._fresh_unacked
         recent = last_ack is not None and now - last_ack < self.window_s
         if recent:
             if self._warned is not None:
@@ -306,18 +310,7 @@ class CommandReach:
                 LOG.warning("%s %s", KEY_MISMATCH, key)
             return
         if held_by_other:
-            self._held_over = None
-            if self._warned != "held":
-                self._warned = "held"
-                self.held_warnings += 1
-                LOG.warning(
-                    "%s robot %s is held by %s: our commands are refused until %s releases it (cockpit: Release); "
-                    "we take it then",
-                    HELD,
-                    self.robot_id or "(this id)",
-                    held,
-                    held,
-                )
+            self._warn_held(str(held))
             return
         fresh = last_fresh is not None and now - last_fresh < self.window_s
         if heard and not fresh:
@@ -325,6 +318,45 @@ class CommandReach:
             return
         if heard and fresh_since is not None and now - fresh_since < self.window_s:
             return  # timely again only just now (a backlog drained): its feedback may follow
+        if heard and (unacked is None or last_fresh is None or last_fresh - unacked < 0.5 * self.window_s):
+            # the follower's messages stopped with its acknowledgements (a gap's start: a video
+            # frame 0.05 s after the last feedback was still "heard" 1.49 s later; on a cellular
+            # uplink's near-zero stretch one frame trickled in 0.86 s after it, 0.85 s old, and
+            # the ACL was named); a refusal shows the follower heard on, unacknowledged, for
+            # half a window at least
+            return
+        self._warn_unacknowledged(now, heard, last_fb, feedback)
+
+    def _warn_held(self, held: str) -> None:
+        """Say once that another operator holds the robot (our commands are refused until a release)."""
+        self._held_over = None
+        if self._warned != "held":
+            self._warned = "held"
+            self.held_warnings += 1
+            LOG.warning(
+                "%s robot %s is held by %s: our commands are refused until %s releases it (cockpit: Release); "
+                "we take it then",
+                HELD,
+                self.robot_id or "(this id)",
+                held,
+                held,
+            )
+
+    def _warn_unacknowledged(self, now: float, heard: bool, last_fb: float | None, feedback: int) -> None:
+        """Say once why no feedback acknowledges our commands: refused (the follower is heard, fresh), or lost.
+
+        Parameters
+        ----------
+        now : float
+            Now [s].
+        heard : bool
+            The follower's messages arrived within the window (fresh: the checks before
+            this one left out a stalled uplink).
+        last_fb : float or None
+            When its last feedback arrived [s].
+        feedback : int
+            Feedback heard so far.
+        """
         if heard:
             self.exposed = True
             if self._warned != "refused":
@@ -346,7 +378,8 @@ class CommandReach:
         if self._warned not in ("lost", "stalled"):
             self._warned = "lost"
             self.lost_warnings += 1
-            silent = now - (last_fb if last_fb is not None else self._since)
+            since = self._since if self._since is not None else now
+            silent = now - (last_fb if last_fb is not None else since)
             LOG.warning(
                 "%s %.1f s (path or router down?): nothing heard from the follower while its presence is "
                 "still seen; commands may or may not reach it",

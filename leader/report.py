@@ -38,7 +38,8 @@ def link_counters(rep: LinkReport) -> dict[str, int]:
     """Return the leader's link figures as Status counters (the follower adapts to them).
 
     ``rx_bps`` (payload received over the last 2 s [bit/s]), ``fb_loss_ppm`` (feedback
-    loss over the last 2 s [ppm]) and ``fb_age_ms`` (age of the newest feedback now [ms]);
+    loss over the last 2 s [ppm]), ``fb_age_ms`` (age of the newest feedback now [ms]) and
+    ``uplink_t_echo_us`` (the newest follower Status's send stamp, echoed [us]);
     a figure that is not known yet is left out.
     """
     out: dict[str, int] = {}
@@ -48,6 +49,8 @@ def link_counters(rep: LinkReport) -> dict[str, int]:
         out["fb_loss_ppm"] = _counter(rep.loss_ppm)
     if rep.fb_age_s is not None:
         out["fb_age_ms"] = _counter(1000.0 * rep.fb_age_s)
+    if rep.status_echo_us is not None:  # the newest follower Status's stamp: its acknowledgement
+        out["uplink_t_echo_us"] = _counter(rep.status_echo_us)
     return out
 
 

@@ -404,27 +404,8 @@ class Node:
             Builds the inbox that admits the messages (a command or feedback inbox, with
             the node's checks; :class:`~bipedtele.link.receivers.LatestReceiver`).
         """
-        record, recorder = self.record, self.recorder
-        authentic = self.drops.authentic if self.auth is not None else None
-        heard = None
-        if self._relink is not None and key in (self.keys.cmd, self.keys.feedback):
-            heard = self._relink.heard
-        elif self._relink is not None and key == self.keys.status:
-            heard = self._relink.heard_status
-
-        def accepted(got: Received[M]) -> None:
-            if authentic is not None:
-                authentic()
-            if heard is not None:
-                heard()
-            if topic is not None and recorder is not None:
-                record(topic, got.msg, got.t_recv)
-            if on_message is not None:
-                on_message(got)
-
-        wants = (topic is not None and recorder is not None) or on_message is not None
+        accepted = self._accepted(key, topic, on_message)
         gate, max_age_s = live_checks(self, key, gate, max_age_s)  # video and status: bound, never old
-        wants = wants or authentic is not None or heard is not None
         # commands and feedback: under the session key only (with the message key)
         hs = self.handshake if key in (self.keys.cmd, self.keys.feedback) else None
         auth = self.video_auth if key == self.keys.video else self.watch_auth if key == self.keys.status else self.auth
@@ -439,13 +420,45 @@ class Node:
             auth=auth,
             max_future_s=self.max_future_s,
             ignore_sid=ignore_sid,
-            on_message=accepted if wants else None,
+            on_message=accepted,
             max_age_s=max_age_s,
             on_too_old=on_too_old,
             handshake=hs,
             inbox=inbox,
         )
         return self.enter(rx)
+
+    def _accepted(
+        self, key: str, topic: str | None, on_message: Callable[[Received[M]], None] | None
+    ) -> Callable[[Received[M]], None] | None:
+        """Return what :meth:`receive` does with every accepted message of ``key`` (None: nothing).
+
+        The drop counter hears an authentic message (with the message key), the relinking
+        session a live control or status one, the recorder records it under ``topic``, and
+        ``on_message`` gets it.
+        """
+        record, recorder = self.record, self.recorder
+        authentic = self.drops.authentic if self.auth is not None else None
+        heard = None
+        if self._relink is not None and key in (self.keys.cmd, self.keys.feedback):
+            heard = self._relink.heard
+        elif self._relink is not None and key == self.keys.status:
+            heard = self._relink.heard_status
+        recorded = topic is not None and recorder is not None
+        if not (recorded or on_message is not None or authentic is not None or heard is not None):
+            return None
+
+        def accepted(got: Received[M]) -> None:
+            if authentic is not None:
+                authentic()
+            if heard is not None:
+                heard()
+            if topic is not None and recorder is not None:
+                record(topic, got.msg, got.t_recv)
+            if on_message is not None:
+                on_message(got)
+
+        return accepted
 
     def link_clocks(self, peer_sid: Callable[[], int | None]) -> ClockLink:
         """Start the clock link (answers pings; pings in ntp mode) bound to ``peer_sid()``."""

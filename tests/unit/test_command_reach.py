@@ -221,3 +221,29 @@ def test_old_messages_alone_never_name_the_acl(caplog: pytest.LogCaptureFixture)
         reach.on_heard(age_s=2.5)
     (line,) = warnings(caplog)
     assert line.startswith(STALLED) and not reach.never_reached and reach.never_acknowledged
+
+
+def test_a_gap_right_after_a_fresh_frame_is_not_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    """The uplink stops: its last feedback, then a video frame 0.05 s later, then nothing.
+    A window after the last feedback the frame is still within it: before, "heard, fresh,
+    no acknowledgement for a window" named the router's ACL (emulated LTE row, 4 s gap)."""
+    reach, clock, sent = make()
+    run(reach, clock, sent, 5.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    run(reach, clock, sent, 0.05, None)
+    reach.on_heard(age_s=0.05)  # the frame, fresh
+    run(reach, clock, sent, 4.0, None)  # the gap
+    lines = warnings(caplog)
+    assert lines and not any("ACL" in ln or "refused" in ln for ln in lines), lines
+
+
+def test_one_late_frame_in_a_near_zero_stretch_is_not_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    """A 3G uplink's near-zero stretch: the last feedback, then one video frame trickles in
+    0.86 s later (0.85 s old, under the fresh bound), then nothing. Before, "heard, fresh,
+    no acknowledgement for a window" named the router's ACL (emulated 3G row)."""
+    reach, clock, sent = make()
+    run(reach, clock, sent, 5.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    run(reach, clock, sent, 0.86, None)
+    reach.on_heard(age_s=0.85)
+    run(reach, clock, sent, 4.0, None)
+    lines = warnings(caplog)
+    assert lines and not any("ACL" in ln or "refused" in ln for ln in lines), lines

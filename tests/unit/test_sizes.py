@@ -40,17 +40,9 @@ MAX_MODULE_LINES = 600
 #: Longest function or method [lines].
 MAX_FUNCTION_LINES = 80
 
-#: Offenders not yet split: ``path`` (a module) or ``path:qualname`` (a function) -> why.
-#: The bench module since the rule covers every folder; the rest since their formatter-skip lines
-#: were reformatted (the compressed lines had hidden their length).
-KNOWN: dict[str, str] = {
-    "bench/internet.py": "the internet bench: its rows, runs and report to be split by job",
-    "bench/internet.py:main": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "bench/internet.py:run_condition": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "common/link/node.py:Node.receive": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "common/tools/netns.py": "long once its # fmt: skip lines were reformatted: to be split by job",
-    "leader/reach.py:CommandReach.check": "long once its # fmt: skip lines were reformatted: to be split by job",
-}
+#: Offenders not yet split: ``path`` (a module) or ``path:qualname`` (a function) -> why. None
+#: since the modules and functions the formatter lengthened were split by job.
+KNOWN: dict[str, str] = {}
 
 #: Files whose formatter-skip lines keep a table's rows -> how many, and which table.
 FMT_SKIP_TABLES: dict[str, tuple[int, str]] = {

@@ -6,7 +6,7 @@ into a drop-tail queue (``queue_bytes``) drained at ``cap(t)`` [bit/s]; what lea
 arrives ``base_s`` later. ``video_delivered`` of the video sent arrives (TCP slowed by
 loss: the publish call counts what the transport then holds back or drops). The leader
 computes, as leader/linkquality.py does: ``rx_bps`` over its last 2 s, the age of its
-newest feedback (``fb_age_ms``) and h2, the mean delay of the feedback that arrived over
+newest feedback (``fb_age_ms``), the echo of its newest status's stamp (``uplink_t_echo_us``) and h2, the mean delay of the feedback that arrived over
 the last second (none arrived: no h2 in the command); its Status (2 Hz) and commands
 (100 Hz) travel the free downlink in ``base_s``.
 """
@@ -46,32 +46,37 @@ class CellSim:
         self.want, self.video_delivered, self.fb_loss_ppm = want_bps, video_delivered, fb_loss_ppm
         self.rng = random.Random(3)
         self.status_s = status_s  # the leader's status period [s]: its acknowledgements
+        self.echo = True  # the leader echoes the newest follower status's stamp
         self.budget = UplinkBudget(lambda: self.t)
         self.queue: deque[list[float]] = deque()  # [t_sent, bits left, is feedback, bits]
         self.queue_bits = 0.0
-        self.flight: deque[tuple[float, float, float, bool]] = deque()  # (arrive, t_sent, bits, fb)
+        self.flight: deque[tuple[float, float, float, int]] = deque()  # (arrive, t_sent, bits, 0/1/2: video/fb/status)
         self.rx: deque[tuple[float, float]] = deque()
         self.fb_arrived: deque[tuple[float, float]] = deque()  # (arrival, delay) over the last s
         self.newest_fb_sent: float | None = None
+        self.newest_st_sent: float | None = None  # the newest status that arrived: its send time [s]
         self.first_fb_after: list[tuple[float, float]] = []  # (arrival, age) of every feedback
         self.to_follower: deque[tuple[float, str, object]] = deque()
         self.next_fb = self.next_st = self.next_leader_st = 0.0
         self.credit = 0.0
         self.log: list[dict[str, float]] = []
 
-    def send(self, nbytes: int, *, video: bool = False, feedback: bool = False) -> None:
+    def send(self, nbytes: int, *, video: bool = False, feedback: bool = False, status: bool = False) -> None:
         # the in-flight cap, as follower/app.py and follower/video.py apply it
         if feedback and not self.budget.inflight.admit_feedback(self.t):
             return
+        if status and not self.budget.inflight.admit_probe(self.t):
+            return
         if video and not self.budget.admit_video(nbytes):
             return
-        self.budget.sent(nbytes, video, feedback=feedback)
+        stamp = round(1e6 * self.t) / 1e6  # a status is counted at its stamp (follower/app.py)
+        self.budget.sent(nbytes, video, feedback=feedback, at=stamp if status else None)
         if video and self.rng.random() >= self.video_delivered:
             return
         bits = 8.0 * nbytes
         if self.queue_bits + bits > 8.0 * self.qmax:
             return  # tail drop
-        self.queue.append([self.t, bits, float(feedback), bits])
+        self.queue.append([stamp if status else self.t, bits, 1.0 if feedback else 2.0 if status else 0.0, bits])
         self.queue_bits += bits
 
     def _follower(self) -> None:
@@ -84,8 +89,7 @@ class CellSim:
             self.send(FB, feedback=True)
         if t >= self.next_st:
             self.next_st = t + 0.5
-            if not self.budget.inflight.over:  # held over the cap, as follower/app.py does
-                self.send(STATUS)
+            self.send(STATUS, status=True)  # over the cap only as a probe, as follower/app.py does
         vb = b.video_budget_bps()
         self.credit += (self.want if vb is None else min(self.want, vb)) * DT / 8
         while self.credit >= 4000:
@@ -103,11 +107,13 @@ class CellSim:
             self.queue_bits -= used
             if head[1] <= 0:
                 self.queue.popleft()
-                self.flight.append((t + self.base_s(t), head[0], head[3], bool(head[2])))
+                self.flight.append((t + self.base_s(t), head[0], head[3], int(head[2])))
         while self.flight and self.flight[0][0] <= t:
-            arrive, sent, bits, fb = self.flight.popleft()
+            arrive, sent, bits, kind = self.flight.popleft()
             self.rx.append((arrive, bits))
-            if fb:
+            if kind == 2:
+                self.newest_st_sent = max(sent, self.newest_st_sent or sent)
+            if kind == 1:
                 self.fb_arrived.append((arrive, arrive - sent))
                 self.first_fb_after.append((arrive, arrive - sent))
                 self.newest_fb_sent = max(sent, self.newest_fb_sent or sent)
@@ -128,6 +134,8 @@ class CellSim:
                 "fb_loss_ppm": self.fb_loss_ppm,
                 "fb_age_ms": round(1000.0 * (t - self.newest_fb_sent)),
             }
+            if self.echo and self.newest_st_sent is not None:
+                counters["uplink_t_echo_us"] = round(1e6 * self.newest_st_sent)
             self.to_follower.append((t + self.base_s(t), "status", (counters, t)))
         while self.to_follower and self.to_follower[0][0] <= t:
             _, kind, what = self.to_follower.popleft()
@@ -274,3 +282,34 @@ def test_the_in_flight_cap_keeps_the_robots_own_backlog_out_of_a_gap() -> None:
     # at the shipped 2 Hz status the cap must hold 0.5 s of the rate between two acknowledgements
     _, queued_2hz = _after_gap(0.5, cap=True)
     assert queued < queued_2hz, (queued, queued_2hz)
+
+
+def test_after_a_gap_the_first_feedback_to_arrive_is_fresh() -> None:
+    """A 2 Mbit/s uplink that delivers nothing for 4 s (the LTE trace's gap), the leader's
+    status at 10 Hz. What was in flight when the gap began arrives old, whatever the
+    follower does; of what it sent once it could know (0.5 s into the gap: a round trip
+    and a status period), the first feedback to arrive is at most 0.5 s old. Before, over
+    the cap a feedback left as a probe after 1, 2, 4 s without an acknowledgement, waited
+    in the stalled path and arrived 1-2 s old (1.4 s on the emulated LTE row); now the
+    probe is a Status, whose echo opens the cap, and no feedback leaves over it."""
+    sim = CellSim(_gap(30.0, 4.0, rate=2_000_000.0, low=0.0), queue_bytes=256_000, want_bps=3_000_000.0, status_s=0.1)
+    sim.run(34.0)
+    sim.run(6.0)
+    sent_late = [(a, age) for a, age in sim.first_fb_after if a >= 34.0 and a - age >= 30.5]
+    assert sent_late, "no feedback after the gap"
+    assert sent_late[0][1] <= 0.5, sent_late[:3]
+    assert sim.budget.inflight.held["probes"] >= 1  # the path's return was seen through a probe
+    assert not sim.budget.inflight.over
+
+
+def test_without_the_echo_the_cap_stays_shut_after_a_long_gap() -> None:
+    """The echo is what reopens the cap when everything in flight arrives too old to be
+    acknowledged by a feedback (a gap longer than the leader's 2 s bound): without it,
+    feedback never leaves again. Kept as the reason the leader echoes the stamp."""
+    sim = CellSim(_gap(30.0, 4.0, rate=2_000_000.0, low=0.0), queue_bytes=256_000, want_bps=3_000_000.0, status_s=0.1)
+    sim.echo = False
+    sim.run(40.0)
+    fed = [a for a, _ in sim.first_fb_after if a >= 34.0]
+    echo = CellSim(_gap(30.0, 4.0, rate=2_000_000.0, low=0.0), queue_bytes=256_000, want_bps=3_000_000.0, status_s=0.1)
+    echo.run(40.0)
+    assert len([a for a, _ in echo.first_fb_after if a >= 34.0]) > len(fed)
