@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from bipedtele import zenohsession
+from bipedtele.link import zenohsession
 from bipedtele.config.sections import NetworkConfig
 from bipedtele.link.linkcheck import LinkError
 
