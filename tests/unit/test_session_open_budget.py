@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 import zenoh
-from bipedtele.link import zenohsession
 from bipedtele.config.sections import NetworkConfig
+from bipedtele.link import zenohsession
 from bipedtele.link.linkcheck import LinkError
 
 pytestmark = pytest.mark.timeout(30)
