@@ -227,27 +227,15 @@ def _preflight(net: NetworkConfig, connect: list[str]) -> tuple[float, set[str]]
 def _open_timeout_s(net: NetworkConfig, rtt_s: float, checked: set[str]) -> float:
     """How long Zenoh may take to open a client session whose links were checked [s].
 
-    A Zenoh session needs about 4 round trips after TCP (TLS, then its own handshake) per
-    link, and the split layouts open three links one after the other; a router that has
-    not accepted it after OPEN_RTTS round trips per link (at least OPEN_MIN_S) refused the
-    login. Without TLS and without a login there is nothing to refuse (and
+    A Zenoh session needs about 4 round trips after TCP (TLS, then its own handshake);
+    a router that has not accepted it after OPEN_RTTS round trips (at least OPEN_MIN_S)
+    refused the login. Without TLS and without a login there is nothing to refuse (and
     a relay such as the delay proxy hides the round trip from the TCP check): the
     profile's ``timeout_s`` then applies unchanged.
     """
     if "tls" not in checked and not net.user:
         return net.timeout_s
-    return min(net.timeout_s, max(OPEN_MIN_S, OPEN_RTTS * rtt_s * session_links(net.links)))
-
-
-def session_links(layout: str) -> int:
-    """Return how many links a client's session opens to its router with ``[network] links = layout``.
-
-    ``split`` and ``split-tcp`` open three (control, status, video), one after the other, each
-    with its own handshake: on the intercontinental trace (0.35-0.5 s round trip) a split
-    session took 4.5-8 s to open, no loss (a single link 2 s), so a first try sized for one
-    link always ran out and the second (6.4 s) did under 5 % loss in 4 opens of 14.
-    """
-    return 3 if layout in ("split", "split-tcp") else 1
+    return min(net.timeout_s, max(OPEN_MIN_S, OPEN_RTTS * rtt_s))
 
 
 def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason: str) -> LinkError:
