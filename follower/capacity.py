@@ -177,6 +177,7 @@ class UplinkBudget:
         self._last_status = -math.inf
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
         self._last_cmd = -math.inf  # the last command taken
+        self._stall_grace_until = -math.inf  # after a leader's silence, no stall judged until then
         self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
 
@@ -254,6 +255,11 @@ class UplinkBudget:
         self.leader = {
             k: v for k, v in counters.items() if k in _LEADER_KEYS and isinstance(v, int) and not isinstance(v, bool)
         }
+        if now - self._last_heard > tu.inflight_release_s:
+            # the leader was silent (stopped, frozen, or the whole path down): the feedback age
+            # its first statuses report is its own silence, not a stalled uplink; for stall_s
+            # the path is not judged stalled, so the first feedback goes out and ends it
+            self._stall_grace_until = now + tu.stall_s
         self._last_heard = now
         echo = self.leader.get("uplink_t_echo_us")
         if echo is not None and echo / 1e6 <= now:  # a Status of ours arrived: what was sent before it did too
@@ -310,7 +316,7 @@ class UplinkBudget:
         """
         tu, q = self.tuning, self._q
         age_ms, floor = self.leader.get("fb_age_ms"), q.floor_s
-        stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s
+        stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s and now >= self._stall_grace_until
         was = self.delivery.stalled
         self.delivery.sample(ts, float(rx), stall)
         self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most

@@ -36,18 +36,21 @@ def _names(given: list[str] | None, allowed: list[str], flag: str) -> tuple[str,
 
 def _cells(chosen: tuple[str, ...] | None) -> dict[str, Any] | None:
     """Return the grid cells named on the command line (a named scheme stands for its cell); None: all."""
+    from bipedtele.control.schemes import scheme_class
     from bipedtele.control.schemes.factorial import NAMED_CELLS, cell_name, grid
 
     if chosen is None:
         return None
     full = grid()
     names = [cell_name(NAMED_CELLS[n]) if n in NAMED_CELLS else n for n in chosen]
-    return {n: full[n] for n in names}
+    # a registered scheme that is no cell of the grid (another distribution's) runs as itself
+    return {n: full[n] if n in full else scheme_class(n) for n in names}
 
 
 def _run_compare(args: argparse.Namespace) -> int:
     from bipedtele.control.reduced import StudyParams
-    from bipedtele.control.schemes.factorial import NAMED_CELLS, grid
+    from bipedtele.control.schemes import scheme_names
+    from bipedtele.control.schemes.factorial import grid
     from bipedtele.studies.compare import attach_power, compare_steps, run_compare
     from bipedtele.studies.compare_report import compare_markdown
     from bipedtele.studies.regimes import MARGIN_SCALES, REGIMES, CompareParams
@@ -62,8 +65,9 @@ def _run_compare(args: argparse.Namespace) -> int:
         raise ConfigError(f"--jobs {args.jobs}: allowed: >= 1")
     if not args.duration >= 1.0:
         raise ConfigError(f"--duration {args.duration}: allowed: >= 1 s")
-    cells = _cells(_names(args.schemes, [*NAMED_CELLS, *grid()], "--schemes"))
-    walker_schemes = _names(args.walker_schemes, list(NAMED_CELLS), "--walker-schemes") or WALKER_SCHEMES
+    registered = scheme_names()  # the named schemes and any other distribution's
+    cells = _cells(_names(args.schemes, [*registered, *grid()], "--schemes"))
+    walker_schemes = _names(args.walker_schemes, list(registered), "--walker-schemes") or WALKER_SCHEMES
     by_name = {r.name: r for r in REGIMES}
     regime_names = _names(args.regimes, list(by_name), "--regimes")
     regimes = REGIMES if regime_names is None else tuple(by_name[n] for n in regime_names)

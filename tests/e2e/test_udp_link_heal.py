@@ -43,8 +43,8 @@ SPOOF = str(HERE / "udp_spoof.py")
 PORT = 7447
 #: The log line of each side naming the cause of a lost link.
 LINE = {
-    "follower": r"WARNING bipedtele\.relink",
-    "leader": r"WARNING bipedtele\.relink",
+    "follower": r"WARNING bipedtele\.link\.relink",
+    "leader": r"WARNING bipedtele\.link\.relink",
     "router": r"WARNING bipedtele\.tools\.router: client \S+ lost",
 }
 #: The robot must walk again within this long of the attack [s] (the leader commands all along).

@@ -160,6 +160,27 @@ def test_a_new_leader_session_releases_the_cap() -> None:
     assert not b.inflight.over and b.inflight.admit_feedback(now[0])
 
 
+def test_a_leader_back_from_silence_is_not_taken_for_a_stalled_uplink() -> None:
+    """A leader silent for 3 s (frozen, or the whole path down) comes back: its first statuses
+    report a feedback age of its own silence. The follower's feedback must go out at once, not
+    wait for a probe's echo (it waited: the robot walked 2.2-3.6 s after a frozen leader resumed,
+    test_adversary_replay; the first statuses set the stall hold, one message in flight)."""
+    now = [0.0]
+    b = _closed_budget(now)
+    for _ in range(300):  # 3 s: no command, no status
+        now[0] = round(now[0] + 0.01, 6)
+        b.update()
+    b.on_h2(0.2)
+    b.on_leader_status({"rx_bps": 0, "fb_age_ms": 3300, "fb_loss_ppm": 0}, now[0], 7)
+    b.update()
+    assert b.inflight.admit_feedback(now[0])
+    b.sent(FB, feedback=True)  # the first feedback is in flight; the next one too (no stall hold)
+    now[0] = round(now[0] + 0.01, 6)
+    b.on_h2(0.2)
+    b.update()
+    assert not b.inflight.hold and b.inflight.admit_feedback(now[0])
+
+
 def _acks(f: InFlight, sent: int) -> None:
     """Ten acknowledgements at 10 Hz with a 20 ms round trip (800 kbit/s delivered), then
     ``sent`` bytes and one acknowledgement 80 ms over the minimum."""
