@@ -178,6 +178,7 @@ class UplinkBudget:
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
         self._last_cmd = -math.inf  # the last command taken
         self._stall_grace_until = -math.inf  # after a leader's silence, no stall judged until then
+        self._released = False  # the cap was released for silence (no command, no status)
         self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
 
@@ -255,11 +256,12 @@ class UplinkBudget:
         self.leader = {
             k: v for k, v in counters.items() if k in _LEADER_KEYS and isinstance(v, int) and not isinstance(v, bool)
         }
-        if now - self._last_heard > tu.inflight_release_s:
+        if self._released:
             # the leader was silent (stopped, frozen, or the whole path down): the feedback age
             # its first statuses report is its own silence, not a stalled uplink; for stall_s
             # the path is not judged stalled, so the first feedback goes out and ends it
             self._stall_grace_until = now + tu.stall_s
+            self._released = False
         self._last_heard = now
         echo = self.leader.get("uplink_t_echo_us")
         if echo is not None and echo / 1e6 <= now:  # a Status of ours arrived: what was sent before it did too
@@ -345,6 +347,7 @@ class UplinkBudget:
         last, self._last_update = self._last_update, now
         if now - max(self._last_heard, self._last_cmd) > tu.inflight_release_s:
             self.inflight.reset()  # nobody acknowledges: the leader left, or the whole path is down
+            self._released = True  # no command and no status: the leader's first status reports its silence
         self._delay_rule(now)
         self._check_cut(now)
         tx = self._log.rate(now - tu.window_s, now)  # what is sent [bit/s], read once
