@@ -69,6 +69,11 @@ runs).
   (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
   ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a
   cellular uplink to 4-43 kbit/s at its first gap and probed back at 0.5 %/s.
+  A leader back from a silence (no command, no status for ``inflight_release_s``: stopped,
+  frozen, or the whole path down) reports its own silence as the feedback's age: an age
+  the silence explains (within ``stall_s``) is not judged a stall for ``stall_s``, so the
+  first feedback goes out at once; a path that stalls while the leader's statuses arrive
+  reports an age far past their gaps.
 - **in flight.** What was sent after the newest feedback the leader acknowledged (its
   Status: ``fb_age_ms``) is in flight; it is capped at about twice the bandwidth-delay
   product (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd). Over the cap video
@@ -178,7 +183,8 @@ class UplinkBudget:
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
         self._last_cmd = -math.inf  # the last command taken
         self._stall_grace_until = -math.inf  # after a leader's silence, no stall judged until then
-        self._released = False  # the cap was released for silence (no command, no status)
+        self._silent_from: float | None = None  # the leader silent since (the cap released) [s]
+        self._silence_s = 0.0  # the last silence's length, until a status reads it [s]
         self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
 
@@ -225,7 +231,8 @@ class UplinkBudget:
         0 (the leader has no estimate yet: its commands carry 0 until feedback came back),
         negative and non-finite values are ignored.
         """
-        self._last_cmd = self._clock()  # a command taken: a leader is there (the in-flight cap's release)
+        self._heard(self._clock())  # a command taken: a leader is there (the in-flight cap's release)
+        self._last_cmd = self._clock()
         if not math.isfinite(h2_s) or h2_s <= 0:
             return
         if self._q.add(self._clock(), h2_s):
@@ -256,12 +263,19 @@ class UplinkBudget:
         self.leader = {
             k: v for k, v in counters.items() if k in _LEADER_KEYS and isinstance(v, int) and not isinstance(v, bool)
         }
-        if self._released:
-            # the leader was silent (stopped, frozen, or the whole path down): the feedback age
-            # its first statuses report is its own silence, not a stalled uplink; for stall_s
-            # the path is not judged stalled, so the first feedback goes out and ends it
+        self._heard(now)
+        silent_s, self._silence_s = self._silence_s, 0.0  # the silence this status ends, if any [s]
+        age_ms = self.leader.get("fb_age_ms")
+        # the leader was silent (stopped, frozen, or the whole path down): a feedback age its
+        # silence explains is its own, not a stalled uplink's; for stall_s the path is not
+        # judged stalled, so the first feedback goes out and ends it. A path that stalls
+        # while the leader's statuses arrive reports an age far past their gaps.
+        if (
+            silent_s > tu.inflight_release_s
+            and age_ms is not None
+            and age_ms / 1000.0 - (self._q.floor_s or 0.0) <= silent_s + tu.stall_s
+        ):
             self._stall_grace_until = now + tu.stall_s
-            self._released = False
         self._last_heard = now
         echo = self.leader.get("uplink_t_echo_us")
         if echo is not None and echo / 1e6 <= now:  # a Status of ours arrived: what was sent before it did too
@@ -272,7 +286,6 @@ class UplinkBudget:
         self._last_status = now
         ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
         stalled = self._judge_stall(now, ts, rx)
-        age_ms = self.leader.get("fb_age_ms")
         if age_ms is not None:  # everything sent up to the newest feedback the leader had: delivered
             self.inflight.acked(now, ts - age_ms / 1000.0, self.delivery.max_bps)
         if stalled:
@@ -300,6 +313,12 @@ class UplinkBudget:
             elif ts - h2 - tu.window_s >= self._last_cut:  # still over, judged on a window sent after the cut
                 self.capacity_bps = max(tu.floor_bps, tu.decrease * float(rx))
                 self._last_cut = now
+
+    def _heard(self, now: float) -> None:
+        """Note the leader heard (a command or a status) at ``now`` [s]: a silence that released the cap ends."""
+        if self._silent_from is not None:
+            self._silence_s = now - self._silent_from
+            self._silent_from = None
 
     @property
     def stalled(self) -> bool:
@@ -347,7 +366,8 @@ class UplinkBudget:
         last, self._last_update = self._last_update, now
         if now - max(self._last_heard, self._last_cmd) > tu.inflight_release_s:
             self.inflight.reset()  # nobody acknowledges: the leader left, or the whole path is down
-            self._released = True  # no command and no status: the leader's first status reports its silence
+            if self._silent_from is None:
+                self._silent_from = max(self._last_heard, self._last_cmd)
         self._delay_rule(now)
         self._check_cut(now)
         tx = self._log.rate(now - tu.window_s, now)  # what is sent [bit/s], read once
