@@ -63,7 +63,7 @@ def _header(result: dict[str, Any]) -> list[str]:
         f"{', '.join(d['axes']['damping'])}; fed back {', '.join(d['axes']['feedback'])}; `/pc`: passivity "
         f"controllers at both ports. Named schemes: {named}.",
         "",
-        f"Differences against the baseline `{d['baseline']}` (negative: lower error than the paper's), "
+        f"Differences against the baseline `{d['baseline']}` (the Δ columns; negative: lower error than the paper's), "
         f"as mean [family-corrected 95 % CI: Bonferroni over the family, so that all of a family's intervals "
         f"hold together]; d_z (mean over SD of the paired differences); p_H, the Holm-adjusted p within "
         f"the family (per regime and metric, every other cell); the verdict at alpha {d['alpha']:g}: "
@@ -73,12 +73,18 @@ def _header(result: dict[str, Any]) -> list[str]:
     ]
 
 
+def _diff_head() -> str:
+    """Return the difference columns' labels (a cell's paired difference against the baseline)."""
+    return " | ".join(f"Δ {label}" for _, label in _TABLE_METRICS)
+
+
 def _regime_table(regime: str, per: dict[str, Any]) -> list[str]:
-    head = " | ".join(label for _, label in _TABLE_METRICS)
+    head = _diff_head()
     lines = [
         f"### {regime}",
         "",
-        f"| cell | named | n (unstable) | coordination fwd mean | {head} | force error fwd [N] |",
+        f"| cell | named | n (unstable) | coordination fwd [cm/s]: mean [95 % CI] | {head} "
+        "| force error fwd [N]: mean [95 % CI] |",
         "| --- | --- | --- | --- |" + " --- |" * len(_TABLE_METRICS) + " --- |",
     ]
     for name, c in per.items():
@@ -92,7 +98,7 @@ def _regime_table(regime: str, per: dict[str, Any]) -> list[str]:
 
 def _named_table(result: dict[str, Any]) -> list[str]:
     """Return the named schemes' cells against the baseline, every regime (a selection of the regime tables)."""
-    head = " | ".join(label for _, label in _TABLE_METRICS)
+    head = _diff_head()
     named = result["design"]["named"]
     lines = [
         "The named schemes, each a cell of the grid, against `paper` (a selection of the regime tables below).",
@@ -111,7 +117,7 @@ def _named_table(result: dict[str, Any]) -> list[str]:
 
 
 def _effects_table(effects: dict[str, Any]) -> list[str]:
-    head = " | ".join(label for _, label in _TABLE_METRICS)
+    head = _diff_head()
     lines = [
         "Main effects: each axis level against the baseline's (damping `scheduled`, feedback `ze`, passivity "
         "`off`), each run's metric averaged over the other axes' cells; one Holm family per regime and metric.",
@@ -184,11 +190,12 @@ def _walker_lines(walker: dict[str, Any]) -> list[str]:
         "",
     ]
     for regime, per in walker["cells"].items():
-        head = " | ".join(label for _, label in _TABLE_METRICS)
+        head = _diff_head()
         lines += [
             f"#### walker, {regime}",
             "",
-            f"| scheme | n (falls) | turn error mean | {head} | n needed (fwd, turn, intent fwd, intent turn) |",
+            f"| scheme | n (falls) | coordination turn [deg/s]: mean [95 % CI] | {head} "
+            "| n needed (fwd, turn, intent fwd, intent turn) |",
             "| --- | --- | --- |" + " --- |" * len(_TABLE_METRICS) + " --- |",
         ]
         for name, c in per.items():
