@@ -8,6 +8,9 @@
   (``common/control/schemes``); nowhere else asks which scheme it is: no comparison of a
   ``scheme`` setting or a scheme's ``name`` against a registered scheme's name, no
   ``isinstance`` against a scheme class, in any product module.
+* **A loop is built in one call.** ``FollowerLoop`` and ``LeaderLoop`` take everything in
+  their constructor: no product module outside the loop's own sets an attribute of a loop
+  after it is built (``loop.x = ...``, ``self.loop.x = ...``, ``self._loop.x = ...``).
 """
 
 from __future__ import annotations
@@ -99,6 +102,30 @@ def scheme_switches(tree: ast.AST, names: set[str], classes: set[str]) -> list[i
     return lines
 
 
+LOOP_MODULES = (ROOT / "follower" / "loop.py", ROOT / "leader" / "loop.py")
+
+
+def _is_loop(node: ast.expr) -> bool:
+    """Whether ``node`` names a loop object: ``loop``, ``*_loop``, or an attribute so named."""
+    name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""
+    return name == "loop" or name.endswith("_loop")
+
+
+def loop_attribute_sets(tree: ast.AST) -> list[int]:
+    """Return the lines that set an attribute of a loop object (``loop.x = ...``, augmented too)."""
+    lines = []
+    for node in ast.walk(tree):
+        targets: list[ast.expr] = []
+        if isinstance(node, ast.Assign):
+            targets = list(node.targets)
+        elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+            targets = [node.target]
+        flat = [e for t in targets for e in (t.elts if isinstance(t, ast.Tuple) else [t])]
+        if any(isinstance(t, ast.Attribute) and _is_loop(t.value) for t in flat):
+            lines.append(node.lineno)
+    return lines
+
+
 def _scheme_vocabulary() -> tuple[set[str], set[str]]:
     names = set(scheme_names())
     classes: set[str] = set()
@@ -132,6 +159,18 @@ def test_no_scheme_switch_outside_the_scheme_modules() -> None:
 
 
 @pytest.mark.timeout(60)
+def test_nothing_is_set_on_a_loop_after_it_is_built() -> None:
+    found = {}
+    for p in _product_modules():
+        if p in LOOP_MODULES:
+            continue
+        lines = loop_attribute_sets(ast.parse(p.read_text()))
+        if lines:
+            found[str(p.relative_to(ROOT))] = lines
+    assert found == {}
+
+
+@pytest.mark.timeout(60)
 def test_the_rules_see_what_they_forbid() -> None:
     names, classes = _scheme_vocabulary()
     src = """
@@ -149,3 +188,13 @@ ok = cfg.scheme not in scheme_names()
     tree = ast.parse(src)
     assert deepcopies(tree) == [3, 4]
     assert scheme_switches(tree, names, classes) == [5, 6, 7, 8]
+    sets = """
+loop = FollowerLoop(cfg)
+loop.robot = robot
+self.loop.on_event = f
+self._loop.n += 1
+a.b, self.leader_loop.c = 1, 2
+ok = loop
+ok.loop = loop
+"""
+    assert loop_attribute_sets(ast.parse(sets)) == [3, 4, 5, 6]
