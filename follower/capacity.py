@@ -69,11 +69,8 @@ runs).
   (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
   ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a
   cellular uplink to 4-43 kbit/s at its first gap and probed back at 0.5 %/s.
-  A leader back from a silence (no command, no status for ``inflight_release_s``: stopped,
-  frozen, or the whole path down) reports its own silence as the feedback's age: an age
-  the silence explains (within ``stall_s``) is not judged a stall for ``stall_s``, so the
-  first feedback goes out at once; a path that stalls while the leader's statuses arrive
-  reports an age far past their gaps.
+  A leader back from a silence is not taken for a stall
+  (:class:`~bipedtele.follower.leadersilence.LeaderSilence`).
 - **in flight.** What was sent after the newest feedback the leader acknowledged (its
   Status: ``fb_age_ms``) is in flight; it is capped at about twice the bandwidth-delay
   product (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd). Over the cap video
@@ -107,6 +104,7 @@ from dataclasses import dataclass, replace
 
 from bipedtele.follower.delivery import DeliveryRate, InFlight
 from bipedtele.follower.feedbackplan import FeedbackPlan
+from bipedtele.follower.leadersilence import LeaderSilence
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -182,9 +180,7 @@ class UplinkBudget:
         self._last_status = -math.inf
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
         self._last_cmd = -math.inf  # the last command taken
-        self._stall_grace_until = -math.inf  # after a leader's silence, no stall judged until then
-        self._silent_from: float | None = None  # the leader silent since (the cap released) [s]
-        self._silence_s = 0.0  # the last silence's length, until a status reads it [s]
+        self._silence = LeaderSilence(tu.inflight_release_s, tu.stall_s)
         self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
 
@@ -231,7 +227,7 @@ class UplinkBudget:
         0 (the leader has no estimate yet: its commands carry 0 until feedback came back),
         negative and non-finite values are ignored.
         """
-        self._heard(self._clock())  # a command taken: a leader is there (the in-flight cap's release)
+        self._silence.heard(self._clock())  # a command taken: a leader is there (the in-flight cap's release)
         self._last_cmd = self._clock()
         if not math.isfinite(h2_s) or h2_s <= 0:
             return
@@ -263,19 +259,9 @@ class UplinkBudget:
         self.leader = {
             k: v for k, v in counters.items() if k in _LEADER_KEYS and isinstance(v, int) and not isinstance(v, bool)
         }
-        self._heard(now)
-        silent_s, self._silence_s = self._silence_s, 0.0  # the silence this status ends, if any [s]
+        self._silence.heard(now)
         age_ms = self.leader.get("fb_age_ms")
-        # the leader was silent (stopped, frozen, or the whole path down): a feedback age its
-        # silence explains is its own, not a stalled uplink's; for stall_s the path is not
-        # judged stalled, so the first feedback goes out and ends it. A path that stalls
-        # while the leader's statuses arrive reports an age far past their gaps.
-        if (
-            silent_s > tu.inflight_release_s
-            and age_ms is not None
-            and age_ms / 1000.0 - (self._q.floor_s or 0.0) <= silent_s + tu.stall_s
-        ):
-            self._stall_grace_until = now + tu.stall_s
+        self._silence.on_status(now, None if age_ms is None else age_ms / 1000.0, self._q.floor_s or 0.0)
         self._last_heard = now
         echo = self.leader.get("uplink_t_echo_us")
         if echo is not None and echo / 1e6 <= now:  # a Status of ours arrived: what was sent before it did too
@@ -314,12 +300,6 @@ class UplinkBudget:
                 self.capacity_bps = max(tu.floor_bps, tu.decrease * float(rx))
                 self._last_cut = now
 
-    def _heard(self, now: float) -> None:
-        """Note the leader heard (a command or a status) at ``now`` [s]: a silence that released the cap ends."""
-        if self._silent_from is not None:
-            self._silence_s = now - self._silent_from
-            self._silent_from = None
-
     @property
     def stalled(self) -> bool:
         """True while the path is stalled (see the module docstring); False without a recent leader status."""
@@ -337,7 +317,7 @@ class UplinkBudget:
         """
         tu, q = self.tuning, self._q
         age_ms, floor = self.leader.get("fb_age_ms"), q.floor_s
-        stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s and now >= self._stall_grace_until
+        stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s and not self._silence.grace(now)
         was = self.delivery.stalled
         self.delivery.sample(ts, float(rx), stall)
         self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most
@@ -366,8 +346,7 @@ class UplinkBudget:
         last, self._last_update = self._last_update, now
         if now - max(self._last_heard, self._last_cmd) > tu.inflight_release_s:
             self.inflight.reset()  # nobody acknowledges: the leader left, or the whole path is down
-            if self._silent_from is None:
-                self._silent_from = max(self._last_heard, self._last_cmd)
+            self._silence.released(max(self._last_heard, self._last_cmd))
         self._delay_rule(now)
         self._check_cut(now)
         tx = self._log.rate(now - tu.window_s, now)  # what is sent [bit/s], read once
