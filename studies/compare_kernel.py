@@ -157,8 +157,10 @@ def _equivalent_steps(s_e_k: np.ndarray, cfg: ControlConfig, dt: float) -> tuple
 
     ``s_e_k`` has shape (runs, K, 2); the index returned has shape (runs, K).
     """
-    uniq, inverse = np.unique(s_e_k.reshape(-1, 2), axis=0, return_inverse=True)
-    phi, gam = equivalent_steps(uniq, cfg, dt)
+    # unique over the pairs read as complex numbers: a sort of one key, not of rows (the same set)
+    pairs = np.ascontiguousarray(s_e_k.reshape(-1, 2), dtype=float)
+    uniq, inverse = np.unique(pairs.view(np.complex128).ravel(), return_inverse=True)
+    phi, gam = equivalent_steps(np.column_stack([uniq.real, uniq.imag]), cfg, dt)
     return phi, gam, inverse.reshape(s_e_k.shape[:2])
 
 
@@ -281,6 +283,12 @@ class _Loop:
 class _Cycles:
     """Each run's walking cycle: the online choice (30) for its own ``sigma_e``, taken at its impacts.
 
+    Every run's impacts and choices are planned before the runs start: a run's cycle
+    depends only on its own ``sigma_e`` over time, so the runs advance impact by impact side
+    by side and each round's choices are solved together
+    (:meth:`~bipedtele.control.online.OnlineChooser.choose_many`); the phase's arithmetic is
+    the one a tick-by-tick runner does, so the impacts fall on the same steps.
+
     Parameters
     ----------
     chooser : OnlineChooser
@@ -294,24 +302,64 @@ class _Cycles:
     """
 
     def __init__(self, chooser: OnlineChooser, s_e_k: np.ndarray, cfg: ControlConfig, dt: float) -> None:
-        self.chooser, self.s_e_k, self.cfg, self.dt = chooser, s_e_k, cfg, dt
-        first = [chooser.choose(s) for s in s_e_k[:, 0]]
-        self.s_r = np.stack([c.s_r for c in first])
-        self.T = np.array([c.T for c in first])
-        self.phase = np.zeros(len(first))
+        self.cfg, self.dt = cfg, dt
+        self.s_r, T = chooser.choose_many(s_e_k[:, 0])
         self.phi, self.gam = hybrid_zoh(self.s_r, cfg, dt)
+        self._plan = _plan_impacts(chooser, s_e_k, T, dt)
 
     def advance(self, k: int) -> np.ndarray:
-        """Advance one period after step ``k``; return which runs hit an impact (their next cycle chosen)."""
-        self.phase += self.dt
-        hit = self.phase >= self.T - 1e-9
-        if hit.any():
-            self.phase[hit] -= self.T[hit]
-            for i in np.flatnonzero(hit):
-                c = self.chooser.choose(self.s_e_k[i, k])
-                self.s_r[i], self.T[i] = c.s_r, c.T
+        """Advance one period after step ``k``; return which runs hit an impact (their next cycle taken)."""
+        hit = np.zeros(self.s_r.shape[0], dtype=bool)
+        due = self._plan.get(k)
+        if due is not None:
+            rows, s_r = due
+            hit[rows] = True
+            self.s_r[rows] = s_r
             self.phi[hit], self.gam[hit] = hybrid_zoh(self.s_r[hit], self.cfg, self.dt)
         return hit
+
+
+def _plan_impacts(
+    chooser: OnlineChooser, s_e_k: np.ndarray, T: np.ndarray, dt: float
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Return step -> (the runs that hit an impact after it, ascending; the ``s_r`` each takes there).
+
+    Each run's phase grows by ``dt`` a step and wraps at its cycle ``T`` (an impact: the
+    next cycle chosen for ``sigma_e`` at that step); all runs advance to their next impact
+    side by side, and that round's choices are solved together.
+    """
+    n, k_steps = s_e_k.shape[:2]
+    T = np.array(T, dtype=float)
+    phase = np.zeros(n)
+    k_next = np.zeros(n, dtype=np.intp)  # each run's next step to advance
+    rounds: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    live = k_next < k_steps
+    while live.any():
+        hit_at = np.full(n, -1, dtype=np.intp)
+        moving = live.copy()
+        while moving.any():
+            phase[moving] += dt
+            hit = moving & (phase >= T - 1e-9)
+            hit_at[hit] = k_next[hit]
+            phase[hit] -= T[hit]
+            k_next[moving] += 1
+            moving &= ~hit & (k_next < k_steps)
+        rows = np.flatnonzero(hit_at >= 0)
+        if rows.size:
+            s_r, T[rows] = chooser.choose_many(s_e_k[rows, hit_at[rows]])
+            rounds.append((hit_at[rows], rows, s_r))
+        live = k_next < k_steps
+    plan: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for ks, rows, s_r in rounds:
+        for k in np.unique(ks):
+            at = ks == k
+            plan.setdefault(int(k), []).append((rows[at], s_r[at]))
+    out = {}
+    for k, parts in plan.items():
+        rows = np.concatenate([r for r, _ in parts])
+        order = np.argsort(rows, kind="stable")
+        out[k] = (rows[order], np.concatenate([s for _, s in parts])[order])
+    return out
 
 
 def simulate(

@@ -84,6 +84,8 @@ def _solve_on_T(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact per-T solution given block radii and inverses.
 
+    ``pref`` is (3,), or (3, n) for a preference per column (many problems side by side).
+
     ``bounds_rho`` optionally gives the block radii at the lower and upper bounds, shapes
     (3, n) (they do not depend on ``s_e``, so the table precomputes them).
 
@@ -111,7 +113,7 @@ def _solve_on_T(
         r_base[b] = rho(b, x_base[b], T)
     upper_ok = np.all(r_min <= y_hi, axis=0)
     reached = np.max(r_base, axis=0) >= y_lo
-    cost0 = np.sum(w[:, None] * np.abs(x_base - pref[:, None]), axis=0)
+    cost0 = np.sum(w[:, None] * np.abs(x_base - pref.reshape(3, -1)), axis=0)
     extra = np.full((3, n), np.inf)
     x_new = x_base.copy()
     for b in range(3):
@@ -255,6 +257,7 @@ class OnlineChooser:
         self.cfg = cfg
         self.model = cfg.hybrid_model
         self._memo: dict[tuple[float, ...], Choice] = {}
+        self._many: dict[tuple[float, float], tuple[np.ndarray, float]] = {}  # choose_many's answers
         self._walker: WalkerSolver | None = None
         if cfg.hybrid_model == "walker":
             self._walker = WalkerSolver(cfg, walker_table)
@@ -303,22 +306,22 @@ class OnlineChooser:
             np.stack([self._rho(b, np.full(n_T, hi[b]), self.T) for b in range(3)]),
         )
 
-    def _rho(self, b: int, x: np.ndarray, T: np.ndarray) -> np.ndarray:
+    def _rho(self, b: int, x: np.ndarray, T: np.ndarray, base: np.ndarray | None = None) -> np.ndarray:
         if b == 2:
             return np.asarray(rho_joint(T, x))
         f = (x - self.sigma[0]) / self._ds
         i = np.clip(f.astype(int), 0, self.sigma.size - 2)
         frac = f - i
-        k = self._base + i
+        k = (self._base if base is None else base) + i
         flat = self._flat[b]
         y0 = flat.take(k)
         return np.asarray(y0 + (flat.take(k + 1) - y0) * frac)
 
-    def _inv(self, b: int, y: np.ndarray, T: np.ndarray) -> np.ndarray:
+    def _inv(self, b: int, y: np.ndarray, T: np.ndarray, base: np.ndarray | None = None) -> np.ndarray:
         if b == 2:
             return _joint_inv(y, T)
         flat = self._flat[b]
-        base = self._base
+        base = self._base if base is None else base
         # Vectorised bisection over the rows of every column: tab[i] <= y < tab[i + 1].
         i = np.zeros(T.shape[0], dtype=np.intp)
         j = np.full(T.shape[0], self.sigma.size - 1, dtype=np.intp)
@@ -361,3 +364,68 @@ class OnlineChooser:
             return finish_choice(s, xf, float(self.T[i]), self.cfg, feasible=False)
         i = int(np.argmin(cost))
         return finish_choice(s, x[:, i], float(self.T[i]), self.cfg, feasible=True)
+
+    def choose_many(self, s_e: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Solve (30) for many equivalent dampings at once; return each ``s_r`` and ``T``.
+
+        The answers of :meth:`choose`, one by one (tested equal), with the table's work done
+        for all of them in one pass: the comparison chooses the next cycle of hundreds of
+        runs, each with its own delays.
+
+        Parameters
+        ----------
+        s_e : array_like
+            Equivalent dampings, shape (m, 2) [N s/m, N m s/rad].
+
+        Returns
+        -------
+        (s_r, T)
+            The real dampings chosen, (m, 2), and the cycle times [s], (m,).
+        """
+        s_e = np.asarray(s_e, dtype=float).reshape(-1, 2)
+        if self._walker is not None or s_e.shape[0] == 0:
+            picks = [self.choose(s) for s in s_e]
+            return np.array([c.s_r for c in picks]).reshape(-1, 2), np.array([c.T for c in picks])
+        keys = [(float(a), float(b)) for a, b in s_e]
+        todo = list(dict.fromkeys(k for k in keys if k not in self._many))
+        if len(self._many) + len(todo) > 65536:  # full: start again with this batch's answers
+            self._many.clear()
+            todo = list(dict.fromkeys(keys))
+        if todo:
+            s_r, T = self._solve_many(np.array(todo))
+            self._many.update(zip(todo, zip(s_r, T, strict=True), strict=True))
+        answers = [self._many[k] for k in keys]
+        return np.array([a[0] for a in answers]), np.array([a[1] for a in answers])
+
+    def _solve_many(self, s_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Solve (30) for the dampings ``s_e`` (m, 2) side by side (the table's model)."""
+        m, n_T = s_e.shape[0], self.T.size
+        problems = [_problem(s, self.cfg) for s in s_e]
+        _, lo, hi, _, w = problems[0]
+        pref = np.repeat(np.stack([p[3] for p in problems], axis=1), n_T, axis=1)
+        target = np.concatenate([target_radius(p[0], self.T, self.cfg) for p in problems])
+        T, base = np.tile(self.T, m), np.tile(self._base, m)
+        bounds = (np.tile(self._bounds_rho[0], (1, m)), np.tile(self._bounds_rho[1], (1, m)))
+        cost, x, feas = _solve_on_T(
+            T,
+            target,
+            self.band,
+            pref,
+            lo,
+            hi,
+            w,
+            lambda b, v, t: self._rho(b, v, t, base),
+            lambda b, v, t: self._inv(b, v, t, base),
+            self.cfg.k_wt,
+            bounds,
+        )
+        cost, feas, x = cost.reshape(m, n_T), feas.reshape(m, n_T), x.reshape(3, m, n_T)
+        s_r, t_out = np.empty((m, 2)), np.empty(m)
+        for i in range(m):
+            if feas[i].any():
+                j = int(np.argmin(cost[i]))
+                s_r[i], t_out[i] = x[:2, i, j], self.T[j]
+            else:  # nothing in band: the nearest achievable, as choose does
+                c = self.choose(s_e[i])
+                s_r[i], t_out[i] = c.s_r, c.T
+        return s_r, t_out

@@ -105,3 +105,41 @@ def test_run_i_of_every_scheme_sees_the_same_draws() -> None:
         together, single = _run(name, inp), _run(name, alone)
         for metric in ("forward_error", "turn_intent_error", "forward_po_follower"):
             assert together[metric][1] == pytest.approx(single[metric][0], abs=1e-12), (name, metric)
+
+
+def _cycles_tick_by_tick(chooser: OnlineChooser, s_e_k: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The runner's cycles as a tick-by-tick loop advances them: which runs hit at each step, and their s_r after it."""
+    n, k_steps = s_e_k.shape[:2]
+    first = [chooser.choose(s) for s in s_e_k[:, 0]]
+    s_r, T, phase = np.stack([c.s_r for c in first]), np.array([c.T for c in first]), np.zeros(n)
+    hits, s_rs = np.zeros((n, k_steps), dtype=bool), np.zeros((n, k_steps, 2))
+    for k in range(k_steps):
+        phase += dt
+        hit = phase >= T - 1e-9
+        phase[hit] -= T[hit]
+        for i in np.flatnonzero(hit):
+            c = chooser.choose(s_e_k[i, k])
+            s_r[i], T[i] = c.s_r, c.T
+        hits[:, k], s_rs[:, k] = hit, s_r
+    return hits, s_rs
+
+
+def test_the_planned_cycles_are_those_of_a_tick_by_tick_runner() -> None:
+    """The comparison plans every run's impacts and choices (30) ahead, solving each round
+    together: the impacts fall on the same steps and take the same s_r as a loop that
+    advances every run's phase tick by tick and chooses at each impact."""
+    from bipedtele.studies.compare_kernel import _Cycles
+
+    cfg, dt = ControlConfig(), 0.01
+    chooser = OnlineChooser(cfg)
+    rng = np.random.default_rng(3)
+    # per-run sigma_e that moves (the scheduled damping of each run's own delays)
+    s_e_k = np.cumsum(rng.normal(0.0, 0.02, (12, 700, 2)), axis=1) + rng.uniform(0.2, 3.0, (12, 1, 2))
+    s_e_k = np.clip(s_e_k, 0.05, 6.0)
+    hits, s_rs = _cycles_tick_by_tick(chooser, s_e_k, dt)
+    cycles = _Cycles(chooser, s_e_k, cfg, dt)
+    for k in range(s_e_k.shape[1]):
+        hit = cycles.advance(k)
+        assert np.array_equal(hit, hits[:, k]), k
+        assert np.array_equal(cycles.s_r, s_rs[:, k]), k
+    assert hits.sum() > 5 * s_e_k.shape[0]  # many impacts per run, at different steps

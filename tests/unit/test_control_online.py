@@ -140,3 +140,24 @@ def test_old_model_name_fails_with_the_allowed_values() -> None:
         load_config("default", ['control.hybrid_model="calibrated"'])
     msg = str(err.value)
     assert "\n" not in msg and all(v in msg for v in ("paper", "speed-loop", "walker"))
+
+
+def test_choose_many_gives_the_answers_of_choose_one_by_one(chooser: OnlineChooser) -> None:
+    """The batched solve (the comparison's per-run cycles) is the one-by-one solve, to the bit,
+    across (40)'s range, its floor, and dampings out of the table (the infeasible fallback)."""
+    rng = np.random.default_rng(7)
+    s_e = np.vstack([np.array(S_E), rng.uniform(0.0, 8.0, (200, 2)), [[0.0, 0.0], [1e3, 0.05]]])
+    s_r, T = chooser.choose_many(s_e)
+    one = [chooser.choose(s) for s in s_e]
+    assert np.array_equal(s_r, np.array([c.s_r for c in one]))
+    assert np.array_equal(T, np.array([c.T for c in one]))
+    assert not all(c.feasible for c in one)  # the fallback was exercised
+    # a full memo starts again with the batch's answers (keys it held are solved again)
+    chooser._many.clear()
+    chooser.choose_many(s_e[:10])  # some of the batch held, the memo then nearly full
+    chooser._many.update({(-1.0, float(i)): (np.zeros(2), 1.0) for i in range(65530 - len(chooser._many))})
+    again_s_r, again_T = chooser.choose_many(s_e)
+    assert np.array_equal(again_s_r, s_r) and np.array_equal(again_T, T)
+    assert len(chooser._many) == len({tuple(row) for row in s_e})
+    empty_s_r, empty_T = chooser.choose_many(np.zeros((0, 2)))
+    assert empty_s_r.shape == (0, 2) and empty_T.shape == (0,)
