@@ -37,7 +37,7 @@ from bipedtele.follower.robot import FollowerRobot, RobotError, make_robot, robo
 from bipedtele.follower.supervisor import RobotSupervisor
 from bipedtele.follower.video import VideoStreamer
 from bipedtele.link.auth import MAC_OVERHEAD
-from bipedtele.link.gate import SequenceGate
+from bipedtele.link.gate import FollowedSessionGate, SequenceGate
 from bipedtele.link.inbox import CommandInbox
 from bipedtele.link.messages import Command, Feedback, Message, Status, VideoFrame, encode
 from bipedtele.link.node import Node, StepClock
@@ -255,10 +255,10 @@ class FollowerApp:
             node.declare_presence()
             pubs = node.pubs
             self._outlets = {Feedback: (pubs.feedback, "feedback/sent"), Status: (pubs.status, "status/sent")}
-            # The leader's Status: what it receives of ours (rx_bps) for the uplink budget.
-            self._status_rx = node.receive(
-                node.keys.status, Status, SequenceGate(), topic="status/recv", ignore_sid=node.sid
-            )
+            # The driving leader's Status: what it receives of ours (rx_bps) for the uplink
+            # budget; only the session whose commands the gate takes (not a waiting operator's).
+            followed = FollowedSessionGate(lambda: self.gate.bound_sid)
+            self._status_rx = node.receive(node.keys.status, Status, followed, topic="status/recv", ignore_sid=node.sid)
             # Every admitted command: recorded once here, into the inbox the loop takes from
             # (every check on a command; h1, and the leader's h2 for the uplink budget).
             cmd_rx = node.receive(

@@ -62,7 +62,8 @@ runs).
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
-  stretch of a cellular link). Video pauses (budget 0) and the feedback drops to
+  stretch of a cellular link), and something sent after that feedback in time to arrive is
+  still in flight (nothing sent: the follower's own pacing, a stall that fed itself). Video pauses (budget 0) and the feedback drops to
   ``stall_fb_hz`` (5 Hz, the newest only), so the follower adds nearly nothing to the
   path's queue (what it sent before the stall showed still waits there). No rule cuts during it,
   and when it ends the capacity restarts from what the path delivered before it
@@ -316,8 +317,12 @@ class UplinkBudget:
             What the leader received over its window [bit/s].
         """
         tu, q = self.tuning, self._q
-        age_ms, floor = self.leader.get("fb_age_ms"), q.floor_s
-        stall = age_ms is not None and age_ms / 1000.0 - (floor or 0.0) > tu.stall_s and not self._silence.grace(now)
+        age_ms, floor = self.leader.get("fb_age_ms"), q.floor_s or 0.0
+        # the path failed to deliver: something of ours sent after the newest feedback it has,
+        # long enough ago to have arrived (an old feedback with nothing after it: our own pacing)
+        t_fb = None if age_ms is None else ts - age_ms / 1000.0
+        stall = t_fb is not None and ts - t_fb - floor > tu.stall_s and not self._silence.grace(now)
+        stall = stall and self.inflight.undelivered(t_fb or 0.0, ts - floor - tu.stall_s)
         was = self.delivery.stalled
         self.delivery.sample(ts, float(rx), stall)
         self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most

@@ -112,11 +112,15 @@ class InFlight:
     (status receive time minus the acknowledged feedback's send time) and the mean interval
     between acknowledgements (the leader's status period: a sender acknowledged every 0.5 s
     keeps up to 0.5 s of its rate in flight between two, BBR's allowance for aggregated
-    acknowledgements). The gain leaves room for a rate above the one delivered so far (the
+    acknowledgements; ``ack_prior_s`` until two were seen: a cap learnt from one round
+    trip alone held a LAN's feedback for a status period after every hand-over). The gain leaves room for a rate above the one delivered so far (the
     delivery rate of an application-limited sender is what it sent, and a cap at it would
     only ratchet down). Until the first acknowledgement with a rate the cap is infinite.
 
-    Over the cap video waits and feedback is held (the newest is sent once the cap opens):
+    Video fills at most ``video_share`` of the cap: the rest is the feedback's between two
+    acknowledgements (video that filled the cap held every feedback until the next
+    acknowledgement, up to a status period: the operator's feedback aged by it). Over the
+    cap video waits and feedback is held (the newest is sent once the cap opens):
     what is in flight is acknowledged once the path delivers again, and that opens the cap,
     so nothing sent in a gap waits in the path's queue to arrive stale after it. A feedback
     never leaves over the cap: one sent into a stalled path can only arrive old, and the
@@ -148,6 +152,11 @@ class InFlight:
     video_queue_s : float
         Video waits while the last round trip exceeds its minimum by more than this [s]
         (a sample older than ``1 s`` is not used).
+    video_share : float
+        Share of the cap video may fill [-] (the rest is the feedback's).
+    ack_prior_s : float
+        The acknowledgements' interval taken until two were seen [s] (the leader's default
+        status period).
     """
 
     def __init__(
@@ -157,6 +166,8 @@ class InFlight:
         probe_s: float = 1.0,
         rtt_window_s: float = 10.0,
         video_queue_s: float = 0.05,
+        video_share: float = 0.75,
+        ack_prior_s: float = 0.5,
     ) -> None:
         checked = (
             ("gain", gain),
@@ -164,10 +175,14 @@ class InFlight:
             ("probe_s", probe_s),
             ("rtt_window_s", rtt_window_s),
             ("video_queue_s", video_queue_s),
+            ("ack_prior_s", ack_prior_s),
         )
         for name, v in checked:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
+        if not (math.isfinite(video_share) and 0 < video_share <= 1):
+            raise ValueError(f"video_share = {video_share!r}: allowed: a number in (0, 1]")
+        self.video_share, self.ack_prior_s = float(video_share), float(ack_prior_s)
         self.gain, self.min_bytes, self.probe_s = float(gain), float(min_bytes), float(probe_s)
         self._lock = threading.Lock()
         self._sent: deque[tuple[float, int]] = deque()  # (send time [s], bytes), in send order
@@ -288,6 +303,15 @@ class InFlight:
         with self._lock:
             return self._bytes
 
+    def undelivered(self, after: float, by: float) -> bool:
+        """Say whether a message sent after ``after`` and by ``by`` [s] is still in flight.
+
+        With ``after`` the send time of the newest feedback the leader has and ``by`` the
+        latest send time that should have arrived by now: the path failed to deliver.
+        """
+        with self._lock:
+            return next((t for t, _ in self._sent if t > after), math.inf) <= by
+
     @property
     def min_rtt_s(self) -> float | None:
         """The least round trip over the window [s] (None before the first acknowledgement)."""
@@ -300,7 +324,8 @@ class InFlight:
         rtt = self.min_rtt_s
         if self.rate_bps is None or rtt is None:
             return math.inf
-        return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + (self.ack_interval_s or 0.0)))
+        ack = self.ack_prior_s if self.ack_interval_s is None else self.ack_interval_s
+        return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + ack))
 
     @property
     def over(self) -> bool:
@@ -339,13 +364,15 @@ class InFlight:
     def admit_video(self, nbytes: int, now: float | None = None) -> bool:
         """Say whether a video message of ``nbytes`` [bytes] fits under the cap now.
 
-        A message larger than half the cap is taken once what is in flight leaves room for
-        half the cap (a frame larger than the cap is never shut out for good). With ``now``
-        [s]: not while the last acknowledgement (under 1 s old) showed more than
-        ``video_queue_s`` of queue with more than ``cap / gain`` in flight.
+        Video fills at most ``video_share`` of the cap (its room). A message larger than
+        half the room is taken once what is in flight leaves half the room free (a frame
+        larger than the cap is never shut out for good). With ``now`` [s]: not while the
+        last acknowledgement (under 1 s old) showed more than ``video_queue_s`` of queue
+        with more than ``cap / gain`` in flight.
         """
         cap = self.cap_bytes
-        ok = self.bytes + min(float(nbytes), 0.5 * cap) <= cap
+        room = self.video_share * cap
+        ok = self.bytes + min(float(nbytes), 0.5 * room) <= room
         if ok and now is not None and self._last_ack is not None and now - self._last_ack < 1.0:
             # a queue of ours: the round trip rose and more than one bandwidth-delay product is
             # in flight (a rise of the path's own delay with nothing queued keeps under it)

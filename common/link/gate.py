@@ -51,7 +51,7 @@ from typing import Protocol
 
 from bipedtele.link.messages import Message
 
-__all__ = ["DROP_REASONS", "MessageGate", "SequenceGate"]
+__all__ = ["DROP_REASONS", "FollowedSessionGate", "MessageGate", "SequenceGate"]
 
 #: Every reason :meth:`SequenceGate.accept` may return.
 DROP_REASONS = ("foreign_session", "seq_jump", "stale", "duplicate")
@@ -218,3 +218,36 @@ class SequenceGate:
             self._t_accept = -math.inf
             self._pre_jump = None
             self._run, self._run_seq = 0, -1
+
+
+class FollowedSessionGate:
+    """Accept only newer messages of the session another gate follows.
+
+    The follower's inbox of leader Status: only the leader whose commands it takes (the
+    command gate's bound session) reports on the uplink the follower fits its traffic
+    into. A leader waiting for the robot, or one that released it, says nothing of the
+    driver's path (the sites test's hand-over: the budget read the waiting operator's
+    Status, without a feedback age, for the rest of the first operator's drive). Another
+    session's message is dropped as ``foreign_session``; within the followed session
+    ``inner`` judges order and jumps (reset when the followed session changes).
+
+    Parameters
+    ----------
+    follow : callable
+        The session followed now (None: none yet; everything is dropped).
+    inner : SequenceGate, optional
+        The order and jump checks within that session (default: ``SequenceGate()``).
+    """
+
+    def __init__(self, follow: Callable[[], int | None], inner: SequenceGate | None = None) -> None:
+        self._follow = follow
+        self.inner = inner if inner is not None else SequenceGate()
+
+    def accept(self, msg: Message) -> str | None:
+        """Return None if ``msg`` is accepted, else the drop reason (:data:`DROP_REASONS`)."""
+        sid = self._follow()
+        if sid is None or msg.sid != sid:
+            return "foreign_session"
+        if self.inner.bound_sid != sid:
+            self.inner.reset()  # a new followed session: its own sequence
+        return self.inner.accept(msg)

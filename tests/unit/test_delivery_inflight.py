@@ -83,9 +83,9 @@ def test_a_lost_feedback_does_not_hold_the_cap_shut() -> None:
 
 
 def test_the_cap_follows_rate_round_trip_and_acknowledgement_interval() -> None:
-    f = InFlight(gain=2.0, min_bytes=100.0)
-    f.acked(1.0, 0.9, 800_000.0)  # rtt 0.1 s, no interval yet
-    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * 0.1)
+    f = InFlight(gain=2.0, min_bytes=100.0, ack_prior_s=0.3)
+    f.acked(1.0, 0.9, 800_000.0)  # rtt 0.1 s, no interval yet: the prior
+    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * (0.1 + 0.3))
     f.acked(1.5, 1.3, 800_000.0)  # rtt 0.2 (the minimum stays 0.1), an interval of 0.5 s
     assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * (0.1 + 0.5))
     assert InFlight(min_bytes=5000.0).min_bytes == 5000.0
@@ -94,10 +94,25 @@ def test_the_cap_follows_rate_round_trip_and_acknowledgement_interval() -> None:
     assert g.cap_bytes == 5000.0  # the floor: a part and a few feedback always fit
 
 
-@pytest.mark.parametrize("name", ["gain", "min_bytes", "probe_s", "rtt_window_s"])
+@pytest.mark.parametrize("name", ["gain", "min_bytes", "probe_s", "rtt_window_s", "ack_prior_s", "video_share"])
 def test_bad_parameters_are_named(name: str) -> None:
     with pytest.raises(ValueError, match=name):
         InFlight(**{name: 0.0})
+    with pytest.raises(ValueError, match="video_share"):
+        InFlight(video_share=1.5)
+
+
+def test_video_leaves_the_feedback_its_share_of_the_cap() -> None:
+    """Video fills at most ``video_share`` of the cap; feedback is admitted up to the cap."""
+    f = InFlight(gain=2.0, min_bytes=100.0, ack_prior_s=0.4)
+    f.acked(1.0, 0.9, 800_000.0)  # cap: 2 x 100 kB/s x 0.5 s = 100 kB
+    f.sent(1.0, 74_000)
+    assert f.admit_video(1000) and not f.admit_video(2000)  # 75 kB: video's room
+    assert f.admit_feedback(1.0)
+    f.sent(1.0, 25_000)
+    assert f.admit_feedback(1.0) and not f.over
+    f.sent(1.0, 1_000)
+    assert f.over and not f.admit_feedback(1.0)
 
 
 def test_the_budget_feeds_the_cap_from_the_leaders_status() -> None:

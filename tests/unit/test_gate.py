@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 
 import pytest
-from bipedtele.link.gate import SequenceGate
+from bipedtele.link.gate import FollowedSessionGate, SequenceGate
 from bipedtele.link.messages import MAX_SEQ, Command
 
 
@@ -189,3 +189,22 @@ def test_concurrent_senders_bind_exactly_one() -> None:
     assert len(passed) == 1
     ((sid, n),) = passed.items()
     assert g.bound_sid == sid and n == 2000
+
+
+def test_the_followed_session_gate_takes_only_the_driving_session() -> None:
+    """The follower's Status inbox: two leaders publish Status on the robot's key, alice
+    drives (the command gate follows her), dave waits. Before, the Status gate bound to
+    whichever spoke first after a 0.5 s silence (alice frozen 3 s: dave's, without a
+    feedback age, for the rest of her drive) and dropped the driver's."""
+    driving: list[int | None] = [None]
+    g = FollowedSessionGate(lambda: driving[0])
+    assert g.accept(m(1, 1)) == "foreign_session"  # nobody drives yet
+    driving[0] = 1  # alice's commands taken
+    assert g.accept(m(1, 2)) is None
+    assert g.accept(m(2, 1)) == "foreign_session"  # dave waits: his Status says nothing of alice's path
+    assert g.accept(m(1, 2)) == "duplicate" and g.accept(m(1, 1)) == "stale"
+    driving[0] = 2  # the hand-over: dave's commands taken
+    assert g.accept(m(1, 3)) == "foreign_session"
+    assert g.accept(m(2, 2)) is None and g.accept(m(2, 3)) is None
+    driving[0] = 1  # alice takes it back: her session again, newer than her last
+    assert g.accept(m(1, 4)) is None

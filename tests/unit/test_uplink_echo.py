@@ -19,10 +19,10 @@ pytestmark = pytest.mark.timeout(30)
 
 
 def _over(f: InFlight, t: float) -> None:
-    """Fill the cap: 1 Mbit/s delivered, 0.1 s round trip, then 30 kB sent at ``t``."""
+    """Fill the cap: 1 Mbit/s delivered, 0.1 s round trip (with the 0.5 s acknowledgement interval: 150 kB), then 150 kB sent at ``t``."""
     f.acked(t, t - 0.1, 1_000_000.0)
     for k in range(30):
-        f.sent(t + 0.001 * k, 1000)
+        f.sent(t + 0.001 * k, 5000)
     assert f.over
 
 
