@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from bipedtele.leader.blind import REARM_LINE
 from bipedtele.leader.operator import Hand, Operator, OperatorContext
 from bipedtele.leader.predictor import DelayPredictor, LivePredictor, PredictedPose
 from bipedtele.link.messages import Feedback
@@ -84,6 +85,13 @@ class PilotOperator(Operator):
     with the heading error (to 30 % beyond 60 degrees, as a person slows to turn round)
     and when a sonar reads below ``slow_range_m``.
 
+    The pilot reads the cockpit's line as a person would: while it says "fresh feedback
+    again: move the handle to walk on" (the robot stopped for old feedback,
+    :mod:`bipedtele.leader.blind`), it pushes the handle on, its forward speed growing by
+    ``rearm_push_cm_s2`` a second (at most ``speed_cm_s`` more), until walking resumes.
+    Before, its handle stayed where the course put it while the robot stood, so the robot
+    stood to the end of a 3G run (1 pass of 5).
+
     Parameters
     ----------
     obstacles : sequence of Obstacle
@@ -104,6 +112,8 @@ class PilotOperator(Operator):
         ``"off"``, ``"now"`` or ``"h1"``: the pose steered on (see above).
     predictor : DelayPredictor, optional
         The model for ``predict != "off"`` (default: ``DelayPredictor()``, lag 0.5 s).
+    rearm_push_cm_s2 : float
+        How fast the pilot pushes the handle on when the cockpit asks for a move [cm/s per s].
     """
 
     name = "pilot"
@@ -123,8 +133,14 @@ class PilotOperator(Operator):
         hand: Hand | None = None,
         predict: str = "off",
         predictor: DelayPredictor | None = None,
+        rearm_push_cm_s2: float = 2.0,
     ) -> None:
         super().__init__(k_g, workspace_m, hand)
+        if not (math.isfinite(rearm_push_cm_s2) and rearm_push_cm_s2 > 0):
+            raise ValueError(f"rearm_push_cm_s2 = {rearm_push_cm_s2!r}: allowed: a number > 0")
+        self.rearm_push_cm_s2 = float(rearm_push_cm_s2)
+        self._asked = False  # the cockpit asks for a handle move (fresh feedback after a blind stop)
+        self._asked_t: float | None = None  # device time the pilot first read it [s]
         if predict not in PREDICT_MODES:
             raise ValueError(f"predict = {predict!r}: allowed: {', '.join(PREDICT_MODES)}")
         self.predict = predict
@@ -296,7 +312,16 @@ class PilotOperator(Operator):
         if abs(kappa) * v / 100.0 > w_max:
             v = max(v_min, 100.0 * w_max / abs(kappa))  # slow down to make the turn
         w = math.degrees(float(np.clip(v / 100.0 * kappa, -w_max, w_max)))
-        return np.array([v, w])
+        return np.array([v + self._push(t), w])
+
+    def _push(self, t: float) -> float:
+        """Forward speed added while the cockpit asks for a handle move [cm/s] (class docstring)."""
+        if not self._asked:
+            self._asked_t = None
+            return 0.0
+        if self._asked_t is None:
+            self._asked_t = t
+        return min(self.speed_cm_s, self.rearm_push_cm_s2 * (t - self._asked_t))
 
     def _steering_pose(self, t: float, feedback: Feedback) -> tuple[np.ndarray, float]:
         """Return the pose steered on: the reported one, or its prediction (class docstring)."""
@@ -315,7 +340,8 @@ class PilotOperator(Operator):
         return np.array([use.x, use.y]), use.yaw
 
     def observe_sample(self, sample: LeaderSample) -> None:
-        """Feed the loop sample to the predictor (see the class docstring)."""
+        """Feed the loop sample to the predictor and read the cockpit's line (see the class docstring)."""
+        self._asked = sample.blind == REARM_LINE
         if self.live is not None:
             fb = self._fb_seen
             self.live.observe(sample, fb.t if fb is not None else None)

@@ -11,7 +11,9 @@ import logging
 
 import numpy as np
 import pytest
+from bipedtele.config.profile import load_config
 from bipedtele.leader.operator import Hand
+from bipedtele.leader.operators.pilot import DEFAULT_COURSE, PilotOperator
 from test_leader_loop import T0, make_loop
 
 pytestmark = pytest.mark.timeout(60)
@@ -82,3 +84,22 @@ def test_the_bound_is_the_configured_one_and_events_are_recorded() -> None:
     assert [e for e, _ in events] == ["blind_stop", "blind_over"] and events[1][1]["stopped_s"] == pytest.approx(1.7)
     with pytest.raises(ValueError, match="blind_stop_s"):
         BlindGuard(0.0, 0.05)
+
+
+def test_the_pilot_moves_its_handle_when_the_cockpit_asks_and_walks_on() -> None:
+    """The scripted pilot reads the cockpit's line as a person would ("move the handle to
+    walk on") and pushes its handle on. Before, its handle stayed where the course put it
+    while the robot stood: on the 3G row of bench/internet.py the robot stood from its blind
+    stop to the end of the run (1 pass of 5)."""
+    cfg = load_config("default")
+    pilot = PilotOperator(list(DEFAULT_COURSE), cfg.control.k_g, passes=10)
+    loop, sent, _ = make_loop(lambda s: np.zeros(2), _stalled_h2, operator=pilot)
+    for k in range(round(14.0 / 0.001)):
+        loop.tick(now=T0 + k * 0.001)
+    cmds = [(c.t - T0, c.enable) for c in sent]
+    first_stop = next(t for t, en in cmds if t > 1.0 and not en)
+    assert 6.47 <= first_stop <= 6.5 + 0.011, first_stop
+    resumed = next((t for t, en in cmds if t >= 9.5 and en), None)  # fresh feedback again at 9.5 s
+    assert resumed is not None and resumed - 9.5 < 2.0, resumed
+    assert loop.blind.stops == 1 and loop.blind.state == "seeing"
+    assert all(en for t, en in cmds if t > resumed + 0.1)
