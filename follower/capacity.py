@@ -62,10 +62,11 @@ runs).
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
-  stretch of a cellular link), and something sent after that feedback in time to arrive is
-  still in flight (nothing sent: the follower's own pacing, a stall that fed itself). Video pauses (budget 0) and the feedback drops to
-  ``stall_fb_hz`` (5 Hz, the newest only), so the follower adds nearly nothing to the
-  path's queue (what it sent before the stall showed still waits there). No rule cuts during it,
+  stretch of a cellular link), and something sent after that feedback in time to arrive
+  is still in flight (nothing sent: the follower's own pacing; a stall fed itself). Video
+  pauses (budget 0) and the feedback drops to ``stall_fb_hz`` (5 Hz, the newest only), so
+  the follower adds nearly nothing to the path's queue (what it sent before the stall
+  showed still waits there). No rule cuts during it,
   and when it ends the capacity restarts from what the path delivered before it
   (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
   ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a

@@ -113,9 +113,10 @@ class InFlight:
     between acknowledgements (the leader's status period: a sender acknowledged every 0.5 s
     keeps up to 0.5 s of its rate in flight between two, BBR's allowance for aggregated
     acknowledgements; ``ack_prior_s`` until two were seen: a cap learnt from one round
-    trip alone held a LAN's feedback for a status period after every hand-over). The gain leaves room for a rate above the one delivered so far (the
-    delivery rate of an application-limited sender is what it sent, and a cap at it would
-    only ratchet down). Until the first acknowledgement with a rate the cap is infinite.
+    trip alone held a LAN's feedback for a status period after every hand-over). The gain
+    leaves room for a rate above the one delivered so far (the delivery rate of an
+    application-limited sender is what it sent, and a cap at it would only ratchet down).
+    Until the first acknowledgement with a rate the cap is infinite.
 
     Video fills at most ``video_share`` of the cap: the rest is the feedback's between two
     acknowledgements (video that filled the cap held every feedback until the next
