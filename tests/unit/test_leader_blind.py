@@ -103,3 +103,9 @@ def test_the_pilot_moves_its_handle_when_the_cockpit_asks_and_walks_on() -> None
     assert resumed is not None and resumed - 9.5 < 2.0, resumed
     assert loop.blind.stops == 1 and loop.blind.state == "seeing"
     assert all(en for t, en in cmds if t > resumed + 0.1)
+
+
+@pytest.mark.parametrize("push", [0.0, -1.0, float("nan")])
+def test_a_bad_push_rate_is_named(push: float) -> None:
+    with pytest.raises(ValueError, match="rearm_push_cm_s2"):
+        PilotOperator(list(DEFAULT_COURSE), [1.0, 1.0], rearm_push_cm_s2=push)
