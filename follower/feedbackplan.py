@@ -7,9 +7,10 @@ periodic rate, the least interval between two).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-__all__ = ["FeedbackPlan"]
+__all__ = ["FeedbackPlan", "plan_feedback"]
 
 
 @dataclass(frozen=True)
@@ -32,3 +33,58 @@ class FeedbackPlan:
     ack_each_command: bool
     rate_hz: float
     min_interval_s: float = 0.0
+
+    def control_bps(self, command_hz: float, feedback_bits: float) -> float:
+        """Return the feedback rate this plan sends [bit/s], given the commands' rate [Hz] and a feedback's size [bit].
+
+        Video's budget leaves at least this to control: the measured rate is a 2 s mean, so
+        a plan that acknowledges more would otherwise send it on top of video for 2 s (on a
+        600 kbit/s token bucket, the step to an acknowledgement per command queued 1 s).
+        """
+        if self.ack_each_command:
+            hz = self.rate_hz + command_hz
+        else:
+            most = 1.0 / self.min_interval_s if self.min_interval_s > 0 else 0.0
+            hz = max(self.rate_hz, min(most, self.rate_hz + command_hz))
+        return hz * feedback_bits
+
+
+def plan_feedback(
+    rate_hz: float,
+    fits_bps: float,
+    command_hz: float,
+    feedback_bits: float,
+    *,
+    start: bool = False,
+    stall_hz: float | None = None,
+) -> FeedbackPlan:
+    """How to send feedback now (:meth:`bipedtele.follower.capacity.UplinkBudget.feedback_plan` explains the rule).
+
+    Parameters
+    ----------
+    rate_hz : float
+        The configured periodic feedback rate [Hz].
+    fits_bps : float
+        What control may use of the path [bit/s] (infinite: unknown).
+    command_hz, feedback_bits : float
+        The commands' rate [Hz] and a feedback's size [bit].
+    start : bool
+        The path is not known yet: acknowledgements ride on the periodic feedback.
+    stall_hz : float, optional
+        The path is stalled: the newest only, at most this often [Hz].
+    """
+    if stall_hz is not None:
+        hz = min(rate_hz, stall_hz)
+        return FeedbackPlan(False, hz, 1.0 / hz if hz > 0 else 0.0)
+    if not math.isfinite(fits_bps) and start:
+        return FeedbackPlan(False, rate_hz, 1.0 / rate_hz if rate_hz > 0 else 0.0)
+    if not math.isfinite(fits_bps) or (rate_hz + command_hz) * feedback_bits <= fits_bps:
+        return FeedbackPlan(True, rate_hz)
+    # the feedback rate the path carries: acknowledgements fill what the periodic
+    # feedback leaves (no step from "every command" to "none" as the capacity moves)
+    total_hz = fits_bps / feedback_bits if feedback_bits > 0 else rate_hz
+    min_interval = 1.0 / total_hz if total_hz > 0 else math.inf
+    for hz in (rate_hz, 25.0, 10.0):
+        if hz <= rate_hz and hz * feedback_bits <= fits_bps:
+            return FeedbackPlan(False, hz, min_interval)
+    return FeedbackPlan(False, min(rate_hz, 10.0), min_interval)

@@ -219,7 +219,11 @@ def test_video_waits_while_the_acknowledgements_show_a_queue_of_ours() -> None:
     assert f.queue_s == pytest.approx(0.08)
     assert f.bytes > f.cap_bytes / f.gain
     assert f.admit_video(1000) and not f.admit_video(1000, now=1.21)
+    f.delivered(2.45, 1.15)  # a Status echo: what was in flight arrived (no round-trip sample)
+    f.sent(2.4, big)  # as much in flight again, sent 0.1 s ago
+    assert f.bytes > f.cap_bytes / f.gain and f.queue_s == pytest.approx(0.08)
     assert f.admit_video(1000, now=2.5)  # a sample over a second old is not used
+    assert not f.admit_video(1000, now=2.7)  # in flight 0.3 s, longer than the cap covers (2 x 0.12 s)
     g = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
     _acks(g, 100)
     g.sent(1.15, 100)

@@ -252,10 +252,32 @@ def test_an_outage_is_not_taken_for_a_full_path() -> None:
                 b.on_leader_status({"rx_bps": rx_bps, "fb_loss_ppm": 0, "fb_age_ms": 50})
             b.update()
 
-    run(12.0, 400_000)
+    run(14.0, 400_000)  # the budget grows to twice what is sent (10 s), then 3 s app-limited
     assert not b.limited and b.capacity_bps >= 1.2 * 400_000  # after the start: 1.2 x what is sent
     t[0] += 3.0  # the outage: nothing in, nothing out
     run(0.6, 40_000)  # the leader's first statuses after it: its 2 s window holds the silence
     run(5.0, 400_000)
     assert b.capacity_bps >= 1.2 * 400_000 and not b.limited, (b.capacity_bps, b.signals)
     assert b.signals["rate"] == b.signals["delay"] == 0
+
+
+def test_video_leaves_control_what_the_feedback_plan_sends_not_its_2_s_mean() -> None:
+    """When the plan steps to an acknowledgement per command, control's measured rate (a
+    2 s mean) still shows the periodic feedback alone. Video's budget leaves the planned
+    rate: before, video kept the difference for 2 s on top of control's step, and on a
+    600 kbit/s token bucket the feedback queued 50-100 ms for a second."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+    b.start_budget_bps, b.capacity_bps = None, 1_000_000.0  # past the start, the path known
+    for k in range(300):  # 3 s: a command every 10 ms, a 200-byte feedback every 20 ms
+        t[0] += 0.01
+        b.on_h2(0.05)
+        if k % 2 == 0:
+            b.sent(200, feedback=True)
+        b.update()
+    plan = b.feedback_plan(50.0)
+    assert plan.ack_each_command  # 150 feedback/s fit 0.6 of 1 Mbit/s
+    planned = plan.control_bps(100.0, 1600.0)
+    assert planned == pytest.approx(240_000.0) and b.tx_bps("control") == pytest.approx(80_000.0, rel=0.05)
+    vb = b.video_budget_bps()
+    assert vb is not None and vb <= 1_000_000.0 - 0.98 * planned - 100_000.0, vb
