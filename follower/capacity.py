@@ -46,13 +46,9 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
 Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while commands
 bring an h2 near its minimum and the budget is less than twice what is sent, up to
-``start_max_bps`` (4 Mbit/s, then unlimited). When video sends less than it may (the budget
-at twice what is sent: its frame rate at its most) for ``start_s`` (3 s) of clear path, the
-capacity is taken as 1.2 x what is sent, and probed; acknowledgements ride on the periodic
-feedback until then. (A start that ended after 10 s on a clock ended while the budget was
-still growing: on the LTE trace at 0.51 Mbit/s, small frames at 18.5 of 20 frames/s, and
-the probe took 90 s to reach 1.1 Mbit/s.) h2 is the leader's 1 s moving average, so a
-queue shows about 0.75 s late: the
+``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
+taken as 1.2 x what is sent, and probed); acknowledgements ride on the periodic feedback
+until then. h2 is the leader's 1 s moving average, so a queue shows about 0.75 s late: the
 growth overshoots a capacity by at most about a fifth before the first cut (x1.6 a second
 overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s; a full-rate start, QVGA video and an
 acknowledgement per command, 0.6-0.8 Mbit/s, queued 0.5-1 s).
@@ -418,16 +414,15 @@ class UplinkBudget:
         """
         tu = self.tuning
         assert self.start_budget_bps is not None
+        self._start_clear_s += dt
         if self.start_budget_bps < 2.0 * tx + tu.floor_bps:
             # grown only while h2 says the path is clear and the budget is near what is
             # sent (a budget far above the sending rate was never tested)
             self.start_budget_bps *= tu.start_growth**dt
-        else:  # video sends less than it may (its frame rate at its most): nothing more to learn
-            self._start_clear_s += dt
         if self.start_budget_bps > tu.start_max_bps:
             self.start_budget_bps = None
         elif self._start_clear_s >= tu.start_s:
-            # app-limited for start_s: the path carries what was sent; probe on from a little
+            # clear for start_s: the path carries what was sent; probe on from a little
             # above it (twice it overshot a 600 kbit/s uplink by 200 ms at once)
             self.capacity_bps = 1.2 * tx + tu.floor_bps
             self.start_budget_bps = None

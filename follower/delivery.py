@@ -338,9 +338,9 @@ class InFlight:
 
         The cap holds ``gain x (min_rtt + ack_interval)`` of the path's time; a message
         unacknowledged for that long says the path stopped delivering (TCP's retransmission
-        timeout), before the stall is judged: on a 2 Mbit/s uplink with the rate learnt, the
-        feedback went on filling the cap's last quarter (what video leaves) for 0.3 s into a
-        blackout, and arrived 3.8 s old.
+        timeout), before the stall is judged: on the fluid model's 2 Mbit/s uplink with its
+        rate learnt (1.83 Mbit/s), feedback alone went on filling the cap's last quarter
+        (what video leaves) for 0.3 s into a blackout, and arrived 3.8 s old.
         """
         rtt = self.min_rtt_s
         if rtt is None:

@@ -35,17 +35,15 @@ class FeedbackPlan:
     min_interval_s: float = 0.0
 
     def control_bps(self, command_hz: float, feedback_bits: float) -> float:
-        """Return the feedback rate this plan sends [bit/s], given the commands' rate [Hz] and a feedback's size [bit].
+        """Return the feedback rate this plan commits to [bit/s], given the commands' rate [Hz] and a feedback's size [bit].
 
-        Video's budget leaves at least this to control: the measured rate is a 2 s mean, so
-        a plan that acknowledges more would otherwise send it on top of video for 2 s (on a
-        600 kbit/s token bucket, the step to an acknowledgement per command queued 1 s).
+        The periodic feedback, and with an acknowledgement per command one per command
+        (acknowledgements riding on the next tick leave at most every ``min_interval_s``,
+        only as commands come: their rate is what is measured). Video's budget leaves at
+        least this to control: the measured rate is a 2 s mean, so a plan that steps to an
+        acknowledgement per command would otherwise send it on top of video for 2 s.
         """
-        if self.ack_each_command:
-            hz = self.rate_hz + command_hz
-        else:
-            most = 1.0 / self.min_interval_s if self.min_interval_s > 0 else 0.0
-            hz = max(self.rate_hz, min(most, self.rate_hz + command_hz))
+        hz = self.rate_hz + (command_hz if self.ack_each_command else 0.0)
         return hz * feedback_bits
 
 
@@ -77,6 +75,8 @@ def plan_feedback(
         hz = min(rate_hz, stall_hz)
         return FeedbackPlan(False, hz, 1.0 / hz if hz > 0 else 0.0)
     if not math.isfinite(fits_bps) and start:
+        # the path is not known yet: acknowledgements ride on the periodic feedback (an
+        # acknowledgement per command doubles control's rate)
         return FeedbackPlan(False, rate_hz, 1.0 / rate_hz if rate_hz > 0 else 0.0)
     if not math.isfinite(fits_bps) or (rate_hz + command_hz) * feedback_bits <= fits_bps:
         return FeedbackPlan(True, rate_hz)

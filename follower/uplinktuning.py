@@ -70,10 +70,8 @@ class UplinkTuning:
         Video's budget at the start, multiplied by ``start_growth`` every second until a
         signal or until it passes ``start_max_bps`` [bit/s, bit/s, 1/s].
     start_s : float
-        After this long [s] of clear path in the start with the budget at twice what is
-        sent (video sends less than it may), the capacity is taken as 1.2 x what is sent
-        (then probed as after a cut). 3 s: the leader's ``rx_bps`` window (2 s) and its
-        status period; a queue from the last growth shows within it.
+        After this long [s] of clear path in the start, the capacity is taken as 1.2 x
+        what is sent (then probed as after a cut).
     undo_gap_s : float
         A cut is undone at most once in this long [s]: a rise that comes back soon after
         an undo, at the rate the undo restored, is a queue of ours.
@@ -133,7 +131,7 @@ class UplinkTuning:
     start_bps: float = 64_000.0
     start_max_bps: float = 4_000_000.0
     start_growth: float = 1.3
-    start_s: float = 3.0
+    start_s: float = 10.0
     undo_gap_s: float = 5.0
     base_window_s: float = 60.0
     queue_target_s: float = 0.015

@@ -252,7 +252,7 @@ def test_an_outage_is_not_taken_for_a_full_path() -> None:
                 b.on_leader_status({"rx_bps": rx_bps, "fb_loss_ppm": 0, "fb_age_ms": 50})
             b.update()
 
-    run(14.0, 400_000)  # the budget grows to twice what is sent (10 s), then 3 s app-limited
+    run(12.0, 400_000)
     assert not b.limited and b.capacity_bps >= 1.2 * 400_000  # after the start: 1.2 x what is sent
     t[0] += 3.0  # the outage: nothing in, nothing out
     run(0.6, 40_000)  # the leader's first statuses after it: its 2 s window holds the silence

@@ -54,7 +54,7 @@ def test_a_lasting_rise_of_h2_is_relearned_a_short_one_is_a_queue() -> None:
 
 def test_update_reads_what_was_sent_once() -> None:
     t = [1000.0]
-    b = UplinkBudget(lambda: t[0], start_s=2.0, start_bps=3_000_000.0)  # twice what is sent: app-limited
+    b = UplinkBudget(lambda: t[0], start_s=2.0)
     calls = [0]
     rate = b._log.rate
 
