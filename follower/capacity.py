@@ -55,12 +55,13 @@ acknowledgement per command, 0.6-0.8 Mbit/s, queued 0.5-1 s).
 
 Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
 a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more, the rate rule
-cuts only while h2 rises (``rising_s_per_s``, 0.1 s/s) after the delay rule has cut in this
-rise: video on TCP slowed by loss arrives below what was sent, and a swing of the path's own
-delay is then no queue of ours (under 1-5 % loss on the intercontinental trace the budget
-was cut to 330-360 kbit/s in half the runs). A step of the path's delay is judged by the
-delay rule's undo; a rate cut before it (the trace's +80 ms step at 1 % loss) set the
-ceiling at the loss-slowed rate and held video at 9.9 frames/s against 16.0 without loss.
+does not judge: video on TCP slowed by loss arrives below what was sent whatever the path
+carries, and the delay rule alone judges a lossy path (a step of the path's own delay by
+its cut's undo). Under 1-5 % loss on the intercontinental trace the rate rule had cut the
+budget to 330-360 kbit/s in half the runs; judged only while h2 rose (0.1 s/s), and then
+only after the delay rule's cut, it still cut on the trace's +80 ms step at 1 % loss (the
+leader's 1 s mean goes on rising for a second after the cut), set the ceiling at the
+loss-slowed rate and held video at 9.9 and 7.8 frames/s against 16.0 without loss.
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
@@ -287,12 +288,10 @@ class UplinkBudget:
         tx = self._log.rate(ts - h2 - tu.window_s, ts - h2)
         # a full path queues: without h2 above its minimum, rx below tx is the windows'
         # misalignment (traffic sent before the leader listened, a step of the video rate)
-        # or loss, not the path's capacity; on a lossy path the queue must also rise
+        # or loss, not the path's capacity; on a lossy path the delay rule alone judges
         queued = self._q.excess_s >= 0.5 * tu.delay_rise_s
-        if self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm:
-            # after the delay rule's cut only: a rise that goes on once less is sent is ours
-            queued = queued and self._q.episode and self._q.slope(now) >= tu.rising_s_per_s
-        rate_limited = queued and tx >= tu.min_tx_bps and rx < tu.ratio * tx
+        lossy = self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm  # rx below tx: TCP slowed by loss
+        rate_limited = queued and not lossy and tx >= tu.min_tx_bps and rx < tu.ratio * tx
         if rate_limited:
             self.signals["rate"] += 1
             episode = now - self._last_signal < tu.hold_s

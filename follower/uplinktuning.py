@@ -99,10 +99,10 @@ class UplinkTuning:
         [s] above its minimum (the path's queue, one status period late).
     delivery_window_s : float
         The delivery rate's maximum is kept this long [s] of time the path delivered.
-    lossy_ppm, rising_s_per_s : float
-        With the leader's feedback loss at or above ``lossy_ppm`` [ppm], the rate rule cuts
-        only while h2 rises faster than ``rising_s_per_s`` [s/s]: a lossy path whose TCP
-        video is slowed by loss is not a full one unless a queue grows.
+    lossy_ppm : float
+        With the leader's feedback loss at or above this [ppm], the rate rule does not
+        judge (TCP's video slowed by loss arrives below what was sent whatever the path
+        carries): the delay rule alone judges a lossy path.
     """
 
     window_s: float = 2.0
@@ -145,7 +145,6 @@ class UplinkTuning:
     inflight_release_s: float = 0.5
     video_queue_s: float = 0.05
     lossy_ppm: float = 1000.0
-    rising_s_per_s: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):  # ints given (4000) are kept as floats, as the budget computes
