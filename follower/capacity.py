@@ -47,7 +47,7 @@ Until the first signal the capacity is unknown (infinite): the **start**. Video 
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while commands
 bring an h2 near its minimum and the budget is less than twice what is sent, up to
 ``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
-taken as 1.2 x what is sent, and probed); acknowledgements ride on the periodic feedback
+taken as 1.2 x the most that was sent in it, and probed); acknowledgements ride on the periodic feedback
 until then. h2 is the leader's 1 s moving average, so a queue shows about 0.75 s late: the
 growth overshoots a capacity by at most about a fifth before the first cut (x1.6 a second
 overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s; a full-rate start, QVGA video and an
@@ -171,6 +171,7 @@ class UplinkBudget:
         self.capacity_bps = math.inf
         self.start_budget_bps: float | None = self.tuning.start_bps
         self._start_clear_s = 0.0
+        self._start_peak_bps = 0.0  # the most sent in the start with h2 clear [bit/s]
         self.ceiling_bps: float | None = None
         self.leader: dict[str, int] = {}
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0}
@@ -417,6 +418,7 @@ class UplinkBudget:
         tu = self.tuning
         assert self.start_budget_bps is not None
         self._start_clear_s += dt
+        self._start_peak_bps = max(self._start_peak_bps, tx)
         if self.start_budget_bps < 2.0 * tx + tu.floor_bps:
             # grown only while h2 says the path is clear and the budget is near what is
             # sent (a budget far above the sending rate was never tested)
@@ -424,9 +426,10 @@ class UplinkBudget:
         if self.start_budget_bps > tu.start_max_bps:
             self.start_budget_bps = None
         elif self._start_clear_s >= tu.start_s:
-            # clear for start_s: the path carries what was sent; probe on from a little
-            # above it (twice it overshot a 600 kbit/s uplink by 200 ms at once)
-            self.capacity_bps = 1.2 * tx + tu.floor_bps
+            # clear for start_s: the path carried the most that was sent with h2 clear (not
+            # what is sent at that moment: TCP's video slowed by loss dips it); probe on
+            # from a little above it (twice it overshot a 600 kbit/s uplink by 200 ms at once)
+            self.capacity_bps = 1.2 * self._start_peak_bps + tu.floor_bps
             self.start_budget_bps = None
 
     def _check_cut(self, now: float) -> None:
