@@ -333,30 +333,13 @@ class InFlight:
         """True while what is in flight reaches the cap; while :attr:`hold` is set, while anything is in flight."""
         return self.bytes > 0 if self.hold else self.bytes >= self.cap_bytes
 
-    def overdue(self, now: float) -> bool:
-        """Say whether something has been in flight at ``now`` [s] for longer than the cap covers.
-
-        The cap holds ``gain x (min_rtt + ack_interval)`` of the path's time; a message
-        unacknowledged for that long says the path stopped delivering (TCP's retransmission
-        timeout), before the stall is judged: on the fluid model's 2 Mbit/s uplink with its
-        rate learnt (1.83 Mbit/s), feedback alone went on filling the cap's last quarter
-        (what video leaves) for 0.3 s into a blackout, and arrived 3.8 s old.
-        """
-        rtt = self.min_rtt_s
-        if rtt is None:
-            return False
-        ack = self.ack_prior_s if self.ack_interval_s is None else self.ack_interval_s
-        with self._lock:
-            oldest = self._sent[0][0] if self._sent else now
-        return now - oldest > self.gain * (rtt + ack)
-
     def admit_feedback(self, now: float) -> bool:
         """Say whether a feedback may leave at ``now`` [s]: only under the cap.
 
         Over it the feedback is held (the next one carries the newest state): one sent
         into a path that does not deliver arrives old, and the operator would be shown it.
         """
-        if not (self.over or self.overdue(now)):
+        if not self.over:
             return True
         self.held["feedback"] += 1
         return False
@@ -368,7 +351,7 @@ class InFlight:
         as long after each probe), one Status leaves: the leader's echo of it tells the
         follower that the path delivers again, also when what was in flight was lost.
         """
-        if not (self.over or self.overdue(now)):
+        if not self.over:
             return True
         wait = self.probe_s * self._backoff
         if now - max(self._progress, self._last_probe) >= wait:
@@ -390,7 +373,7 @@ class InFlight:
         """
         cap = self.cap_bytes
         room = self.video_share * cap
-        ok = self.bytes + min(float(nbytes), 0.5 * room) <= room and not (now is not None and self.overdue(now))
+        ok = self.bytes + min(float(nbytes), 0.5 * room) <= room
         if ok and now is not None and self._last_ack is not None and now - self._last_ack < 1.0:
             # a queue of ours: the round trip rose and more than one bandwidth-delay product is
             # in flight (a rise of the path's own delay with nothing queued keeps under it)
