@@ -47,11 +47,12 @@ Until the first signal the capacity is unknown (infinite): the **start**. Video 
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while commands
 bring an h2 near its minimum and the budget is less than twice what is sent, up to
 ``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
-taken as 1.2 x the most that was sent in it, and probed); acknowledgements ride on the periodic feedback
-until then. h2 is the leader's 1 s moving average, so a queue shows about 0.75 s late: the
-growth overshoots a capacity by at most about a fifth before the first cut (x1.6 a second
-overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s; a full-rate start, QVGA video and an
-acknowledgement per command, 0.6-0.8 Mbit/s, queued 0.5-1 s).
+taken as 1.2 x the most that was sent in it with h2 clear, and probed); acknowledgements
+ride on the periodic feedback until then. h2 is the leader's 1 s moving average, so a
+queue shows about 0.75 s late: the growth overshoots a capacity by at most about a fifth
+before the first cut (x1.6 a second overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s;
+a full-rate start, QVGA video and an acknowledgement per command, 0.6-0.8 Mbit/s, queued
+0.5-1 s).
 
 Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
 a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more, the rate rule
