@@ -15,7 +15,9 @@ A budget (:meth:`VideoStreamer.set_budget`, bits/s; None: unlimited) makes the s
 fit the uplink: it picks a level (JPEG quality and size, QVGA down to QQVGA, see
 ``LEVELS``; no level whose frames exceed the largest frame the uplink takes in one burst)
 and a frame rate from the measured frame sizes, preferring at least
-``_GOOD_FPS`` frames/s per camera before quality, down to 1 frame/s at the lowest level,
+``_GOOD_FPS`` frames/s per camera before quality (fewer where the next lower level at its
+most frames would leave budget unused: video sends its whole budget below the top level,
+so that the uplink's capacity probe is tested as it grows), down to 1 frame/s at the lowest level,
 and off only when even that does not fit; a token bucket (rate: the budget) makes sure
 it never sends faster than the budget (a frame without tokens is dropped, ``throttled``).
 A frame larger than the uplink takes in ``part_bits_max`` goes in parts
@@ -42,15 +44,19 @@ LOG = logging.getLogger(__name__)
 
 _LOG_EVERY_S = 10.0  # at most one camera-error line per this many seconds
 _GOOD_FPS = 5.0  # frames/s per camera kept before quality is
+_UNUSED = 0.1  # share of the budget a level at its most frames may leave unused (the uplink's margin)
 _CHOOSE_EVERY_S = 1.0  # the level is chosen again at most this often [s]
 _OVERHEAD_BYTES = 120  # a VideoFrame's fields and MAC around the JPEG [bytes]
 MIN_PART_BYTES = 600  # a frame is not cut into parts smaller than this [bytes of JPEG]
 
 #: Levels, best first: (size scale, JPEG quality relative to the configured one, lowest
 #: absolute quality) and the expected frame size relative to level 0 until measured.
+#: The 0.7 size level (224 x 168) sits between QVGA and QQVGA: without it QQVGA at 10
+#: frames/s per camera sent 0.2 x 10 of a QVGA frame and QVGA at 5 frames/s 0.55 x 5.
 LEVELS: tuple[tuple[float, float, float], ...] = (
     (1.0, 1.0, 1.0),
     (1.0, 0.6, 0.55),
+    (0.7, 0.6, 0.33),
     (0.5, 0.6, 0.2),
     (0.5, 0.3, 0.13),
     (0.5, 0.125, 0.09),
@@ -103,7 +109,8 @@ class VideoStreamer:
         self._quality = int(jpeg_quality)
         self._sid = new_session_id() if sid is None else int(sid)  # the node's: the leader shows its bound peer's only
         self._seq = 0
-        self._next = {cam: -float("inf") for cam in self.cameras}
+        self._next = -float("inf")  # the next capture [s]
+        self._turn = 0  # the cameras take turns
         self._slot: tuple[str, np.ndarray, float] | None = None
         self._cv = threading.Condition()
         self._stop = False
@@ -158,37 +165,39 @@ class VideoStreamer:
             self._thread = None
 
     def maybe_capture(self, t: float) -> None:
-        """Capture the cameras that are due at loop time ``t`` [s] (cheap when none is)."""
-        if not self.period:
+        """Capture the camera that is due at loop time ``t`` [s] (cheap when none is)."""
+        if not self.period or not self.cameras:
             return
         if self._budget is not None and t >= self._next_choose:
             self._next_choose = t + _CHOOSE_EVERY_S
             self._choose()
         if self._fps <= 0:
             return
-        period = 1.0 / self._fps
-        for cam in self.cameras:
-            if t < self._next[cam]:
-                continue
-            self._next[cam] = max(t, self._next[cam] + period)
-            t0 = time.perf_counter()
-            try:
-                image = self.robot.capture(cam)
-                if image is not None:
-                    _check_image(image)
-            except Exception as exc:  # a camera fault costs this frame, never the loop
-                self.stats["capture_s"] += time.perf_counter() - t0
-                self._error(cam, exc)
-                continue
+        if t < self._next:
+            return
+        # the cameras take turns, spaced evenly: two frames captured in one tick left back to
+        # back, and the second found no tokens when a frame was over half the bucket
+        self._next = max(t, self._next + 1.0 / (self._fps * len(self.cameras)))
+        cam = self.cameras[self._turn % len(self.cameras)]
+        self._turn += 1
+        t0 = time.perf_counter()
+        try:
+            image = self.robot.capture(cam)
+            if image is not None:
+                _check_image(image)
+        except Exception as exc:  # a camera fault costs this frame, never the loop
             self.stats["capture_s"] += time.perf_counter() - t0
-            if image is None:
-                continue
-            self.stats["captured"] += 1
-            with self._cv:
-                if self._slot is not None:
-                    self.stats["dropped"] += 1
-                self._slot = (cam, image, self._now())
-                self._cv.notify()
+            self._error(cam, exc)
+            return
+        self.stats["capture_s"] += time.perf_counter() - t0
+        if image is None:
+            return
+        self.stats["captured"] += 1
+        with self._cv:
+            if self._slot is not None:
+                self.stats["dropped"] += 1
+            self._slot = (cam, image, self._now())
+            self._cv.notify()
 
     def _error(self, cam: str, exc: BaseException) -> None:
         """Count a lost frame; log the first and then at most one line per ``_LOG_EVERY_S``."""
@@ -329,7 +338,13 @@ class VideoStreamer:
             if largest is not None and self.frame_bits(level) > largest:
                 continue
             fps = min(self.max_fps, per_cam / self.frame_bits(level))
-            if fps >= min(self.max_fps, _GOOD_FPS):
+            # the next lower level at its most frames would leave over _UNUSED of the budget
+            # unused: this one below 5 frames/s sends it all (a budget no level can use
+            # leaves the capacity probe untested, and the step to the next level comes at once)
+            lower_full = level + 1 < len(LEVELS) and (1.0 - _UNUSED) * per_cam > self.max_fps * self.frame_bits(
+                level + 1
+            )
+            if fps >= min(self.max_fps, _GOOD_FPS) or (lower_full and fps >= 1.0):
                 best = (level, fps)
                 break
         if best is None:

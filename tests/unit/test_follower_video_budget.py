@@ -66,3 +66,16 @@ def test_off_only_when_even_one_frame_a_second_does_not_fit() -> None:
     assert not [f for f in sent if f.t >= 4.0]
     assert v.counters()["video_fps_x10"] == 0
     assert len(LEVELS) >= 3
+
+
+@pytest.mark.parametrize("budget", [400_000.0, 500_000.0, 700_000.0])
+def test_video_sends_its_whole_budget_between_levels(budget: float) -> None:
+    # With this camera QQVGA at 10 frames/s per camera sends about 240 kbit/s and QVGA (its
+    # lower quality) at 5 frames/s about 520: a budget between them was sent at 240 (QQVGA
+    # at its most frames), and the uplink's probe of what the path carries went untested.
+    # At 700 kbit/s (QVGA, 6.7 frames/s per camera) both cameras' frames left in one tick and
+    # the second found no tokens: half the budget was sent.
+    sent, _ = _run(budget)
+    late = [f for f in sent if f.t >= 6.0]
+    bits = sum(8 * len(encode(f)) for f in late)
+    assert bits >= 0.8 * budget * 6.0, (bits / 6.0, budget)
