@@ -340,6 +340,11 @@ class FollowerLoop:
                 # else the next periodic feedback acknowledges it
                 self._send_feedback(now, start.obs)
                 self._last_fb_t = now
+                if not plan.ack_each_command and plan.rate_hz > 0:
+                    # it stands for the period's feedback: periodic and acknowledgements together
+                    # keep the plan's least interval (on top of the periodic feedback, commands
+                    # arriving just before each tick were all acknowledged: the rate doubled)
+                    self._next_fb = max(self._next_fb, now + 1.0 / plan.rate_hz)
             return True
         except Exception as exc:
             LOG.warning("applying a new command between ticks failed: %s", exc)

@@ -680,8 +680,50 @@ def test_the_feedback_plan_is_read_from_the_callable_given_at_construction() -> 
     t[0] += 0.005
     assert pickup() and feedback() == n + 2  # the previous feedback left long enough ago
     t[0] += 0.005
-    loop.tick()  # the periodic feedback due since the first tick
+    loop.tick()  # the periodic feedback due since the first tick: the acknowledgement stood for it
+    assert feedback() == n + 2
+    t[0] += 0.09
+    loop.tick()  # at the plan's 10 Hz the next is due 0.1 s after the acknowledgement
+    assert feedback() == n + 2
+    t[0] += 0.01
+    loop.tick()
     assert feedback() == n + 3
-    t[0] += 0.02
-    loop.tick()  # at the plan's 10 Hz the next is due 0.1 s after the previous one (at 50 Hz: now)
-    assert feedback() == n + 3
+
+
+def test_acknowledgements_and_periodic_feedback_together_keep_the_plans_least_interval() -> None:
+    """A coalesced plan (50 Hz, at most one feedback per 1/52 s) with commands at 50 Hz that
+    arrive just before each periodic feedback: an acknowledgement stands for the period's
+    feedback. Before, the periodic feedback left on top of it and the follower sent 100
+    feedback/s, twice what the plan fits (on a 300 kbit/s uplink control's rate stepped
+    from 160 to 300 kbit/s and the feedback queued 0.3 s)."""
+    from bipedtele.follower.capacity import FeedbackPlan
+
+    robot = KinematicRobot()
+    robot.connect()
+    cfg = load_config("default")
+    t = [100.0]
+    plan = FeedbackPlan(False, 50.0, 1.0 / 52.0)
+    published: list[object] = []
+    loop = FollowerLoop(
+        robot,
+        cfg.section("control"),
+        cfg.section("follower"),
+        command_inbox(cfg.section("follower")),
+        published.append,
+        now=lambda: t[0],
+        feedback_plan=lambda: plan,
+    )
+    dt = 1.0 / cfg.section("follower").control_rate_hz
+    seq, next_cmd = 0, t[0] + 0.0195
+    for _ in range(round(2.0 / dt)):
+        loop.tick()
+        end = t[0] + dt
+        while next_cmd < end:  # commands arrive between ticks
+            t[0] = next_cmd
+            seq += 1
+            loop.inbox.put(Command(sid=1, seq=seq, t=t[0], ref=[5.0, 0.0]), t[0])
+            loop.pickup()
+            next_cmd += 0.02
+        t[0] = end
+    sent = sum(isinstance(m, Feedback) for m in published)
+    assert seq >= 99 and sent <= 2.0 * 52.0 + 2, sent
