@@ -4,7 +4,8 @@
 #
 # With arguments, they go to one pytest run as they are. Without, the suite runs in two
 # steps so that it fits its budget (under 30 min on 2 cores): first the end-to-end and
-# integration tests (they keep time), then the unit tests; the CPU-bound deterministic tests
+# integration tests (they keep time), then the unit tests (two pytest runs side by side, every
+# other file each); the CPU-bound deterministic tests
 # (marker `compute`: simulated time, no timing) run from the start in a second pytest at the
 # lowest CPU and I/O priority beside them. Each step lists its slowest tests. pytest's exit code 5
 # (no tests collected) is a failure. The compute step also builds the documentation site
@@ -37,14 +38,29 @@ else
     e2e_rc=$?
     if [[ $e2e_rc -ne 0 && $e2e_rc -ne 5 ]]; then kill "$compute" 2>/dev/null; fi
     check_rc $e2e_rc "e2e and integration" || { wait "$compute"; cat "$log"; rm -f "$log"; exit 1; }
-    .venv/bin/python -m pytest --durations=15 -m "not compute" tests/unit
+    # the unit tests in two halves side by side (every other file): one per core
+    mapfile -t units < <(ls tests/unit/test_*.py)
+    half=()
+    for i in "${!units[@]}"; do (( i % 2 )) && half+=("${units[i]}"); done
+    others=()
+    for i in "${!units[@]}"; do (( i % 2 )) || others+=("${units[i]}"); done
+    unit_log=$(mktemp)
+    .venv/bin/python -m pytest --durations=10 -m "not compute" -p no:cacheprovider "${half[@]}" >"$unit_log" 2>&1 &
+    unit_half=$!
+    .venv/bin/python -m pytest --durations=10 -m "not compute" "${others[@]}"
     rc=$?
+    wait "$unit_half"
+    half_rc=$?
+    echo "---- the other half of the unit tests, run beside:"
+    cat "$unit_log"
+    rm -f "$unit_log"
     wait "$compute"
     compute_rc=$?
     echo "---- the tests marked compute, run beside the e2e and unit tests:"
     cat "$log"
     rm -f "$log"
     check_rc $rc "unit" || exit $?
+    check_rc $half_rc "unit, the other half" || exit $?
     check_rc $compute_rc "unit, compute" || exit $?
     echo "test.sh: pytest took $(( $(date +%s) - start )) s in all (budget: under 1800 s)"
 fi
