@@ -32,10 +32,10 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   40 ms queue stood through the start on a 600 kbit/s uplink and the first cut came late.
 - **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
   the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
-  (at least ``increase_bps_per_s``), and by ``ceiling_probe`` (0.5 %) only once it is past
-  ``drain_ratio`` of what the path carried at the last cut: a sawtooth at 3 %/s against a
-  known ceiling held 150-230 ms queues on a 600 kbit/s uplink.
-
+  (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
+  by ``ceiling_probe`` (0.5 %) only past ``drain_ratio`` of what the path carried at the
+  last cut: a sawtooth at 3 %/s against a known ceiling held 150-230 ms queues on a 600
+  kbit/s uplink, and at twice what is sent the estimate grew 30 % over a 600 kbit/s bucket.
 - **standing queue.** h2 more than ``queue_target_s`` (15 ms) above its minimum over
   ``base_window_s`` (60 s): no probing (the probe slows as h2 nears the target), and with a
   ceiling from a cut the capacity steps down by ``queue_decrease`` (5 %) of itself per
@@ -404,7 +404,7 @@ class UplinkBudget:
                 self.ceiling_bps = max(self.ceiling_bps, self.capacity_bps)  # frames sized to the path again
         probed = self.capacity_bps + step * dt
         # probe near what is used: an estimate far above the sending rate was never tested
-        self.capacity_bps = max(self.capacity_bps, min(probed, max(2.0 * tx + tu.floor_bps, known)))
+        self.capacity_bps = max(self.capacity_bps, min(probed, max(tu.probe_gain * tx + tu.floor_bps, known)))
 
     def _start(self, dt: float, tx: float) -> None:
         """Count ``dt`` [s] more of clear path in the start: grow video's budget, and take the capacity after ``start_s``.
@@ -442,9 +442,7 @@ class UplinkBudget:
         if self._undo is None:
             return
         u = self._undo
-        u.peak_excess_s = max(
-            u.peak_excess_s, self._q.excess_s
-        )  # h2 is the leader's 1 s mean: a queue peaks in it late
+        u.peak_excess_s = max(u.peak_excess_s, self._q.excess_s)  # in h2, the leader's 1 s mean, a queue peaks late
         if now - u.t < max(1.0, 2.0 * u.peak_excess_s):
             return
         self._undo = None

@@ -37,18 +37,14 @@ class FeedbackPlan:
     def control_bps(self, command_hz: float, feedback_bits: float) -> float:
         """Return the feedback rate this plan commits to [bit/s], given the commands' rate [Hz] and a feedback's size [bit].
 
-        The periodic feedback, and with an acknowledgement per command one per command;
-        otherwise an acknowledgement leaves at once when the previous feedback left
-        ``min_interval_s`` before and stands for the period's feedback, so the two together
-        send up to the least of one per ``min_interval_s`` and the periodic rate plus the
-        commands' (never less than the periodic rate). Video's budget leaves at least this
-        to control: the measured rate is a 2 s mean, so a plan that steps up would otherwise
-        send on top of video for 2 s.
+        The periodic feedback, and with an acknowledgement per command one per command
+        (acknowledgements riding on the next tick leave at most every ``min_interval_s``,
+        only as commands come, each standing for the period's feedback: their rate is what
+        is measured). Video's budget leaves at least this to control: the measured rate is a
+        2 s mean, so a plan that steps to an acknowledgement per command would otherwise
+        send it on top of video for 2 s.
         """
-        hz = self.rate_hz + command_hz
-        if not self.ack_each_command:
-            most = 1.0 / self.min_interval_s if self.min_interval_s > 0 else math.inf
-            hz = min(hz, max(self.rate_hz, most))
+        hz = self.rate_hz + (command_hz if self.ack_each_command else 0.0)
         return hz * feedback_bits
 
 

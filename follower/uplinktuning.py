@@ -33,6 +33,10 @@ class UplinkTuning:
     increase_bps_per_s, increase_ratio : float
         Increase while not limited: ``max(increase_bps_per_s, increase_ratio * capacity)``
         per second [bit/s per s, 1/s].
+    probe_gain : float
+        The probe never takes the capacity above this times what is sent, plus
+        ``floor_bps`` (BBR's probing gain): an estimate far above the sending rate was never
+        tested [-].
     cut_gap_s : float
         Shortest time between two cuts of the delay rule [s] (also at least twice the
         excess: a cut shows in h2 one queue delay later).
@@ -114,6 +118,7 @@ class UplinkTuning:
     decrease: float = 0.7
     increase_bps_per_s: float = 4_000.0
     increase_ratio: float = 0.03
+    probe_gain: float = 1.25
     cut_gap_s: float = 0.5
     ceiling_probe: float = 0.005
     hold_s: float = 2.0

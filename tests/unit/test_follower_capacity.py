@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable
 
 import pytest
-from bipedtele.follower.capacity import FeedbackPlan, UplinkBudget
+from bipedtele.follower.capacity import UplinkBudget
 from bipedtele.link.delaymodels import parse_delay_model
 
 pytestmark = pytest.mark.timeout(60)
@@ -184,6 +184,18 @@ def test_uncapped_never_throttles() -> None:
     assert sim.budget.tx_bps() > 800_000
 
 
+def test_the_probe_stays_within_a_quarter_of_what_is_sent() -> None:
+    """Video wanting 150 kbit/s on an uncapped path: the estimate grows only near what is
+    sent (BBR's probing gain, 1.25). At twice what is sent it grew untested to 30 % over a
+    600 kbit/s token bucket, and an acknowledgement per command (a step of control) then
+    queued the feedback 100-200 ms."""
+    sim = Sim(video_want_bps=150_000.0)
+    log = sim.run(60.0)
+    tx = sim.budget.tx_bps()
+    assert sim.budget.capacity_bps <= 1.25 * max(r["tx"] for r in log) + 16_000.0, (sim.budget.capacity_bps, tx)
+    assert log[-1]["video_budget"] >= 150_000.0  # video still gets what it wants
+
+
 def test_one_percent_random_loss_alone_does_not_throttle() -> None:
     sim = Sim(loss=0.01)
     log = sim.run(40.0)
@@ -283,18 +295,6 @@ def test_video_leaves_control_what_the_feedback_plan_sends_not_its_2_s_mean() ->
     assert planned == pytest.approx(240_000.0) and b.tx_bps("control") == pytest.approx(80_000.0, rel=0.05)
     vb = b.video_budget_bps()
     assert vb is not None and vb <= 1_000_000.0 - 0.98 * planned - 100_000.0, vb
-
-
-def test_a_coalesced_plan_commits_to_what_its_least_interval_lets_through() -> None:
-    """Acknowledgements riding on the next tick still leave at once when the previous
-    feedback is ``min_interval_s`` old: the plan commits to up to one per least interval, not
-    the periodic rate alone (control's rate swung by a third on a 600 kbit/s uplink as
-    they came and went, and video's budget followed its 2 s mean a second late)."""
-    coalesced = FeedbackPlan(False, 50.0, 1.0 / 100.0)
-    assert coalesced.control_bps(60.0, 1000.0) == pytest.approx(100_000.0)  # up to 100 feedback/s
-    assert coalesced.control_bps(20.0, 1000.0) == pytest.approx(70_000.0)  # as commands come
-    assert FeedbackPlan(False, 10.0, 0.5).control_bps(60.0, 1000.0) == pytest.approx(10_000.0)  # the periodic at least
-    assert FeedbackPlan(True, 50.0).control_bps(60.0, 1000.0) == pytest.approx(110_000.0)
 
 
 def _step_under_loss(loss_ppm: int) -> tuple[float, float, dict[str, int]]:
