@@ -229,6 +229,15 @@ def test_slow_delay_swings_alone_do_not_turn_video_off(which: str) -> None:
     assert sent_video > 400_000
 
 
+def _ticks(b: UplinkBudget, t: list[float], n: int, each: Callable[[int], None]) -> None:
+    """Run ``n`` ticks of 10 ms on the budget's clock ``t``: advance it, feed the tick
+    (``each(k)``: commands, what is sent, the leader's status), then ``b.update()``."""
+    for k in range(n):
+        t[0] += 0.01
+        each(k)
+        b.update()
+
+
 def test_without_the_leaders_status_nothing_is_cut() -> None:
     """No leader status: nothing could undo a cut (probing needs it), so h2 alone cuts nothing."""
     t = [0.0]
@@ -257,14 +266,13 @@ def test_an_outage_is_not_taken_for_a_full_path() -> None:
     b = UplinkBudget(lambda: t[0])
 
     def run(seconds: float, rx_bps: int | None) -> None:
-        end = t[0] + seconds
-        while t[0] < end:
-            t[0] += 0.01
+        def each(k: int) -> None:
             b.on_h2(0.05)
             b.sent(500, feedback=True)  # 400 kbit/s of feedback
             if abs(t[0] % 0.5) < 0.01 and rx_bps is not None:
                 b.on_leader_status({"rx_bps": rx_bps, "fb_loss_ppm": 0, "fb_age_ms": 50})
-            b.update()
+
+        _ticks(b, t, round(seconds / 0.01), each)
 
     run(12.0, 400_000)
     assert not b.limited and b.capacity_bps >= 1.2 * 400_000  # after the start: 1.2 x what is sent
@@ -283,12 +291,13 @@ def test_video_leaves_control_what_the_feedback_plan_sends_not_its_2_s_mean() ->
     t = [0.0]
     b = UplinkBudget(lambda: t[0])
     b.start_budget_bps, b.capacity_bps = None, 1_000_000.0  # past the start, the path known
-    for k in range(300):  # 3 s: a command every 10 ms, a 200-byte feedback every 20 ms
-        t[0] += 0.01
+
+    def each(k: int) -> None:  # a command every 10 ms, a 200-byte feedback every 20 ms
         b.on_h2(0.05)
         if k % 2 == 0:
             b.sent(200, feedback=True)
-        b.update()
+
+    _ticks(b, t, 300, each)
     plan = b.feedback_plan(50.0)
     assert plan.ack_each_command  # 150 feedback/s fit 0.6 of 1 Mbit/s
     planned = plan.control_bps(100.0, 1600.0)
@@ -311,18 +320,17 @@ def _step_under_loss(loss_ppm: int) -> tuple[float, float, dict[str, int]]:
             return 0.18 + 0.12 * min(1.0, s - 30.0)
         return 0.30 - 0.12 * (s - 33.0) if 33.0 <= s < 34.0 else 0.18
 
-    before = 0.0
-    for k in range(3800):
-        t[0] += 0.01
+    def each(k: int) -> None:
         b.on_h2(h2(t[0]))
         b.sent(300, feedback=True)
         b.sent(int((b.video_budget_bps() or 0.0) * 0.01 / 8), video=True)
         if k % 50 == 0 and t[0] > 1.0:
             rx = round(0.6 * b.tx_bps()) if loss_ppm else round(b.tx_bps())
             b.on_leader_status({"rx_bps": rx, "fb_loss_ppm": loss_ppm, "fb_age_ms": 200}, t[0])
-        b.update()
-        if k == 2990:
-            before = b.capacity_bps
+
+    _ticks(b, t, 2991, each)
+    before = b.capacity_bps  # at 29.9 s, before the step
+    _ticks(b, t, 809, lambda k: each(2991 + k))
     return before, b.capacity_bps, dict(b.signals)
 
 
@@ -358,12 +366,13 @@ def test_the_start_takes_the_most_the_path_carried_not_a_dip_at_its_end() -> Non
     run's (13.5 against 16.5 frames/s)."""
     t = [0.0]
     b = UplinkBudget(lambda: t[0])
-    for k in range(1200):  # 12 s: a command every 10 ms, h2 clear
-        t[0] += 0.01
+
+    def each(k: int) -> None:  # a command every 10 ms, h2 clear
         b.on_h2(0.05)
         b.sent(500 if t[0] < 7.0 else 250)  # 400 kbit/s, then 200
         if k % 50 == 0:
             b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 0, "fb_age_ms": 50})
-        b.update()
+
+    _ticks(b, t, 1200, each)  # 12 s
     assert b.start_budget_bps is None and math.isfinite(b.capacity_bps)  # the start is over
     assert b.capacity_bps >= 1.2 * 390_000, b.capacity_bps
