@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 from bipedtele.config.profile import load_config
+from bipedtele.follower.feedbackplan import FeedbackPlan
 from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import RobotError
 from bipedtele.follower.supervisor import RobotSupervisor
@@ -639,15 +641,13 @@ def test_sigma_e_and_the_walk_parameters_come_from_the_configured_scheme(scheme:
     assert pytest.approx(h.loop.chooser.choose(np.asarray(want)).T) == h.loop._T  # (30) at that sigma_e
 
 
-def test_the_feedback_plan_is_read_from_the_callable_given_at_construction() -> None:
-    """Nothing is set on the loop after it is built: the program's plan is read at each tick and pickup."""
-    from bipedtele.follower.capacity import FeedbackPlan
-
+def _planned_loop(plan: Callable[[], FeedbackPlan]) -> tuple[FollowerLoop, list[object], list[float]]:
+    """A follower loop on the kinematic robot reading its feedback plan from ``plan``: the
+    loop, what it published, and its clock (t[0], seconds)."""
     robot = KinematicRobot()
     robot.connect()
     cfg = load_config("default")
     t = [100.0]
-    plan = [FeedbackPlan(True, 50.0, math.inf)]
     published: list[object] = []
     loop = FollowerLoop(
         robot,
@@ -656,8 +656,15 @@ def test_the_feedback_plan_is_read_from_the_callable_given_at_construction() -> 
         command_inbox(cfg.section("follower")),
         published.append,
         now=lambda: t[0],
-        feedback_plan=lambda: plan[0],
+        feedback_plan=plan,
     )
+    return loop, published, t
+
+
+def test_the_feedback_plan_is_read_from_the_callable_given_at_construction() -> None:
+    """Nothing is set on the loop after it is built: the program's plan is read at each tick and pickup."""
+    plan = [FeedbackPlan(True, 50.0, math.inf)]
+    loop, published, t = _planned_loop(lambda: plan[0])
     seq = 0
 
     def pickup() -> bool:
@@ -696,24 +703,9 @@ def test_acknowledgements_and_periodic_feedback_together_keep_the_plans_least_in
     feedback. Before, the periodic feedback left on top of it and the follower sent 100
     feedback/s, twice what the plan fits (on a 300 kbit/s uplink control's rate stepped
     from 160 to 300 kbit/s and the feedback queued 0.3 s)."""
-    from bipedtele.follower.capacity import FeedbackPlan
-
-    robot = KinematicRobot()
-    robot.connect()
-    cfg = load_config("default")
-    t = [100.0]
     plan = FeedbackPlan(False, 50.0, 1.0 / 52.0)
-    published: list[object] = []
-    loop = FollowerLoop(
-        robot,
-        cfg.section("control"),
-        cfg.section("follower"),
-        command_inbox(cfg.section("follower")),
-        published.append,
-        now=lambda: t[0],
-        feedback_plan=lambda: plan,
-    )
-    dt = 1.0 / cfg.section("follower").control_rate_hz
+    loop, published, t = _planned_loop(lambda: plan)
+    dt = loop.dt
     seq, next_cmd = 0, t[0] + 0.0195
     for _ in range(round(2.0 / dt)):
         loop.tick()
