@@ -39,7 +39,7 @@ else
     if [[ $e2e_rc -ne 0 && $e2e_rc -ne 5 ]]; then kill "$compute" 2>/dev/null; fi
     check_rc $e2e_rc "e2e and integration" || { wait "$compute"; cat "$log"; rm -f "$log"; exit 1; }
     # the unit tests in two halves side by side (every other file): one per core
-    mapfile -t units < <(ls tests/unit/test_*.py)
+    mapfile -t units < <(find tests/unit -name "test_*.py" | sort)
     half=()
     for i in "${!units[@]}"; do (( i % 2 )) && half+=("${units[i]}"); done
     others=()
