@@ -28,6 +28,7 @@ waits for one part, not the whole frame (the leader joins them: leader/videopart
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -341,10 +342,8 @@ class VideoStreamer:
             # the next lower level at its most frames would leave over _UNUSED of the budget
             # unused: this one below 5 frames/s sends it all (a budget no level can use
             # leaves the capacity probe untested, and the step to the next level comes at once)
-            lower_full = level + 1 < len(LEVELS) and (1.0 - _UNUSED) * per_cam > self.max_fps * self.frame_bits(
-                level + 1
-            )
-            if fps >= min(self.max_fps, _GOOD_FPS) or (lower_full and fps >= 1.0):
+            lower_most = self.max_fps * self.frame_bits(level + 1) if level + 1 < len(LEVELS) else math.inf
+            if fps >= min(self.max_fps, _GOOD_FPS) or (lower_most < (1.0 - _UNUSED) * per_cam and fps >= 1.0):
                 best = (level, fps)
                 break
         if best is None:
