@@ -56,7 +56,9 @@ one-way delay):
   older than about 2 s) and (b) the first one sent during it, and when the first fresh one
   (at most 0.5 s old) arrived;
 - cellular rows: the frame rate the trace's mean capacity allows after control, from the
-  mean size of the frames the leader received (``allowance``), beside the frame rate;
+  mean size of the frames the leader received (``allowance``), beside the frame rate, and
+  the lesser of it and the follower's configured video rate (every camera: no path lets
+  video send more);
 - the emulator's counters (``--stats-json``);
 - the paper's Table 2 of the run (``bipedtele report``: completion time of the pilot's
   passes, speed errors, delays): with ``--only trace --seconds 220`` the pilot finishes
@@ -85,6 +87,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the bench's own modules beside it
 
+from bipedtele.config.profile import load_config
+from bipedtele.follower.config import FollowerConfig
 from bipedtele.link.shapers import load_mahimahi, mahimahi_stats
 from bipedtele.recording.format import Record, read_records
 from bipedtele.tools.netns import NetnsError
@@ -194,13 +198,20 @@ def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
 # --------------------------------------------------------------------------- one run
 
 
-def _cellular_allowance(cond: Condition, l_rec: list[Record], f_rec: list[Record]) -> dict[str, Any] | None:
-    """A cellular row's video allowance (:func:`video_allowance` over the pilot's run); None for other rows."""
+def _cellular_allowance(
+    cond: Condition, l_rec: list[Record], f_rec: list[Record], robot_profile: Path
+) -> dict[str, Any] | None:
+    """A cellular row's video allowance (:func:`video_allowance` over the pilot's run); None for other rows.
+
+    ``robot_profile``: the follower's profile, for its configured video rate (every camera).
+    """
     trace = next((x.split(":", 1)[1] for x in cond.emulator if x.startswith("mahimahi:")), None)
     sent = [r.t_recv for r in l_rec if r.topic == "cmd/sent"]
     if trace is None or not sent:
         return None
-    return video_allowance(l_rec, f_rec, mahimahi_stats(load_mahimahi(trace))["mean_bps"], sent[0], sent[-1])
+    fcfg = load_config(robot_profile).get(FollowerConfig)
+    most = fcfg.camera_fps * len(fcfg.cameras)
+    return video_allowance(l_rec, f_rec, mahimahi_stats(load_mahimahi(trace))["mean_bps"], sent[0], sent[-1], most)
 
 
 def _emulate(top: Topology, base: list[str], cond: Condition, seed: int, stats: Path) -> float:
@@ -355,7 +366,7 @@ def _figures(
     res.update(analyse(l_rec, f_rec, leader.log(), outage_wall=outage, startup_s=startup_s, emulated=(*h_models, t0)))
     # Table 2 of the run (`bipedtele report`): completion time and speed errors, as the demo prints
     res["table2"] = compute_report(l_rec, f_rec)
-    res["allowance"] = _cellular_allowance(cond, l_rec, f_rec)
+    res["allowance"] = _cellular_allowance(cond, l_rec, f_rec, homes["robot"] / "robot" / "bipedtele.toml")
     try:
         res["linkemu"] = json.loads((run_dir / "linkemu.json").read_text())
     except (OSError, ValueError):

@@ -211,12 +211,17 @@ def _gap_split(
     }
 
 
-def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t0: float, t1: float) -> dict[str, Any]:
+def video_allowance(
+    l_rec: list[Record], f_rec: list[Record], mean_bps: float, t0: float, t1: float, most_fps: float | None = None
+) -> dict[str, Any]:
     """The frame rate the trace's mean capacity allows after control, from the frames actually sent.
 
     ``frame_bytes``: mean size of the frames the leader received (JPEG + 120 bytes of
     fields and MAC); ``control_bps``: the follower's control rate (``uplink_tx_control_bps``,
     mean of its Status over the run); allowance = (mean - control) / (8 frame_bytes).
+    ``most_fps``: the follower's configured video rate, every camera [frames/s]; no path
+    lets video send more, so ``within_fps`` = min(allowance, most_fps) is what the path
+    allows of the video asked for (None without it).
     """
     sizes = [
         len(r.data["jpeg"]) + 120
@@ -232,11 +237,14 @@ def video_allowance(l_rec: list[Record], f_rec: list[Record], mean_bps: float, t
         return {"mean_bps": mean_bps, "frame_bytes": None, "control_bps": None, "allowed_fps": None}
     fb = sum(sizes) / len(sizes)
     c = sum(ctl) / len(ctl)
+    allowed = round(max(0.0, mean_bps - c) / (8.0 * fb), 2)
     return {
         "mean_bps": round(mean_bps),
         "frame_bytes": round(fb),
         "control_bps": round(c),
-        "allowed_fps": round(max(0.0, mean_bps - c) / (8.0 * fb), 2),
+        "allowed_fps": allowed,
+        "most_fps": most_fps,
+        "within_fps": None if most_fps is None else min(allowed, most_fps),
     }
 
 

@@ -70,6 +70,8 @@ def row_line(r: dict[str, Any]) -> str:
             f"; video allowance {al['allowed_fps']} fps (mean {al['mean_bps'] / 1e6:.2f} Mbit/s, control "
             f"{al['control_bps'] / 1e3:.0f} kbit/s, frames {al['frame_bytes']} B): {r['video_fps'] / al['allowed_fps']:.0%}"
         )
+        if al.get("within_fps"):
+            s += f"; of min(allowance, the {al['most_fps']:g} fps configured): {r['video_fps'] / al['within_fps']:.0%}"
     if "outage" in r:
         o = r["outage"]
         s += (

@@ -172,7 +172,8 @@ class FollowerApp:
         if got is not None and got.msg.role == "leader":
             self.budget.on_leader_status(got.msg.counters, self.node.to_local(got.msg.t), got.msg.sid)
         self.budget.update()
-        self._plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz)  # the loop reads it
+        most = 0.0 if self._video is None else self._video.most_bps()
+        self._plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz, most)  # the loop reads it
         if self._video is not None:
             b = self.budget
             self._video.set_budget(b.video_budget_bps(), b.frame_bits_max(), b.part_bits_max())
@@ -196,8 +197,7 @@ class FollowerApp:
         }
         if self._video is not None:
             video = self._video
-            full = video.max_fps * len(video.cameras) * video.frame_bits(0) if video.period else 0.0
-            out["video_budget_bps"] = round(min(full, 1e9) if vb is None else vb)
+            out["video_budget_bps"] = round(min(video.most_bps(), 1e9) if vb is None else vb)
             out.update(video.counters())
         else:
             out["video_budget_bps"] = 0

@@ -94,8 +94,13 @@ measured control rate minus a margin (``margin`` of the capacity, at least
 ``margin_min_bps``) so that a queue drains; :meth:`UplinkBudget.feedback_plan` says how
 control shrinks while limited (acknowledgements coalesced into the next tick's feedback,
 the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the capacity).
+The periodic feedback comes before video; an acknowledgement sent at once, beyond it, only
+from what video at its most leaves (on a 600 kbit/s token bucket acknowledgements filling
+60 % of the estimate took control from 160 to 320 kbit/s as the probe grew it, and video
+fell to 10 frames/s).
 
 The parts: :class:`~bipedtele.follower.uplinktuning.UplinkTuning` (the parameters),
+:class:`~bipedtele.follower.cutundo.PendingCut` (a first delay cut until judged),
 :class:`~bipedtele.follower.sentlog.SentLog` (what was sent, per 0.1 s) and
 :class:`~bipedtele.follower.queuedelay.QueueDelay` (h2, its minimum, the excess and the
 standing queue); the rules that set the capacity and the budgets derived from it are here.
@@ -106,8 +111,9 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
+from bipedtele.follower.cutundo import PendingCut
 from bipedtele.follower.delivery import DeliveryRate, InFlight
 from bipedtele.follower.feedbackplan import FeedbackPlan, plan_feedback
 from bipedtele.follower.leadersilence import LeaderSilence
@@ -122,17 +128,6 @@ _TUNING = UplinkTuning.names()
 #: The leader's Status counters the budget reads: its receive rate, the feedback's loss and
 #: age, and the echo of the newest follower Status's send stamp (``uplink_t_us``) [us].
 _LEADER_KEYS = ("rx_bps", "fb_loss_ppm", "fb_age_ms", "uplink_t_echo_us")
-
-
-@dataclass
-class _PendingCut:
-    """The first delay cut of a rise, until judged: what to restore, and h2's peak since."""
-
-    capacity_bps: float
-    start_budget_bps: float | None
-    ceiling_bps: float | None
-    t: float  # when it was cut [s]
-    peak_excess_s: float  # h2 above its minimum: at the cut, then the highest since [s]
 
 
 class UplinkBudget:
@@ -179,7 +174,7 @@ class UplinkBudget:
         self.delivery = DeliveryRate(self.tuning.delivery_window_s)
         tu = self.tuning
         self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s, video_queue_s=tu.video_queue_s)
-        self._undo: _PendingCut | None = None
+        self._undo: PendingCut | None = None
         self._last_signal = -math.inf
         self._last_cut = -math.inf
         self._last_rate_cut = -math.inf
@@ -439,23 +434,12 @@ class UplinkBudget:
         A queue of ours drains within about its own delay once less is sent; a rise of the
         path's delay (a route change, a slow swing) does not react to what we send.
         """
-        if self._undo is None:
-            return
         u = self._undo
-        u.peak_excess_s = max(u.peak_excess_s, self._q.excess_s)  # in h2, the leader's 1 s mean, a queue peaks late
-        if now - u.t < max(1.0, 2.0 * u.peak_excess_s):
+        if u is None or not u.judged(now, self._q.excess_s):
             return
         self._undo = None
-        if (
-            self._q.excess_s >= 0.8 * u.peak_excess_s
-            and self._last_rate_cut < u.t
-            and now - self._last_undo >= self.tuning.undo_gap_s
-        ):
-            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = (
-                u.capacity_bps,
-                u.start_budget_bps,
-                u.ceiling_bps,
-            )
+        if u.undo(self._q.excess_s, self._last_rate_cut, now - self._last_undo >= self.tuning.undo_gap_s):
+            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = u.restored
             self._last_signal = -math.inf
             self._last_undo = now
             self.signals["undone"] += 1
@@ -493,7 +477,7 @@ class UplinkBudget:
             cut = min(cut, tu.decrease * self.capacity_bps)
             self._undo = None
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
-            self._undo = _PendingCut(self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, q.excess_s)
+            self._undo = PendingCut(self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, q.excess_s)
         if ref > 0:
             self.ceiling_bps = ref
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, cut))
@@ -575,24 +559,27 @@ class UplinkBudget:
         largest = self.frame_bits_max()
         return None if largest is None else largest * self.tuning.part_s / self.tuning.burst_s
 
-    def feedback_plan(self, rate_hz: float) -> FeedbackPlan:
-        """How to send feedback now, given the configured rate ``rate_hz`` [Hz].
+    def feedback_plan(self, rate_hz: float, video_bps: float = 0.0) -> FeedbackPlan:
+        """How to send feedback now, given the configured rate ``rate_hz`` [Hz] and video's most ``video_bps`` [bit/s].
 
         Every command is acknowledged at once, at ``rate_hz``, while that (the periodic
-        feedback plus one per command received) fits ``control_share`` of the capacity
-        (always once the start is over with the capacity unknown; during the start the
-        acknowledgements ride on the periodic feedback). Otherwise the acknowledgements ride on the next
-        tick's feedback, and the rate is the highest of ``rate_hz``, 25 and 10 Hz that fits.
-        As the capacity is probed back up, the plan returns to full rate.
+        feedback plus one per command received) fits ``control_share`` of the capacity and
+        what video at its most (its top level at its configured rate) leaves of the capacity
+        less the margin (always once the start is over with the capacity unknown; during
+        the start the acknowledgements ride on the periodic feedback). Otherwise the
+        acknowledgements ride on the next tick's feedback, and the rate is the highest of
+        ``rate_hz``, 25 and 10 Hz that fits ``control_share``. As the capacity is probed back
+        up, the plan returns to full rate.
         """
-        tu, cmd_hz, fb_bits = self.tuning, self._q.command_hz(), self._log.fb_bits
+        tu, cmd_hz, fb_bits, cap = self.tuning, self._q.command_hz(), self._log.fb_bits, self.capacity_bps
         plan = plan_feedback(
             rate_hz,
-            tu.control_share * self.capacity_bps,
+            tu.control_share * cap,
             cmd_hz,
             fb_bits,
             start=self.start_budget_bps is not None,
             stall_hz=tu.stall_fb_hz if self.stalled else None,
+            ack_room_bps=cap - max(tu.margin * cap, tu.margin_min_bps) - video_bps if math.isfinite(cap) else math.inf,
         )
         self._plan_bps = plan.control_bps(cmd_hz, fb_bits)
         return plan

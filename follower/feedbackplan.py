@@ -56,6 +56,7 @@ def plan_feedback(
     *,
     start: bool = False,
     stall_hz: float | None = None,
+    ack_room_bps: float = math.inf,
 ) -> FeedbackPlan:
     """How to send feedback now (:meth:`bipedtele.follower.capacity.UplinkBudget.feedback_plan` explains the rule).
 
@@ -71,6 +72,11 @@ def plan_feedback(
         The path is not known yet: acknowledgements ride on the periodic feedback.
     stall_hz : float, optional
         The path is stalled: the newest only, at most this often [Hz].
+    ack_room_bps : float, optional
+        What feedback beyond the periodic rate (acknowledgements sent at once) may use
+        [bit/s]: what video at its most leaves of the capacity (default: no bound but
+        ``fits_bps``). The periodic feedback keeps priority over video; an acknowledgement
+        sent at once instead of on the next periodic feedback does not.
     """
     if stall_hz is not None:
         hz = min(rate_hz, stall_hz)
@@ -79,13 +85,13 @@ def plan_feedback(
         # the path is not known yet: acknowledgements ride on the periodic feedback (an
         # acknowledgement per command doubles control's rate)
         return FeedbackPlan(False, rate_hz, 1.0 / rate_hz if rate_hz > 0 else 0.0)
-    if not math.isfinite(fits_bps) or (rate_hz + command_hz) * feedback_bits <= fits_bps:
+    if not math.isfinite(fits_bps):
         return FeedbackPlan(True, rate_hz)
+    acks_bps = min(fits_bps, ack_room_bps)
+    if (rate_hz + command_hz) * feedback_bits <= acks_bps:
+        return FeedbackPlan(True, rate_hz)
+    hz = next((h for h in (rate_hz, 25.0, 10.0) if h <= rate_hz and h * feedback_bits <= fits_bps), min(rate_hz, 10.0))
     # the feedback rate the path carries: acknowledgements fill what the periodic
-    # feedback leaves (no step from "every command" to "none" as the capacity moves)
-    total_hz = fits_bps / feedback_bits if feedback_bits > 0 else rate_hz
-    min_interval = 1.0 / total_hz if total_hz > 0 else math.inf
-    for hz in (rate_hz, 25.0, 10.0):
-        if hz <= rate_hz and hz * feedback_bits <= fits_bps:
-            return FeedbackPlan(False, hz, min_interval)
-    return FeedbackPlan(False, min(rate_hz, 10.0), min_interval)
+    # feedback leaves of it (no step from "every command" to "none" as the capacity moves)
+    total_hz = max(hz, acks_bps / feedback_bits) if feedback_bits > 0 else hz
+    return FeedbackPlan(False, hz, 1.0 / total_hz if total_hz > 0 else math.inf)

@@ -327,6 +327,10 @@ class VideoStreamer:
             return bits * LEVELS[level][2] / LEVELS[ref][2]
         return 8.0 * 12_000 * LEVELS[level][2]  # a QVGA frame at quality 80: about 12 kB
 
+    def most_bps(self) -> float:
+        """Return what video sends at its most [bit/s]: every camera at the configured rate at the top level (0 when off)."""
+        return self.max_fps * len(self.cameras) * self.frame_bits(0) if self.period else 0.0
+
     def _choose(self) -> None:
         """Pick the level and frame rate that fit the budget (see the module docstring)."""
         budget = self._budget

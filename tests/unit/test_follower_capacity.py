@@ -306,6 +306,30 @@ def test_video_leaves_control_what_the_feedback_plan_sends_not_its_2_s_mean() ->
     assert vb is not None and vb <= 1_000_000.0 - 0.98 * planned - 100_000.0, vb
 
 
+def test_acknowledgements_at_once_take_only_what_video_at_its_most_leaves() -> None:
+    """An acknowledgement sent at once, beyond the periodic feedback, comes after video: on
+    a 600 kbit/s token bucket the coalesced plan's acknowledgements filled 60 % of the
+    estimate (control 160 -> 320 kbit/s as the probe grew it), video's budget fell to 10
+    frames/s and the step queued the feedback. The periodic feedback keeps priority."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+    b.start_budget_bps, b.capacity_bps = None, 700_000.0  # past the start, the path known
+
+    def each(k: int) -> None:  # a command every 10 ms, a 380-byte feedback every 20 ms
+        b.on_h2(0.05)
+        if k % 2 == 0:
+            b.sent(380, feedback=True)
+
+    _ticks(b, t, 300, each)
+    alone = b.feedback_plan(50.0)  # no video: acknowledgements fill 60 % of the estimate
+    assert not alone.ack_each_command and alone.min_interval_s < 0.01, alone
+    plan = b.feedback_plan(50.0, video_bps=500_000.0)  # 2 cameras x 10 frames/s x 3.1 kB
+    assert plan.rate_hz == 50.0 and plan.min_interval_s == pytest.approx(0.02), plan
+    assert b.video_budget_bps() == pytest.approx(700_000.0 - 50 * 3040.0 - 70_000.0, rel=0.03)
+    b.capacity_bps = 1_200_000.0  # room for both: every command acknowledged at once again
+    assert b.feedback_plan(50.0, video_bps=464_000.0).ack_each_command
+
+
 def _step_under_loss(loss_ppm: int) -> tuple[float, float, dict[str, int]]:
     """A path whose delay steps +120 ms at 30 s and back at 33 s, as the leader's 1 s mean
     shows it (a ramp over 1 s), TCP's video arriving at 60 % of what is sent when loss
