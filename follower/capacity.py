@@ -21,27 +21,27 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   which h2 has not fallen (by a fifth) below its peak since the cut within
   ``max(1 s, 2 peak)``, with no rate signal and no second cut since, is undone (at most
   once in ``undo_gap_s``, 5 s): a queue of ours drains once less is sent, a rise of the
-  path's own delay does not. The peak, not the excess at the cut: h2 is the leader's 1 s
-  mean, in which a queue goes on rising for up to a second after the cut (measured
-  against the excess at the cut, 2 runs in 4 at 300 kbit/s undid every cut, giving video
-  back its start budget, and queued 0.4-0.5 s again and again). A rise that lasts
-  ``relearn_s`` without falling is the path's own (a slow delay swing, a new route): the h2
-  minimum is taken again from the current h2. The shipped intercontinental trace's h2
-  varies 129-260 ms, with one 3 s step of +80 ms (one cut, undone when h2 does not fall); a
-  queue of ours at a 300 kbit/s cap passes 50 ms within a quarter of a second. At 80 ms a
-  40 ms queue stood through the start on a 600 kbit/s uplink and the first cut came late.
+  path's own delay does not (:class:`~bipedtele.follower.cutundo.PendingCut`). A rise that
+  lasts ``relearn_s`` without falling is the path's own (a slow delay swing, a new route):
+  the h2 minimum is taken again from the current h2.
+- **echo rule.** Each command echoes the newest feedback's send and receive stamps
+  (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): video waits while the feedback's
+  one-way delay is more than ``owd_queue_s`` (30 ms) above its minimum, and a queue that
+  drained once it waited was ours: the capacity is cut to ``drain_ratio`` of the least of
+  what was sent and what the leader received (not on a lossy path, not in a stall or just
+  after a silence). The delay rule sees a queue through the leader's 1 s mean of h2, about
+  0.75 s late: on a 600 kbit/s token bucket each probe past its rate queued the feedback
+  50-165 ms for one to two seconds first.
 - **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
   the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
   (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
   by ``ceiling_probe`` (0.5 %) only past ``drain_ratio`` of what the path carried at the
-  last cut: a sawtooth at 3 %/s against a known ceiling held 150-230 ms queues on a 600
-  kbit/s uplink, and at twice what is sent the estimate grew 30 % over a 600 kbit/s bucket.
+  last cut (docs/follower.md: what each bound prevented).
 - **standing queue.** h2 more than ``queue_target_s`` (15 ms) above its minimum over
   ``base_window_s`` (60 s): no probing (the probe slows as h2 nears the target), and with a
   ceiling from a cut the capacity steps down by ``queue_decrease`` (5 %) of itself per
   second, not below 0.8 x the ceiling. The delay rule's 10 s minimum takes in a queue that
-  stands longer: at 600 kbit/s with video the slow probe past the ceiling crept on while its
-  queue stood 20-45 ms, and the feedback's p99 stood 80-100 ms above video off.
+  stands longer.
 
 Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while commands
@@ -50,19 +50,14 @@ bring an h2 near its minimum and the budget is less than twice what is sent, up 
 taken as 1.2 x the most that was sent in it with h2 clear, and probed); acknowledgements
 ride on the periodic feedback until then. h2 is the leader's 1 s moving average, so a
 queue shows about 0.75 s late: the growth overshoots a capacity by at most about a fifth
-before the first cut (x1.6 a second overshot by 40 % and queued 0.3-0.4 s at 300 kbit/s;
-a full-rate start, QVGA video and an acknowledgement per command, 0.6-0.8 Mbit/s, queued
-0.5-1 s).
+before the first cut (the echo rule sees it sooner).
 
 Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
 a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more, the rate rule
 does not judge: video on TCP slowed by loss arrives below what was sent whatever the path
 carries, and the delay rule alone judges a lossy path (a step of the path's own delay by
 its cut's undo). Under 1-5 % loss on the intercontinental trace the rate rule had cut the
-budget to 330-360 kbit/s in half the runs; judged only while h2 rose (0.1 s/s), and then
-only after the delay rule's cut, it still cut on the trace's +80 ms step at 1 % loss (the
-leader's 1 s mean goes on rising for a second after the cut), set the ceiling at the
-loss-slowed rate and held video at 9.9 and 7.8 frames/s against 16.0 without loss.
+budget to 330-360 kbit/s in half the runs (docs/follower.md).
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
@@ -70,12 +65,10 @@ loss-slowed rate and held video at 9.9 and 7.8 frames/s against 16.0 without los
   is still in flight (nothing sent: the follower's own pacing; a stall fed itself). Video
   pauses (budget 0) and the feedback drops to ``stall_fb_hz`` (5 Hz, the newest only), so
   the follower adds nearly nothing to the path's queue (what it sent before the stall
-  showed still waits there). No rule cuts during it,
-  and when it ends the capacity restarts from what the path delivered before it
-  (:class:`~bipedtele.follower.delivery.DeliveryRate`: the highest ``rx_bps`` of the last
-  ``delivery_window_s`` of delivering time), not from the collapse: the rules had cut a
-  cellular uplink to 4-43 kbit/s at its first gap and probed back at 0.5 %/s.
-  A leader back from a silence is not taken for a stall
+  showed still waits there). No rule cuts during it, and when it ends the capacity
+  restarts from what the path delivered before it (:class:`~bipedtele.follower.delivery.DeliveryRate`:
+  the highest ``rx_bps`` of the last ``delivery_window_s`` of delivering time), not from the
+  collapse. A leader back from a silence is not taken for a stall
   (:class:`~bipedtele.follower.leadersilence.LeaderSilence`).
 - **in flight.** What was sent after the newest feedback the leader acknowledged (its
   Status: ``fb_age_ms``) is in flight; it is capped at about twice the bandwidth-delay
@@ -95,9 +88,7 @@ measured control rate minus a margin (``margin`` of the capacity, at least
 control shrinks while limited (acknowledgements coalesced into the next tick's feedback,
 the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the capacity).
 The periodic feedback comes before video; an acknowledgement sent at once, beyond it, only
-from what video at its most leaves (on a 600 kbit/s token bucket acknowledgements filling
-60 % of the estimate took control from 160 to 320 kbit/s as the probe grew it, and video
-fell to 10 frames/s).
+from what video at its most leaves (docs/follower.md).
 
 The parts: :class:`~bipedtele.follower.uplinktuning.UplinkTuning` (the parameters),
 :class:`~bipedtele.follower.cutundo.PendingCut` (a first delay cut until judged),
@@ -110,13 +101,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 from bipedtele.follower.cutundo import PendingCut
 from bipedtele.follower.delivery import DeliveryRate, InFlight
 from bipedtele.follower.feedbackplan import FeedbackPlan, plan_feedback
 from bipedtele.follower.leadersilence import LeaderSilence
+from bipedtele.follower.owdqueue import OneWayQueue
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -170,10 +162,12 @@ class UplinkBudget:
         self._start_peak_bps = 0.0  # the most sent in the start with h2 clear [bit/s]
         self.ceiling_bps: float | None = None
         self.leader: dict[str, int] = {}
-        self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0}
+        self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0, "echo": 0}
         self.delivery = DeliveryRate(self.tuning.delivery_window_s)
         tu = self.tuning
         self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s, video_queue_s=tu.video_queue_s)
+        self.owd = OneWayQueue(tu.owd_queue_s)
+        self._owd_drained = 0  # the echo rule's queues of ours judged so far
         self._undo: PendingCut | None = None
         self._last_signal = -math.inf
         self._last_cut = -math.inf
@@ -236,6 +230,10 @@ class UplinkBudget:
             return
         if self._q.add(self._clock(), h2_s):
             self.signals["relearn"] += 1
+
+    def on_echo(self, echo: Sequence[float]) -> None:
+        """Feed a command's echo of the newest feedback: its send stamp [s, ours] and receive time [s, the leader's]."""
+        self.owd.echo(self._clock(), float(echo[0]), float(echo[1]))
 
     def on_leader_status(
         self, counters: Mapping[str, int], t_sent: float | None = None, sid: int | None = None
@@ -354,6 +352,7 @@ class UplinkBudget:
             self.inflight.reset()  # nobody acknowledges: the leader left, or the whole path is down
             self._silence.released(max(self._last_heard, self._last_cmd))
         self._delay_rule(now)
+        self._echo_rule(now)
         self._check_cut(now)
         tx = self._log.rate(now - tu.window_s, now)  # what is sent [bit/s], read once
         if math.isfinite(self.capacity_bps) and self._undo is None:
@@ -444,6 +443,25 @@ class UplinkBudget:
             self._last_undo = now
             self.signals["undone"] += 1
 
+    def _echo_rule(self, now: float) -> None:
+        """Cut the capacity when a queue of ours drained once video waited (see the module docstring)."""
+        tu, drained = self.tuning, self.owd.drained
+        if drained == self._owd_drained:
+            return
+        self._owd_drained = drained
+        # as the delay rule: not without a leader status, just after a silence, in a stall; and
+        # not on a lossy path (a lost feedback's retransmission is no queue: loss never cuts)
+        lossy = self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm
+        if now - self._last_heard > tu.status_timeout_s or now < self._q.quiet_until or self.stalled or lossy:
+            return
+        rx, ref = self.leader.get("rx_bps"), self._log.rate(now - tu.window_s, now)
+        if (ref := min(ref, float(rx)) if rx else ref) <= 0:
+            return
+        self.signals["echo"] += 1
+        self.ceiling_bps = ref
+        self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, tu.drain_ratio * ref))
+        self._last_signal = now
+
     def _delay_rule(self, now: float) -> None:
         """Cut the capacity when a queue of ours is building (see the module docstring)."""
         tu, q = self.tuning, self._q
@@ -488,21 +506,18 @@ class UplinkBudget:
     # ------------------------------------------------------------------ outputs
 
     def admit_video(self, nbytes: int) -> bool:
-        """Say whether a video message of ``nbytes`` [bytes] may leave now (the in-flight cap and the queue it saw)."""
+        """Say whether a video message of ``nbytes`` [bytes] may leave now (the one-way queue, the in-flight cap and the queue it saw)."""
+        if self.owd.closed(self._clock()):
+            self.owd.held += 1
+            return False
         return self.inflight.admit_video(nbytes, self._clock())
 
     def inflight_counters(self) -> dict[str, int]:
-        """Return the in-flight figures for the Status: bytes in flight, the cap [bytes] (0: open), what was held, control's rate [bit/s]."""
-        f = self.inflight
-        cap = f.cap_bytes
+        """Return the uplink's figures for the Status: in flight (:meth:`InFlight.counters`), the one-way queue, control's rate [bit/s]."""
         return {
-            "uplink_inflight_bytes": f.bytes,
-            "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
-            "uplink_held_feedback": f.held["feedback"],
-            "uplink_held_video": f.held["video"],
-            "uplink_probes": f.held["probes"],
+            **self.inflight.counters(),
+            **self.owd.counters(),
             "uplink_tx_control_bps": round(self.tx_bps("control")),
-            "uplink_queue_ms": round(1000.0 * f.queue_s),
         }
 
     def tx_bps(self, which: str | None = None) -> float:

@@ -383,3 +383,15 @@ class InFlight:
             with self._lock:
                 self.held["video"] += 1
         return ok
+
+    def counters(self) -> dict[str, int]:
+        """Return the Status figures: bytes in flight, the cap [bytes] (0: open), what was held, the round trip's queue [ms]."""
+        cap = self.cap_bytes
+        return {
+            "uplink_inflight_bytes": self.bytes,
+            "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
+            "uplink_held_feedback": self.held["feedback"],
+            "uplink_held_video": self.held["video"],
+            "uplink_probes": self.held["probes"],
+            "uplink_queue_ms": round(1000.0 * self.queue_s),
+        }

@@ -103,6 +103,10 @@ class UplinkTuning:
         [s] above its minimum (the path's queue, one status period late).
     delivery_window_s : float
         The delivery rate's maximum is kept this long [s] of time the path delivered.
+    owd_queue_s : float
+        Video waits while the feedback's one-way delay, echoed by each command, is this
+        much [s] above its minimum (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): with
+        a video part holding the path at most ``part_s``, the feedback waits under 50 ms.
     lossy_ppm : float
         With the leader's feedback loss at or above this [ppm], the rate rule does not
         judge (TCP's video slowed by loss arrives below what was sent whatever the path
@@ -150,6 +154,7 @@ class UplinkTuning:
     inflight_release_s: float = 0.5
     video_queue_s: float = 0.05
     lossy_ppm: float = 1000.0
+    owd_queue_s: float = 0.03
 
     def __post_init__(self) -> None:
         for f in fields(self):  # ints given (4000) are kept as floats, as the budget computes

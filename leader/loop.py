@@ -57,7 +57,7 @@ from bipedtele.leader.device import LeaderDevice
 from bipedtele.leader.operator import Operator
 from bipedtele.link.delayestimate import conservative_delays
 from bipedtele.link.inbox import FeedbackInbox
-from bipedtele.link.messages import Command, Feedback, new_session_id
+from bipedtele.link.messages import MAX_TIME, MIN_TIME, Command, Feedback, new_session_id
 from bipedtele.pacer import Pacer, PeriodStats, realtime_scheduling, set_timer_slack
 from bipedtele.telemetry import LeaderSample
 
@@ -219,6 +219,13 @@ class LeaderLoop:
         if got is not None:
             self._fb, self._fb_recv = got.msg, got.t_recv
 
+    def _fb_echo(self) -> list[float] | None:
+        """Return the newest feedback's send stamp and receive time [s], for the follower's queue signal (None: none yet)."""
+        if self._fb is None:
+            return None
+        echo = [float(self._fb.t), float(self._fb_recv)]
+        return echo if all(MIN_TIME <= v <= MAX_TIME for v in echo) else None
+
     def _delays(self, now: float) -> tuple[float, float]:
         self.h2 = self.inbox.h2.value(now)
         self.h1 = self._fb.h1_s if self._fb is not None else None
@@ -345,6 +352,7 @@ class LeaderLoop:
             energy=energy,
             operator=self.operator_name,
             release=hand_off,
+            fb_echo=self._fb_echo(),
         )
         try:
             self._send(cmd)

@@ -126,6 +126,7 @@ Energy: TypeAlias = Annotated[float, Meta(ge=0.0, le=MAX_ENERGY)]
 Waves: TypeAlias = Annotated[list[Wave], PAIR]
 Energies: TypeAlias = Annotated[list[Energy], PAIR]
 Pose: TypeAlias = Annotated[list[Position], Meta(min_length=3, max_length=3)]
+Stamps: TypeAlias = Annotated[list[Time], PAIR]
 Text: TypeAlias = Annotated[str, Meta(max_length=MAX_TEXT)]
 #: An operator's name: its router login (``[network] user``); empty: none given.
 OperatorName: TypeAlias = Annotated[str, Meta(max_length=64, pattern=r"^[A-Za-z0-9_-]*$")]
@@ -198,6 +199,11 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
     release : bool
         True: the operator gives the robot up (with ``enable`` False): another operator
         may take it. A leader sends it when released in the cockpit and when it exits.
+    fb_echo : [float, float] or None
+        The newest Feedback the leader took: its send stamp ``t`` (the follower's clock)
+        and when the leader received it (the leader's clock) [s]; None before the first.
+        Their difference is the feedback's one-way delay plus the clocks' offset: the
+        follower reads its rise, a queue in its uplink (follower/owdqueue.py).
     """
 
     KIND: ClassVar[str] = "cmd"
@@ -211,6 +217,7 @@ class Command(Message, frozen=True, gc=False, tag="cmd"):
     energy: Energies | None = None
     operator: OperatorName = ""
     release: bool = False
+    fb_echo: Stamps | None = None
 
 
 class Feedback(Message, frozen=True, gc=False, tag="fb"):

@@ -1,0 +1,119 @@
+"""The feedback's one-way delay above its minimum, from each command's echo: a queue of ours, seen fast.
+
+Each Command echoes the newest Feedback the leader took: its send stamp (the follower's
+clock) and when the leader received it (the leader's clock), ``Command.fb_echo``. Their
+difference is the feedback's one-way delay plus the two clocks' offset; the offset cancels
+in its rise over its minimum (LEDBAT's one-way delay signal, no clock sync needed). That
+rise is a queue in the uplink, seen one command after the feedback that met it: about h2 +
+h1 late, where the leader's h2 (a 1 s mean) shows it about 0.75 s late and its Status's
+round trip up to a status period (0.5 s) late. On a 600 kbit/s token bucket each probe past
+the bucket's rate queued the feedback 50-165 ms for one to two seconds before either saw it.
+
+:class:`OneWayQueue` closes a valve while that queue exceeds ``queue_max_s``: video waits
+(:meth:`~bipedtele.follower.capacity.UplinkBudget.admit_video`), so that the feedback
+behind it waits about that long at most, plus one video part (``part_s`` at the path's
+rate). A rise that does not drain within a round trip (plus ``settle_s``) after video
+stopped is the path's own delay (a route's step, a slow swing): the minimum is taken
+again from it (**rebase**) and the valve opens. A queue of ours drains once video stops
+(**drained**: the path carries less than was sent, and the budget cuts its estimate).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from bipedtele.follower.backlog import WindowMin
+
+__all__ = ["OneWayQueue"]
+
+
+class OneWayQueue:
+    """The uplink's queue from the echoed feedback's one-way delay, and the valve it closes for video.
+
+    Parameters
+    ----------
+    queue_max_s : float
+        Video waits while the queue exceeds this [s].
+    window_s : float
+        Window of the one-way delay's minimum [s].
+    settle_s : float
+        A queue that has not drained this long [s] after a round trip since the valve
+        closed is the path's own delay: rebased.
+    fresh_s : float
+        An echo older than this [s] closes nothing (no command came: nothing to judge).
+
+    Attributes
+    ----------
+    queue_s : float
+        The one-way delay above its minimum [s] (the least of the last three samples).
+    at : float
+        When the last new sample came [s].
+    held : int
+        Video messages the valve held back.
+    rebased : int
+        Rises taken for the path's own delay.
+    drained : int
+        Rises that drained once video waited: queues of ours (the budget cuts on each).
+    """
+
+    def __init__(
+        self, queue_max_s: float = 0.03, window_s: float = 10.0, settle_s: float = 0.2, fresh_s: float = 1.0
+    ) -> None:
+        for name, v in (("queue_max_s", queue_max_s), ("window_s", window_s), ("settle_s", settle_s)):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
+        self.queue_max_s, self.settle_s, self.fresh_s = float(queue_max_s), float(settle_s), float(fresh_s)
+        self._min = WindowMin(window_s)
+        self._recent: deque[float] = deque(maxlen=3)
+        self._last_sent = -math.inf
+        self._closed_at: float | None = None
+        self._settle_until = math.inf
+        self.queue_s = 0.0
+        self.at = -math.inf
+        self.held = 0
+        self.rebased = 0
+        self.drained = 0
+
+    def echo(self, now: float, t_sent: float, t_recv: float) -> None:
+        """Take a command's echo at ``now`` [s]: the newest feedback's send stamp [s, ours] and receive time [s, the leader's].
+
+        The same feedback echoed again (no newer one arrived) is no new sample.
+        """
+        if not (math.isfinite(t_sent) and math.isfinite(t_recv)) or t_sent <= self._last_sent:
+            return
+        self._last_sent = t_sent
+        owd = t_recv - t_sent  # the one-way delay plus the clocks' offset
+        self._min.add(now, owd)
+        self._recent.append(owd)
+        self.at = now
+        base = self._min.value(now)
+        self.queue_s = max(0.0, min(self._recent) - (owd if base is None else base))
+        if self.queue_s <= self.queue_max_s:
+            if self._closed_at is not None:  # it drained once video waited: a queue of ours
+                self.drained += 1
+            self._closed_at = None
+            return
+        if self._closed_at is None:  # video waits from now; a queue of ours shows drained a round trip later
+            self._closed_at = now
+            self._settle_until = now + max(0.0, now - t_sent) + self.settle_s
+            return
+        if now > self._settle_until:  # it did not drain: the path's own delay rose
+            self._min.clear()
+            self._min.add(now, min(self._recent))
+            self.queue_s = 0.0
+            self._closed_at = None
+            self.rebased += 1
+
+    def closed(self, now: float) -> bool:
+        """Say whether video waits at ``now`` [s]: the queue is over ``queue_max_s`` and the echo is fresh."""
+        return self._closed_at is not None and now - self.at < self.fresh_s
+
+    def counters(self) -> dict[str, int]:
+        """Return the Status figures: the queue [ms], video held, rises rebased, queues of ours drained."""
+        return {
+            "uplink_owd_ms": round(1000.0 * self.queue_s),
+            "uplink_owd_held": self.held,
+            "uplink_rebased": self.rebased,
+            "uplink_owd_drained": self.drained,
+        }

@@ -1,0 +1,78 @@
+"""OneWayQueue (follower/owdqueue.py): the echoed feedback's one-way delay, its queue and video's valve.
+
+Simulated time: an echo every 10 ms (a command at 100 Hz), the feedback sent 20 ms
+before it arrived at the leader plus whatever queue the test puts in its way; the two
+clocks apart by an offset that must cancel.
+"""
+
+from __future__ import annotations
+
+import pytest
+from bipedtele.follower.capacity import UplinkBudget
+from bipedtele.follower.owdqueue import OneWayQueue
+
+pytestmark = pytest.mark.timeout(30)
+
+OFFSET_S = 5_000.0  # the leader's clock ahead of the follower's [s]
+
+
+def _feed(q: OneWayQueue, t0: float, seconds: float, delay_s: float | None = None, *, queue=None) -> float:
+    """Echo a feedback every 10 ms from ``t0`` [s] for ``seconds``; its one-way delay ``delay_s`` or ``queue(t)``."""
+    t = t0
+    for _ in range(round(seconds / 0.01)):
+        d = delay_s if queue is None else 0.02 + queue(t)
+        sent = t - 0.03 - d  # it reached the leader d later, the echo came 30 ms after that
+        q.echo(t, sent, sent + d + OFFSET_S)
+        t += 0.01
+    return t
+
+
+def test_a_queue_of_ours_closes_the_valve_until_it_drains() -> None:
+    q = OneWayQueue(queue_max_s=0.03)
+    t = _feed(q, 100.0, 2.0, 0.02)
+    assert q.queue_s == pytest.approx(0.0, abs=1e-9) and not q.closed(t)
+    t = _feed(q, t, 0.1, 0.07)  # 50 ms of queue
+    assert q.closed(t) and q.queue_s == pytest.approx(0.05)
+    t = _feed(q, t, 0.1, 0.03)  # video waited: it drained
+    assert not q.closed(t) and q.rebased == 0
+
+
+def test_a_rise_of_the_paths_own_delay_is_rebased_after_a_round_trip() -> None:
+    """A step of +80 ms that does not drain once video waits: video resumes a round trip
+    (here 30 ms + the delay) plus 0.2 s later, and the new delay is the minimum."""
+    q = OneWayQueue(queue_max_s=0.03, settle_s=0.2)
+    t = _feed(q, 100.0, 2.0, 0.02)
+    t1 = _feed(q, t, 0.2, 0.1)
+    assert q.closed(t1) and q.rebased == 0
+    t2 = _feed(q, t1, 0.3, 0.1)
+    assert not q.closed(t2) and q.rebased == 1 and q.queue_s == 0.0
+    _feed(q, t2, 0.5, 0.12)  # 20 ms above the new minimum: open
+    assert q.queue_s == pytest.approx(0.02) and q.rebased == 1
+
+
+def test_the_same_echo_again_is_no_sample_and_an_old_one_closes_nothing() -> None:
+    q = OneWayQueue(queue_max_s=0.03)
+    t = _feed(q, 100.0, 1.0, 0.02)
+    q.echo(t, t - 0.02, t + 0.08 + OFFSET_S)  # 100 ms on its way: 80 ms above the minimum
+    q.echo(t + 0.01, t - 0.02, t + 0.08 + OFFSET_S)  # the same again: no sample
+    q.echo(t + 0.02, t - 0.01, t + 0.09 + OFFSET_S)
+    assert not q.closed(t + 0.02)  # two samples: the least of the last three is still low
+    q.echo(t + 0.03, t, t + 0.1 + OFFSET_S)
+    assert q.closed(t + 0.03)
+    assert not q.closed(t + 1.1)  # no command for a second: nothing to judge video by
+
+
+def test_bad_parameters_are_refused() -> None:
+    with pytest.raises(ValueError, match="queue_max_s"):
+        OneWayQueue(queue_max_s=0.0)
+
+
+def test_the_budget_holds_video_while_the_valve_is_closed() -> None:
+    t = [100.0]
+    b = UplinkBudget(lambda: t[0])
+    assert b.admit_video(1000)
+    for d in (0.02, 0.02, 0.02, 0.09, 0.09, 0.09):
+        t[0] += 0.01
+        b.on_echo((t[0] - 0.2, t[0] - 0.2 + d + OFFSET_S))
+    assert not b.admit_video(1000) and b.owd.held == 1
+    assert b.inflight_counters()["uplink_owd_ms"] == 70
