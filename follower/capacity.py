@@ -53,11 +53,10 @@ queue shows about 0.75 s late: the growth overshoots a capacity by at most about
 before the first cut (the echo rule sees it sooner).
 
 Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
-a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more, the rate rule
-does not judge: video on TCP slowed by loss arrives below what was sent whatever the path
-carries, and the delay rule alone judges a lossy path (a step of the path's own delay by
-its cut's undo). Under 1-5 % loss on the intercontinental trace the rate rule had cut the
-budget to 330-360 kbit/s in half the runs (docs/follower.md).
+a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more in a Status
+within ``lossy_hold_s`` (30 s), neither the rate nor the echo rule judges: video on TCP
+slowed by loss arrives below what was sent whatever the path carries, and the delay rule
+alone judges a lossy path (a step of the path's own delay by its cut's undo).
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
@@ -68,15 +67,10 @@ budget to 330-360 kbit/s in half the runs (docs/follower.md).
   showed still waits there). No rule cuts during it, and when it ends the capacity
   restarts from what the path delivered before it (:class:`~bipedtele.follower.delivery.DeliveryRate`:
   the highest ``rx_bps`` of the last ``delivery_window_s`` of delivering time), not from the
-  collapse. A leader back from a silence is not taken for a stall
-  (:class:`~bipedtele.follower.leadersilence.LeaderSilence`).
-- **in flight.** What was sent after the newest feedback the leader acknowledged (its
-  Status: ``fb_age_ms``) is in flight; it is capped at about twice the bandwidth-delay
-  product (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd). Over the cap video
-  waits and feedback and status are held (a probe only after ``probe_s`` without an
-  acknowledgement advancing, backing off), so when the path stops delivering the follower
-  stops adding to its queue within about a round trip plus the leader's status period,
-  before the stall above is judged; the acknowledgement of what was in flight reopens it.
+  collapse. A leader back from a silence is no stall (``leadersilence``).
+- **in flight.** What was sent after the newest feedback the leader acknowledged is in
+  flight, capped at about twice the bandwidth-delay product (:class:`~bipedtele.follower.delivery.InFlight`,
+  BBR's cwnd): when the path stops delivering, the follower stops adding to its queue.
 - **recovery.** With a ceiling under half that delivered rate (set in a dip) and h2
   clear, the capacity grows by ``start_growth`` (x1.3) a second up to ``drain_ratio`` of
   it, the ceiling with it: a dip of the path's capacity is not a new ceiling. (A token
@@ -180,6 +174,7 @@ class UplinkBudget:
         self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
         self._plan_bps = 0.0  # the feedback rate of the last plan [bit/s]
+        self._lossy_until = -math.inf  # lossy until then (see lossy_hold_s)
 
     def __getattr__(self, name: str) -> float:
         """Read a tuning parameter as the budget's attribute (``budget.hold_s``)."""
@@ -261,6 +256,8 @@ class UplinkBudget:
             k: v for k, v in counters.items() if k in _LEADER_KEYS and isinstance(v, int) and not isinstance(v, bool)
         }
         self._silence.heard(now)
+        if self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm:  # TCP's video slowed by loss arrives below tx
+            self._lossy_until = now + tu.lossy_hold_s
         age_ms = self.leader.get("fb_age_ms")
         self._silence.on_status(now, None if age_ms is None else age_ms / 1000.0, self._q.floor_s or 0.0)
         self._last_heard = now
@@ -285,8 +282,7 @@ class UplinkBudget:
         # misalignment (traffic sent before the leader listened, a step of the video rate)
         # or loss, not the path's capacity; on a lossy path the delay rule alone judges
         queued = self._q.excess_s >= 0.5 * tu.delay_rise_s
-        lossy = self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm  # rx below tx: TCP slowed by loss
-        rate_limited = queued and not lossy and tx >= tu.min_tx_bps and rx < tu.ratio * tx
+        rate_limited = queued and not self.lossy and tx >= tu.min_tx_bps and rx < tu.ratio * tx
         if rate_limited:
             self.signals["rate"] += 1
             episode = now - self._last_signal < tu.hold_s
@@ -299,6 +295,11 @@ class UplinkBudget:
             elif ts - h2 - tu.window_s >= self._last_cut:  # still over, judged on a window sent after the cut
                 self.capacity_bps = max(tu.floor_bps, tu.decrease * float(rx))
                 self._last_cut = now
+
+    @property
+    def lossy(self) -> bool:
+        """True while a leader Status showed feedback loss within ``lossy_hold_s``: only the delay rule judges."""
+        return self._clock() < self._lossy_until
 
     @property
     def stalled(self) -> bool:
@@ -451,8 +452,7 @@ class UplinkBudget:
         self._owd_drained = drained
         # as the delay rule: not without a leader status, just after a silence, in a stall; and
         # not on a lossy path (a lost feedback's retransmission is no queue: loss never cuts)
-        lossy = self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm
-        if now - self._last_heard > tu.status_timeout_s or now < self._q.quiet_until or self.stalled or lossy:
+        if now - self._last_heard > tu.status_timeout_s or now < self._q.quiet_until or self.stalled or self.lossy:
             return
         rx, ref = self.leader.get("rx_bps"), self._log.rate(now - tu.window_s, now)
         if (ref := min(ref, float(rx)) if rx else ref) <= 0:

@@ -15,7 +15,10 @@ behind it waits about that long at most, plus one video part (``part_s`` at the 
 rate). A rise that does not drain within a round trip (plus ``settle_s``) after video
 stopped is the path's own delay (a route's step, a slow swing): the minimum is taken
 again from it (**rebase**) and the valve opens. A queue of ours drains once video stops
-(**drained**: the path carries less than was sent, and the budget cuts its estimate).
+(**drained**: the path carries less than was sent, and the budget cuts its estimate); one
+that drained while the valve held no video drained by itself (a burst of the path's, a
+short dip of a cellular link's capacity) and proves nothing: on the LTE row such spikes
+cut the estimate five times in 90 s, 622 -> 309 kbit/s, each one probed back slowly.
 """
 
 from __future__ import annotations
@@ -54,7 +57,10 @@ class OneWayQueue:
     rebased : int
         Rises taken for the path's own delay.
     drained : int
-        Rises that drained once video waited: queues of ours (the budget cuts on each).
+        Rises that drained once video waited (the valve held some): queues of ours (the
+        budget cuts on each).
+    passed : int
+        Rises that drained while the valve held no video: not judged.
     """
 
     def __init__(
@@ -74,6 +80,8 @@ class OneWayQueue:
         self.held = 0
         self.rebased = 0
         self.drained = 0
+        self.passed = 0
+        self._held_at_close = 0
 
     def echo(self, now: float, t_sent: float, t_recv: float) -> None:
         """Take a command's echo at ``now`` [s]: the newest feedback's send stamp [s, ours] and receive time [s, the leader's].
@@ -90,12 +98,14 @@ class OneWayQueue:
         base = self._min.value(now)
         self.queue_s = max(0.0, min(self._recent) - (owd if base is None else base))
         if self.queue_s <= self.queue_max_s:
-            if self._closed_at is not None:  # it drained once video waited: a queue of ours
-                self.drained += 1
+            if self._closed_at is not None and self.held > self._held_at_close:
+                self.drained += 1  # it drained once video waited: a queue of ours
+            elif self._closed_at is not None:
+                self.passed += 1  # it drained with no video held: by itself
             self._closed_at = None
             return
         if self._closed_at is None:  # video waits from now; a queue of ours shows drained a round trip later
-            self._closed_at = now
+            self._closed_at, self._held_at_close = now, self.held
             self._settle_until = now + max(0.0, now - t_sent) + self.settle_s
             return
         if now > self._settle_until:  # it did not drain: the path's own delay rose
@@ -110,10 +120,11 @@ class OneWayQueue:
         return self._closed_at is not None and now - self.at < self.fresh_s
 
     def counters(self) -> dict[str, int]:
-        """Return the Status figures: the queue [ms], video held, rises rebased, queues of ours drained."""
+        """Return the Status figures: the queue [ms], video held, rises rebased, drained with video held / without."""
         return {
             "uplink_owd_ms": round(1000.0 * self.queue_s),
             "uplink_owd_held": self.held,
             "uplink_rebased": self.rebased,
             "uplink_owd_drained": self.drained,
+            "uplink_owd_passed": self.passed,
         }
