@@ -29,9 +29,9 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   one-way delay is more than ``owd_queue_s`` (30 ms) above its minimum, and a queue that
   drained once it waited was ours: the capacity is cut to ``drain_ratio`` of the least of
   what was sent and what the leader received (not on a lossy path, not in a stall or just
-  after a silence). The delay rule sees a queue through the leader's 1 s mean of h2, about
-  0.75 s late: on a 600 kbit/s token bucket each probe past its rate queued the feedback
-  50-165 ms for one to two seconds first.
+  after a silence); its ceiling sizes frames but neither slows the probe nor steps the
+  capacity down (a crossing costs a 30 ms queue, not the delay rule's: h2, the leader's 1 s
+  mean, shows a queue about 0.75 s late).
 - **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
   the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
   (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
@@ -85,7 +85,6 @@ The periodic feedback comes before video; an acknowledgement sent at once, beyon
 from what video at its most leaves (docs/follower.md).
 
 The parts: :class:`~bipedtele.follower.uplinktuning.UplinkTuning` (the parameters),
-:class:`~bipedtele.follower.cutundo.PendingCut` (a first delay cut until judged),
 :class:`~bipedtele.follower.sentlog.SentLog` (what was sent, per 0.1 s) and
 :class:`~bipedtele.follower.queuedelay.QueueDelay` (h2, its minimum, the excess and the
 standing queue); the rules that set the capacity and the budgets derived from it are here.
@@ -175,6 +174,7 @@ class UplinkBudget:
         self._last_update: float | None = None
         self._plan_bps = 0.0  # the feedback rate of the last plan [bit/s]
         self._lossy_until = -math.inf  # lossy until then (see lossy_hold_s)
+        self._soft = False  # the ceiling is the echo rule's: the probe past it is not slowed
 
     def __getattr__(self, name: str) -> float:
         """Read a tuning parameter as the budget's attribute (``budget.hold_s``)."""
@@ -288,7 +288,7 @@ class UplinkBudget:
             episode = now - self._last_signal < tu.hold_s
             self._last_signal = now
             self._last_rate_cut = now
-            self.ceiling_bps = float(rx)  # a path that queues delivers what it carries
+            self.ceiling_bps, self._soft = float(rx), False  # a path that queues delivers what it carries
             if not episode:  # the path delivers rx: aim a little below it, so its queue drains
                 self.capacity_bps = max(tu.floor_bps, tu.drain_ratio * float(rx))
                 self._last_cut = now
@@ -374,7 +374,7 @@ class UplinkBudget:
             # ceiling builds one that rule's minimum takes in): no probing; against a ceiling
             # the path showed at a cut, step down towards 0.8 x it (a rise of the path's own
             # delay costs at most that, for base_window_s)
-            if self.ceiling_bps is not None and self.capacity_bps > 0.8 * self.ceiling_bps:
+            if self.ceiling_bps is not None and not self._soft and self.capacity_bps > 0.8 * self.ceiling_bps:
                 low = 0.8 * self.ceiling_bps
                 self.capacity_bps = max(low, self.capacity_bps * (1.0 - tu.queue_decrease * dt))
             return
@@ -383,9 +383,9 @@ class UplinkBudget:
         if q.excess_s > 0.5 * tu.delay_rise_s:
             return  # a queue is still there: not the moment to ask for more
         step = max(tu.increase_bps_per_s, tu.increase_ratio * self.capacity_bps)
-        if self.ceiling_bps is not None and self.capacity_bps >= tu.drain_ratio * self.ceiling_bps:
+        if self.ceiling_bps is not None and not self._soft and self.capacity_bps >= tu.drain_ratio * self.ceiling_bps:
             # past what the path carried at the last cut: probe slowly (a path's capacity
-            # changes now and then; a sawtooth against a known ceiling only builds queues)
+            # changes now and then; a sawtooth against a known ceiling built 150-230 ms queues)
             step = tu.ceiling_probe * self.capacity_bps
         step *= 1.0 - min(1.0, q.standing_s / tu.queue_target_s)  # slower as a standing queue nears the target
         # a ceiling under half what the path delivered lately was set in a dip (a near-zero
@@ -458,7 +458,7 @@ class UplinkBudget:
         if (ref := min(ref, float(rx)) if rx else ref) <= 0:
             return
         self.signals["echo"] += 1
-        self.ceiling_bps = ref
+        self.ceiling_bps, self._soft = ref, True  # frames sized to it; the probe past it not slowed
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, tu.drain_ratio * ref))
         self._last_signal = now
 
@@ -497,7 +497,7 @@ class UplinkBudget:
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
             self._undo = PendingCut(self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, q.excess_s)
         if ref > 0:
-            self.ceiling_bps = ref
+            self.ceiling_bps, self._soft = ref, False
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, cut))
         self.signals["delay"] += 1
         q.episode = True
