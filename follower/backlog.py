@@ -49,6 +49,10 @@ class WindowMin:
         self.prune(now)
         return self._q[0][1] if self._q else None
 
+    def front(self) -> float | None:
+        """Return the minimum as of the last ``add`` or ``prune`` (None when empty)."""
+        return self._q[0][1] if self._q else None
+
     def clear(self) -> None:
         """Forget every sample."""
         self._q.clear()

@@ -52,11 +52,11 @@ ride on the periodic feedback until then. h2 is the leader's 1 s moving average,
 queue shows about 0.75 s late: the growth overshoots a capacity by at most about a fifth
 before the first cut (the echo rule sees it sooner).
 
-Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not
-a full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more in a Status
-within ``lossy_hold_s`` (30 s), neither the rate nor the echo rule judges: video on TCP
-slowed by loss arrives below what was sent whatever the path carries, and the delay rule
-alone judges a lossy path (a step of the path's own delay by its cut's undo).
+Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not a
+full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more in a Status within
+``lossy_hold_s`` (30 s), neither the rate nor the echo rule judges (TCP's video slowed by loss
+arrives below what was sent whatever the path carries): the delay rule alone judges a lossy
+path (a step of the path's own delay by its cut's undo).
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
@@ -84,10 +84,9 @@ the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the cap
 The periodic feedback comes before video; an acknowledgement sent at once, beyond it, only
 from what video at its most leaves (docs/follower.md).
 
-The parts: :class:`~bipedtele.follower.uplinktuning.UplinkTuning` (the parameters),
-:class:`~bipedtele.follower.sentlog.SentLog` (what was sent, per 0.1 s) and
-:class:`~bipedtele.follower.queuedelay.QueueDelay` (h2, its minimum, the excess and the
-standing queue); the rules that set the capacity and the budgets derived from it are here.
+The parts, each in its module: ``UplinkTuning`` (the parameters), ``SentLog`` (what was sent,
+per 0.1 s), ``QueueDelay`` (h2, its minimum, the excess, the standing queue), ``PendingCut``,
+``OneWayQueue``, ``InFlight``, ``DeliveryRate``; the rules and the budgets are here.
 """
 
 from __future__ import annotations
@@ -388,9 +387,8 @@ class UplinkBudget:
             # changes now and then; a sawtooth against a known ceiling built 150-230 ms queues)
             step = tu.ceiling_probe * self.capacity_bps
         step *= 1.0 - min(1.0, q.standing_s / tu.queue_target_s)  # slower as a standing queue nears the target
-        # a ceiling under half what the path delivered lately was set in a dip (a near-zero
-        # stretch): back towards what it delivered, fast; a token bucket's burst delivers
-        # above its rate for a window, so a ceiling near that rate is kept
+        # recovery: a ceiling under half what the path delivered lately was set in a dip (a
+        # near-zero stretch), back towards what it delivered, fast (see the module docstring)
         best = self.delivery.max_bps or 0.0
         known = tu.drain_ratio * best if self.ceiling_bps is None or self.ceiling_bps < 0.5 * best else 0.0
         if self.capacity_bps < known:
@@ -439,7 +437,7 @@ class UplinkBudget:
             return
         self._undo = None
         if u.undo(self._q.excess_s, self._last_rate_cut, now - self._last_undo >= self.tuning.undo_gap_s):
-            self.capacity_bps, self.start_budget_bps, self.ceiling_bps = u.restored
+            self.capacity_bps, self.start_budget_bps, self.ceiling_bps, self._soft = u.restored
             self._last_signal = -math.inf
             self._last_undo = now
             self.signals["undone"] += 1
@@ -454,13 +452,17 @@ class UplinkBudget:
         # not on a lossy path (a lost feedback's retransmission is no queue: loss never cuts)
         if now - self._last_heard > tu.status_timeout_s or now < self._q.quiet_until or self.stalled or self.lossy:
             return
-        rx, ref = self.leader.get("rx_bps"), self._log.rate(now - tu.window_s, now)
-        if (ref := min(ref, float(rx)) if rx else ref) <= 0:
+        if (ref := self._carried(self._log.rate(now - tu.window_s, now))) <= 0:
             return
         self.signals["echo"] += 1
         self.ceiling_bps, self._soft = ref, True  # frames sized to it; the probe past it not slowed
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, tu.drain_ratio * ref))
         self._last_signal = now
+
+    def _carried(self, sent_bps: float) -> float:
+        """Return what the path carried [bit/s]: the least of ``sent_bps`` and ``rx_bps`` (either, when one is 0)."""
+        rx = float(self.leader.get("rx_bps") or 0)
+        return min(sent_bps, rx) if sent_bps > 0 and rx > 0 else max(sent_bps, rx)
 
     def _delay_rule(self, now: float) -> None:
         """Cut the capacity when a queue of ours is building (see the module docstring)."""
@@ -485,17 +487,15 @@ class UplinkBudget:
         tx = self._log.rate(start, now)  # over what has passed of the window since sending began
         # a queue fed at tx grows by (tx - C) / C seconds per second: the path carries about
         # tx / (1 + slope); the leader's rx (a 2 s window, late) bounds it too
-        ref = tx / (1.0 + max(0.0, slope))
-        rx = self.leader.get("rx_bps")
-        if rx is not None and rx > 0:
-            ref = min(ref, float(rx)) if ref > 0 else float(rx)
+        ref = self._carried(tx / (1.0 + max(0.0, slope)))
         cut = tu.drain_ratio * ref
         if q.episode:
             # still growing after a cut: the queue is ours (a path's step does not grow on)
             cut = min(cut, tu.decrease * self.capacity_bps)
             self._undo = None
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
-            self._undo = PendingCut(self.capacity_bps, self.start_budget_bps, self.ceiling_bps, now, q.excess_s)
+            was = (self.capacity_bps, self.start_budget_bps, self.ceiling_bps, self._soft)
+            self._undo = PendingCut(*was, now, q.excess_s)
         if ref > 0:
             self.ceiling_bps, self._soft = ref, False
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, cut))
@@ -507,10 +507,10 @@ class UplinkBudget:
 
     def admit_video(self, nbytes: int) -> bool:
         """Say whether a video message of ``nbytes`` [bytes] may leave now (the one-way queue, the in-flight cap and the queue it saw)."""
-        if self.owd.closed(self._clock()):
+        if self.owd.closed(now := self._clock()):
             self.owd.held += 1
             return False
-        return self.inflight.admit_video(nbytes, self._clock())
+        return self.inflight.admit_video(nbytes, now)
 
     def inflight_counters(self) -> dict[str, int]:
         """Return the uplink's figures for the Status: in flight (:meth:`InFlight.counters`), the one-way queue, control's rate [bit/s]."""

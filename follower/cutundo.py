@@ -27,6 +27,8 @@ class PendingCut:
         The start's video budget before the cut [bit/s] (None: the start was over).
     ceiling_bps : float or None
         The ceiling before the cut [bit/s].
+    ceiling_soft : bool
+        That ceiling was the echo rule's (the probe past it not slowed).
     t : float
         When it was cut [s].
     peak_excess_s : float
@@ -36,6 +38,7 @@ class PendingCut:
     capacity_bps: float
     start_budget_bps: float | None
     ceiling_bps: float | None
+    ceiling_soft: bool
     t: float
     peak_excess_s: float
 
@@ -49,6 +52,6 @@ class PendingCut:
         return excess_s >= 0.8 * self.peak_excess_s and last_rate_cut < self.t and may
 
     @property
-    def restored(self) -> tuple[float, float | None, float | None]:
-        """What the cut replaced: capacity, start budget and ceiling [bit/s]."""
-        return self.capacity_bps, self.start_budget_bps, self.ceiling_bps
+    def restored(self) -> tuple[float, float | None, float | None, bool]:
+        """What the cut replaced: capacity, start budget and ceiling [bit/s], and whether that ceiling was soft."""
+        return self.capacity_bps, self.start_budget_bps, self.ceiling_bps, self.ceiling_soft

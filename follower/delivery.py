@@ -26,6 +26,8 @@ import math
 import threading
 from collections import deque
 
+from bipedtele.follower.delayrise import DelayRise
+
 __all__ = ["DeliveryRate", "InFlight"]
 
 
@@ -189,9 +191,7 @@ class InFlight:
         self._sent: deque[tuple[float, int]] = deque()  # (send time [s], bytes), in send order
         self._bytes = 0
         self._acked_t = -math.inf
-        self._rtt: deque[tuple[float, float]] = deque()  # (time, rtt), values increasing
-        self._rtt_window_s = float(rtt_window_s)
-        self._recent: deque[float] = deque(maxlen=3)  # the last round trips [s]
+        self._rtt = DelayRise(rtt_window_s)  # the round trip's minimum and the queue above it
         self._last_ack: float | None = None
         self.ack_interval_s: float | None = None
         self.rate_bps: float | None = None
@@ -236,20 +236,10 @@ class InFlight:
             self.ack_interval_s = dt if self.ack_interval_s is None else 0.8 * self.ack_interval_s + 0.2 * dt
         self._last_ack = now
         self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
-        rtt = max(0.0, now - t_delivered)
-        q = self._rtt
-        # the queue: the least of the last few samples over the window's minimum (each sample
-        # adds the wait between the feedback's arrival and the status, up to a feedback
-        # period: noise of one sign, which LEDBAT's current-delay filter takes out the same way)
-        recent = self._recent
-        recent.append(rtt)
-        self.queue_s = max(0.0, min(recent) - (q[0][1] if q else rtt))
+        # each sample adds the wait between the feedback's arrival and the status (up to a
+        # feedback period): noise of one sign, which the filter takes out
         with self._lock:  # the video thread reads the minimum (cap_bytes)
-            while q and q[-1][1] >= rtt:
-                q.pop()
-            q.append((now, rtt))
-            while q and q[0][0] < now - self._rtt_window_s:
-                q.popleft()
+            self.queue_s = self._rtt.add(now, max(0.0, now - t_delivered))
         self.delivered(now, t_delivered)
 
     def delivered(self, now: float, t_delivered: float) -> None:
@@ -282,14 +272,19 @@ class InFlight:
         and acknowledgements); the counts of what was held stay. Called every tick while
         nobody acknowledges: a reset state is left as it is.
         """
-        if self._last_ack is None and self.rate_bps is None and not self._sent and not self._rtt and not self.hold:
+        if (
+            self._last_ack is None
+            and self.rate_bps is None
+            and not self._sent
+            and self.min_rtt_s is None
+            and not self.hold
+        ):
             return
         with self._lock:
             self._sent.clear()
             self._bytes = 0
             self._acked_t = -math.inf
             self._rtt.clear()
-        self._recent.clear()
         self._last_ack = None
         self.ack_interval_s = None
         self.rate_bps = None
@@ -317,7 +312,7 @@ class InFlight:
     def min_rtt_s(self) -> float | None:
         """The least round trip over the window [s] (None before the first acknowledgement)."""
         with self._lock:
-            return self._rtt[0][1] if self._rtt else None
+            return self._rtt.minimum
 
     @property
     def cap_bytes(self) -> float:

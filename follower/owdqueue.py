@@ -24,9 +24,8 @@ cut the estimate five times in 90 s, 622 -> 309 kbit/s, each one probed back slo
 from __future__ import annotations
 
 import math
-from collections import deque
 
-from bipedtele.follower.backlog import WindowMin
+from bipedtele.follower.delayrise import DelayRise
 
 __all__ = ["OneWayQueue"]
 
@@ -70,8 +69,7 @@ class OneWayQueue:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
         self.queue_max_s, self.settle_s, self.fresh_s = float(queue_max_s), float(settle_s), float(fresh_s)
-        self._min = WindowMin(window_s)
-        self._recent: deque[float] = deque(maxlen=3)
+        self._rise = DelayRise(window_s)
         self._last_sent = -math.inf
         self._closed_at: float | None = None
         self._settle_until = math.inf
@@ -91,12 +89,8 @@ class OneWayQueue:
         if not (math.isfinite(t_sent) and math.isfinite(t_recv)) or t_sent <= self._last_sent:
             return
         self._last_sent = t_sent
-        owd = t_recv - t_sent  # the one-way delay plus the clocks' offset
-        self._min.add(now, owd)
-        self._recent.append(owd)
+        self.queue_s = self._rise.add(now, t_recv - t_sent)  # the one-way delay plus the clocks' offset
         self.at = now
-        base = self._min.value(now)
-        self.queue_s = max(0.0, min(self._recent) - (owd if base is None else base))
         if self.queue_s <= self.queue_max_s:
             if self._closed_at is not None and self.held > self._held_at_close:
                 self.drained += 1  # it drained once video waited: a queue of ours
@@ -109,8 +103,7 @@ class OneWayQueue:
             self._settle_until = now + max(0.0, now - t_sent) + self.settle_s
             return
         if now > self._settle_until:  # it did not drain: the path's own delay rose
-            self._min.clear()
-            self._min.add(now, min(self._recent))
+            self._rise.rebase(now)
             self.queue_s = 0.0
             self._closed_at = None
             self.rebased += 1

@@ -136,6 +136,7 @@ class VideoStreamer:
         self._level = 0
         self._fps = float(fps)
         self._frame_bits: dict[int, float] = {}  # measured bits per frame by level (EWMA)
+        self._most_bps = self._most()  # what video sends at its most [bit/s], kept as frames are measured
         self._tokens = 0.0
         self._t_tokens: float | None = None
         self._next_choose = -float("inf")
@@ -319,17 +320,18 @@ class VideoStreamer:
     def frame_bits(self, level: int) -> float:
         """Return the expected bits per frame at ``level``: measured there, else scaled from a measured level."""
         with self._cv:
-            got = dict(self._frame_bits)
-        if level in got:
-            return got[level]
-        if got:
-            ref, bits = next(iter(got.items()))
-            return bits * LEVELS[level][2] / LEVELS[ref][2]
-        return 8.0 * 12_000 * LEVELS[level][2]  # a QVGA frame at quality 80: about 12 kB
+            return _bits_at(level, self._frame_bits)
 
     def most_bps(self) -> float:
-        """Return what video sends at its most [bit/s]: every camera at the configured rate at the top level (0 when off)."""
-        return self.max_fps * len(self.cameras) * self.frame_bits(0) if self.period else 0.0
+        """Return what video sends at its most [bit/s]: every camera at the configured rate at the top level (0 when off).
+
+        Kept as frames are measured (the control loop reads it every tick, without the lock).
+        """
+        return self._most_bps
+
+    def _most(self) -> float:
+        """Compute :meth:`most_bps` from the measured frames (with the lock held, or before the thread starts)."""
+        return self.max_fps * len(self.cameras) * _bits_at(0, self._frame_bits) if self.period else 0.0
 
     def _choose(self) -> None:
         """Pick the level and frame rate that fit the budget (see the module docstring)."""
@@ -362,6 +364,7 @@ class VideoStreamer:
         with self._cv:
             old = self._frame_bits.get(level)
             self._frame_bits[level] = bits if old is None else 0.7 * old + 0.3 * bits
+            self._most_bps = self._most()
             budget = self._budget
             now = self._now()
             if budget is None:
@@ -393,6 +396,16 @@ class VideoStreamer:
             "video_quality": self.quality_at(level) if on else 0,
             "video_width": int(width) if on else 0,
         }
+
+
+def _bits_at(level: int, measured: dict[int, float]) -> float:
+    """Return the expected bits per frame at ``level`` from the ``measured`` ones (by level): there, else scaled from one."""
+    if level in measured:
+        return measured[level]
+    if measured:
+        ref, bits = next(iter(measured.items()))
+        return bits * LEVELS[level][2] / LEVELS[ref][2]
+    return 8.0 * 12_000 * LEVELS[level][2]  # a QVGA frame at quality 80: about 12 kB
 
 
 def _cut(jpeg: bytes, part_bits_max: float | None) -> list[bytes]:

@@ -211,6 +211,42 @@ def test_after_an_echo_cut_the_probe_is_not_slowed_past_its_ceiling() -> None:
     assert log[-1]["cap"] > 1.3 * log[0]["cap"], (log[0]["cap"], log[-1]["cap"], sim.budget.signals)
 
 
+def test_an_undone_delay_cut_gives_back_an_echo_cuts_soft_ceiling() -> None:
+    """A delay cut's undo restores what the cut replaced: the capacity, the start's budget
+    and the ceiling, and whether that ceiling was the echo rule's (soft: the probe past it
+    is not slowed). Before, the undo left the echo's ceiling marked as the delay rule's: a
+    step of the path's own delay after an echo cut slowed the probe to 0.5 %/s for good."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+    b.start_budget_bps, b.capacity_bps = None, 1_000_000.0  # past the start, probing
+    ow = [0.02]  # the echoed feedback's one-way delay [s]
+
+    def h2(s: float) -> float:  # the path's delay steps +120 ms at 30 s (the 1 s mean ramps)
+        return 0.18 + 0.12 * min(1.0, s - 30.0) if s >= 30.0 else 0.18
+
+    def each(k: int) -> None:
+        b.on_h2(h2(t[0]))
+        b.on_echo((t[0] - 0.05, t[0] - 0.05 + ow[0]))
+        b.sent(300, feedback=True)
+        b.sent(int((b.video_budget_bps() or 0.0) * 0.01 / 8), video=True)
+        if k % 50 == 0 and t[0] > 1.0:
+            b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 0, "fb_age_ms": 200}, t[0])
+
+    _ticks(b, t, 1000, each)
+    ow[0] = 0.08  # a queue of ours: video waits, and it drains
+    _ticks(b, t, 10, lambda k: each(1000 + k))
+    assert not b.admit_video(1000)
+    ow[0] = 0.02
+    _ticks(b, t, 1990, lambda k: each(1010 + k))  # to 30 s
+    assert b.signals["echo"] == 1 and b.signals["delay"] == 0, b.signals
+    _ticks(b, t, 1000, lambda k: each(3000 + k))  # the step: cut by the delay rule, then undone
+    assert b.signals["delay"] == 1 and b.signals["undone"] == 1, b.signals
+    before = b.capacity_bps
+    _ticks(b, t, 1000, lambda k: each(4000 + k))
+    # probed at up to 3 %/s past the echo's ceiling (0.5 %/s past a delay cut's: +5 % in 10 s)
+    assert b.capacity_bps > 1.2 * before, (before, b.capacity_bps, b.ceiling_bps)
+
+
 def test_uncapped_never_throttles() -> None:
     """Video's budget grows x1.3 a second from 64 kbit/s while it is used, then never binds
     (always at least what video wants)."""

@@ -79,3 +79,13 @@ def test_video_sends_its_whole_budget_between_levels(budget: float) -> None:
     late = [f for f in sent if f.t >= 6.0]
     bits = sum(8 * len(encode(f)) for f in late)
     assert bits >= 0.8 * budget * 6.0, (bits / 6.0, budget)
+
+
+def test_videos_most_is_the_configured_rate_at_the_top_levels_measured_frame() -> None:
+    """The feedback plan reads what video sends at its most every control tick: kept as
+    frames are measured (before, each call took the video thread's lock and copied the
+    table of frame sizes)."""
+    sent, v = _run(None, 2.0)
+    top = [len(encode(f)) for f in sent if f.width == 320]
+    assert top and v.most_bps() == pytest.approx(2 * 10.0 * v.frame_bits(0))
+    assert 0.9 < v.most_bps() / (2 * 10.0 * 8 * sum(top) / len(top)) < 1.1  # the measured 16 kB, not the 12 kB prior

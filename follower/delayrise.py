@@ -1,0 +1,61 @@
+"""A delay's rise over its recent minimum: the queue in a path, from delay samples (:class:`DelayRise`).
+
+Each sample of a delay (a round trip, a one-way delay with the clocks' offset in it) is the
+path's delay plus its queue plus waits of one sign: the time a feedback lay at the leader
+before its status went, a command's period before its echo. LEDBAT's current-delay filter
+takes them out: the queue is the least of the last few samples over the minimum of the
+window (the base delay). Used by :class:`~bipedtele.follower.delivery.InFlight` (the Status
+round trip) and :class:`~bipedtele.follower.owdqueue.OneWayQueue` (the echoed feedback's
+one-way delay).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from bipedtele.follower.backlog import WindowMin
+
+__all__ = ["DelayRise"]
+
+
+class DelayRise:
+    """The least of the last ``n`` delay samples over their minimum across ``window_s``.
+
+    Parameters
+    ----------
+    window_s : float
+        Window of the minimum (the base delay) [s].
+    n : int
+        Samples the current delay is the least of.
+    """
+
+    def __init__(self, window_s: float = 10.0, n: int = 3) -> None:
+        if not (math.isfinite(window_s) and window_s > 0) or n < 1:
+            raise ValueError(f"window_s = {window_s!r}, n = {n!r}: allowed: a finite window > 0 and n >= 1")
+        self._min = WindowMin(window_s)
+        self._recent: deque[float] = deque(maxlen=n)
+
+    def add(self, t: float, delay_s: float) -> float:
+        """Take a sample ``delay_s`` [s] at ``t`` [s]; return the rise: the current delay over the minimum [s], >= 0."""
+        self._min.add(t, delay_s)
+        self._recent.append(delay_s)
+        base = self._min.value(t)
+        return max(0.0, min(self._recent) - (delay_s if base is None else base))
+
+    def rebase(self, t: float) -> None:
+        """Take the current delay as the new minimum at ``t`` [s] (the path's own delay rose)."""
+        current = min(self._recent, default=None)
+        self._min.clear()
+        if current is not None:
+            self._min.add(t, current)
+
+    @property
+    def minimum(self) -> float | None:
+        """The minimum [s] as of the last sample (None before the first)."""
+        return self._min.front()
+
+    def clear(self) -> None:
+        """Forget every sample."""
+        self._min.clear()
+        self._recent.clear()

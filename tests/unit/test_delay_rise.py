@@ -1,0 +1,36 @@
+"""DelayRise (follower/delayrise.py): the least of the last three delays over the window's minimum."""
+
+from __future__ import annotations
+
+import pytest
+from bipedtele.follower.delayrise import DelayRise
+
+pytestmark = pytest.mark.timeout(30)
+
+
+def test_one_high_sample_is_no_queue_three_are() -> None:
+    r = DelayRise(window_s=10.0)
+    assert r.add(0.0, 0.10) == 0.0 and r.minimum == 0.10
+    assert r.add(0.1, 0.20) == 0.0  # a wait of one sign: the least of the last three is still 0.10
+    assert r.add(0.2, 0.20) == 0.0
+    assert r.add(0.3, 0.20) == pytest.approx(0.10)  # three in a row: a queue
+
+
+def test_the_minimum_is_over_the_window_and_rebase_takes_the_current_delay() -> None:
+    r = DelayRise(window_s=1.0)
+    r.add(0.0, 0.05)
+    for k in range(1, 4):
+        r.add(0.5 * k, 0.12)
+    assert r.minimum == pytest.approx(0.12)  # the 50 ms sample left the window
+    r.add(1.6, 0.30)
+    r.add(1.7, 0.30)
+    r.add(1.8, 0.30)
+    r.rebase(1.8)
+    assert r.minimum == pytest.approx(0.30) and r.add(1.9, 0.31) == pytest.approx(0.0)
+    r.clear()
+    assert r.minimum is None
+
+
+def test_bad_parameters_are_refused() -> None:
+    with pytest.raises(ValueError, match="window_s"):
+        DelayRise(window_s=0.0)
