@@ -276,7 +276,7 @@ class InFlight:
             self._last_ack is None
             and self.rate_bps is None
             and not self._sent
-            and self.min_rtt_s is None
+            and self._rtt.minimum is None
             and not self.hold
         ):
             return
