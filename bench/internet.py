@@ -3,7 +3,7 @@
     .venv/bin/python bench/internet.py [--seconds 90] [--links split|single|single,split]
         [--only trace,loss1,loss5,outage,lan600-video,lan600-novideo,lan300-video,lan300-novideo,
                 tbf600-video,tbf600-novideo,tbf300-video,lte,3g]
-        [--json F] [--workdir DIR] [--seed N] [--leader-status-hz HZ]
+        [--json F] [--workdir DIR] [--seed N] [--leader-status-hz HZ] [--camera-fps F]
 
 What a field engineer would do: ``bipedtele setup two-hosts --router-name router.bt.test``
 once, each of its three folders copied into the working folder of its own "host" (a network
@@ -58,7 +58,8 @@ one-way delay):
 - cellular rows: the frame rate the trace's mean capacity allows after control, from the
   mean size of the frames the leader received (``allowance``), beside the frame rate, and
   the lesser of it and the follower's configured video rate (every camera: no path lets
-  video send more);
+  video send more; ``--camera-fps F`` sets the rate per camera in every row with video,
+  ``--set follower.camera_fps=F`` on the robot host, 10 as setup writes it);
 - the emulator's counters (``--stats-json``);
 - the paper's Table 2 of the run (``bipedtele report``: completion time of the pilot's
   passes, speed errors, delays): with ``--only trace --seconds 220`` the pilot finishes
@@ -81,7 +82,7 @@ import signal
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -152,6 +153,7 @@ class Condition:
     video: bool = True
     outage: tuple[float, float] | None = None  # (at, for) [s] of the emulator's origin, both directions
     tbf: tuple[str, ...] = ()  # the kernel's tbf on the robot's interface (`tc qdisc add ... root tbf` ARGS)
+    camera_fps: float | None = None  # the follower's video rate per camera [Hz] (None: its profile's)
 
 
 def conditions(outage_at: float = 40.0) -> dict[str, Condition]:
@@ -210,7 +212,7 @@ def _cellular_allowance(
     if trace is None or not sent:
         return None
     fcfg = load_config(robot_profile).get(FollowerConfig)
-    most = fcfg.camera_fps * len(fcfg.cameras)
+    most = (fcfg.camera_fps if cond.camera_fps is None else cond.camera_fps) * len(fcfg.cameras)
     return video_allowance(l_rec, f_rec, mahimahi_stats(load_mahimahi(trace))["mean_bps"], sent[0], sent[-1], most)
 
 
@@ -271,7 +273,8 @@ def _drive(
     router = go("router", "router", [])
     router.wait_log(r"router: \S+ listening on", 60.0)
     t0 = _emulate(top, base, cond, seed, stats) if cond.topology == "lan" else None  # the robot's path crosses it
-    follower = go("robot", "follower", [] if cond.video else ["--set", "follower.camera_fps=0"])
+    fps = 0.0 if not cond.video else cond.camera_fps
+    follower = go("robot", "follower", [] if fps is None else ["--set", f"follower.camera_fps={fps:g}"])
     follower.wait_log(r"follower \S+ ready", 120.0)
     if t0 is None:  # the origin of the trace and the outage: just before the leader starts
         t0 = _emulate(top, base, cond, seed, stats)
@@ -413,6 +416,9 @@ def _parser(all_conds: dict[str, Condition]) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=1, help="the emulator's seed")
     p.add_argument("--leader-status-hz", type=float, default=None, help="[leader] status_rate_hz (default: setup's)")
+    p.add_argument(
+        "--camera-fps", type=float, default=None, help="the follower's video rate per camera in rows with video [Hz]"
+    )
     p.add_argument("--tag", default="", help="prefix of the namespaces' 4-character tag (random hex after it)")
     p.add_argument("--json", default=None, metavar="F", help="write every figure to F")
     p.add_argument(
@@ -474,6 +480,15 @@ def main(argv: list[str] | None = None) -> int:
     p = _parser(conditions())
     args = p.parse_args(argv)
     conds = conditions(args.outage_at)
+    if args.camera_fps is not None:
+        if not (math.isfinite(args.camera_fps) and 0 < args.camera_fps <= 30):
+            p.error(f"--camera-fps {args.camera_fps!r}: allowed: above 0, at most 30 (frames/s per camera)")
+        conds = {
+            k: replace(c, camera_fps=args.camera_fps, label=f"{c.label}, camera {args.camera_fps:g} fps")
+            if c.video
+            else c
+            for k, c in conds.items()
+        }
     names = [n.strip() for n in args.only.split(",") if n.strip()]
     bad = [n for n in names if n not in conds]
     links = [x.strip() for x in args.links.split(",") if x.strip()]
