@@ -59,7 +59,8 @@ class LinkError(RuntimeError):
     kind : str
         ``unresolved``, ``refused``, ``unreachable``, ``tls_unknown_ca``, ``tls_name``,
         ``tls_expired``, ``tls_client_cert``, ``not_tls``, ``tls``, ``credentials``
-        (the router refused the session after TLS) or ``open`` (Zenoh failed otherwise).
+        (the router refused the session after TLS), ``links`` (the router accepted the login
+        on one link, the session's links did not open) or ``open`` (Zenoh failed otherwise).
     """
 
     def __init__(self, kind: str, message: str) -> None:

@@ -171,6 +171,31 @@ def test_each_refusal_has_its_own_message(certs: tuple[Path, Path], router: tupl
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_a_split_session_tries_its_login_on_one_link_first(
+    certs: tuple[Path, Path], router: tuple[int, list[str]]
+) -> None:
+    """A split session opens three links one after the other (4.5-8 s across the emulated
+    intercontinental trace): a budget that tells a refused login early could not tell it
+    from a slow path (4 opens of 14 failed at 5 % loss), and its message blamed the login or
+    UDP alike. The login is tried on one link first: a refused one is told as before, with
+    no UDP in its causes; an accepted one leaves only the path and its UDP (this router
+    listens on TLS only)."""
+    port, _ = router
+    good = _client(certs, port)
+    exc, took = _failure(replace(good, links="split", password="guess"))
+    print(f"credentials, split: {took:5.2f} s  {exc}")
+    assert exc.kind == "credentials" and "user/password refused for user 'leader'" in str(exc), str(exc)
+    assert "UDP" not in str(exc), str(exc)
+    exc, took = _failure(replace(good, links="split", timeout_s=6.0))
+    print(f"links, split:       {took:5.2f} s  {exc}")
+    assert exc.kind == "links", (exc.kind, str(exc))
+    assert re.search(r"accepted the login on one link.*UDP to the router's port blocked", str(exc)), str(exc)
+    with open_session(good):  # the probes left nothing behind
+        pass
+
+
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_router_logs_refusals_and_health_says_which(certs: tuple[Path, Path], tmp_path: Path) -> None:
     ours, other = certs
