@@ -45,6 +45,8 @@ OPEN_RTTS = 8.0
 OPEN_MIN_S = 3.0
 #: Session handshakes tried before giving up, each given twice the time of the one before.
 OPEN_TRIES = 2
+#: A split session's link handshake is given at most this long [s] (Zenoh's own limit).
+LINK_OPEN_MAX_S = 10.0
 #: A refused connection (a router still starting) is retried this long [s].
 REFUSED_RETRY_S = 4.0
 
@@ -247,7 +249,7 @@ def _refusal(net: NetworkConfig, checked: set[str], spent_s: float, zenoh_reason
     that fit: a refused login, which the router logs, or a path too slow or lossy for the
     handshake (or, for a session of ``links = "split"`` itself, its UDP link blocked).
     """
-    within = f"no session after {OPEN_TRIES} tries in {spent_s:.1f} s"
+    within = f"no session in {spent_s:.1f} s"
     if not checked:  # udp, quic, ws...: not checked beforehand
         return LinkError(
             "open",
@@ -286,12 +288,15 @@ def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> 
     (4.5-8 s across the emulated intercontinental trace, one link 2 s), so a budget of a few
     round trips, which tells a refused login early, cannot tell it from a slow path: 4 opens
     of 14 failed at 5 % loss (``bench/internet_open.py``). So the login is tried first on one
-    link (``links = "single"``: the profile's endpoints as written), in up to OPEN_TRIES
-    handshakes, each given twice as long (a refused login is told as before). Once the router
-    has accepted it, the session's own links get what is left of the profile's ``timeout_s``,
-    and if they still do not open the cause is the path or its UDP, not the login
-    (``links``). A session of one link, or one with nothing the router could refuse, opens
-    directly.
+    link (``links = "single"``: the profile's endpoints as written), in one handshake given
+    what OPEN_TRIES tries would have had in all (a refused login is told as before; a try
+    started again would lose what a slow one had done). Once the router has accepted it, the
+    session's own links get what is left of the profile's ``timeout_s``, and if they still do
+    not open the cause is the path or its UDP, not the login (``links``). In both, a link's
+    handshake that does not finish within OPEN_RTTS round trips (at least OPEN_MIN_S) is
+    started again: a message lost on the UDP link is never sent again, and Zenoh's own
+    limit is 10 s. A session of one link, or one with nothing the router could refuse,
+    opens directly.
     """
     rtt, checked = _preflight(net, connect)
     timeout = _open_timeout_s(net, rtt, checked)
@@ -301,12 +306,16 @@ def _open_client(net: NetworkConfig, connect: list[str], conf: zenoh.Config) -> 
         if session is None:
             raise _refusal(net, checked, spent, reason, net.links)
         return session
+    link_ms = json.dumps(int(1000 * min(LINK_OPEN_MAX_S, timeout)))
     one_link = zenoh_config(replace(net, links="single"), mode="client", connect=connect)
-    probe, spent, reason = _handshakes(one_link, timeout, net.timeout_s, OPEN_TRIES)
+    one_link.insert_json5("transport/unicast/open_timeout", link_ms)
+    all_tries = sum(2**k for k in range(OPEN_TRIES)) * timeout
+    probe, spent, reason = _handshakes(one_link, all_tries, net.timeout_s, 1)
     if probe is None:
         raise _refusal(net, checked, spent, reason, "single")
     probe.close()
     LOG.debug("the router accepted the login on one link in %.1f s; opening the session's links", spent)
+    conf.insert_json5("transport/unicast/open_timeout", link_ms)
     session, more, reason = _handshakes(conf, net.timeout_s - spent, net.timeout_s - spent, 1)
     if session is None:
         raise _links_failed(net, spent + more, reason)
