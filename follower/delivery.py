@@ -206,8 +206,9 @@ class InFlight:
         #: ours waits in the path, so it arrives fresh; over it, Status probes only.
         self.hold = False
         #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or
-        #: dropped), ``status`` (not a probe); ``probes``: the Status sent over it as probes.
-        self.held = {"feedback": 0, "video": 0, "status": 0, "probes": 0}
+        #: dropped; ``video_rtt`` of them by the round trip's queue, not the cap's room),
+        #: ``status`` (not a probe); ``probes``: the Status sent over it as probes.
+        self.held = {"feedback": 0, "video": 0, "video_rtt": 0, "status": 0, "probes": 0}
 
     def sent(self, t: float, nbytes: int) -> None:
         """Count ``nbytes`` [bytes] sent at ``t`` [s] (any thread)."""
@@ -373,7 +374,10 @@ class InFlight:
             # a queue of ours: the round trip rose and more than one bandwidth-delay product is
             # in flight (a rise of the path's own delay with nothing queued keeps under it)
             ours = self.bytes > cap / self.gain
-            ok = not (ours and self.queue_s > self.video_queue_s)
+            if ours and self.queue_s > self.video_queue_s:
+                with self._lock:
+                    self.held["video_rtt"] += 1
+                ok = False
         if not ok:
             with self._lock:
                 self.held["video"] += 1
@@ -387,6 +391,7 @@ class InFlight:
             "uplink_inflight_cap": round(cap) if math.isfinite(cap) else 0,
             "uplink_held_feedback": self.held["feedback"],
             "uplink_held_video": self.held["video"],
+            "uplink_held_video_rtt": self.held["video_rtt"],
             "uplink_probes": self.held["probes"],
             "uplink_queue_ms": round(1000.0 * self.queue_s),
         }

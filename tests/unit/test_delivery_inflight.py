@@ -220,6 +220,10 @@ def test_video_waits_while_the_acknowledgements_show_a_queue_of_ours() -> None:
     assert f.bytes > f.cap_bytes / f.gain
     assert f.admit_video(1000) and not f.admit_video(1000, now=1.21)
     assert f.admit_video(1000, now=2.5)  # a sample over a second old is not used
+    # counted apart from what the cap's room holds (the two are told apart in the Status)
+    assert f.held["video_rtt"] == 1 and f.counters()["uplink_held_video_rtt"] == 1
+    f.sent(2.6, int(10 * f.cap_bytes))
+    assert not f.admit_video(1000) and f.held["video"] == 2 and f.held["video_rtt"] == 1
     g = InFlight(gain=2.0, min_bytes=1000.0, video_queue_s=0.05)
     _acks(g, 100)
     g.sent(1.15, 100)
