@@ -369,18 +369,16 @@ class InFlight:
         """
         cap = self.cap_bytes
         room = self.video_share * cap
-        ok = self.bytes + min(float(nbytes), 0.5 * room) <= room
+        ok, valve = self.bytes + min(float(nbytes), 0.5 * room) <= room, False
         if ok and now is not None and self._last_ack is not None and now - self._last_ack < 1.0:
             # a queue of ours: the round trip rose and more than one bandwidth-delay product is
             # in flight (a rise of the path's own delay with nothing queued keeps under it)
-            ours = self.bytes > cap / self.gain
-            if ours and self.queue_s > self.video_queue_s:
-                with self._lock:
-                    self.held["video_rtt"] += 1
-                ok = False
+            valve = self.bytes > cap / self.gain and self.queue_s > self.video_queue_s
+            ok = not valve
         if not ok:
             with self._lock:
                 self.held["video"] += 1
+                self.held["video_rtt"] += valve
         return ok
 
     def counters(self) -> dict[str, int]:
