@@ -3,8 +3,8 @@
 Each sample of a delay (a round trip, a one-way delay with the clocks' offset in it) is the
 path's delay plus its queue plus waits of one sign: the time a feedback lay at the leader
 before its status went, a command's period before its echo. LEDBAT's current-delay filter
-takes them out: the queue is the least of the last few samples over the minimum of the
-window (the base delay). Used by :class:`~bipedtele.follower.delivery.InFlight` (the Status
+takes them out: the queue is the least of the last few samples (and, with a span, of every
+sample within it) over the minimum of the window (the base delay). Used by :class:`~bipedtele.follower.delivery.InFlight` (the Status
 round trip) and :class:`~bipedtele.follower.owdqueue.OneWayQueue` (the echoed feedback's
 one-way delay).
 """
@@ -20,7 +20,7 @@ __all__ = ["DelayRise"]
 
 
 class DelayRise:
-    """The least of the last ``n`` delay samples over their minimum across ``window_s``.
+    """The least of the last ``n`` delay samples (and of all within ``span_s``) over their minimum across ``window_s``.
 
     Parameters
     ----------
@@ -28,24 +28,33 @@ class DelayRise:
         Window of the minimum (the base delay) [s].
     n : int
         Samples the current delay is the least of.
+    span_s : float
+        The current delay is also the least of every sample of the last ``span_s`` [s]: a
+        link that delivers in slots waits up to a slot's gap, whatever the queue.
     """
 
-    def __init__(self, window_s: float = 10.0, n: int = 3) -> None:
-        if not (math.isfinite(window_s) and window_s > 0) or n < 1:
-            raise ValueError(f"window_s = {window_s!r}, n = {n!r}: allowed: a finite window > 0 and n >= 1")
+    def __init__(self, window_s: float = 10.0, n: int = 3, span_s: float = 0.0) -> None:
+        if not (math.isfinite(window_s) and window_s > 0) or n < 1 or not (math.isfinite(span_s) and span_s >= 0):
+            raise ValueError(
+                f"window_s = {window_s!r}, n = {n!r}, span_s = {span_s!r}: allowed: a finite window > 0, n >= 1, a finite span >= 0"
+            )
         self._min = WindowMin(window_s)
-        self._recent: deque[float] = deque(maxlen=n)
+        self._n, self._span_s = n, float(span_s)
+        self._recent: deque[tuple[float, float]] = deque()
 
     def add(self, t: float, delay_s: float) -> float:
         """Take a sample ``delay_s`` [s] at ``t`` [s]; return the rise: the current delay over the minimum [s], >= 0."""
         self._min.add(t, delay_s)
-        self._recent.append(delay_s)
+        recent = self._recent
+        recent.append((t, delay_s))
+        while len(recent) > self._n and recent[0][0] < t - self._span_s:
+            recent.popleft()
         base = self._min.value(t)
-        return max(0.0, min(self._recent) - (delay_s if base is None else base))
+        return max(0.0, min(d for _, d in recent) - (delay_s if base is None else base))
 
     def rebase(self, t: float) -> None:
         """Take the current delay as the new minimum at ``t`` [s] (the path's own delay rose)."""
-        current = min(self._recent, default=None)
+        current = min((d for _, d in self._recent), default=None)
         self._min.clear()
         if current is not None:
             self._min.add(t, current)

@@ -1,4 +1,4 @@
-"""DelayRise (follower/delayrise.py): the least of the last three delays over the window's minimum."""
+"""DelayRise (follower/delayrise.py): the least of the last three delays (or of a span's) over the window's minimum."""
 
 from __future__ import annotations
 
@@ -14,6 +14,22 @@ def test_one_high_sample_is_no_queue_three_are() -> None:
     assert r.add(0.1, 0.20) == 0.0  # a wait of one sign: the least of the last three is still 0.10
     assert r.add(0.2, 0.20) == 0.0
     assert r.add(0.3, 0.20) == pytest.approx(0.10)  # three in a row: a queue
+
+
+def test_with_a_span_the_current_delay_is_the_least_of_every_sample_in_it() -> None:
+    """A link that delivers in slots 50 ms apart: each feedback waits up to a slot's gap.
+    Three samples 10 ms apart can all wait on one slot; over 60 ms one of them is lucky."""
+    r = DelayRise(window_s=10.0, span_s=0.06)
+    r.add(0.0, 0.10)
+    for k, wait in enumerate((0.04, 0.03, 0.02, 0.01, 0.0, 0.04, 0.03, 0.02), start=1):
+        assert r.add(0.01 * k, 0.10 + wait) == 0.0, k  # a lucky sample within the last 60 ms
+    plain = DelayRise(window_s=10.0)
+    plain.add(0.0, 0.10)
+    rises = [plain.add(0.01 * k, 0.10 + w) for k, w in enumerate((0.04, 0.04, 0.04), start=1)]
+    assert rises[-1] == pytest.approx(0.04)  # three waits on one slot: a queue, for three samples only
+    for k in range(9, 17):  # a queue: every sample high
+        r.add(0.01 * k, 0.15)
+    assert r.add(0.17, 0.15) == pytest.approx(0.05)
 
 
 def test_the_minimum_is_over_the_window_and_rebase_takes_the_current_delay() -> None:
@@ -34,3 +50,5 @@ def test_the_minimum_is_over_the_window_and_rebase_takes_the_current_delay() -> 
 def test_bad_parameters_are_refused() -> None:
     with pytest.raises(ValueError, match="window_s"):
         DelayRise(window_s=0.0)
+    with pytest.raises(ValueError, match="span_s"):
+        DelayRise(span_s=-0.1)
