@@ -233,11 +233,12 @@ def test_an_undone_delay_cut_gives_back_an_echo_cuts_soft_ceiling() -> None:
             b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 0, "fb_age_ms": 200}, t[0])
 
     _ticks(b, t, 1000, each)
-    ow[0] = 0.08  # a queue of ours: video waits, and it drains
-    _ticks(b, t, 10, lambda k: each(1000 + k))
+    for k in range(30):  # a queue of ours (growing 0.2 s/s): video waits, and it drains
+        ow[0] = 0.02 + 0.002 * (k + 1)
+        _ticks(b, t, 1, lambda j, k=k: each(1000 + k))
     assert not b.admit_video(1000)
     ow[0] = 0.02
-    _ticks(b, t, 1990, lambda k: each(1010 + k))  # to 30 s
+    _ticks(b, t, 1970, lambda k: each(1030 + k))  # to 30 s
     assert b.signals["echo"] == 1 and b.signals["delay"] == 0, b.signals
     _ticks(b, t, 1000, lambda k: each(3000 + k))  # the step: cut by the delay rule, then undone
     assert b.signals["delay"] == 1 and b.signals["undone"] == 1, b.signals
@@ -245,6 +246,35 @@ def test_an_undone_delay_cut_gives_back_an_echo_cuts_soft_ceiling() -> None:
     _ticks(b, t, 1000, lambda k: each(4000 + k))
     # probed at up to 3 %/s past the echo's ceiling (0.5 %/s past a delay cut's: +5 % in 10 s)
     assert b.capacity_bps > 1.2 * before, (before, b.capacity_bps, b.ceiling_bps)
+
+
+def test_a_lone_dip_of_the_path_is_waited_out_not_cut() -> None:
+    """A rise of the echoed one-way delay by 60 ms between two feedback (a cellular link's
+    scheduling gap: a queue of ours cannot grow that fast) closes the valve, and video waits
+    it out; the estimate stays. Before, each such dip cut it to 0.9 of what was sent (about
+    0.8 of it), a ratchet on the 3G and LTE rows."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+    b.start_budget_bps, b.capacity_bps = None, 1_000_000.0  # past the start
+    ow = [0.02]  # the echoed feedback's one-way delay [s]
+
+    def each(k: int) -> None:
+        b.on_h2(0.18)
+        b.on_echo((t[0] - 0.05, t[0] - 0.05 + ow[0]))
+        b.sent(300, feedback=True)
+        if b.admit_video(1000):
+            b.sent(int((b.video_budget_bps() or 0.0) * 0.01 / 8), video=True)
+        if k % 50 == 0 and t[0] > 1.0:
+            b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 0, "fb_age_ms": 200}, t[0])
+
+    _ticks(b, t, 1000, each)
+    found = b.capacity_bps
+    ow[0] = 0.08
+    _ticks(b, t, 10, lambda k: each(1000 + k))
+    ow[0] = 0.02
+    _ticks(b, t, 100, lambda k: each(1010 + k))
+    assert b.owd.held > 0 and b.signals["echo"] == 0 and b.capacity_bps >= found, (b.owd.counters(), b.signals)
+    assert b.owd.dips == 1
 
 
 def test_uncapped_never_throttles() -> None:
