@@ -411,7 +411,7 @@ class UplinkBudget:
         echo showed 1-4 ms, and judged on h2 the start's budget stayed at 71 kbit/s for 10 s.
         """
         rise = 0.5 * self.tuning.delay_rise_s
-        if now - self.owd.at < self.owd.fresh_s:
+        if self.owd.fresh(now):
             return self.owd.queue_s <= rise
         return self._q.excess_s <= rise
 

@@ -47,7 +47,7 @@ class DelayRise:
         self._min.add(t, delay_s)
         recent = self._recent
         recent.append((t, delay_s))
-        while len(recent) > self._n and recent[0][0] < t - self._span_s:
+        while len(recent) > self._n and (not self._span_s or recent[0][0] < t - self._span_s):  # no span: the last n
             recent.popleft()
         base = self._min.value(t)
         return max(0.0, min(d for _, d in recent) - (delay_s if base is None else base))

@@ -93,7 +93,13 @@ class OneWayQueue:
         steep_slope: float = 0.5,
         lone_s: float = 1.0,
     ) -> None:
-        given = {"queue_max_s": queue_max_s, "window_s": window_s, "settle_s": settle_s, "steep_slope": steep_slope}
+        given = {
+            "queue_max_s": queue_max_s,
+            "window_s": window_s,
+            "settle_s": settle_s,
+            "steep_slope": steep_slope,
+            "lone_s": lone_s,
+        }
         for name, v in given.items():
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
@@ -150,9 +156,13 @@ class OneWayQueue:
             self._closed_at = None
             self.rebased += 1
 
+    def fresh(self, now: float) -> bool:
+        """Say whether the last sample came within ``fresh_s`` of ``now`` [s] (commands are coming: the queue is current)."""
+        return now - self.at < self.fresh_s
+
     def closed(self, now: float) -> bool:
         """Say whether video waits at ``now`` [s]: the queue is over ``queue_max_s`` and the echo is fresh."""
-        return self._closed_at is not None and now - self.at < self.fresh_s
+        return self._closed_at is not None and self.fresh(now)
 
     def counters(self) -> dict[str, int]:
         """Return the Status figures: the queue [ms], video held, rises rebased, drained with video held / without."""

@@ -113,6 +113,8 @@ def test_the_same_echo_again_is_no_sample_and_an_old_one_closes_nothing() -> Non
 def test_bad_parameters_are_refused() -> None:
     with pytest.raises(ValueError, match="queue_max_s"):
         OneWayQueue(queue_max_s=0.0)
+    with pytest.raises(ValueError, match="lone_s"):
+        OneWayQueue(lone_s=float("nan"))
 
 
 def test_the_budget_holds_video_while_the_valve_is_closed() -> None:
