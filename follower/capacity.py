@@ -29,8 +29,8 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   one-way delay is more than ``owd_queue_s`` (30 ms) above its minimum, and a queue that
   drained once it waited was ours: the capacity is cut to ``drain_ratio`` of the least of
   what was sent and what the leader received (not on a lossy path, not in a stall or just
-  after a silence); its ceiling sizes frames but neither slows the probe nor steps the
-  capacity down (a crossing costs a 30 ms queue, not the delay rule's: h2, the leader's 1 s
+  after a silence); its ceiling neither holds frames under the capacity, nor slows the
+  probe, nor steps the capacity down (a crossing costs a 30 ms queue, not the delay rule's: h2, the leader's 1 s
   mean, shows a queue about 0.75 s late). A lone **dip** (a rise faster than twice what the
   probe can build, 2 x (``probe_gain`` - 1) = 0.5 s/s, with no other in the last second) is
   the path's own: video waits it out, nothing is cut.
@@ -444,7 +444,7 @@ class UplinkBudget:
         if (ref := self._carried(self._log.rate(now - tu.window_s, now))) <= 0:
             return
         self.signals["echo"] += 1
-        self.ceiling_bps, self._soft = ref, True  # frames sized to it; the probe past it not slowed
+        self.ceiling_bps, self._soft = ref, True  # frames and the probe past it not held down
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, tu.drain_ratio * ref))
         self._last_signal = now
 
@@ -540,8 +540,11 @@ class UplinkBudget:
     def frame_bits_max(self) -> float | None:
         """Largest video frame [bit]: one that holds the uplink ``burst_s`` at most; None: unlimited.
 
-        Measured against the start's budget during the start, then against what the path
-        carried at the last cut; unlimited on a path that never queued.
+        Measured against the start's budget during the start, then against the capacity,
+        never above what the path carried at the last rate or delay cut; unlimited on a
+        path that never queued. An echo cut's ceiling (soft) does not hold frames down as
+        the probe passes it: on the LTE row it held them to 4.5 kB (QVGA at quality 48)
+        while the estimate stood at 600-800 kbit/s.
 
         A frame leaves as one burst: at 300 kbit/s a 4 kB frame delays the feedback behind
         it by 107 ms, whatever the frame rate.
@@ -550,7 +553,8 @@ class UplinkBudget:
             return self.start_budget_bps * self.tuning.burst_s  # the start: small frames
         if self.ceiling_bps is None:
             return None  # the path never queued: no rate to hold a frame against
-        return min(self.capacity_bps, self.ceiling_bps) * self.tuning.burst_s
+        rate = self.capacity_bps if self._soft else min(self.capacity_bps, self.ceiling_bps)
+        return rate * self.tuning.burst_s
 
     def part_bits_max(self) -> float | None:
         """Largest video message [bit]: one that holds the uplink ``part_s`` at most; None: whole frames.

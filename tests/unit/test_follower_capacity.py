@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import pytest
 from bipedtele.follower.capacity import UplinkBudget
+from bipedtele.follower.video import MIN_PART_BYTES
 from bipedtele.link.delaymodels import parse_delay_model
 
 pytestmark = pytest.mark.timeout(60)
@@ -55,6 +56,7 @@ class Sim:
         self.next_fb = self.t
         self.next_st = self.t
         self.video_credit = 0.0
+        self.parts: deque[tuple[float, int]] = deque()  # a frame's parts waiting for their pace: (due, bytes)
         self.first_arrival: float | None = None
         self.fb_delays: deque[tuple[float, float]] = deque()  # feedback on its way: (arrival, delay)
         self.h2_window: deque[tuple[float, float]] = deque()  # arrived in the last second
@@ -67,6 +69,17 @@ class Sim:
         self.budget.sent(nbytes, video, feedback=feedback)
         if self.rng.random() >= self.loss:
             self.queue_bits += 8 * nbytes
+
+    def _frame(self, nbytes: int, part_bits_max: float | None, pace_bps: float) -> None:
+        """Send a frame as the program does: in parts of at most ``part_bits_max`` (600 bytes
+        the least), each after the one before has left at ``pace_bps`` (follower/video.py)."""
+        part = nbytes if part_bits_max is None else max(MIN_PART_BYTES, int(part_bits_max / 8))
+        due = max(self.t, self.parts[-1][0] + 8 * self.parts[-1][1] / pace_bps) if self.parts else self.t
+        while nbytes > 0:
+            n = min(part, nbytes)
+            self.parts.append((due, n))
+            due += 8 * n / pace_bps if pace_bps > 0 else 0.0
+            nbytes -= n
 
     def step(self) -> None:
         t, b = self.t, self.budget
@@ -98,7 +111,9 @@ class Sim:
         while self.video_credit >= frame:
             self.video_credit -= frame
             if not self.echo or b.admit_video(frame):  # a frame refused is dropped
-                self.send(frame, video=True)
+                self._frame(frame, b.part_bits_max(), rate)
+        while self.parts and self.parts[0][0] <= t:
+            self.send(self.parts.popleft()[1], video=True)
         # the path
         out = self.queue_bits if not math.isfinite(self.cap) else min(self.queue_bits, self.cap * DT)
         self.queue_bits -= out
@@ -199,16 +214,22 @@ def test_the_echoed_one_way_delay_keeps_the_feedback_out_of_videos_queue() -> No
 
 
 def test_after_an_echo_cut_the_probe_is_not_slowed_past_its_ceiling() -> None:
-    """An echo cut's ceiling sizes frames but does not slow the probe: a crossing costs a
-    30 ms queue now. On the LTE and 3G rows a dip of the link's own capacity set it, and the
-    0.5 %/s probe past it held video at 4-11 frames/s for the rest of the run."""
+    """An echo cut's ceiling neither slows the probe nor holds frames under the capacity: a
+    crossing costs a 30 ms queue now. On the LTE and 3G rows a dip of the link's own capacity
+    set it, and the 0.5 %/s probe past it held video at 4-11 frames/s for the rest of the
+    run; frames held to it stayed at QVGA quality 48 (4.5 kB) with the estimate at 800 kbit/s."""
     sim = Sim(cap_bps=600_000.0, echo=True)
     sim.run(30.0)
     assert sim.budget.signals["echo"] >= 1 and sim.budget.signals["delay"] == 0, sim.budget.signals
+    ceiling = sim.budget.ceiling_bps
+    assert ceiling is not None
     sim.cap = 1_200_000.0  # the path's capacity doubles
     log = sim.run(20.0)
     # probed at up to 3 %/s (0.5 %/s past a cut's ceiling: about +10 % in 20 s)
     assert log[-1]["cap"] > 1.3 * log[0]["cap"], (log[0]["cap"], log[-1]["cap"], sim.budget.signals)
+    largest = sim.budget.frame_bits_max()
+    assert sim.budget.ceiling_bps == ceiling and sim.budget.capacity_bps > 1.2 * ceiling
+    assert largest == pytest.approx(sim.budget.capacity_bps * sim.budget.tuning.burst_s)
 
 
 def test_an_undone_delay_cut_gives_back_an_echo_cuts_soft_ceiling() -> None:

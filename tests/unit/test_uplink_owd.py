@@ -70,6 +70,30 @@ def test_a_lone_steep_rise_is_the_paths_dip_and_a_second_within_a_second_is_ours
     assert (q.dips, q.drained) == (1, 1)
 
 
+def test_a_step_from_a_standing_few_milliseconds_is_still_a_dip() -> None:
+    """The LTE row's spikes: the delay stood 12-13 ms over its minimum (a link's scheduling),
+    then stepped to 33-46 ms within 20 ms. Measured from the last sample under a third of
+    queue_max (60-100 ms before the valve closed, as the least of the last 60 ms lags the
+    step) it read 0.3-0.45 s/s and was cut, 5 times in 90 s. A queue of ours at 0.25 s/s is
+    still no dip."""
+    q = OneWayQueue(queue_max_s=0.03, steep_slope=0.5, lone_s=1.0)
+    t = _feed(q, 100.0, 2.0, 0.02)
+    t = _feed(q, t, 0.2, 0.0325)  # 12.5 ms over the minimum
+    t = _feed(q, t, 0.1, 0.06)  # a step to 40 ms
+    assert q.closed(t)
+    q.held += 1
+    t = _feed(q, t, 0.1, 0.0325)
+    assert not q.closed(t) and (q.dips, q.drained) == (1, 0)
+    ours = OneWayQueue(queue_max_s=0.03, steep_slope=0.5, lone_s=1.0)
+    t = _feed(ours, 200.0, 2.0, 0.02)
+    t = _feed(ours, t, 0.2, 0.0325)
+    t = _ramp(ours, t, 0.0325, 0.07, 0.25)  # the probe's fastest queue of ours
+    assert ours.closed(t)
+    ours.held += 1
+    _feed(ours, t, 0.1, 0.0325)
+    assert (ours.dips, ours.drained) == (0, 1)
+
+
 def test_a_spike_that_drains_with_no_video_held_proves_nothing() -> None:
     """On the LTE row, spikes of the link's own (a short dip of its capacity) that drained
     before any video waited cut the estimate five times in 90 s, 622 -> 309 kbit/s."""
