@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from bipedtele.follower.video import LEVELS, VideoStreamer
+from bipedtele.follower.video import LEVELS, VideoStreamer, _bits_at
 from bipedtele.link.messages import VideoFrame, encode
 
 pytestmark = pytest.mark.timeout(60)
@@ -89,3 +89,13 @@ def test_videos_most_is_the_configured_rate_at_the_top_levels_measured_frame() -
     top = [len(encode(f)) for f in sent if f.width == 320]
     assert top and v.most_bps() == pytest.approx(2 * 10.0 * v.frame_bits(0))
     assert 0.9 < v.most_bps() / (2 * 10.0 * 8 * sum(top) / len(top)) < 1.1  # the measured 16 kB, not the 12 kB prior
+
+
+def test_an_unmeasured_level_is_scaled_from_the_nearest_measured_one() -> None:
+    """On the LTE row the start measured QQVGA at quality 10 first; the top level scaled from
+    it came to 6.7 kB (over the largest frame the uplink took) where the next level's
+    measured 2.6 kB made it 4.7 kB: the top level was never tried."""
+    measured = {5: 8.0 * 600, 1: 8.0 * 2600}
+    assert _bits_at(0, measured) == pytest.approx(8.0 * 2600 * LEVELS[0][2] / LEVELS[1][2])
+    assert _bits_at(4, measured) == pytest.approx(8.0 * 600 * LEVELS[4][2] / LEVELS[5][2])
+    assert _bits_at(3, {1: 8.0 * 2600, 5: 8.0 * 600}) == pytest.approx(8.0 * 2600 * LEVELS[3][2] / LEVELS[1][2])
