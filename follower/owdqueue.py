@@ -77,7 +77,7 @@ class OneWayQueue:
     at : float
         When the last new sample came [s].
     held : int
-        Video messages the valve held back.
+        Video messages the valve held back (a frame's later part once per 10 ms it waits).
     rebased : int
         Rises taken for the path's own delay.
     drained : int

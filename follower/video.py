@@ -22,7 +22,9 @@ and off only when even that does not fit; a token bucket (rate: the budget) make
 it never sends faster than the budget (a frame without tokens is dropped, ``throttled``).
 A frame larger than the uplink takes in ``part_bits_max`` goes in parts
 (``VideoFrame.part`` of ``parts``) paced at the budget, so that the feedback behind it
-waits for one part, not the whole frame (the leader joins them: leader/videoparts.py).
+waits for one part, not the whole frame (the leader joins them: leader/videoparts.py);
+each later part waits while the uplink does not take it (its valve: ``admit``), up to
+``_PART_WAIT_S``, and then the rest of the frame is dropped (``parts_dropped``).
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ _UNUSED = 0.1  # share of the budget a level at its most frames may leave unused
 _CHOOSE_EVERY_S = 1.0  # the level is chosen again at most this often [s]
 _OVERHEAD_BYTES = 120  # a VideoFrame's fields and MAC around the JPEG [bytes]
 MIN_PART_BYTES = 600  # a frame is not cut into parts smaller than this [bytes of JPEG]
+_PART_WAIT_S = 0.5  # a frame's next part waits for the uplink this long at most, then the rest is dropped [s]
+_PART_POLL_S = 0.01  # it asks the uplink again this often while it waits [s]
 
 #: Levels, best first: (size scale, JPEG quality relative to the configured one, lowest
 #: absolute quality) and the expected frame size relative to level 0 until measured.
@@ -85,8 +89,10 @@ class VideoStreamer:
         The frames' session id (default: a new one).
     admit : callable, optional
         ``admit(nbytes) -> bool``: may a frame of ``nbytes`` [bytes] leave now (the uplink's
-        in-flight cap, :class:`~bipedtele.follower.delivery.InFlight`)? A frame refused is
-        dropped and counted (``held``): the next one is newer. None: always.
+        in-flight cap, :class:`~bipedtele.follower.delivery.InFlight`, and its valve)? A
+        frame refused is dropped and counted (``held``): the next one is newer. A frame's
+        later parts each ask ``admit(0)`` and wait, asked again every 10 ms, up to 0.5 s;
+        then the rest is dropped (``parts_dropped``). None: always.
     """
 
     def __init__(
@@ -130,6 +136,7 @@ class VideoStreamer:
         self.max_fps = float(fps)
         self.stats["throttled"] = 0
         self.stats["held"] = 0
+        self.stats["parts_dropped"] = 0
         self._budget: float | None = None
         self._frame_bits_max: float | None = None
         self._part_bits_max: float | None = None
@@ -254,39 +261,66 @@ class VideoStreamer:
             with self._cv:
                 cuts = _cut(jpeg, self._part_bits_max)
                 pace_bps = self._budget if len(cuts) > 1 else None
-            first = self._seq + 1
-            self._seq += len(cuts)
-            for i, piece in enumerate(cuts):
-                if i and pace_bps:
-                    # paced at video's budget: the uplink's queue holds at most about one
-                    # part ahead of the feedback, never a whole frame
-                    gap = 8.0 * (len(cuts[i - 1]) + _OVERHEAD_BYTES) / pace_bps
-                    with self._cv:
-                        if self._cv.wait_for(lambda: self._stop, timeout=gap):
-                            return
-                frame = VideoFrame(
-                    sid=self._sid,
-                    seq=first + i,
-                    t=self._now(),
-                    camera=cam,
-                    width=bgr.shape[1],
-                    height=bgr.shape[0],
-                    t_capture=t_capture,
-                    jpeg=piece,
-                    part=i,
-                    parts=len(cuts),
-                )
-                try:
-                    self._publish(frame)
-                except Exception:  # a transport hiccup must not kill the video thread
-                    LOG.exception("publishing a video frame failed")
-                    break
-            else:
+            if self._send(cam, bgr.shape[1], bgr.shape[0], t_capture, cuts, pace_bps):
                 self.stats["published"] += 1
                 self.stats["parts"] += len(cuts)
                 with self._cv:
                     self._sent_times.append(self._now())
                     self.width_sent = bgr.shape[1]
+            elif self._stop:
+                return
+
+    def _send(
+        self, cam: str, width: int, height: int, t_capture: float, cuts: list[bytes], pace_bps: float | None
+    ) -> bool:
+        """Publish a frame's parts, paced at ``pace_bps`` [bit/s], each after the uplink takes it; True when all left."""
+        first = self._seq + 1
+        self._seq += len(cuts)
+        for i, piece in enumerate(cuts):
+            if i and pace_bps:
+                # paced at video's budget: the uplink's queue holds at most about one
+                # part ahead of the feedback, never a whole frame
+                gap = 8.0 * (len(cuts[i - 1]) + _OVERHEAD_BYTES) / pace_bps
+                with self._cv:
+                    if self._cv.wait_for(lambda: self._stop, timeout=gap):
+                        return False
+            if i and not self._part_admitted():
+                self.stats["parts_dropped"] += len(cuts) - i  # the rest of a frame the uplink did not take
+                return False
+            frame = VideoFrame(
+                sid=self._sid,
+                seq=first + i,
+                t=self._now(),
+                camera=cam,
+                width=width,
+                height=height,
+                t_capture=t_capture,
+                jpeg=piece,
+                part=i,
+                parts=len(cuts),
+            )
+            try:
+                self._publish(frame)
+            except Exception:  # a transport hiccup must not kill the video thread
+                LOG.exception("publishing a video frame failed")
+                return False
+        return True
+
+    def _part_admitted(self) -> bool:
+        """Wait until the uplink takes a frame's next part (``admit(0)``), at most ``_PART_WAIT_S``; False: it did not, or stop.
+
+        A frame's parts were paced but not held: once a frame began, the valve closing
+        (the feedback's one-way queue over 30 ms) stopped nothing of it.
+        """
+        if self._admit is None:
+            return True
+        for _ in range(round(_PART_WAIT_S / _PART_POLL_S)):
+            if self._admit(0):
+                return True
+            with self._cv:
+                if self._cv.wait_for(lambda: self._stop, timeout=_PART_POLL_S):
+                    return False
+        return self._admit(0)
 
     # ------------------------------------------------------------------ budget
 

@@ -115,3 +115,36 @@ def test_the_assembler_bounds_a_frame_at_the_jpeg_limit() -> None:
     assert join.add(_part(2, 1, 3, big)) is None  # past MAX_JPEG_BYTES: the frame is dropped
     assert join.drops.counts() == {"video_bad_part": 1}
     assert join.add(_part(3, 2, 3, b"x")) is None
+
+
+def _gated(open_after: int | None) -> tuple[list[VideoFrame], list[int], VideoStreamer]:
+    """One frame in parts through an uplink whose valve closes once the first part left and
+    opens ``open_after`` asks later (None: never)."""
+    sent: list[VideoFrame] = []
+    asks: list[int] = []
+
+    def admit(nbytes: int) -> bool:
+        asks.append(nbytes)
+        closed = bool(sent) and (open_after is None or len([a for a in asks if a == 0]) <= open_after)
+        return not closed
+
+    v = VideoStreamer(Cam(), ["head"], 5.0, sent.append, now=lambda: 0.0, admit=admit)  # type: ignore[arg-type]
+    v.set_budget(2_000_000.0, None, 8_000.0)
+    with v:
+        v.maybe_capture(0.0)
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and v.stats["published"] + v.stats["parts_dropped"] == 0:
+            time.sleep(0.005)
+    return sent, asks, v
+
+
+def test_a_frames_later_parts_wait_while_the_uplinks_valve_is_closed() -> None:
+    """Once a frame began, the valve closing (the feedback's one-way queue over 30 ms) held
+    nothing of it: every part left, paced, into the queue the valve saw. Each later part
+    now asks the uplink and waits; a frame the valve holds over 0.5 s loses its rest."""
+    sent, asks, v = _gated(open_after=5)
+    assert v.stats["published"] == 1 and sent[0].parts > 1 and len(sent) == sent[0].parts
+    assert asks[0] > 0 and asks.count(0) > 5  # the frame's size once, then each later part waited
+    sent, asks, v = _gated(open_after=None)
+    assert v.stats["published"] == 0 and len(sent) == 1 and v.stats["parts_dropped"] == sent[0].parts - 1
+    assert 40 <= asks.count(0) <= 60  # asked every 10 ms for 0.5 s
