@@ -30,10 +30,10 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   drained once it waited was ours: the capacity is cut to ``drain_ratio`` of the least of
   what was sent and what the leader received (not on a lossy path, not in a stall or just
   after a silence); its ceiling neither holds frames under the capacity, nor slows the
-  probe, nor steps the capacity down (a crossing costs a 30 ms queue, not the delay rule's: h2, the leader's 1 s
-  mean, shows a queue about 0.75 s late). A lone **dip** (a rise faster than twice what the
-  probe can build, 2 x (``probe_gain`` - 1) = 0.5 s/s, with no other in the last second) is
-  the path's own: video waits it out, nothing is cut.
+  probe, nor steps the capacity down (a crossing costs a 30 ms queue, not the delay
+  rule's: h2, the leader's 1 s mean, shows a queue about 0.75 s late). A lone **dip** (a
+  rise faster than twice what the probe can build, 2 x (``probe_gain`` - 1) = 0.5 s/s, with
+  no other in the last second) is the path's own: video waits it out, nothing is cut.
 - **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
   the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
   (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
