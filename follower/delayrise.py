@@ -4,9 +4,9 @@ Each sample of a delay (a round trip, a one-way delay with the clocks' offset in
 path's delay plus its queue plus waits of one sign: the time a feedback lay at the leader
 before its status went, a command's period before its echo. LEDBAT's current-delay filter
 takes them out: the queue is the least of the last few samples (and, with a span, of every
-sample within it) over the minimum of the window (the base delay). Used by :class:`~bipedtele.follower.delivery.InFlight` (the Status
-round trip) and :class:`~bipedtele.follower.owdqueue.OneWayQueue` (the echoed feedback's
-one-way delay).
+sample within it) over the minimum of the window (the base delay). Used by
+:class:`~bipedtele.follower.delivery.InFlight` (the Status round trip) and
+:class:`~bipedtele.follower.owdqueue.OneWayQueue` (the echoed feedback's one-way delay).
 """
 
 from __future__ import annotations
