@@ -39,11 +39,15 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
   by ``ceiling_probe`` (0.5 %) only past ``drain_ratio`` of what the path carried at the
   last cut (docs/follower.md: what each bound prevented).
-- **standing queue.** h2 more than ``queue_target_s`` (15 ms) above its minimum over
-  ``base_window_s`` (60 s): no probing (the probe slows as h2 nears the target), and with a
-  ceiling from a cut the capacity steps down by ``queue_decrease`` (5 %) of itself per
-  second, not below 0.8 x the ceiling. The delay rule's 10 s minimum takes in a queue that
-  stands longer.
+- **standing queue.** The fresh echo's one-way delay (h2 where no echo comes) more than
+  ``queue_target_s`` (15 ms) above its minimum over ``base_window_s`` (60 s): no probing
+  (the probe slows as it nears the target), and with a ceiling from a cut the capacity
+  steps down by ``queue_decrease`` (5 %) of itself per second, not below 0.8 x the
+  ceiling. The delay rule's 10 s minimum takes in a queue that stands longer. Not h2 where
+  the echo comes: h2, a 1 s mean, counts each feedback's wait behind a video part, which
+  grows with what is sent on a link that delivers in slots (the 3G row: 39-42 ms idle,
+  55-60 ms at a fifth of the link with the echo's queue at 2-8 ms), and measured against
+  the idle path it held the probe for 25-40 s.
 
 Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while the path
@@ -163,7 +167,9 @@ class UplinkBudget:
         self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s, video_queue_s=tu.video_queue_s)
         # a queue of ours grows at most as fast as the probe exceeds the path (1.25 x what is
         # sent: 0.25 s/s); one rising twice that fast is the path's dip
-        self.owd = OneWayQueue(tu.owd_queue_s, steep_slope=2.0 * (tu.probe_gain - 1.0))
+        self.owd = OneWayQueue(
+            tu.owd_queue_s, steep_slope=2.0 * (tu.probe_gain - 1.0), standing_window_s=tu.base_window_s
+        )
         self._owd_drained = 0  # the echo rule's queues of ours judged so far
         self._undo: PendingCut | None = None
         self._last_signal = -math.inf
@@ -193,8 +199,8 @@ class UplinkBudget:
 
     @property
     def standing_s(self) -> float:
-        """h2 above its minimum over ``base_window_s`` [s]: a queue standing longer than the delay rule's window."""
-        return self._q.standing_s
+        """A queue standing longer than the delay rule's window [s]: the fresh echo's one-way delay (else h2) over its ``base_window_s`` minimum."""
+        return self.owd.standing_s if self.owd.fresh(self._clock()) else self._q.standing_s
 
     # ------------------------------------------------------------------ inputs
 
@@ -372,7 +378,8 @@ class UplinkBudget:
             return
         dt = max(0.0, now - last)
         fresh = now - self._last_status <= tu.status_timeout_s and now - q.at < tu.gap_s
-        if fresh and q.standing_s > tu.queue_target_s:
+        standing = self.standing_s
+        if fresh and standing > tu.queue_target_s:
             # a queue standing longer than the delay rule's window (a slow probe past the
             # ceiling builds one that rule's minimum takes in): no probing; against a ceiling
             # the path showed at a cut, step down towards 0.8 x it (a rise of the path's own
@@ -390,7 +397,7 @@ class UplinkBudget:
             # past what the path carried at the last cut: probe slowly (a path's capacity
             # changes now and then; a sawtooth against a known ceiling built 150-230 ms queues)
             step = tu.ceiling_probe * self.capacity_bps
-        step *= 1.0 - min(1.0, q.standing_s / tu.queue_target_s)  # slower as a standing queue nears the target
+        step *= 1.0 - min(1.0, standing / tu.queue_target_s)  # slower as a standing queue nears the target
         # recovery: a ceiling under half what the path delivered lately was set in a dip (a
         # near-zero stretch), back towards what it delivered, fast (see the module docstring)
         best = self.delivery.max_bps or 0.0

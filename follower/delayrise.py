@@ -54,10 +54,15 @@ class DelayRise:
 
     def rebase(self, t: float) -> None:
         """Take the current delay as the new minimum at ``t`` [s] (the path's own delay rose)."""
-        current = min((d for _, d in self._recent), default=None)
+        current = self.current
         self._min.clear()
         if current is not None:
             self._min.add(t, current)
+
+    @property
+    def current(self) -> float | None:
+        """The current delay [s]: the least of the last samples (None before the first)."""
+        return min((d for _, d in self._recent), default=None)
 
     @property
     def minimum(self) -> float | None:

@@ -31,6 +31,10 @@ dip had cut the estimate by a fifth (the 3G row's ratchet, 229 -> 117 kbit/s on 
 carrying 500-650). A valve closing again within ``lone_s`` is a capacity below what is
 sent: judged as before.
 
+The same current delay over its minimum across ``standing_window_s`` (60 s) is the
+**standing queue** (``standing_s``): a queue standing longer than the valve's 10 s window
+takes in, which holds the budget's probe.
+
 The queue is the least of the last three samples and of every sample of the last
 2 x ``queue_max_s`` (:class:`~bipedtele.follower.delayrise.DelayRise`): a link that delivers
 in slots (the cellular traces' 1500-byte opportunities, 50 ms apart where the 3G trace
@@ -48,6 +52,7 @@ from __future__ import annotations
 
 import math
 
+from bipedtele.follower.backlog import WindowMin
 from bipedtele.follower.delayrise import DelayRise
 
 __all__ = ["OneWayQueue"]
@@ -71,11 +76,16 @@ class OneWayQueue:
         A rise faster than this [s/s] is the path's dip (see the module docstring).
     lone_s : float
         A steep rise is a dip only with no other closing of the valve this long before it [s].
+    standing_window_s : float
+        Window of the standing queue's minimum [s].
 
     Attributes
     ----------
     queue_s : float
         The one-way delay above its minimum [s] (the least of the last three samples).
+    standing_s : float
+        The same delay above its minimum over ``standing_window_s`` [s]: a queue standing
+        longer than ``window_s`` takes in (0 until an echo came).
     at : float
         When the last new sample came [s].
     held : int
@@ -99,6 +109,7 @@ class OneWayQueue:
         fresh_s: float = 1.0,
         steep_slope: float = 0.5,
         lone_s: float = 1.0,
+        standing_window_s: float = 60.0,
     ) -> None:
         given = {
             "queue_max_s": queue_max_s,
@@ -106,6 +117,7 @@ class OneWayQueue:
             "settle_s": settle_s,
             "steep_slope": steep_slope,
             "lone_s": lone_s,
+            "standing_window_s": standing_window_s,
         }
         for name, v in given.items():
             if not (math.isfinite(v) and v > 0):
@@ -116,10 +128,12 @@ class OneWayQueue:
         self._last_close = -math.inf
         self._dip = False  # the open rise is a lone dip of the path's
         self._rise = DelayRise(window_s, span_s=2.0 * queue_max_s)
+        self._floor = WindowMin(standing_window_s)  # of the current delay: the standing queue's base
         self._last_sent = -math.inf
         self._closed_at: float | None = None
         self._settle_until = math.inf
         self.queue_s = 0.0
+        self.standing_s = 0.0
         self.at = -math.inf
         self.held = 0
         self.rebased = 0
@@ -137,6 +151,7 @@ class OneWayQueue:
             return
         self._last_sent = t_sent
         self.queue_s = self._rise.add(now, t_recv - t_sent)  # the one-way delay plus the clocks' offset
+        self._stand(now)
         self.at = now
         if self.queue_s <= 0.5 * self.queue_max_s:
             self._clear = (t_sent, self.queue_s)
@@ -159,9 +174,19 @@ class OneWayQueue:
             return
         if now > self._settle_until:  # it did not drain: the path's own delay rose
             self._rise.rebase(now)
+            self._floor.clear()
+            self._stand(now)
             self.queue_s = 0.0
             self._closed_at = None
             self.rebased += 1
+
+    def _stand(self, now: float) -> None:
+        """Take the current delay into the standing queue's minimum at ``now`` [s]."""
+        current = self._rise.current
+        assert current is not None
+        self._floor.add(now, current)
+        floor = self._floor.value(now)
+        self.standing_s = 0.0 if floor is None else max(0.0, current - floor)
 
     def fresh(self, now: float) -> bool:
         """Say whether the last sample came within ``fresh_s`` of ``now`` [s] (commands are coming: the queue is current)."""

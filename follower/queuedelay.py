@@ -9,7 +9,8 @@ Each Command carries ``h2_s``, the leader's 1 s mean of the feedback path's dela
   (the delay rule's clock), and one that lasts ``relearn_s`` without falling is the path's
   own delay: the minimum is taken again from the current h2 (**relearn**);
 - the **standing queue**: h2 above its minimum over ``base_window_s`` (60 s), a queue that
-  stands longer than the delay rule's window takes in;
+  stands longer than the delay rule's window takes in (the budget uses the echo's,
+  :class:`~bipedtele.follower.owdqueue.OneWayQueue`, while commands echo feedback);
 - h2's **slope** over the last 0.5 s, and whether it is **falling** (more than 50 ms
   below its peak over the last 2 s: a queue of ours draining);
 - the commands' **gaps**: after a silence longer than ``gap_s`` (an outage, a router

@@ -533,3 +533,42 @@ def test_the_start_takes_the_most_the_path_carried_not_a_dip_at_its_end() -> Non
     _ticks(b, t, 1200, each)  # 12 s
     assert b.start_budget_bps is None and math.isfinite(b.capacity_bps)  # the start is over
     assert b.capacity_bps >= 1.2 * 390_000, b.capacity_bps
+
+
+def _standing_run(echo_owd_s: Callable[[float], float]) -> UplinkBudget:
+    """5 s of an idle path (h2 40 ms), then 30 s sending video at its budget with h2 at 58 ms
+    (the 3G row: a link's slots make each feedback wait longer as more is sent); the echoed
+    feedback's one-way delay is ``echo_owd_s(t)`` [s]. Return the budget."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+    b.start_budget_bps, b.capacity_bps = None, 150_000.0  # past the start
+    sending = [False]
+
+    def each(k: int) -> None:
+        b.on_h2(0.058 if sending[0] else 0.040)
+        b.on_echo((t[0] - 0.05, t[0] - 0.05 + echo_owd_s(t[0])))
+        if sending[0]:
+            b.sent(300, feedback=True)
+            b.sent(int((b.video_budget_bps() or 0.0) * 0.01 / 8), video=True)
+        if k % 50 == 0:
+            b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 0, "fb_age_ms": 200}, t[0])
+
+    _ticks(b, t, 500, each)
+    sending[0] = True
+    _ticks(b, t, 3000, each)
+    return b
+
+
+def test_the_standing_queue_is_the_echos_not_h2_over_the_idle_paths() -> None:
+    """The 3G row: h2 came to 39-42 ms with nothing sent (before video, after a stall) and
+    stood at 55-60 ms at a fifth of the link while the echo showed 2-8 ms of queue. Against
+    the idle h2 the standing queue read 15-20 ms, over its 15 ms target, and held the probe
+    (147 kbit/s for the last 40 s of a run on a link carrying 500-650). The fresh echo's
+    one-way delay over its 60 s minimum shows no standing queue: the probe goes on. One that
+    stands 20 ms above it (under the valve's 30 ms) still holds the probe."""
+    clear = _standing_run(lambda t: 0.02)
+    assert clear.standing_s == pytest.approx(0.0, abs=1e-9)
+    assert clear.capacity_bps > 1.5 * 150_000.0, (clear.capacity_bps, clear.signals)
+    queued = _standing_run(lambda t: 0.02 if t < 5.0 else 0.04)
+    assert queued.standing_s == pytest.approx(0.02)
+    assert queued.capacity_bps == pytest.approx(150_000.0), (queued.capacity_bps, queued.signals)

@@ -118,6 +118,19 @@ def test_a_rise_of_the_paths_own_delay_is_rebased_after_a_round_trip() -> None:
     assert q.queue_s == pytest.approx(0.02) and q.rebased == 1
 
 
+def test_a_queue_standing_longer_than_the_window_is_the_standing_queue() -> None:
+    """A queue of 20 ms (under the valve's 30 ms) for 15 s: the 10 s minimum takes it in,
+    the 60 s one does not; a rebase (the path's own delay rose) starts both again."""
+    q = OneWayQueue(queue_max_s=0.03, standing_window_s=60.0)
+    t = _feed(q, 100.0, 2.0, 0.02)
+    t = _feed(q, t, 15.0, 0.04)
+    assert q.queue_s == pytest.approx(0.0, abs=1e-9) and q.standing_s == pytest.approx(0.02)
+    t = _feed(q, t, 0.5, 0.2)  # a step of the path's own that does not drain
+    assert q.rebased == 1 and q.standing_s == pytest.approx(0.0, abs=1e-9)
+    _feed(q, t, 1.0, 0.21)
+    assert q.standing_s == pytest.approx(0.01)
+
+
 def test_the_same_echo_again_is_no_sample_and_an_old_one_closes_nothing() -> None:
     """The queue is the least of the last three samples and of every sample of the last
     2 x queue_max_s (60 ms): a link that delivers in slots (a cellular link's) makes each
@@ -139,6 +152,8 @@ def test_bad_parameters_are_refused() -> None:
         OneWayQueue(queue_max_s=0.0)
     with pytest.raises(ValueError, match="lone_s"):
         OneWayQueue(lone_s=float("nan"))
+    with pytest.raises(ValueError, match="standing_window_s"):
+        OneWayQueue(standing_window_s=-1.0)
 
 
 def test_the_budget_holds_video_while_the_valve_is_closed() -> None:
