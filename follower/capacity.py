@@ -39,20 +39,16 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
   by ``ceiling_probe`` (0.5 %) only past ``drain_ratio`` of what the path carried at the
   last cut (docs/follower.md: what each bound prevented).
-- **standing queue.** The fresh echo's one-way delay (h2 where no echo comes) more than
-  ``queue_target_s`` (15 ms) above its minimum over ``base_window_s`` (60 s): no probing
-  (the probe slows as it nears the target), and with a ceiling from a cut the capacity
-  steps down by ``queue_decrease`` (5 %) of itself per second, not below 0.8 x the
-  ceiling. The delay rule's 10 s minimum takes in a queue that stands longer. Not h2 where
-  the echo comes: h2, a 1 s mean, counts each feedback's wait behind a video part, which
-  grows with what is sent on a link that delivers in slots (the 3G row: 39-42 ms idle,
-  55-60 ms at a fifth of the link with the echo's queue at 2-8 ms), and measured against
-  the idle path it held the probe for 25-40 s.
+- **standing queue.** The echo's one-way delay (h2 without a fresh echo or on a lossy
+  path) more than ``queue_target_s`` (15 ms) above its minimum over ``base_window_s`` (60
+  s), a queue the delay rule's 10 s minimum takes in: no probing (slower as it nears the
+  target), and with a ceiling from a cut a step down by ``queue_decrease`` (5 %) of the
+  capacity per second, not below 0.8 x the ceiling (docs/follower.md: why not h2).
 
 Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while the path
-shows no queue (the fresh echo's under half the delay rule's rise; h2's excess where no
-echo comes) and the budget is less than twice what is sent, up to
+shows no queue (the echo's under half the delay rule's rise; h2's excess without a fresh
+echo or on a lossy path) and the budget is less than twice what is sent, up to
 ``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
 taken as 1.2 x the most that was sent in it with the path clear, and probed); acknowledgements
 ride on the periodic feedback until then. h2 is the leader's 1 s moving average, so a
@@ -199,8 +195,8 @@ class UplinkBudget:
 
     @property
     def standing_s(self) -> float:
-        """A queue standing longer than the delay rule's window [s]: the fresh echo's one-way delay (else h2) over its ``base_window_s`` minimum."""
-        return self.owd.standing_s if self.owd.fresh(self._clock()) else self._q.standing_s
+        """A queue standing longer than the delay rule's window [s]: the echo's one-way delay (else h2) over its ``base_window_s`` minimum."""
+        return self.owd.standing_s if self._echo_shows(self._clock()) else self._q.standing_s
 
     # ------------------------------------------------------------------ inputs
 
@@ -380,10 +376,8 @@ class UplinkBudget:
         fresh = now - self._last_status <= tu.status_timeout_s and now - q.at < tu.gap_s
         standing = self.standing_s
         if fresh and standing > tu.queue_target_s:
-            # a queue standing longer than the delay rule's window (a slow probe past the
-            # ceiling builds one that rule's minimum takes in): no probing; against a ceiling
-            # the path showed at a cut, step down towards 0.8 x it (a rise of the path's own
-            # delay costs at most that, for base_window_s)
+            # a queue the delay rule's window takes in (a slow probe past the ceiling): no probe;
+            # against a cut's ceiling step down towards 0.8 x it (a rise of the path's own costs that)
             if self.ceiling_bps is not None and not self._soft and self.capacity_bps > 0.8 * self.ceiling_bps:
                 low = 0.8 * self.ceiling_bps
                 self.capacity_bps = max(low, self.capacity_bps * (1.0 - tu.queue_decrease * dt))
@@ -394,12 +388,11 @@ class UplinkBudget:
             return  # a queue is still there: not the moment to ask for more
         step = max(tu.increase_bps_per_s, tu.increase_ratio * self.capacity_bps)
         if self.ceiling_bps is not None and not self._soft and self.capacity_bps >= tu.drain_ratio * self.ceiling_bps:
-            # past what the path carried at the last cut: probe slowly (a path's capacity
-            # changes now and then; a sawtooth against a known ceiling built 150-230 ms queues)
+            # past what the path carried at the last cut: probe slowly (a sawtooth against a
+            # known ceiling built 150-230 ms queues)
             step = tu.ceiling_probe * self.capacity_bps
         step *= 1.0 - min(1.0, standing / tu.queue_target_s)  # slower as a standing queue nears the target
-        # recovery: a ceiling under half what the path delivered lately was set in a dip (a
-        # near-zero stretch), back towards what it delivered, fast (see the module docstring)
+        # recovery: a ceiling under half what the path delivered lately was set in a dip: back fast
         best = self.delivery.max_bps or 0.0
         known = tu.drain_ratio * best if self.ceiling_bps is None or self.ceiling_bps < 0.5 * best else 0.0
         if self.capacity_bps < known:
@@ -410,15 +403,23 @@ class UplinkBudget:
         # probe near what is used: an estimate far above the sending rate was never tested
         self.capacity_bps = max(self.capacity_bps, min(probed, max(tu.probe_gain * tx + tu.floor_bps, known)))
 
-    def _start_clear(self, now: float) -> bool:
-        """Say whether the path shows no queue of ours for the start: the fresh echo's (else h2's excess) under half the delay rule's rise.
+    def _echo_shows(self, now: float) -> bool:
+        """Say whether the echo, not h2, shows the queue for the start and the standing-queue rule: fresh, on a path without loss.
 
-        The echo shows a queue about 0.75 s before h2 (a 1 s mean) and not a link's scheduling
-        waits: on the 3G row h2 stood 30-44 ms over its minimum at 45 % of the link while the
-        echo showed 1-4 ms, and judged on h2 the start's budget stayed at 71 kbit/s for 10 s.
+        On a lossy path feedback behind a lost segment waits for its retransmission: the
+        echo's least of three read that as a queue and held the start at 64 kbit/s for 20 s.
+        """
+        return self.owd.fresh(now) and not self.lossy
+
+    def _start_clear(self, now: float) -> bool:
+        """Say whether the path shows no queue of ours for the start: the echo's (else h2's excess) under half the delay rule's rise.
+
+        The echo shows a queue 0.75 s before h2 (a 1 s mean), and not a link's scheduling
+        waits: on the 3G row (h2 30-44 ms over its minimum, the echo's 1-4 ms) judged on h2
+        the start's budget stayed at 71 kbit/s for 10 s.
         """
         rise = 0.5 * self.tuning.delay_rise_s
-        if self.owd.fresh(now):
+        if self._echo_shows(now):
             return self.owd.queue_s <= rise
         return self._q.excess_s <= rise
 
@@ -548,10 +549,9 @@ class UplinkBudget:
         """Largest video frame [bit]: one that holds the uplink ``burst_s`` at most; None: unlimited.
 
         Measured against the start's budget during the start, then against the capacity,
-        never above what the path carried at the last rate or delay cut; unlimited on a
-        path that never queued. An echo cut's ceiling (soft) does not hold frames down as
-        the probe passes it: on the LTE row it held them to 4.5 kB (QVGA at quality 48)
-        while the estimate stood at 600-800 kbit/s.
+        never above what the path carried at the last rate or delay cut (not an echo cut's:
+        on the LTE row it held frames to 4.5 kB at 600-800 kbit/s); unlimited on a path
+        that never queued.
 
         A frame leaves as one burst: at 300 kbit/s a 4 kB frame delays the feedback behind
         it by 107 ms, whatever the frame rate.

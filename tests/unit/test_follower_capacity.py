@@ -572,3 +572,27 @@ def test_the_standing_queue_is_the_echos_not_h2_over_the_idle_paths() -> None:
     queued = _standing_run(lambda t: 0.02 if t < 5.0 else 0.04)
     assert queued.standing_s == pytest.approx(0.02)
     assert queued.capacity_bps == pytest.approx(150_000.0), (queued.capacity_bps, queued.signals)
+
+
+def test_on_a_lossy_path_the_start_and_the_standing_queue_read_h2_not_the_echo() -> None:
+    """5 % loss on TCP: each feedback behind a lost segment waits a round trip for its
+    retransmission, in order, so three echoes in a row mostly carry 100-300 ms of wait that
+    is no queue. Read on the echo, the 5 % loss row's start held video at 64 kbit/s for
+    20 s (its run 14 % under the loss-free one's frames). With the leader reporting the
+    loss, h2 (flat here) judges the start and the standing queue."""
+    t = [0.0]
+    b = UplinkBudget(lambda: t[0])
+
+    def each(k: int) -> None:
+        b.on_h2(0.2)
+        wait = 0.0 if k % 50 == 0 else 0.2  # all but one feedback in 0.5 s behind a retransmission
+        b.on_echo((t[0] - 0.2, t[0] + wait))
+        b.sent(int((b.video_budget_bps() or 0.0) * 0.01 / 8), video=True)
+        b.sent(400, feedback=True)
+        if k % 50 == 0:
+            b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 50_000, "fb_age_ms": 250})
+
+    _ticks(b, t, 600, each)  # 6 s
+    assert b.lossy
+    assert b.start_budget_bps is not None and b.start_budget_bps > 3 * 64_000, b.start_budget_bps
+    assert b.standing_s == pytest.approx(0.0, abs=1e-9)
