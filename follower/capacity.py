@@ -48,18 +48,17 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
 Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
 ``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while the path
 shows no queue (the fresh echo's under half the delay rule's rise; h2's excess where no
-echo comes) and the budget is less than twice what is sent, up to
-``start_max_bps`` (4 Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is
-taken as 1.2 x the most that was sent in it with the path clear, and probed); acknowledgements
-ride on the periodic feedback until then. h2 is the leader's 1 s moving average, so a
-queue shows about 0.75 s late: the growth overshoots a capacity by at most about a fifth
-before the first cut (the echo rule sees it sooner).
+echo comes) and the budget is less than twice what is sent, up to ``start_max_bps`` (4
+Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is taken as 1.2 x the
+most that was sent in it with the path clear, and probed); acknowledgements ride on the
+periodic feedback until then. h2 is the leader's 1 s moving average, so a queue shows
+about 0.75 s late: the growth overshoots a capacity by at most a fifth before the first
+cut (the echo rule sees it sooner).
 
-Loss alone (``fb_loss_ppm``) never throttles: a lossy path that delivers what is sent is not a
-full one. With the leader's feedback loss at ``lossy_ppm`` (0.1 %) or more in a Status within
-``lossy_hold_s`` (30 s), neither the rate nor the echo rule judges (TCP's video slowed by loss
-arrives below what was sent whatever the path carries): the delay rule alone judges a lossy
-path (a step of the path's own delay by its cut's undo).
+Loss alone (``fb_loss_ppm``) never throttles. With the leader's feedback loss at ``lossy_ppm``
+(0.1 %) or more in a Status within ``lossy_hold_s`` (30 s), neither the rate nor the echo
+rule judges (TCP's video slowed by loss arrives below what was sent whatever the path
+carries): the delay rule alone judges (a step of the path's own delay by its cut's undo).
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
@@ -67,10 +66,9 @@ path (a step of the path's own delay by its cut's undo).
   is still in flight (nothing sent: the follower's own pacing; a stall fed itself). Video
   pauses (budget 0) and the feedback drops to ``stall_fb_hz`` (5 Hz, the newest only), so
   the follower adds nearly nothing to the path's queue (what it sent before the stall
-  showed still waits there). No rule cuts during it, and when it ends the capacity
-  restarts from what the path delivered before it (:class:`~bipedtele.follower.delivery.DeliveryRate`:
-  the highest ``rx_bps`` of the last ``delivery_window_s`` of delivering time), not from the
-  collapse. A leader back from a silence is no stall (``leadersilence``).
+  showed still waits there). No rule cuts during it; after it the capacity restarts from
+  what the path delivered before it (``DeliveryRate``: the highest ``rx_bps`` of the last
+  ``delivery_window_s`` of delivering), not from the collapse. A leader back from a silence is no stall.
 - **in flight.** What was sent after the newest feedback the leader acknowledged is in
   flight, capped at about twice the bandwidth-delay product (:class:`~bipedtele.follower.delivery.InFlight`,
   BBR's cwnd): when the path stops delivering, the follower stops adding to its queue.
@@ -87,8 +85,7 @@ the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the cap
 The periodic feedback comes before video; an acknowledgement sent at once, beyond it, only
 from what video at its most leaves (docs/follower.md).
 
-The parts, each in its module: ``UplinkTuning`` (the parameters), ``SentLog`` (what was sent,
-per 0.1 s), ``QueueDelay`` (h2, its minimum, the excess, the standing queue), ``PendingCut``,
+The parts, each in its module: ``UplinkTuning``, ``SentLog``, ``QueueDelay``, ``PendingCut``,
 ``OneWayQueue``, ``InFlight``, ``DeliveryRate``, ``StartPhase``; the rules and the budgets are here.
 """
 
@@ -581,10 +578,12 @@ class UplinkBudget:
         less the margin (always once the start is over with the capacity unknown; during
         the start the acknowledgements ride on the periodic feedback). Otherwise the
         acknowledgements ride on the next tick's feedback, and the rate is the highest of
-        ``rate_hz``, 25 and 10 Hz that fits ``control_share``. As the capacity is probed back
-        up, the plan returns to full rate.
+        ``rate_hz``, 25 and 10 Hz that fits ``control_share``, above 25 Hz also half of what
+        the margin leaves (on the 3G row 50 Hz at 253 kbit/s took control from 90 to 164 kbit/s,
+        video from 12 to 7.5-8 frames/s). As the capacity is probed back up, the plan returns to full rate.
         """
         tu, cmd_hz, fb_bits, cap = self.tuning, self._q.command_hz(), self._log.fb_bits, self.capacity_bps
+        margin = max(tu.margin * cap, tu.margin_min_bps) if math.isfinite(cap) else 0.0
         plan = plan_feedback(
             rate_hz,
             tu.control_share * cap,
@@ -592,7 +591,8 @@ class UplinkBudget:
             fb_bits,
             start=self.start_budget_bps is not None,
             stall_hz=tu.stall_fb_hz if self.stalled else None,
-            ack_room_bps=cap - max(tu.margin * cap, tu.margin_min_bps) - video_bps if math.isfinite(cap) else math.inf,
+            ack_room_bps=cap - margin - video_bps,
+            above_floor_bps=0.5 * (cap - margin),
         )
         self._plan_bps = plan.control_bps(cmd_hz, fb_bits)
         return plan

@@ -10,7 +10,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["FeedbackPlan", "plan_feedback"]
+__all__ = ["FLOOR_HZ", "FeedbackPlan", "plan_feedback"]
+
+#: The feedback rate that keeps priority over video while the path is limited [Hz]; a
+#: periodic rate above it shares the path with video.
+FLOOR_HZ = 25.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,7 @@ def plan_feedback(
     start: bool = False,
     stall_hz: float | None = None,
     ack_room_bps: float = math.inf,
+    above_floor_bps: float = math.inf,
 ) -> FeedbackPlan:
     """How to send feedback now (:meth:`bipedtele.follower.capacity.UplinkBudget.feedback_plan` explains the rule).
 
@@ -77,6 +82,10 @@ def plan_feedback(
         [bit/s]: what video at its most leaves of the capacity (default: no bound but
         ``fits_bps``). The periodic feedback keeps priority over video; an acknowledgement
         sent at once instead of on the next periodic feedback does not.
+    above_floor_bps : float, optional
+        What a periodic rate above :data:`FLOOR_HZ` may use [bit/s] (default: no bound
+        but ``fits_bps``): the floor keeps priority over video, a rate above it shares
+        the path with video (:meth:`~bipedtele.follower.capacity.UplinkBudget.feedback_plan`).
     """
     if stall_hz is not None:
         hz = min(rate_hz, stall_hz)
@@ -90,7 +99,11 @@ def plan_feedback(
     acks_bps = min(fits_bps, ack_room_bps)
     if (rate_hz + command_hz) * feedback_bits <= acks_bps:
         return FeedbackPlan(True, rate_hz)
-    hz = next((h for h in (rate_hz, 25.0, 10.0) if h <= rate_hz and h * feedback_bits <= fits_bps), min(rate_hz, 10.0))
+
+    def fits(h: float) -> bool:  # the floor's rates before video, a rate above it shares the path with video
+        return h <= rate_hz and h * feedback_bits <= (fits_bps if h <= FLOOR_HZ else min(fits_bps, above_floor_bps))
+
+    hz = next((h for h in (rate_hz, FLOOR_HZ, 10.0) if fits(h)), min(rate_hz, 10.0))
     # the feedback rate the path carries: acknowledgements fill what the periodic
     # feedback leaves of it (no step from "every command" to "none" as the capacity moves)
     total_hz = max(hz, acks_bps / feedback_bits) if feedback_bits > 0 else hz

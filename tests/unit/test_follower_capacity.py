@@ -453,6 +453,20 @@ def test_acknowledgements_at_once_take_only_what_video_at_its_most_leaves() -> N
     assert b.feedback_plan(50.0, video_bps=464_000.0).ack_each_command
 
 
+def test_feedback_above_25_hz_takes_at_most_half_of_what_the_margin_leaves() -> None:
+    """The periodic feedback keeps priority over video up to 25 Hz; a rate above it shares the
+    path with video. On the 3G row 50 Hz fitted 0.6 of an estimate of 253 kbit/s: control
+    went from 90 to 164 kbit/s and video's budget from 129 to 75 kbit/s (12 to 7.5-8
+    frames/s) as the estimate rose."""
+    b = _known_path(266_000.0, 380)  # a feedback of 3040 bits: 50 Hz is 152 kbit/s
+    plan = b.feedback_plan(50.0, video_bps=500_000.0)
+    assert plan.rate_hz == 25.0 and not plan.ack_each_command, plan  # 152 > (266 - 26.6) / 2
+    b.capacity_bps = 400_000.0
+    assert b.feedback_plan(50.0, video_bps=500_000.0).rate_hz == 50.0  # 152 <= (400 - 40) / 2
+    b.capacity_bps = 160_000.0
+    assert b.feedback_plan(50.0, video_bps=500_000.0).rate_hz == 25.0  # the floor keeps 0.6 of it
+
+
 def _step_under_loss(loss_ppm: int, every: int = 1) -> tuple[float, float, dict[str, int]]:
     """A path whose delay steps +120 ms at 30 s and back at 33 s, as the leader's 1 s mean
     shows it (a ramp over 1 s), TCP's video arriving at 60 % of what is sent when loss
