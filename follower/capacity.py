@@ -28,12 +28,13 @@ both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
   (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): video waits while the feedback's
   one-way delay is more than ``owd_queue_s`` (30 ms) above its minimum, and a queue that
   drained once it waited was ours: the capacity is cut to ``drain_ratio`` of the least of
-  what was sent and what the leader received (not on a lossy path, not in a stall or just
-  after a silence); its ceiling neither holds frames under the capacity, nor slows the
-  probe, nor steps the capacity down (a crossing costs a 30 ms queue, not the delay
-  rule's: h2, the leader's 1 s mean, shows a queue about 0.75 s late). A lone **dip** (a
-  rise faster than twice what the probe can build, 2 x (``probe_gain`` - 1) = 0.5 s/s, with
-  no other in the last second) is the path's own: video waits it out, nothing is cut.
+  what was sent and what the leader received, not below ``drain_ratio`` of what the path
+  delivered lately (not on a lossy path, not in a stall or just after a silence); its
+  ceiling neither holds frames under the capacity, nor slows the probe, nor steps the
+  capacity down (a crossing costs a 30 ms queue, not the delay rule's: h2, the leader's 1 s
+  mean, shows a queue about 0.75 s late). A lone **dip** (no other closing in the last
+  second; a rise faster than 2 x (``probe_gain`` - 1) = 0.5 s/s, or any with the estimate
+  under the last cut's ceiling) is the path's own: video waits it out, nothing is cut.
 - **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
   the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
   (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
@@ -158,8 +159,6 @@ class UplinkBudget:
         self.delivery = DeliveryRate(self.tuning.delivery_window_s)
         tu = self.tuning
         self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s, video_queue_s=tu.video_queue_s)
-        # a queue of ours grows at most as fast as the probe exceeds the path (1.25 x what is
-        # sent: 0.25 s/s); one rising twice that fast is the path's dip
         self.owd = OneWayQueue(
             tu.owd_queue_s, steep_slope=2.0 * (tu.probe_gain - 1.0), standing_window_s=tu.base_window_s
         )
@@ -237,7 +236,8 @@ class UplinkBudget:
 
     def on_echo(self, echo: Sequence[float]) -> None:
         """Feed a command's echo of the newest feedback: its send stamp [s, ours] and receive time [s, the leader's]."""
-        self.owd.echo(self._clock(), float(echo[0]), float(echo[1]))
+        under = self.ceiling_bps is not None and self.capacity_bps < self.ceiling_bps  # a lone rise: the path's dip
+        self.owd.echo(self._clock(), float(echo[0]), float(echo[1]), under_ceiling=under)
 
     def on_leader_status(
         self, counters: Mapping[str, int], t_sent: float | None = None, sid: int | None = None
@@ -448,7 +448,9 @@ class UplinkBudget:
             return
         self.signals["echo"] += 1
         self.ceiling_bps, self._soft = ref, True  # frames and the probe past it not held down
-        self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, tu.drain_ratio * ref))
+        # not below what the path delivered lately (the 3G row's ratchet: 235 -> 136 kbit/s in 4 cuts)
+        known = tu.drain_ratio * (self.delivery.max_bps or 0.0)
+        self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, max(tu.drain_ratio * ref, known)))
         self._last_signal = now
 
     def _carried(self, sent_bps: float) -> float:

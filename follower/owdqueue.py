@@ -29,7 +29,11 @@ class, the echoes of four cellular runs (LTE, 3G) were lone dips in 23 of 36 clo
 of the kernel's 600 kbit/s token bucket in none of 9 (2 of 10 at 300 kbit/s); each such
 dip had cut the estimate by a fifth (the 3G row's ratchet, 229 -> 117 kbit/s on a link
 carrying 500-650). A valve closing again within ``lone_s`` is a capacity below what is
-sent: judged as before.
+sent: judged as before. A lone closing while the budget's estimate is under what the path
+carried at its last cut is a dip however slowly it rose (a queue of ours needs more sent
+than the path carried); past it, a crossing of a known rate (a token bucket's) is ours. On
+the 3G row the trace's slow rises (a stretch at 240-360 kbit/s for 200-600 ms) had cut
+the estimate 6 times in 90 s, each probed back slowly, where only the steep ones were dips.
 
 The same current delay over its minimum across ``standing_window_s`` (60 s) is the
 **standing queue** (``standing_s``): a queue standing longer than the valve's 10 s window
@@ -142,10 +146,12 @@ class OneWayQueue:
         self.dips = 0
         self._held_at_close = 0
 
-    def echo(self, now: float, t_sent: float, t_recv: float) -> None:
+    def echo(self, now: float, t_sent: float, t_recv: float, *, under_ceiling: bool = False) -> None:
         """Take a command's echo at ``now`` [s]: the newest feedback's send stamp [s, ours] and receive time [s, the leader's].
 
         The same feedback echoed again (no newer one arrived) is no new sample.
+        ``under_ceiling``: the budget's estimate is under what the path carried at its last
+        cut, so a lone closing is the path's dip however slowly it rose (module docstring).
         """
         if not (math.isfinite(t_sent) and math.isfinite(t_recv)) or t_sent <= self._last_sent:
             return
@@ -168,7 +174,7 @@ class OneWayQueue:
             self._closed_at, self._held_at_close = now, self.held
             sent, low = self._clear  # risen faster than steep_slope since the queue was low: the path's
             steep = self.queue_s - low > self.steep_slope * (t_sent - sent)
-            self._dip = steep and now - self._last_close >= self.lone_s
+            self._dip = (steep or under_ceiling) and now - self._last_close >= self.lone_s
             self._last_close = now
             self._settle_until = now + max(0.0, now - t_sent) + self.settle_s
             return

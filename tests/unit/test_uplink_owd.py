@@ -70,6 +70,23 @@ def test_a_lone_steep_rise_is_the_paths_dip_and_a_second_within_a_second_is_ours
     assert (q.dips, q.drained) == (1, 1)
 
 
+def test_a_lone_slow_rise_under_the_ceiling_is_a_dip_and_past_it_ours() -> None:
+    """A lone closing after a rise as slow as a queue of ours (0.2 s/s): with the budget's
+    estimate under what the path carried at its last cut, the path's dip; past it, ours."""
+    for under, counts in ((True, (1, 0)), (False, (0, 1))):
+        q = OneWayQueue(queue_max_s=0.03, steep_slope=0.5, lone_s=1.0)
+        t = _feed(q, 100.0, 2.0, 0.02)
+        d = 0.02
+        while d < 0.07:
+            d += 0.002
+            q.echo(t, t - 0.05, t - 0.05 + d + OFFSET_S, under_ceiling=under)
+            t += 0.01
+        assert q.closed(t)
+        q.held += 1
+        _feed(q, t, 0.1, 0.02)
+        assert (q.dips, q.drained) == counts, under
+
+
 def test_a_step_from_a_standing_few_milliseconds_is_still_a_dip() -> None:
     """The LTE row's spikes: the delay stood 12-13 ms over its minimum (a link's scheduling),
     then stepped to 33-46 ms within 20 ms. Measured from the last sample under a third of
