@@ -28,7 +28,8 @@ points to:
   acknowledgement; the ACL is not named (and while fresh messages have come for less
   than a window, no verdict) (before, every gap of a cellular uplink
   ended in "refused by the router's ACL?": the old status and video arrived first, the
-  feedback after them);
+  feedback after them); a refusal keeps the follower heard fresh, three messages at least
+  since the last acknowledgement (two trickling through a near-zero stretch are no verdict);
 - nothing is heard from the follower (a stalled or cut path, a router down: its presence
   may still linger): ``link lost: no feedback for N s (path or router down?)``; the ACL
   is not named, nothing says our commands were refused.
@@ -143,6 +144,7 @@ class CommandReach:
         self.fresh_s = float(window_s if fresh_s is None else fresh_s)
         self._fresh_since: float | None = None  # fresh messages heard without a window's pause since
         self._fresh_unacked: float | None = None  # the first fresh message after the last acknowledgement
+        self._fresh_count = 0  # fresh messages since the last acknowledgement
         self._last_fresh: float | None = None
         self.stall_warnings = 0
         self._sent_seq = sent_seq
@@ -201,6 +203,7 @@ class CommandReach:
         self._last_fresh = now
         if self._fresh_unacked is None:
             self._fresh_unacked = now  # the first fresh message since the last acknowledgement
+        self._fresh_count += 1
 
     def on_feedback(self, fb: Feedback, age_s: float | None = None) -> None:
         """Take one received feedback (any thread), ``age_s`` after it was sent [s] (None: unknown)."""
@@ -218,7 +221,7 @@ class CommandReach:
             if ok:
                 self.acknowledged += 1
                 self._last_ack = now
-                self._fresh_unacked = None
+                self._fresh_unacked, self._fresh_count = None, 0
 
     def _key_problem(self, now: float) -> str | None:
         """Return the key line when messages were refused for their MAC within the window, else None."""
@@ -287,6 +290,7 @@ class CommandReach:
         with self._lock:
             last_ack, last_fb, last_heard, feedback = self._last_ack, self._last_fb, self._last_heard, self.feedback
             last_fresh, fresh_since, unacked = self._last_fresh, self._fresh_since, self._fresh_unacked
+            fresh_count = self._fresh_count
         recent = last_ack is not None and now - last_ack < self.window_s
         if recent:
             if self._warned is not None:
@@ -318,12 +322,15 @@ class CommandReach:
             return
         if heard and fresh_since is not None and now - fresh_since < self.window_s:
             return  # timely again only just now (a backlog drained): its feedback may follow
-        if heard and (unacked is None or last_fresh is None or last_fresh - unacked < 0.5 * self.window_s):
+        if heard and (
+            unacked is None or last_fresh is None or last_fresh - unacked < 0.5 * self.window_s or fresh_count < 3
+        ):
             # the follower's messages stopped with its acknowledgements (a gap's start: a video
             # frame 0.05 s after the last feedback was still "heard" 1.49 s later; on a cellular
             # uplink's near-zero stretch one frame trickled in 0.86 s after it, 0.85 s old, and
-            # the ACL was named); a refusal shows the follower heard on, unacknowledged, for
-            # half a window at least
+            # in another a frame then a status 1.49 s apart, and the ACL was named); a refusal
+            # shows the follower heard on, unacknowledged, for half a window at least, and
+            # three times at least (its status at 2 Hz, its video)
             return
         self._warn_unacknowledged(now, heard, last_fb, feedback)
 

@@ -247,3 +247,22 @@ def test_one_late_frame_in_a_near_zero_stretch_is_not_the_acl(caplog: pytest.Log
     run(reach, clock, sent, 4.0, None)
     lines = warnings(caplog)
     assert lines and not any("ACL" in ln or "refused" in ln for ln in lines), lines
+
+
+def test_two_messages_trickling_through_a_near_zero_stretch_are_not_the_acl(caplog: pytest.LogCaptureFixture) -> None:
+    """A 3G uplink's near-zero stretch (one delivery a second): after the last feedback, a
+    video frame trickles in 0.45 s old, then the follower's status 1.49 s after it, 0.05 s
+    old, and the first feedback 0.55 s after that. Two fresh messages a window apart
+    named the router's ACL (emulated 3G row, cameras at 30 frames/s); a refusal on a
+    working path keeps the follower heard (its status at 2 Hz, its video), a third fresh
+    message within the window."""
+    reach, clock, sent = make()
+    run(reach, clock, sent, 5.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    run(reach, clock, sent, 8.0, None)  # the near-zero stretch
+    reach.on_heard(age_s=0.45)  # a frame trickles in
+    run(reach, clock, sent, 1.49, None)
+    reach.on_heard(age_s=0.05)  # the status
+    run(reach, clock, sent, 0.55, None)
+    run(reach, clock, sent, 1.0, {"cmd_seq": lambda s: max(0, s - 20), "state": "walking"})
+    lines = warnings(caplog)
+    assert lines and not any("ACL" in ln or "refused" in ln for ln in lines), lines
