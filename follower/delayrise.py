@@ -7,6 +7,9 @@ takes them out: the queue is the least of the last few samples (and, with a span
 sample within it) over the minimum of the window (the base delay). Used by
 :class:`~bipedtele.follower.delivery.InFlight` (the Status round trip) and
 :class:`~bipedtele.follower.owdqueue.OneWayQueue` (the echoed feedback's one-way delay).
+:class:`StandingQueue` is the same delay over a longer window's minimum: a queue that
+stands longer than the short window takes in (h2's in
+:class:`~bipedtele.follower.queuedelay.QueueDelay`, the echo's in ``OneWayQueue``).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from collections import deque
 
 from bipedtele.follower.backlog import WindowMin
 
-__all__ = ["DelayRise"]
+__all__ = ["DelayRise", "StandingQueue"]
 
 
 class DelayRise:
@@ -73,3 +76,30 @@ class DelayRise:
         """Forget every sample."""
         self._min.clear()
         self._recent.clear()
+
+
+class StandingQueue:
+    """A delay over its minimum across ``window_s``: a queue standing longer than a shorter window takes in.
+
+    Parameters
+    ----------
+    window_s : float
+        Window of the minimum [s] (60 s: the budget's ``base_window_s``).
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self._floor = WindowMin(window_s)
+
+    def add(self, t: float, delay_s: float) -> float:
+        """Take a delay ``delay_s`` [s] at ``t`` [s]; return it over the window's minimum [s], >= 0."""
+        self._floor.add(t, delay_s)
+        base = self._floor.value(t)
+        return 0.0 if base is None else max(0.0, delay_s - base)
+
+    def floor(self, t: float) -> float | None:
+        """Return the window's minimum at ``t`` [s] (None before the first sample)."""
+        return self._floor.value(t)
+
+    def clear(self) -> None:
+        """Forget every sample (the path's own delay changed)."""
+        self._floor.clear()

@@ -56,8 +56,7 @@ from __future__ import annotations
 
 import math
 
-from bipedtele.follower.backlog import WindowMin
-from bipedtele.follower.delayrise import DelayRise
+from bipedtele.follower.delayrise import DelayRise, StandingQueue
 
 __all__ = ["OneWayQueue"]
 
@@ -132,7 +131,7 @@ class OneWayQueue:
         self._last_close = -math.inf
         self._dip = False  # the open rise is a lone dip of the path's
         self._rise = DelayRise(window_s, span_s=2.0 * queue_max_s)
-        self._floor = WindowMin(standing_window_s)  # of the current delay: the standing queue's base
+        self._standing = StandingQueue(standing_window_s)  # the current delay over a 60 s minimum
         self._last_sent = -math.inf
         self._closed_at: float | None = None
         self._settle_until = math.inf
@@ -180,7 +179,7 @@ class OneWayQueue:
             return
         if now > self._settle_until:  # it did not drain: the path's own delay rose
             self._rise.rebase(now)
-            self._floor.clear()
+            self._standing.clear()
             self._stand(now)
             self.queue_s = 0.0
             self._closed_at = None
@@ -190,9 +189,7 @@ class OneWayQueue:
         """Take the current delay into the standing queue's minimum at ``now`` [s]."""
         current = self._rise.current
         assert current is not None
-        self._floor.add(now, current)
-        floor = self._floor.value(now)
-        self.standing_s = 0.0 if floor is None else max(0.0, current - floor)
+        self.standing_s = self._standing.add(now, current)
 
     def fresh(self, now: float) -> bool:
         """Say whether the last sample came within ``fresh_s`` of ``now`` [s] (commands are coming: the queue is current)."""

@@ -24,6 +24,7 @@ import math
 from collections import deque
 
 from bipedtele.follower.backlog import WindowMin
+from bipedtele.follower.delayrise import StandingQueue
 from bipedtele.follower.uplinktuning import UplinkTuning
 
 __all__ = ["QueueDelay"]
@@ -61,7 +62,7 @@ class QueueDelay:
     def __init__(self, tuning: UplinkTuning) -> None:
         self.tuning = tuning
         self._min = WindowMin(tuning.h2_window_s)
-        self._floor = WindowMin(tuning.base_window_s)
+        self._standing = StandingQueue(tuning.base_window_s)
         self._base: float | None = None
         self._hist: deque[tuple[float, float]] = deque()
         self._cmd_times: deque[float] = deque()
@@ -93,9 +94,7 @@ class QueueDelay:
         self.at = now
         self.h2_s = h2 = float(h2_s)
         self._min.add(now, h2)
-        self._floor.add(now, h2)
-        floor = self._floor.value(now)
-        self.standing_s = max(0.0, h2 - floor) if floor is not None else 0.0
+        self.standing_s = self._standing.add(now, h2)
         wmin = self._min.value(now)
         assert wmin is not None
         # The baseline is held through a rise (a queue of ours draining for longer than
@@ -128,9 +127,8 @@ class QueueDelay:
         # lasting: the path's own delay, not a queue of ours
         self._min.clear()
         self._min.add(now, h2)
-        self._floor.clear()
-        self._floor.add(now, h2)
-        self.standing_s = 0.0
+        self._standing.clear()
+        self.standing_s = self._standing.add(now, h2)  # 0: the new minimum
         self._base = h2
         self.excess_s = 0.0
         self.rise_since = None
@@ -147,7 +145,7 @@ class QueueDelay:
     @property
     def floor_s(self) -> float | None:
         """h2's minimum over ``base_window_s`` [s] (None before the first h2): the path's delay without a queue."""
-        return self._floor.value(self.at)
+        return self._standing.floor(self.at)
 
     def command_hz(self) -> float:
         """Return the rate of commands bringing h2 over the last ``window_s`` [Hz]."""
