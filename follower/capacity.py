@@ -57,9 +57,8 @@ about 0.75 s late: the growth overshoots a capacity by at most a fifth before th
 cut (the echo rule sees it sooner).
 
 Loss alone (``fb_loss_ppm``) never throttles. With the leader's feedback loss at ``lossy_ppm``
-(0.1 %) or more in a Status within ``lossy_hold_s`` (30 s), neither the rate nor the echo
-rule judges (TCP's video slowed by loss arrives below what was sent whatever the path
-carries): the delay rule alone judges (a step of the path's own delay by its cut's undo).
+(0.1 %) or more in a Status within ``lossy_hold_s`` (30 s), neither the rate nor the echo rule judges (TCP's video
+slowed by loss arrives below what was sent whatever the path carries): the delay rule alone judges.
 
 - **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
   more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
@@ -86,8 +85,8 @@ the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the cap
 The periodic feedback comes before video; an acknowledgement sent at once, beyond it, only
 from what video at its most leaves (docs/follower.md).
 
-The parts, each in its module: ``UplinkTuning``, ``SentLog``, ``QueueDelay``, ``PendingCut``,
-``OneWayQueue``, ``InFlight``, ``DeliveryRate``, ``StartPhase``; the rules and the budgets are here.
+The parts, each in its module: ``UplinkTuning``, ``SentLog``, ``QueueDelay``, ``PendingCut``, ``OneWayQueue``,
+``InFlight``, ``DeliveryRate``, ``StartPhase`` (on a lossy path the start takes at least its budget); the rules are here.
 """
 
 from __future__ import annotations
@@ -370,7 +369,8 @@ class UplinkBudget:
         elif (
             last is not None and self.start_budget_bps is not None and now - q.at < tu.gap_s and self._start_clear(now)
         ):
-            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, max(0.0, now - last), tx)
+            ctl = self.tx_bps("control") if self.lossy else None  # on a lossy path TCP's video sent under the budget
+            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, now - last, tx, ctl)
             if taken is not None:
                 self.capacity_bps = taken
         if last is None or not math.isfinite(self.capacity_bps) or self.stalled:
