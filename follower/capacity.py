@@ -1,92 +1,51 @@
 """What the robot's uplink delivers, and how the follower fits its traffic into it.
 
 The follower counts the payload bytes it sends (feedback, status, video: the encoded
-messages with their MAC, at the publish call) and the leader reports, in its Status, what
-it received (``rx_bps``: bits/s of follower -> leader payload over its last 2 s). Each
-Command carries ``h2_s``, the leader's estimate of the feedback path's delay (usable in
-both clock modes). :class:`UplinkBudget` turns these into a capacity estimate:
+messages with their MAC, at the publish call); the leader reports in its Status what it
+received (``rx_bps``: bits/s over its last 2 s), its feedback loss and the newest
+feedback's age; each Command carries ``h2_s`` (the leader's 1 s mean of the feedback
+path's delay) and echoes the newest feedback's stamps. :class:`UplinkBudget` turns these
+into a capacity estimate by these rules (docs/follower.md, "Normal end, backlog, and the
+robot's uplink": each rule, its figures and what it replaced):
 
-- **rate rule.** h2 is at least half the delay rule's rise above its minimum (a queue) and
-  the leader's ``rx_bps`` is below ``ratio`` (0.85) of what the follower sent over the
-  matching window (the leader's 2 s before the status was sent, shifted back by
-  h2): the path is capacity-limited and delivers ``rx_bps``. The first such signal sets
-  the capacity to ``rx_bps``; if it persists ``hold_s`` after a cut, the capacity is cut
-  again by ``decrease`` (0.7): the queue the path built must drain.
-- **delay rule.** h2 stays more than ``delay_rise_s`` (0.05 s) above its minimum over the
-  last ``h2_window_s`` (10 s) for ``delay_hold_s`` (0.25 s): a queue is building. Judged
-  every tick (the signal comes with every command, not with the leader's 2 Hz status), once
-  the leader has reported what it measures: the capacity is cut to ``drain_ratio`` of the
-  least of what the leader received and what was sent, and cut again by ``decrease`` every
-  ``max(cut_gap_s, 2 excess)`` while h2 still grows faster than 0.2 s/s. A first cut after
-  which h2 has not fallen (by a fifth) below its peak since the cut within
-  ``max(1 s, 2 peak)``, with no rate signal and no second cut since, is undone (at most
-  once in ``undo_gap_s``, 5 s): a queue of ours drains once less is sent, a rise of the
-  path's own delay does not (:class:`~bipedtele.follower.cutundo.PendingCut`). A rise that
-  lasts ``relearn_s`` without falling is the path's own (a slow delay swing, a new route):
-  the h2 minimum is taken again from the current h2.
-- **echo rule.** Each command echoes the newest feedback's send and receive stamps
-  (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): video waits while the feedback's
-  one-way delay is more than ``owd_queue_s`` (30 ms) above its minimum, and a queue that
-  drained once it waited was ours: the capacity is cut to ``drain_ratio`` of the least of
-  what was sent and what the leader received, not below ``drain_ratio`` of what the path
-  delivered lately (not on a lossy path, not in a stall or just after a silence); its
-  ceiling neither holds frames under the capacity, nor slows the probe, nor steps the
-  capacity down (a crossing costs a 30 ms queue, not the delay rule's: h2, the leader's 1 s
-  mean, shows a queue about 0.75 s late). A lone **dip** (no other closing in the last
-  second; a rise faster than 2 x (``probe_gain`` - 1) = 0.5 s/s, or any with the estimate
-  under the last cut's ceiling) is the path's own: video waits it out, nothing is cut.
-- **probing.** With no signal for ``hold_s``, h2 near its minimum (below half the rise) and
-  the leader's status arriving, the capacity grows by ``increase_ratio`` of itself per second
-  (at least ``increase_bps_per_s``), never above ``probe_gain`` (1.25) x what is sent, and
-  by ``ceiling_probe`` (0.5 %) only past ``drain_ratio`` of what the path carried at the
-  last cut (docs/follower.md: what each bound prevented).
-- **standing queue.** The echo's one-way delay (h2 without a fresh echo or on a lossy
-  path) more than ``queue_target_s`` (15 ms) above its minimum over ``base_window_s`` (60
-  s), a queue the delay rule's 10 s minimum takes in: no probing (slower as it nears the
-  target), and with a ceiling from a cut a step down by ``queue_decrease`` (5 %) of the
-  capacity per second, not below 0.8 x the ceiling (docs/follower.md: why not h2).
+- **rate rule**: h2 over its minimum and ``rx_bps`` under ``ratio`` of what was sent over the
+  matching window: the capacity is ``drain_ratio`` x ``rx_bps``, again x ``decrease`` if it persists.
+- **delay rule**: h2 more than ``delay_rise_s`` over its ``h2_window_s`` minimum for
+  ``delay_hold_s``: a cut to ``drain_ratio`` of what the path carries (sent / (1 + h2's
+  slope), and ``rx_bps``), again by ``decrease`` while h2 grows; a first cut after which h2
+  does not fall is undone (:class:`~bipedtele.follower.cutundo.PendingCut`); a rise lasting
+  ``relearn_s`` is the path's own (the minimum taken again).
+- **echo rule**: the echoed feedback's one-way delay ``owd_queue_s`` over its minimum holds
+  video (:class:`~bipedtele.follower.owdqueue.OneWayQueue`); a queue that drained once video
+  waited was ours: a cut to ``drain_ratio`` of what was carried, not below ``drain_ratio``
+  of what the path delivered lately, with a soft ceiling; a lone **dip** cuts nothing.
+- **probing**: no signal for ``hold_s`` and h2 clear: up by ``increase_ratio`` a second (at
+  least ``increase_bps_per_s``), never over ``probe_gain`` x what is sent, by
+  ``ceiling_probe`` only past ``drain_ratio`` of a hard ceiling.
+- **standing queue**: the echo's delay (h2's on a lossy path) over its ``base_window_s``
+  minimum by more than ``queue_target_s``: no probe, and against a hard ceiling a step down
+  by ``queue_decrease`` a second, not below 0.8 x it.
+- **start** (:class:`~bipedtele.follower.startphase.StartPhase`): until the first signal
+  video's budget starts at ``start_bps`` and grows by ``start_growth`` a second while the
+  path is clear; after ``start_s`` the capacity is taken as 1.2 x the most sent (on a lossy
+  path at least the budget with control), unlimited past ``start_max_bps``.
+- **loss**: with the leader's feedback loss at ``lossy_ppm`` or more within ``lossy_hold_s``
+  the rate and echo rules do not judge (TCP's video slowed by loss arrives below what was
+  sent whatever the path carries): loss alone never throttles.
+- **stall**: the newest feedback older than h2's 60 s minimum by more than ``stall_s`` with
+  something of ours undelivered: video pauses, feedback at ``stall_fb_hz``, no rule cuts;
+  after it the capacity restarts from what the path delivered before
+  (:class:`~bipedtele.follower.delivery.DeliveryRate`), and a ceiling set in a dip is
+  recovered at ``start_growth`` a second.
+- **in flight** (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd): what was sent
+  after the newest acknowledged feedback, capped near twice the bandwidth-delay product.
 
-Until the first signal the capacity is unknown (infinite): the **start**. Video starts at
-``start_bps`` (64 kbit/s) and grows by ``start_growth`` (x1.3) every second while the path
-shows no queue (the fresh echo's under half the delay rule's rise; h2's excess where no
-echo comes) and the budget is less than twice what is sent, up to ``start_max_bps`` (4
-Mbit/s, then unlimited), or for ``start_s`` (10 s; then the capacity is taken as 1.2 x the
-most that was sent in it with the path clear, and probed); acknowledgements ride on the
-periodic feedback until then. h2 is the leader's 1 s moving average, so a queue shows
-about 0.75 s late: the growth overshoots a capacity by at most a fifth before the first
-cut (the echo rule sees it sooner).
-
-Loss alone (``fb_loss_ppm``) never throttles. With the leader's feedback loss at ``lossy_ppm``
-(0.1 %) or more in a Status within ``lossy_hold_s`` (30 s), neither the rate nor the echo rule judges (TCP's video
-slowed by loss arrives below what was sent whatever the path carries): the delay rule alone judges.
-
-- **stall.** The leader's newest feedback (``fb_age_ms``) older than h2's 60 s minimum by
-  more than ``stall_s`` (0.5 s): the path is not delivering (a blackout, a near-zero
-  stretch of a cellular link), and something sent after that feedback in time to arrive
-  is still in flight (nothing sent: the follower's own pacing; a stall fed itself). Video
-  pauses (budget 0) and the feedback drops to ``stall_fb_hz`` (5 Hz, the newest only), so
-  the follower adds nearly nothing to the path's queue (what it sent before the stall
-  showed still waits there). No rule cuts during it; after it the capacity restarts from
-  what the path delivered before it (``DeliveryRate``: the highest ``rx_bps`` of the last
-  ``delivery_window_s`` of delivering), not from the collapse. A leader back from a silence is no stall.
-- **in flight.** What was sent after the newest feedback the leader acknowledged is in
-  flight, capped at about twice the bandwidth-delay product (:class:`~bipedtele.follower.delivery.InFlight`,
-  BBR's cwnd): when the path stops delivering, the follower stops adding to its queue.
-- **recovery.** With a ceiling under half that delivered rate (set in a dip) and h2
-  clear, the capacity grows by ``start_growth`` (x1.3) a second up to ``drain_ratio`` of
-  it, the ceiling with it: a dip of the path's capacity is not a new ceiling. (A token
-  bucket's burst delivers above its rate for a window; a ceiling near the rate is kept.)
-
-:meth:`UplinkBudget.video_budget_bps` gives video what control leaves: capacity minus the
-measured control rate minus a margin (``margin`` of the capacity, at least
-``margin_min_bps``) so that a queue drains; :meth:`UplinkBudget.feedback_plan` says how
-control shrinks while limited (acknowledgements coalesced into the next tick's feedback,
-the feedback rate lowered to 25, then 10 Hz, to fit ``control_share`` of the capacity).
-The periodic feedback comes before video; an acknowledgement sent at once, beyond it, only
-from what video at its most leaves (docs/follower.md).
-
-The parts, each in its module: ``UplinkTuning``, ``SentLog``, ``QueueDelay``, ``PendingCut``, ``OneWayQueue``,
-``InFlight``, ``DeliveryRate``, ``StartPhase`` (on a lossy path the start takes at least its budget); the rules are here.
+:meth:`UplinkBudget.video_budget_bps` gives video what control leaves (capacity - control's
+rate - a margin of ``margin`` of the capacity, at least ``margin_min_bps``, and enough to
+drain h2's queue within ``drain_s``); :meth:`UplinkBudget.feedback_plan` says how control
+shrinks while limited (:func:`~bipedtele.follower.feedbackplan.plan_feedback`). The parts,
+each in its module: ``UplinkTuning``, ``SentLog``, ``QueueDelay``, ``PendingCut``,
+``OneWayQueue``, ``InFlight``, ``DeliveryRate``, ``StartPhase``; the rules are here.
 """
 
 from __future__ import annotations
