@@ -484,6 +484,12 @@ class UplinkBudget:
         """True while the path is capacity-limited (a signal within the last ``hold_s``)."""
         return self._clock() - self._last_signal < self.tuning.hold_s
 
+    @property
+    def margin_bps(self) -> float:
+        """Capacity kept free so that a queue drains [bit/s]: ``margin`` of it, at least ``margin_min_bps`` (0 while unknown)."""
+        cap = self.capacity_bps
+        return max(self.tuning.margin * cap, self.tuning.margin_min_bps) if math.isfinite(cap) else 0.0
+
     def video_budget_bps(self) -> float | None:
         """Video's budget [bit/s]: capacity - control's measured rate - margin; None: unlimited.
 
@@ -497,7 +503,7 @@ class UplinkBudget:
             return self.start_budget_bps
         # a queue in the path (h2 above its minimum) is drained within ``drain_s``
         drain = cap * self._q.excess_s / tu.drain_s if self.limited else 0.0
-        margin = max(tu.margin * cap, tu.margin_min_bps, drain)
+        margin = max(self.margin_bps, drain)
         # control as measured (a 2 s mean) or as the plan now sends it, whichever is more
         return max(0.0, cap - max(self.tx_bps("control"), self._plan_bps) - margin)
 
@@ -544,7 +550,7 @@ class UplinkBudget:
         video from 12 to 7.5-8 frames/s). As the capacity is probed back up, the plan returns to full rate.
         """
         tu, cmd_hz, fb_bits, cap = self.tuning, self._q.command_hz(), self._log.fb_bits, self.capacity_bps
-        margin = max(tu.margin * cap, tu.margin_min_bps) if math.isfinite(cap) else 0.0
+        margin = self.margin_bps
         plan = plan_feedback(
             rate_hz,
             tu.control_share * cap,
