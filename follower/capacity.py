@@ -225,6 +225,7 @@ class UplinkBudget:
         self._silence.heard(now)
         if self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm:  # TCP's video slowed by loss arrives below tx
             self._lossy_until = now + tu.lossy_hold_s
+        self.inflight.lossy = self.lossy  # a Status lost on its way: an acknowledgement late
         age_ms = self.leader.get("fb_age_ms")
         self._silence.on_status(now, None if age_ms is None else age_ms / 1000.0, self._q.floor_s or 0.0)
         self._last_heard = now

@@ -26,6 +26,7 @@ import math
 import threading
 from collections import deque
 
+from bipedtele.follower.backlog import WindowMin
 from bipedtele.follower.delayrise import DelayRise
 
 __all__ = ["DeliveryRate", "InFlight"]
@@ -118,7 +119,11 @@ class InFlight:
     trip alone held a LAN's feedback for a status period after every hand-over). The gain
     leaves room for a rate above the one delivered so far (the delivery rate of an
     application-limited sender is what it sent, and a cap at it would only ratchet down).
-    Until the first acknowledgement with a rate the cap is infinite.
+    Until the first acknowledgement with a rate the cap is infinite. On a path the budget
+    calls lossy (:attr:`lossy`) the interval is the longest of the window, not the mean: a
+    Status lost on its way (one in twenty at 5 % loss) leaves the next acknowledgement two
+    periods after the last, and against the mean each one held video (125 frames in one
+    90 s run, docs/follower.md).
 
     Video fills at most ``video_share`` of the cap: the rest is the feedback's between two
     acknowledgements (video that filled the cap held every feedback until the next
@@ -194,6 +199,7 @@ class InFlight:
         self._rtt = DelayRise(rtt_window_s)  # the round trip's minimum and the queue above it
         self._last_ack: float | None = None
         self.ack_interval_s: float | None = None
+        self._gaps = WindowMin(rtt_window_s)  # the intervals between acknowledgements, negated
         self.rate_bps: float | None = None
         self._last_probe = -math.inf
         self._progress = -math.inf  # when an acknowledgement last advanced [s]
@@ -205,6 +211,9 @@ class InFlight:
         #: window after a retransmission timeout): a feedback leaves only when nothing of
         #: ours waits in the path, so it arrives fresh; over it, Status probes only.
         self.hold = False
+        #: Set by the budget while the leader reports feedback loss: the cap allows for the
+        #: longest interval between acknowledgements of the window (a lost Status).
+        self.lossy = False
         #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or
         #: dropped; ``video_rtt`` of them by the round trip's queue, not the cap's room),
         #: ``status`` (not a probe); ``probes``: the Status sent over it as probes.
@@ -235,6 +244,7 @@ class InFlight:
         if self._last_ack is not None and now > self._last_ack:
             dt = now - self._last_ack
             self.ack_interval_s = dt if self.ack_interval_s is None else 0.8 * self.ack_interval_s + 0.2 * dt
+            self._gaps.add(now, -dt)
         self._last_ack = now
         self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
         # each sample adds the wait between the feedback's arrival and the status (up to a
@@ -288,6 +298,7 @@ class InFlight:
             self._rtt.clear()
         self._last_ack = None
         self.ack_interval_s = None
+        self._gaps.clear()
         self.rate_bps = None
         self._last_probe = self._progress = -math.inf
         self._backoff = 1.0
@@ -322,6 +333,8 @@ class InFlight:
         if self.rate_bps is None or rtt is None:
             return math.inf
         ack = self.ack_prior_s if self.ack_interval_s is None else self.ack_interval_s
+        longest = self._gaps.front() if self.lossy else None
+        ack = ack if longest is None else max(ack, -longest)
         return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + ack))
 
     @property

@@ -266,3 +266,45 @@ def test_the_video_streamer_holds_frames_the_cap_refuses() -> None:
     assert v.stats["held"] >= 15 and all(n > 0 for n in asked)
     assert sent and min(f.t for f in sent) >= 2.0 - 1e-9  # nothing left while it was shut
     assert len(sent) >= 15
+
+
+def _lost_statuses(loss_ppm: int, stall_at: float = math.inf) -> list[float]:
+    """20 s of feedback (400 B at 50 Hz) and video (3 kB frames at 20 Hz, each asking the
+    cap) with the leader's Status every 0.5 s naming a feedback sent 0.3 s before it, one
+    Status in four lost on its way, the leader reporting 0.8 x what was sent (TCP's
+    loss-slowed video) and ``loss_ppm`` of feedback loss; from ``stall_at`` [s] its newest
+    feedback stays the one it had then. Return the times a frame was held."""
+    now = [0.0]
+    b = UplinkBudget(lambda: now[0])
+    held: list[float] = []
+    for k in range(2000):
+        now[0] = round(0.01 * (k + 1), 6)
+        b.on_h2(0.2)
+        if k % 2 == 0:
+            b.sent(FB, feedback=True)
+        if k % 5 == 0:
+            if b.video_budget_bps() != 0.0 and b.admit_video(3000):
+                b.sent(3000, video=True)
+            else:
+                held.append(now[0])
+        if k % 50 == 49 and k % 200 != 149:
+            age = 0.3 if now[0] <= stall_at else now[0] - stall_at + 0.3
+            counters = {"rx_bps": round(0.8 * b.tx_bps()), "fb_age_ms": round(1000 * age), "fb_loss_ppm": loss_ppm}
+            b.on_leader_status(counters, now[0])
+        b.update()
+    return held
+
+
+def test_on_a_lossy_path_a_lost_status_does_not_hold_video() -> None:
+    """The 5 % loss row: a Status lost on its way (one in twenty) left the next
+    acknowledgement a second after the last, and against a cap from the acknowledgements'
+    mean interval video waited each time (held 125 times in one run, its frame rate dipping
+    to 11-15 frames/s). On a path the leader reports lossy the cap allows for the longest
+    interval of its window; on a loss-free path the same gaps hold video as before. A path
+    that stops delivering still stops the lossy path's video."""
+    lossy = _lost_statuses(50_000)
+    assert [t for t in lossy if t > 5.0] == [], lossy[-10:]
+    clean = _lost_statuses(0)
+    assert len([t for t in clean if t > 5.0]) > 10, clean[-10:]
+    stalled = _lost_statuses(50_000, stall_at=12.0)
+    assert all(round(t, 2) in stalled for t in np.arange(13.01, 20.0, 0.05)), stalled[-10:]
