@@ -28,7 +28,7 @@ robot's uplink": each rule, its figures and what it replaced):
 - **start** (:class:`~bipedtele.follower.startphase.StartPhase`): until the first signal
   video's budget starts at ``start_bps`` and grows by ``start_growth`` a second while the
   path is clear; after ``start_s`` the capacity is taken as 1.2 x the most sent (on a lossy
-  path at least the budget with control), unlimited past ``start_max_bps``.
+  path too: a single lost feedback makes a path lossy), unlimited past ``start_max_bps``.
 - **loss**: with the leader's feedback loss at ``lossy_ppm`` or more within ``lossy_hold_s``
   the rate and echo rules do not judge (TCP's video slowed by loss arrives below what was
   sent whatever the path carries): loss alone never throttles.
@@ -329,8 +329,7 @@ class UplinkBudget:
         elif (
             last is not None and self.start_budget_bps is not None and now - q.at < tu.gap_s and self._start_clear(now)
         ):
-            ctl = self.tx_bps("control") if self.lossy else None  # on a lossy path TCP's video sent under the budget
-            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, now - last, tx, ctl)
+            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, max(0.0, now - last), tx)
             if taken is not None:
                 self.capacity_bps = taken
         if last is None or not math.isfinite(self.capacity_bps) or self.stalled:

@@ -6,11 +6,7 @@ is sent (a budget far above the sending rate was never tested). Past ``start_max
 path is taken as unlimited; after ``start_s`` of clear path the capacity is taken as 1.2 x
 the most that was sent with the path clear (not what is sent at that moment: TCP's video
 slowed by loss dips it), and probed from there (twice it overshot a 600 kbit/s uplink by
-200 ms at once). On a path the leader reports lossy it is taken as at least the start's
-budget with control's rate: what TCP's loss-slowed video sent is not what the path carries
-(as the rate and echo rules know), and no queue contradicted the budget (at 5 % loss one
-start sent at most 370 kbit/s under a budget of 640 and took 445; the loss-free run took
-805). See :mod:`bipedtele.follower.capacity`.
+200 ms at once). See :mod:`bipedtele.follower.capacity`.
 """
 
 from __future__ import annotations
@@ -37,13 +33,8 @@ class StartPhase:
     clear_s: float = 0.0
     peak_bps: float = 0.0
 
-    def step(
-        self, tuning: UplinkTuning, budget_bps: float, dt: float, tx: float, lossy_control_bps: float | None = None
-    ) -> tuple[float | None, float | None]:
+    def step(self, tuning: UplinkTuning, budget_bps: float, dt: float, tx: float) -> tuple[float | None, float | None]:
         """Count ``dt`` [s] more of clear path, ``tx`` [bit/s] sent now, from video's start budget ``budget_bps`` [bit/s].
-
-        ``lossy_control_bps``: on a path the leader reports lossy, control's rate [bit/s]
-        (the capacity taken is then at least the budget with it); None: not lossy.
 
         Returns
         -------
@@ -52,13 +43,12 @@ class StartPhase:
             [bit/s] (None: none, unlimited past ``start_max_bps`` or still in the start).
         """
         tu = tuning
-        self.clear_s += max(0.0, dt)
+        self.clear_s += dt
         self.peak_bps = max(self.peak_bps, tx)
         if budget_bps < 2.0 * tx + tu.floor_bps:
             budget_bps *= tu.start_growth**dt
         if budget_bps > tu.start_max_bps:
             return None, None
         if self.clear_s >= tu.start_s:
-            taken = 1.2 * self.peak_bps + tu.floor_bps
-            return None, taken if lossy_control_bps is None else max(taken, budget_bps + lossy_control_bps)
+            return None, 1.2 * self.peak_bps + tu.floor_bps
         return budget_bps, None

@@ -615,11 +615,10 @@ def test_the_start_takes_the_most_the_path_carried_not_a_dip_at_its_end() -> Non
     assert b.capacity_bps >= 1.2 * 390_000, b.capacity_bps
 
 
-def _start_under(loss_ppm: int) -> tuple[UplinkBudget, float]:
+def _start_under(loss_ppm: int) -> UplinkBudget:
     """A clear start (h2 flat) sending 160 kbit/s of control and 200 of video whatever the
-    budget (TCP's video slowed by loss), the leader reporting ``loss_ppm`` of feedback loss.
-    Return the budget after it and the start's last video budget [bit/s]."""
-    t, last = [0.0], [0.0]
+    budget, the leader reporting ``loss_ppm`` of feedback loss. Return the budget after it."""
+    t = [0.0]
     b = UplinkBudget(lambda: t[0])
 
     def each(k: int) -> None:
@@ -628,23 +627,22 @@ def _start_under(loss_ppm: int) -> tuple[UplinkBudget, float]:
         b.sent(250, video=True)
         if k % 50 == 0:
             b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": loss_ppm, "fb_age_ms": 50})
-        last[0] = b.start_budget_bps or last[0]
 
     _ticks(b, t, 1200, each)  # 12 s
     assert b.start_budget_bps is None and math.isfinite(b.capacity_bps)  # the start is over
-    return b, last[0]
+    return b
 
 
-def test_on_a_lossy_path_the_start_takes_its_budget_not_what_tcp_sent() -> None:
-    """At 5 % loss one start's video sent at most 370 kbit/s under a budget of 640 (TCP's
-    loss-slowed video and the in-flight cap on its delivery), no queue showing: it took
-    1.2 x what was sent, 445 kbit/s (the loss-free run 805), and the run's video came 32 %
-    under the loss-free run's. On a path the leader reports lossy the start takes at least
-    its budget with control's rate; on a loss-free one what was sent, as before."""
-    lossy, budget = _start_under(50_000)
-    assert budget > 500_000, budget  # grew to about twice what was sent
-    assert lossy.capacity_bps >= budget + 0.9 * 160_000, (lossy.capacity_bps, budget)
-    clean, _ = _start_under(0)
+def test_on_a_lossy_path_the_start_takes_what_was_sent_too() -> None:
+    """Taking the start's budget with control's rate on a path the leader reports lossy (so
+    that TCP's loss-slowed video would not set the capacity) was tried: behind the kernel's
+    600 kbit/s token bucket one feedback lost at 6.5 s made the path lossy, the start took
+    1,050 kbit/s (its budget, about twice what was sent, with control) and queued the
+    bucket 112-134 ms until the delay rule cut, the row's p99 55 ms against 2 with video
+    off. A path with loss takes 1.2 x the most sent, as one without."""
+    lossy, clean = _start_under(50_000), _start_under(0)
+    assert lossy.lossy
+    assert lossy.capacity_bps == pytest.approx(clean.capacity_bps, rel=0.01), (lossy.capacity_bps, clean.capacity_bps)
     assert clean.capacity_bps == pytest.approx(1.2 * 360_000 + clean.floor_bps, rel=0.05)  # what was sent
 
 
