@@ -38,7 +38,8 @@ robot's uplink": each rule, its figures and what it replaced):
   (:class:`~bipedtele.follower.delivery.DeliveryRate`), and a ceiling set in a dip is
   recovered at ``start_growth`` a second.
 - **in flight** (:class:`~bipedtele.follower.delivery.InFlight`, BBR's cwnd): what was sent
-  after the newest acknowledged feedback, capped near twice the bandwidth-delay product.
+  after the newest acknowledged feedback, capped near twice the bandwidth-delay product (on
+  a lossy path with the longest interval between acknowledgements: a lost Status).
 
 :meth:`UplinkBudget.video_budget_bps` gives video what control leaves (capacity - control's
 rate - a margin of ``margin`` of the capacity, at least ``margin_min_bps``, and enough to

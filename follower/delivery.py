@@ -123,7 +123,7 @@ class InFlight:
     calls lossy (:attr:`lossy`) the interval is the longest of the window, not the mean: a
     Status lost on its way (one in twenty at 5 % loss) leaves the next acknowledgement two
     periods after the last, and against the mean each one held video (125 frames in one
-    90 s run, docs/follower.md).
+    90 s run, docs/network.md).
 
     Video fills at most ``video_share`` of the cap: the rest is the feedback's between two
     acknowledgements (video that filled the cap held every feedback until the next
@@ -244,7 +244,8 @@ class InFlight:
         if self._last_ack is not None and now > self._last_ack:
             dt = now - self._last_ack
             self.ack_interval_s = dt if self.ack_interval_s is None else 0.8 * self.ack_interval_s + 0.2 * dt
-            self._gaps.add(now, -dt)
+            with self._lock:  # the video thread reads it (cap_bytes)
+                self._gaps.add(now, -dt)
         self._last_ack = now
         self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
         # each sample adds the wait between the feedback's arrival and the status (up to a
@@ -296,9 +297,9 @@ class InFlight:
             self._bytes = 0
             self._acked_t = -math.inf
             self._rtt.clear()
+            self._gaps.clear()
         self._last_ack = None
         self.ack_interval_s = None
-        self._gaps.clear()
         self.rate_bps = None
         self._last_probe = self._progress = -math.inf
         self._backoff = 1.0
@@ -333,7 +334,8 @@ class InFlight:
         if self.rate_bps is None or rtt is None:
             return math.inf
         ack = self.ack_prior_s if self.ack_interval_s is None else self.ack_interval_s
-        longest = self._gaps.front() if self.lossy else None
+        with self._lock:
+            longest = self._gaps.front() if self.lossy else None
         ack = ack if longest is None else max(ack, -longest)
         return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + ack))
 
