@@ -117,7 +117,13 @@ class UplinkBudget:
         self.signals = {"rate": 0, "delay": 0, "relearn": 0, "undone": 0, "stall": 0, "echo": 0}
         self.delivery = DeliveryRate(self.tuning.delivery_window_s)
         tu = self.tuning
-        self.inflight = InFlight(tu.inflight_gain, tu.inflight_min_bytes, tu.probe_s, video_queue_s=tu.video_queue_s)
+        self.inflight = InFlight(
+            tu.inflight_gain,
+            tu.inflight_min_bytes,
+            tu.probe_s,
+            video_queue_s=tu.video_queue_s,
+            lossy=lambda: self.lossy,  # a Status lost on its way: an acknowledgement late
+        )
         self.owd = OneWayQueue(
             tu.owd_queue_s, steep_slope=2.0 * (tu.probe_gain - 1.0), standing_window_s=tu.base_window_s
         )
@@ -226,7 +232,6 @@ class UplinkBudget:
         self._silence.heard(now)
         if self.leader.get("fb_loss_ppm", 0) >= tu.lossy_ppm:  # TCP's video slowed by loss arrives below tx
             self._lossy_until = now + tu.lossy_hold_s
-        self.inflight.lossy = self.lossy  # a Status lost on its way: an acknowledgement late
         age_ms = self.leader.get("fb_age_ms")
         self._silence.on_status(now, None if age_ms is None else age_ms / 1000.0, self._q.floor_s or 0.0)
         self._last_heard = now

@@ -25,8 +25,9 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
+from collections.abc import Callable
 
-from bipedtele.follower.backlog import WindowMin
+from bipedtele.follower.backlog import WindowMax
 from bipedtele.follower.delayrise import DelayRise
 
 __all__ = ["DeliveryRate", "InFlight"]
@@ -113,14 +114,14 @@ class InFlight:
     The cap is ``gain x rate x (min_rtt + ack_interval)`` [bytes], at least ``min_bytes``:
     the delivery rate (:class:`DeliveryRate`), the least round trip seen over ``rtt_window_s``
     (status receive time minus the acknowledged feedback's send time) and the mean interval
-    between acknowledgements (the leader's status period: a sender acknowledged every 0.5 s
+    between acknowledgements over the same window (the leader's status period: a sender acknowledged every 0.5 s
     keeps up to 0.5 s of its rate in flight between two, BBR's allowance for aggregated
     acknowledgements; ``ack_prior_s`` until two were seen: a cap learnt from one round
     trip alone held a LAN's feedback for a status period after every hand-over). The gain
     leaves room for a rate above the one delivered so far (the delivery rate of an
     application-limited sender is what it sent, and a cap at it would only ratchet down).
     Until the first acknowledgement with a rate the cap is infinite. On a path the budget
-    calls lossy (:attr:`lossy`) the interval is the longest of the window, not the mean: a
+    calls lossy (``lossy``, asked at each use) the interval is the longest of the window, not the mean: a
     Status lost on its way (one in twenty at 5 % loss) leaves the next acknowledgement two
     periods after the last, and against the mean each one held video (125 frames in one
     90 s run, docs/network.md).
@@ -165,6 +166,10 @@ class InFlight:
     ack_prior_s : float
         The acknowledgements' interval taken until two were seen [s] (the leader's default
         status period).
+    lossy : callable, optional
+        Says whether the path is lossy now (the budget's judgement, from the leader's
+        feedback loss): the cap then allows for the longest interval between
+        acknowledgements of the window. Default: never.
     """
 
     def __init__(
@@ -176,6 +181,7 @@ class InFlight:
         video_queue_s: float = 0.05,
         video_share: float = 0.75,
         ack_prior_s: float = 0.5,
+        lossy: Callable[[], bool] | None = None,
     ) -> None:
         checked = (
             ("gain", gain),
@@ -198,8 +204,11 @@ class InFlight:
         self._acked_t = -math.inf
         self._rtt = DelayRise(rtt_window_s)  # the round trip's minimum and the queue above it
         self._last_ack: float | None = None
-        self.ack_interval_s: float | None = None
-        self._gaps = WindowMin(rtt_window_s)  # the intervals between acknowledgements, negated
+        self._rtt_window_s = float(rtt_window_s)
+        self._intervals: deque[tuple[float, float]] = deque()  # (when [s], interval [s]) of the window
+        self._intervals_sum = 0.0
+        self._longest = WindowMax(rtt_window_s)  # the longest interval of the window
+        self._lossy = lossy if lossy is not None else (lambda: False)
         self.rate_bps: float | None = None
         self._last_probe = -math.inf
         self._progress = -math.inf  # when an acknowledgement last advanced [s]
@@ -211,9 +220,6 @@ class InFlight:
         #: window after a retransmission timeout): a feedback leaves only when nothing of
         #: ours waits in the path, so it arrives fresh; over it, Status probes only.
         self.hold = False
-        #: Set by the budget while the leader reports feedback loss: the cap allows for the
-        #: longest interval between acknowledgements of the window (a lost Status).
-        self.lossy = False
         #: Messages held back by the cap: ``feedback`` (coalesced), ``video`` (waited or
         #: dropped; ``video_rtt`` of them by the round trip's queue, not the cap's room),
         #: ``status`` (not a probe); ``probes``: the Status sent over it as probes.
@@ -242,10 +248,8 @@ class InFlight:
         if not math.isfinite(t_delivered):
             return
         if self._last_ack is not None and now > self._last_ack:
-            dt = now - self._last_ack
-            self.ack_interval_s = dt if self.ack_interval_s is None else 0.8 * self.ack_interval_s + 0.2 * dt
-            with self._lock:  # the video thread reads it (cap_bytes)
-                self._gaps.add(now, -dt)
+            with self._lock:  # the video thread reads them (cap_bytes)
+                self._interval(now, now - self._last_ack)
         self._last_ack = now
         self.rate_bps = rate_bps if rate_bps is not None and rate_bps > 0 else None
         # each sample adds the wait between the feedback's arrival and the status (up to a
@@ -253,6 +257,21 @@ class InFlight:
         with self._lock:  # the video thread reads the minimum (cap_bytes)
             self.queue_s = self._rtt.add(now, max(0.0, now - t_delivered))
         self.delivered(now, t_delivered)
+
+    def _interval(self, now: float, dt: float) -> None:
+        """Take the interval ``dt`` [s] between two acknowledgements, the second at ``now`` [s] (under the lock)."""
+        self._intervals.append((now, dt))
+        self._intervals_sum += dt
+        while self._intervals[0][0] < now - self._rtt_window_s:
+            self._intervals_sum -= self._intervals.popleft()[1]
+        self._longest.add(now, dt)
+
+    @property
+    def ack_interval_s(self) -> float | None:
+        """The mean interval between acknowledgements over the window [s] (None until two were seen)."""
+        with self._lock:
+            n = len(self._intervals)
+            return self._intervals_sum / n if n else None
 
     def delivered(self, now: float, t_delivered: float) -> None:
         """Take the leader's word that everything sent up to ``t_delivered`` [s] arrived (no round-trip sample).
@@ -297,9 +316,10 @@ class InFlight:
             self._bytes = 0
             self._acked_t = -math.inf
             self._rtt.clear()
-            self._gaps.clear()
+            self._intervals.clear()
+            self._intervals_sum = 0.0
+            self._longest.clear()
         self._last_ack = None
-        self.ack_interval_s = None
         self.rate_bps = None
         self._last_probe = self._progress = -math.inf
         self._backoff = 1.0
@@ -333,10 +353,11 @@ class InFlight:
         rtt = self.min_rtt_s
         if self.rate_bps is None or rtt is None:
             return math.inf
-        ack = self.ack_prior_s if self.ack_interval_s is None else self.ack_interval_s
-        with self._lock:
-            longest = self._gaps.front() if self.lossy else None
-        ack = ack if longest is None else max(ack, -longest)
+        mean = self.ack_interval_s
+        ack = self.ack_prior_s if mean is None else mean
+        if self._lossy():
+            with self._lock:
+                ack = max(ack, self._longest.front() or 0.0)
         return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + ack))
 
     @property

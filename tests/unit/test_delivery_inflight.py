@@ -94,6 +94,47 @@ def test_the_cap_follows_rate_round_trip_and_acknowledgement_interval() -> None:
     assert g.cap_bytes == 5000.0  # the floor: a part and a few feedback always fit
 
 
+def test_the_acknowledgement_interval_is_one_window_its_mean_and_on_a_lossy_path_its_longest() -> None:
+    """The intervals between acknowledgements of the last ``rtt_window_s``: their mean in the
+    cap, their longest while the budget calls the path lossy (asked at each use, so the cap
+    follows the budget's judgement between two Status); an interval older than the window
+    leaves both."""
+    lossy = [False]
+    f = InFlight(gain=2.0, min_bytes=100.0, rtt_window_s=10.0, lossy=lambda: lossy[0])
+    t = 1.0
+    for dt in (0.5, 0.5, 1.0, 0.5):  # a Status lost on its way: one interval of 1 s
+        f.acked(t, t - 0.1, 800_000.0)
+        t += dt
+    f.acked(t, t - 0.1, 800_000.0)
+    assert f.ack_interval_s == pytest.approx(0.625)
+    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * (0.1 + 0.625))
+    lossy[0] = True
+    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * (0.1 + 1.0))
+    for _ in range(25):  # 12.5 s of 0.5 s intervals: the 1 s one leaves the window
+        t += 0.5
+        f.acked(t, t - 0.1, 800_000.0)
+    assert f.ack_interval_s == pytest.approx(0.5)
+    assert f.cap_bytes == pytest.approx(2.0 * 100_000.0 * (0.1 + 0.5))
+    lossy[0] = False
+    f.reset()
+    assert f.ack_interval_s is None
+
+
+def test_the_cap_asks_the_budget_whether_the_path_is_lossy() -> None:
+    """The budget's judgement ends ``lossy_hold_s`` after the leader last reported loss; the
+    cap reads it then, not at the next Status."""
+    now = [100.0]
+    b = UplinkBudget(lambda: now[0])
+    t = 100.0
+    for k in range(8):  # a Status every 0.5 s, one of them a second late
+        now[0] = t = t + (1.0 if k == 3 else 0.5)
+        b.on_leader_status({"rx_bps": 400_000, "fb_age_ms": 100, "fb_loss_ppm": 50_000 if k == 0 else 0}, t)
+    assert b.lossy
+    lossy_cap = b.inflight.cap_bytes
+    now[0] = 100.0 + 0.5 + b.tuning.lossy_hold_s + 0.01  # the hold is over; no Status since
+    assert not b.lossy and b.inflight.cap_bytes < lossy_cap
+
+
 @pytest.mark.parametrize("name", ["gain", "min_bytes", "probe_s", "rtt_window_s", "ack_prior_s", "video_share"])
 def test_bad_parameters_are_named(name: str) -> None:
     with pytest.raises(ValueError, match=name):
