@@ -71,7 +71,7 @@ from bipedtele.follower.walkstate import WalkEvent, WalkState, next_state
 from bipedtele.link.clock import conservative_delays
 from bipedtele.link.drops import DropCounter
 from bipedtele.link.inbox import COMMAND_COUNTERS, CommandInbox
-from bipedtele.link.messages import MAX_SPEED, Command, Feedback, Status, new_session_id
+from bipedtele.link.messages import MAX_SPEED, Command, Feedback, Status, fit_counters, new_session_id
 
 __all__ = ["FollowerLoop", "FollowerTelemetry", "command_inbox"]
 
@@ -553,7 +553,7 @@ class FollowerLoop:
             counters.update({f"drop_{k}": v for k, v in self._drops.counts().items()})
         if self._extra_counters is not None:
             counters.update(self._extra_counters())
-        return counters
+        return fit_counters(counters)
 
     def _status_note(self) -> str:
         if self.walk_state.latched:

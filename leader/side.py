@@ -22,7 +22,7 @@ from bipedtele.leader.loop import LeaderLoop
 from bipedtele.leader.reach import CommandReach
 from bipedtele.leader.report import fill_link, link_counters
 from bipedtele.link.drops import DropCounter
-from bipedtele.link.messages import Status
+from bipedtele.link.messages import Status, fit_counters
 from bipedtele.link.receivers import LatestReceiver
 from bipedtele.link.transport import PresenceWatcher, Publishers
 from bipedtele.telemetry import LeaderSample
@@ -153,7 +153,7 @@ class LeaderSide:
                         t=now,
                         role="leader",
                         state=self.loop.state,
-                        counters=counters,
+                        counters=fit_counters(counters),
                         text=f"{text}; {blind}" if blind else text,
                         operator=user,
                     )

@@ -47,6 +47,7 @@ __all__ = [
     "VideoFrame",
     "decode",
     "encode",
+    "fit_counters",
     "message_fields",
     "new_session_id",
 ]
@@ -501,6 +502,31 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[Message] | None
     if n != _KEYS[cls]:
         raise _incomplete(payload, n, _KEYS[cls])
     return msg
+
+
+def fit_counters(counters: dict[str, int]) -> dict[str, int]:
+    """Return a Status's ``counters`` within :data:`MAX_COUNTERS` keys, so that its receiver takes it.
+
+    Drop counters (``drop_<reason>``) come with each new reason a peer's messages show; past
+    the bound the most frequent reasons keep their keys and the rest are summed in
+    ``drop_other`` (a Status over it is refused whole, ``bad_field``: counting bad
+    messages must not silence the sender's Status). ``counters`` itself is returned when it fits.
+
+    Raises
+    ------
+    ValueError
+        When the counters other than the drops alone do not fit (a programming error).
+    """
+    if len(counters) <= MAX_COUNTERS:
+        return counters
+    out = {k: v for k, v in counters.items() if not k.startswith("drop_")}
+    room = MAX_COUNTERS - len(out) - 1  # one key for drop_other
+    if room < 0:
+        raise ValueError(f"{len(out)} counters besides the drops: allowed: at most {MAX_COUNTERS - 1}")
+    drops = sorted(((v, k) for k, v in counters.items() if k.startswith("drop_") and k != "drop_other"), reverse=True)
+    out.update({k: v for v, k in drops[:room]})
+    out["drop_other"] = min(MAX_SEQ, counters.get("drop_other", 0) + sum(v for v, _ in drops[room:]))
+    return out
 
 
 def _incomplete(payload: bytes | bytearray | memoryview, n: int, want: int) -> MessageError:

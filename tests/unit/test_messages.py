@@ -10,6 +10,7 @@ import msgspec
 import msgspec.inspect as mi
 import pytest
 from bipedtele.link.messages import (
+    MAX_COUNTERS,
     MESSAGE_TYPES,
     SCHEMA_VERSION,
     ClockPong,
@@ -21,6 +22,7 @@ from bipedtele.link.messages import (
     VideoFrame,
     decode,
     encode,
+    fit_counters,
     message_fields,
 )
 from hypothesis import HealthCheck, given, settings
@@ -288,3 +290,16 @@ def test_messages_are_frozen_and_replaceable() -> None:
         c.seq = 5  # type: ignore[misc]
     d = msgspec.structs.replace(c, seq=5)
     assert d.seq == 5 and c.seq == 2 and decode(encode(d)) == d
+
+
+def test_counters_past_the_bound_sum_the_rarest_drops_in_drop_other() -> None:
+    small = {"ticks": 5, "drop_stale": 2}
+    assert fit_counters(small) is small
+    own = {f"c{k:02d}": k for k in range(MAX_COUNTERS - 4)}
+    many = own | {"drop_a": 9, "drop_b": 1, "drop_c": 7, "drop_d": 3, "drop_other": 4}
+    fitted = fit_counters(many)
+    assert len(fitted) == MAX_COUNTERS and fitted == own | {"drop_a": 9, "drop_c": 7, "drop_d": 3, "drop_other": 5}
+    st = Status(sid=1, seq=1, t=1.0, counters=fitted)
+    assert decode(encode(st), Status) == st
+    with pytest.raises(ValueError, match="besides the drops"):
+        fit_counters({f"c{k}": k for k in range(MAX_COUNTERS + 1)})
