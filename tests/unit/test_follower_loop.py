@@ -16,7 +16,8 @@ from bipedtele.follower.feedbackplan import FeedbackPlan
 from bipedtele.follower.loop import FollowerLoop, command_inbox
 from bipedtele.follower.robot import RobotError
 from bipedtele.follower.supervisor import RobotSupervisor
-from bipedtele.link.messages import Command, Feedback, Status
+from bipedtele.link.drops import DropCounter
+from bipedtele.link.messages import MAX_COUNTERS, Command, Feedback, Status, decode, encode
 from fakes.kinematic_robot import KinematicRobot
 
 pytestmark = pytest.mark.timeout(60)
@@ -444,14 +445,11 @@ def test_h1_is_fed_once_by_the_loop_with_every_command_it_takes() -> None:
     assert "estimator" not in inspect.signature(FollowerLoop).parameters
 
 
-def test_status_carries_the_drop_counts_passed_in() -> None:
-    from bipedtele.link.drops import DropCounter
-
+def _status_with_drops(drops: DropCounter, command: Command | None = None) -> Status:
+    """Tick a follower loop (session 1234) that counts its drops in ``drops``, with ``command`` in its inbox; return its Status."""
     robot = KinematicRobot()
     robot.connect()
     cfg = load_config("default")
-    drops = DropCounter("follower")
-    drops.drop("bad_mac", "test")
     published: list[object] = []
     loop = FollowerLoop(
         robot,
@@ -463,9 +461,39 @@ def test_status_carries_the_drop_counts_passed_in() -> None:
         drops=drops,
         sid=1234,
     )
+    if command is not None:
+        loop.inbox.put(command, 100.0)
     loop.tick()
     st = [m for m in published if isinstance(m, Status)][-1]
+    assert isinstance(st, Status)
+    return st
+
+
+def test_status_carries_the_drop_counts_passed_in() -> None:
+    drops = DropCounter("follower")
+    drops.drop("bad_mac", "test")
+    st = _status_with_drops(drops)
     assert st.sid == 1234 and st.counters["drop_bad_mac"] == 1 and "cmd_accepted" in st.counters
+
+
+def test_a_follower_that_counted_many_kinds_of_bad_message_still_sends_a_status_its_leader_takes() -> None:
+    """Each reason a message is dropped for adds a ``drop_<reason>`` counter; a Status with
+    more than MAX_COUNTERS counters is refused whole by its receiver (``bad_field``). The
+    follower has 48 counters of its own on the cellular rows: 17 kinds of bad message
+    silenced its Status (the cockpit's view of the robot and the echo its probes wait for).
+    Past the bound the rarest reasons are summed in ``drop_other``."""
+    drops = DropCounter("follower", log_interval_s=0.0)
+    reasons = [f"reason_{k:02d}" for k in range(MAX_COUNTERS)]
+    for k, reason in enumerate(reasons):
+        for _ in range(k + 1):
+            drops.drop(reason)
+    st = _status_with_drops(drops, Command(sid=3, seq=1, t=99.9, ref=[5.0, 0.0]))
+    got = decode(encode(st), Status)
+    assert isinstance(got, Status) and len(got.counters) == MAX_COUNTERS
+    assert got.counters["cmd_accepted"] == 1 and got.counters[f"drop_{reasons[-1]}"] == MAX_COUNTERS
+    kept = sum(v for k, v in got.counters.items() if k.startswith("drop_"))
+    assert kept == drops.total  # nothing lost: the rarest are in drop_other
+    assert got.counters["drop_other"] > 0 and f"drop_{reasons[0]}" not in got.counters
 
 
 def _twin() -> Harness:
