@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
-__all__ = ["DelayBaseline", "WindowMax", "WindowMin"]
+__all__ = ["DelayBaseline", "WindowMin"]
 
 
 class WindowMin:
@@ -30,15 +30,10 @@ class WindowMin:
         self.window_s = float(window_s)
         self._q: deque[tuple[float, float]] = deque()
 
-    @staticmethod
-    def _kept(old: float, new: float) -> bool:
-        """Say whether an older sample ``old`` can still be the window's extreme after ``new`` came."""
-        return old < new
-
     def add(self, t: float, value: float) -> None:
         """Add a sample ``value`` taken at ``t`` [s]."""
         q = self._q
-        while q and not self._kept(q[-1][1], value):
+        while q and q[-1][1] >= value:
             q.pop()
         q.append((t, value))
         self.prune(t)
@@ -61,14 +56,6 @@ class WindowMin:
     def clear(self) -> None:
         """Forget every sample."""
         self._q.clear()
-
-
-class WindowMax(WindowMin):
-    """Maximum of ``(t, value)`` samples over a sliding time window (:meth:`value` and :meth:`front` give the maximum)."""
-
-    @staticmethod
-    def _kept(old: float, new: float) -> bool:
-        return old > new
 
 
 class DelayBaseline:

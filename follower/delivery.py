@@ -27,7 +27,6 @@ import threading
 from collections import deque
 from collections.abc import Callable
 
-from bipedtele.follower.backlog import WindowMax
 from bipedtele.follower.delayrise import DelayRise
 
 __all__ = ["DeliveryRate", "InFlight"]
@@ -206,8 +205,6 @@ class InFlight:
         self._last_ack: float | None = None
         self._rtt_window_s = float(rtt_window_s)
         self._intervals: deque[tuple[float, float]] = deque()  # (when [s], interval [s]) of the window
-        self._intervals_sum = 0.0
-        self._longest = WindowMax(rtt_window_s)  # the longest interval of the window
         self._lossy = lossy if lossy is not None else (lambda: False)
         self.rate_bps: float | None = None
         self._last_probe = -math.inf
@@ -261,17 +258,21 @@ class InFlight:
     def _interval(self, now: float, dt: float) -> None:
         """Take the interval ``dt`` [s] between two acknowledgements, the second at ``now`` [s] (under the lock)."""
         self._intervals.append((now, dt))
-        self._intervals_sum += dt
         while self._intervals[0][0] < now - self._rtt_window_s:
-            self._intervals_sum -= self._intervals.popleft()[1]
-        self._longest.add(now, dt)
+            self._intervals.popleft()
+
+    def _interval_s(self, longest: bool) -> float | None:
+        """Return the window's mean interval between acknowledgements, or its longest [s] (None until two were seen)."""
+        with self._lock:
+            gaps = [dt for _, dt in self._intervals]
+        if not gaps:
+            return None
+        return max(gaps) if longest else sum(gaps) / len(gaps)
 
     @property
     def ack_interval_s(self) -> float | None:
         """The mean interval between acknowledgements over the window [s] (None until two were seen)."""
-        with self._lock:
-            n = len(self._intervals)
-            return self._intervals_sum / n if n else None
+        return self._interval_s(longest=False)
 
     def delivered(self, now: float, t_delivered: float) -> None:
         """Take the leader's word that everything sent up to ``t_delivered`` [s] arrived (no round-trip sample).
@@ -317,8 +318,6 @@ class InFlight:
             self._acked_t = -math.inf
             self._rtt.clear()
             self._intervals.clear()
-            self._intervals_sum = 0.0
-            self._longest.clear()
         self._last_ack = None
         self.rate_bps = None
         self._last_probe = self._progress = -math.inf
@@ -353,11 +352,8 @@ class InFlight:
         rtt = self.min_rtt_s
         if self.rate_bps is None or rtt is None:
             return math.inf
-        mean = self.ack_interval_s
-        ack = self.ack_prior_s if mean is None else mean
-        if self._lossy():
-            with self._lock:
-                ack = max(ack, self._longest.front() or 0.0)
+        interval = self._interval_s(longest=self._lossy())  # the longest is at least the mean
+        ack = self.ack_prior_s if interval is None else interval
         return max(self.min_bytes, self.gain * self.rate_bps / 8.0 * (rtt + ack))
 
     @property

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from bipedtele.follower.backlog import WindowMax, WindowMin
+from bipedtele.follower.backlog import WindowMin
 from bipedtele.follower.delayrise import DelayRise
 
 pytestmark = pytest.mark.timeout(30)
@@ -55,12 +55,9 @@ def test_bad_parameters_are_refused() -> None:
         DelayRise(span_s=-0.1)
 
 
-def test_window_min_and_max_keep_their_extreme_over_the_window() -> None:
-    lo, hi = WindowMin(1.0), WindowMax(1.0)
+def test_window_min_keeps_its_least_over_the_window() -> None:
+    lo = WindowMin(1.0)
     for t, v in ((0.0, 0.5), (0.4, 1.0), (0.8, 0.2), (1.2, 0.7)):
         lo.add(t, v)
-        hi.add(t, v)
-    assert lo.front() == 0.2 and hi.front() == 1.0  # 0.5 at 0 s has left the window
-    assert lo.value(1.9) == 0.7 and hi.value(1.9) == 0.7  # only the sample at 1.2 s is left
-    hi.clear()
-    assert hi.front() is None
+    assert lo.front() == 0.2
+    assert lo.value(1.9) == 0.7  # only the sample at 1.2 s is left
