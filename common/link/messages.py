@@ -271,7 +271,20 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
     """
 
     KIND: ClassVar[str] = "fb"
-    SINGLE: ClassVar[tuple[str, ...]] = ("z_e", "z_r", "eta", "ref", "pose", "sonar", "f_v", "h1_s", "s_e", "s_r", "T", "eps")
+    SINGLE: ClassVar[tuple[str, ...]] = (
+        "z_e",
+        "z_r",
+        "eta",
+        "ref",
+        "pose",
+        "sonar",
+        "f_v",
+        "h1_s",
+        "s_e",
+        "s_r",
+        "T",
+        "eps",
+    )
     z_e: Speeds = field(default_factory=_zeros2)
     z_r: Speeds = field(default_factory=_zeros2)
     eta: Speeds = field(default_factory=_zeros2)

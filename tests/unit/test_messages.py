@@ -87,7 +87,11 @@ def _f32(x: float) -> float:
 
 def _as_sent(msg: Message) -> Message:
     """``msg`` with its ``SINGLE`` fields rounded to 32-bit floats, as :func:`encode` writes them."""
-    rounded = {n: _f32(v) if isinstance(v, float) else [_f32(x) for x in v] for n in msg.SINGLE if (v := getattr(msg, n)) is not None}
+    rounded = {
+        n: _f32(v) if isinstance(v, float) else [_f32(x) for x in v]
+        for n in msg.SINGLE
+        if (v := getattr(msg, n)) is not None
+    }
     return msgspec.structs.replace(msg, **rounded)
 
 
