@@ -489,7 +489,7 @@ def encode(msg: Message) -> bytes:
     for name in msg.__struct_fields__:
         value = getattr(msg, name)
         if name in single:
-            value = _single(value) if isinstance(value, float) else [_single(x) for x in value]
+            value = [_single(x) for x in value] if isinstance(value, list | tuple) else _single(value)
         out[name] = value
     return _ENCODER.encode(out)
 

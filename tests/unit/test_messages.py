@@ -108,6 +108,8 @@ def test_feedback_travels_in_32_bit_floats_and_a_64_bit_writer_is_understood() -
     assert back == _as_sent(fb) and back.t == now and back.energy == fb.energy
     assert back.z_e[0] == pytest.approx(1.2345678, rel=1e-7) and back.pose[0] == pytest.approx(12.3456789, rel=1e-7)
     assert decode(wide, Feedback) == fb
+    # numbers as code builds them: ints and tuples are written as floats too
+    assert decode(encode(Feedback(T=1, z_e=(1, 2)))) == Feedback(T=1.0, z_e=[1.0, 2.0])
     # beyond a 32-bit float's range: written in 64 bits, refused by the receiver's bound
     with pytest.raises(MessageError) as exc:
         decode(encode(msgspec.structs.replace(fb, f_v=[1e39, 0.0])))
