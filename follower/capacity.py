@@ -551,8 +551,8 @@ class UplinkBudget:
         less the margin (always once the start is over with the capacity unknown; during
         the start the acknowledgements ride on the periodic feedback). Otherwise the
         acknowledgements ride on the next tick's feedback, and the rate is the highest of
-        ``rate_hz``, 25 and 10 Hz that fits ``control_share``, above 25 Hz also what video at
-        its most leaves (on the 3G row 50 Hz at 253 kbit/s took control from 90 to 164 kbit/s,
+        ``rate_hz``, 25 and 10 Hz that fits ``control_share``, above 25 Hz also half of what
+        the margin leaves (on the 3G row 50 Hz at 253 kbit/s took control from 90 to 164 kbit/s,
         video from 12 to 7.5-8 frames/s). As the capacity is probed back up, the plan returns to full rate.
         """
         tu, cmd_hz, fb_bits, cap = self.tuning, self._q.command_hz(), self._log.fb_bits, self.capacity_bps
@@ -565,6 +565,7 @@ class UplinkBudget:
             start=self.start_budget_bps is not None,
             stall_hz=tu.stall_fb_hz if self.stalled else None,
             ack_room_bps=cap - margin - video_bps,
+            above_floor_bps=0.5 * (cap - margin),
         )
         self._plan_bps = plan.control_bps(cmd_hz, fb_bits)
         return plan

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 __all__ = ["FLOOR_HZ", "FeedbackPlan", "plan_feedback"]
 
 #: The feedback rate that keeps priority over video while the path is limited [Hz]; a
-#: periodic rate above it comes after video at its most.
+#: periodic rate above it shares the path with video.
 FLOOR_HZ = 25.0
 
 
@@ -61,6 +61,7 @@ def plan_feedback(
     start: bool = False,
     stall_hz: float | None = None,
     ack_room_bps: float = math.inf,
+    above_floor_bps: float = math.inf,
 ) -> FeedbackPlan:
     """How to send feedback now (:meth:`bipedtele.follower.capacity.UplinkBudget.feedback_plan` explains the rule).
 
@@ -77,11 +78,14 @@ def plan_feedback(
     stall_hz : float, optional
         The path is stalled: the newest only, at most this often [Hz].
     ack_room_bps : float, optional
-        What feedback beyond the floor may use [bit/s]: what video at its most leaves
-        of the capacity (default: no bound but ``fits_bps``). The periodic feedback up
-        to :data:`FLOOR_HZ` keeps priority over video; an acknowledgement sent at once
-        instead of on the next periodic feedback, and a periodic rate above the floor,
-        come after video.
+        What feedback beyond the periodic rate (acknowledgements sent at once) may use
+        [bit/s]: what video at its most leaves of the capacity (default: no bound but
+        ``fits_bps``). The periodic feedback keeps priority over video; an acknowledgement
+        sent at once instead of on the next periodic feedback does not.
+    above_floor_bps : float, optional
+        What a periodic rate above :data:`FLOOR_HZ` may use [bit/s] (default: no bound
+        but ``fits_bps``): the floor keeps priority over video, a rate above it shares
+        the path with video (:meth:`~bipedtele.follower.capacity.UplinkBudget.feedback_plan`).
     """
     if stall_hz is not None:
         hz = min(rate_hz, stall_hz)
@@ -96,8 +100,8 @@ def plan_feedback(
     if (rate_hz + command_hz) * feedback_bits <= acks_bps:
         return FeedbackPlan(True, rate_hz)
 
-    def fits(h: float) -> bool:  # the floor's rates before video, a rate above it after video
-        return h <= rate_hz and h * feedback_bits <= (fits_bps if h <= FLOOR_HZ else acks_bps)
+    def fits(h: float) -> bool:  # the floor's rates before video, a rate above it shares the path with video
+        return h <= rate_hz and h * feedback_bits <= (fits_bps if h <= FLOOR_HZ else min(fits_bps, above_floor_bps))
 
     hz = next((h for h in (rate_hz, FLOOR_HZ, 10.0) if fits(h)), min(rate_hz, 10.0))
     # the feedback rate the path carries: acknowledgements fill what the periodic
