@@ -139,7 +139,8 @@ class FollowerApp:
     def _on_take(self, cmd: Command) -> None:
         self.budget.on_h2(cmd.h2_s)  # the leader's feedback-path delay, from every command taken
         if cmd.fb_echo is not None:
-            self.budget.on_echo(cmd.fb_echo)  # the newest feedback's stamps: the uplink's queue, fast
+            # the newest feedback's stamps: the uplink's queue, fast, and a stall without the leader's Status
+            self.budget.on_echo(cmd.fb_echo, self.node.to_local(cmd.t))
 
     def _on_command(self, got: Received[Command]) -> None:  # Zenoh's thread: wake the loop
         if self.pacer is not None:

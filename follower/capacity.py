@@ -33,7 +33,8 @@ robot's uplink": each rule, its figures and what it replaced):
   the rate and echo rules do not judge (TCP's video slowed by loss arrives below what was
   sent whatever the path carries): loss alone never throttles.
 - **stall**: the newest feedback older than h2's 60 s minimum by more than ``stall_s`` with
-  something of ours undelivered: video pauses, feedback at ``stall_fb_hz``, no rule cuts;
+  something of ours undelivered, judged on each word of the leader (its Status, and each
+  command's echo): video pauses, feedback at ``stall_fb_hz``, no rule cuts;
   after it the capacity restarts from what the path delivered before
   (:class:`~bipedtele.follower.delivery.DeliveryRate`), and a ceiling set in a dip is
   recovered at ``start_growth`` a second.
@@ -135,6 +136,7 @@ class UplinkBudget:
         self._last_undo = -math.inf
         self._last_status = -math.inf
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
+        self._stall_heard = -math.inf  # when a command's echo last judged a stall
         self._last_cmd = -math.inf  # the last command taken
         self._silence = LeaderSilence(tu.inflight_release_s, tu.stall_s)
         self._leader_sid: int | None = None  # the session of the leader's last Status
@@ -199,10 +201,22 @@ class UplinkBudget:
         if self._q.add(self._clock(), h2_s):
             self.signals["relearn"] += 1
 
-    def on_echo(self, echo: Sequence[float]) -> None:
-        """Feed a command's echo of the newest feedback: its send stamp [s, ours] and receive time [s, the leader's]."""
+    def on_echo(self, echo: Sequence[float], t_sent: float | None = None) -> None:
+        """Feed a command's echo of the newest feedback: its send stamp [s, ours] and receive time [s, the leader's].
+
+        With ``t_sent``, the command's send time on the local clock [s], the echo judges a
+        stall too (after the leader's first Status): the leader's Status may stop with the
+        uplink (in the split layout it rides a TCP link whose acknowledgements go up it),
+        and a gap that began just after one went unseen: on the LTE row the follower sent
+        feedback into a 4.4 s gap until the in-flight cap filled (107 kB, 3 s in), and the
+        first one to arrive after it was 1.99 s old.
+        """
+        now = self._clock()
         under = self.ceiling_bps is not None and self.capacity_bps < self.ceiling_bps  # a lone rise: the path's dip
-        self.owd.echo(self._clock(), float(echo[0]), float(echo[1]), under_ceiling=under)
+        self.owd.echo(now, float(echo[0]), float(echo[1]), under_ceiling=under)
+        if t_sent is not None and math.isfinite(t_sent) and self._last_status > -math.inf:
+            self._judge_stall(now, min(float(t_sent), now), None, float(echo[0]))
+            self._stall_heard = now
 
     def on_leader_status(
         self, counters: Mapping[str, int], t_sent: float | None = None, sid: int | None = None
@@ -243,7 +257,8 @@ class UplinkBudget:
             return
         self._last_status = now
         ts = now if t_sent is None or not math.isfinite(t_sent) else min(float(t_sent), now)
-        stalled = self._judge_stall(now, ts, rx)
+        t_fb = None if age_ms is None else ts - age_ms / 1000.0
+        stalled = self._judge_stall(now, ts, rx, t_fb)
         if age_ms is not None:  # everything sent up to the newest feedback the leader had: delivered
             self.inflight.acked(now, ts - age_ms / 1000.0, self.delivery.max_bps)
         if stalled:
@@ -278,27 +293,29 @@ class UplinkBudget:
     @property
     def stalled(self) -> bool:
         """True while the path is stalled (see the module docstring); False without a recent leader status."""
-        return self.delivery.stalled and self._clock() - self._last_heard <= self.tuning.status_timeout_s
+        heard = max(self._last_heard, self._stall_heard)
+        return self.delivery.stalled and self._clock() - heard <= self.tuning.status_timeout_s
 
-    def _judge_stall(self, now: float, ts: float, rx: int) -> bool:
+    def _judge_stall(self, now: float, ts: float, rx: int | None, t_fb: float | None) -> bool:
         """Feed the delivery rate; say whether the path is stalled, and restart the capacity after a stall.
 
         Parameters
         ----------
         now, ts : float
-            Now, and when the leader sent its status [s].
-        rx : int
-            What the leader received over its window [bit/s].
+            Now, and when the leader sent its word (a Status or a command) [s].
+        rx : int or None
+            What the leader received over its window [bit/s] (a Status's; None: a command's).
+        t_fb : float or None
+            Send time of the newest feedback the leader had then [s] (None: none).
         """
         tu, q = self.tuning, self._q
-        age_ms, floor = self.leader.get("fb_age_ms"), q.floor_s or 0.0
+        floor = q.floor_s or 0.0
         # the path failed to deliver: something of ours sent after the newest feedback it has,
         # long enough ago to have arrived (an old feedback with nothing after it: our own pacing)
-        t_fb = None if age_ms is None else ts - age_ms / 1000.0
         stall = t_fb is not None and ts - t_fb - floor > tu.stall_s and not self._silence.grace(now)
         stall = stall and self.inflight.undelivered(t_fb or 0.0, ts - floor - tu.stall_s)
         was = self.delivery.stalled
-        self.delivery.sample(ts, float(rx), stall)
+        self.delivery.sample(ts, 0.0 if rx is None else float(rx), stall)
         self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most
         if stall and not was:
             self.signals["stall"] += 1

@@ -67,13 +67,16 @@ class DeliveryRate:
         Parameters
         ----------
         t : float
-            When the leader measured it, on the follower's clock [s] (non-decreasing).
+            When the leader measured it, on the follower's clock [s] (one earlier than the
+            last sample's, a Status sent before the last command judged, counts as at it).
         rx_bps : float
             What the path delivered over the leader's window [bit/s] (>= 0).
         stalled : bool
             Whether the path is stalled now (its samples are left out, its time not counted).
         """
-        last, self._last_t = self._last_t, t
+        last = self._last_t
+        t = t if last is None else max(t, last)
+        self._last_t = t
         if stalled:
             if not self.stalled:
                 self.stalls += 1
