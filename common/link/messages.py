@@ -28,7 +28,6 @@ from __future__ import annotations
 import functools
 import os
 import re
-import struct
 from typing import Annotated, Any, ClassVar, Final, Literal, TypeAlias, Union, get_type_hints
 
 import msgspec
@@ -169,8 +168,6 @@ class Message(Struct, frozen=True, gc=False, tag_field="k", forbid_unknown_field
     """
 
     KIND: ClassVar[str] = ""
-    #: Float fields written as 32-bit floats (7 significant digits) by :func:`encode`.
-    SINGLE: ClassVar[tuple[str, ...]] = ()
     v: Literal[1] = SCHEMA_VERSION
     sid: SessionId = 0
     seq: Seq = 0
@@ -260,31 +257,9 @@ class Feedback(Message, frozen=True, gc=False, tag="fb"):
     energy : [float, float] or None
         Energy that entered the link at the follower's port so far [N cm, N deg] (the
         leader's passivity observer, scheme ``tdpa``; None otherwise).
-
-    Notes
-    -----
-    Feedback is the message the uplink carries most often (25-50 Hz, beside video), so
-    its 22 numbers from ``z_e`` to ``eps`` travel as 32-bit floats (``SINGLE``): 7
-    significant digits, 88 bytes fewer than 64-bit floats (a 338-byte message becomes
-    250). The envelope's ``t`` (a clock in seconds since 1970), ``wave`` and ``energy``
-    (the passivity schemes' sums) stay 64-bit.
     """
 
     KIND: ClassVar[str] = "fb"
-    SINGLE: ClassVar[tuple[str, ...]] = (
-        "z_e",
-        "z_r",
-        "eta",
-        "ref",
-        "pose",
-        "sonar",
-        "f_v",
-        "h1_s",
-        "s_e",
-        "s_r",
-        "T",
-        "eps",
-    )
     z_e: Speeds = field(default_factory=_zeros2)
     z_r: Speeds = field(default_factory=_zeros2)
     eta: Speeds = field(default_factory=_zeros2)
@@ -464,34 +439,9 @@ _MISSING = re.compile(r"missing required field `(\w+)`")
 _UNKNOWN = re.compile(r"unknown field `")
 
 
-_F32: Final = struct.Struct(">f")
-_F64: Final = struct.Struct(">d")
-
-
-def _single(x: float) -> msgspec.Raw:
-    """Return ``x`` as a msgpack float32 (float64 if beyond its range: a receiver refuses it)."""
-    try:
-        return msgspec.Raw(b"\xca" + _F32.pack(x))
-    except OverflowError:
-        return msgspec.Raw(b"\xcb" + _F64.pack(x))
-
-
 def encode(msg: Message) -> bytes:
-    """Serialise a message to msgpack bytes (envelope plus fields; ``SINGLE`` fields as 32-bit floats).
-
-    A receiver decodes a float32 like a float64 (msgpack carries the width), so a peer that
-    writes every float in 64 bits is understood alike.
-    """
-    single = msg.SINGLE
-    if not single:
-        return _ENCODER.encode(msg)
-    out: dict[str, Any] = {"k": msg.KIND}
-    for name in msg.__struct_fields__:
-        value = getattr(msg, name)
-        if name in single:
-            value = [_single(x) for x in value] if isinstance(value, list | tuple) else _single(value)
-        out[name] = value
-    return _ENCODER.encode(out)
+    """Serialise a message to msgpack bytes (envelope plus fields)."""
+    return _ENCODER.encode(msg)
 
 
 def _reason(error: str) -> str:
