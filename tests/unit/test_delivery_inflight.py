@@ -237,6 +237,28 @@ def test_a_leader_back_from_silence_is_not_taken_for_a_stalled_uplink() -> None:
     assert not b.inflight.hold and b.inflight.admit_feedback(now[0])
 
 
+def test_a_leader_back_from_silence_is_not_taken_for_a_stalled_uplink_by_its_commands_echo() -> None:
+    """As above, when the leader's first command comes before its first Status: its echo
+    shows the newest feedback from before the silence, which the silence explains too."""
+    now = [0.0]
+    b = _closed_budget(now)
+    for _ in range(300):  # 3 s: no command, no status; the robot's feedback goes on (the cap released)
+        now[0] = round(now[0] + 0.01, 6)
+        b.update()
+        if b.inflight.admit_feedback(now[0]):
+            b.sent(FB, feedback=True)
+    b.on_h2(0.2)
+    b.on_echo([2.97, 3.17], now[0])  # the newest feedback the leader took, sent before the silence
+    b.update()
+    assert not b.stalled and b.inflight.admit_feedback(now[0])
+    b.sent(FB, feedback=True)
+    now[0] = round(now[0] + 0.01, 6)
+    b.on_h2(0.2)
+    b.on_echo([2.97, 3.17], now[0])
+    b.update()
+    assert not b.inflight.hold and b.inflight.admit_feedback(now[0])
+
+
 def _acks(f: InFlight, sent: int) -> None:
     """Ten acknowledgements at 10 Hz with a 20 ms round trip (800 kbit/s delivered), then
     ``sent`` bytes and one acknowledgement 80 ms over the minimum."""
