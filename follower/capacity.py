@@ -315,6 +315,8 @@ class UplinkBudget:
         stall = t_fb is not None and ts - t_fb - floor > tu.stall_s and not self._silence.grace(now)
         stall = stall and self.inflight.undelivered(t_fb or 0.0, ts - floor - tu.stall_s)
         was = self.delivery.stalled
+        # a word sent before the stall began (a Status that waited behind the gap) does not end it
+        stall = stall or (was and ts < (self.delivery.stall_since or -math.inf))
         self.delivery.sample(ts, 0.0 if rx is None else float(rx), stall)
         self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most
         if stall and not was:

@@ -400,3 +400,27 @@ def test_a_stall_is_judged_from_the_commands_echo_when_the_leaders_status_stops_
         if now[0] >= 3.6:  # 0.5 s past the gap and its delay, a command's period more
             assert b.stalled and not b.inflight.admit_feedback(now[0]), now[0]
     assert b.signals["stall"] == 1 and b.inflight.bytes <= 60 * FB, b.inflight.bytes  # 0.6 s of feedback at most
+
+
+def test_a_status_sent_before_the_stall_began_does_not_end_it() -> None:
+    """The commands' echo judged the stall; a leader Status sent just before the gap arrives
+    late (it waited behind the gap on its TCP link) with the feedback fresh as it was then:
+    it says nothing of the path now, and the stall holds until a word sent after it began."""
+    now = [0.0]
+    b = UplinkBudget(lambda: now[0])
+    newest = 0.0
+    for k in range(1, 401):  # the gap from 3 s; the commands' echo judges it
+        now[0] = 0.01 * k
+        gap = now[0] > 3.0
+        if b.inflight.admit_feedback(now[0]):
+            b.sent(FB, feedback=True)
+            newest = newest if gap else now[0] - 0.04
+        b.on_h2(0.04)
+        if k % 2 == 0:
+            b.on_echo([newest, newest + 0.04], now[0] - 0.005)
+        if k % 50 == 0 and not gap:
+            b.on_leader_status({"rx_bps": 1_500_000, "fb_age_ms": 40, "fb_loss_ppm": 0}, now[0])
+        b.update()
+    assert b.stalled
+    b.on_leader_status({"rx_bps": 1_500_000, "fb_age_ms": 40, "fb_loss_ppm": 0}, 2.99)  # sent before the gap
+    assert b.stalled and b.signals["stall"] == 1
