@@ -174,8 +174,8 @@ class FollowerApp:
         got = self._status_rx.take() if self._status_rx is not None else None
         if got is not None and got.msg.role == "leader":
             self.budget.on_leader_status(got.msg.counters, self.node.to_local(got.msg.t), got.msg.sid)
-        self.budget.update()
         most = 0.0 if self._video is None else self._video.most_bps()
+        self.budget.update(most)
         self._plan = self.budget.feedback_plan(self.fcfg.feedback_rate_hz, most)  # the loop reads it
         if self._video is not None:
             b = self.budget

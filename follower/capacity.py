@@ -47,7 +47,7 @@ rate - a margin of ``margin`` of the capacity, at least ``margin_min_bps``, and 
 drain h2's queue within ``drain_s``); :meth:`UplinkBudget.feedback_plan` says how control
 shrinks while limited (:func:`~bipedtele.follower.feedbackplan.plan_feedback`). The parts,
 each in its module: ``UplinkTuning``, ``SentLog``, ``QueueDelay``, ``PendingCut``,
-``OneWayQueue``, ``InFlight``, ``DeliveryRate``, ``StartPhase``; the rules are here.
+``OneWayQueue``, ``InFlight``, ``DeliveryRate``, ``StartPhase``, ``StallJudge``; the rules are here.
 """
 
 from __future__ import annotations
@@ -64,6 +64,7 @@ from bipedtele.follower.leadersilence import LeaderSilence
 from bipedtele.follower.owdqueue import OneWayQueue
 from bipedtele.follower.queuedelay import QueueDelay
 from bipedtele.follower.sentlog import SentLog
+from bipedtele.follower.stall import StallJudge
 from bipedtele.follower.startphase import StartPhase
 from bipedtele.follower.uplinktuning import UplinkTuning
 
@@ -136,9 +137,9 @@ class UplinkBudget:
         self._last_undo = -math.inf
         self._last_status = -math.inf
         self._last_heard = -math.inf  # the leader's last Status (with or without rx_bps)
-        self._stall_heard = -math.inf  # when a command's echo last judged a stall
         self._last_cmd = -math.inf  # the last command taken
         self._silence = LeaderSilence(tu.inflight_release_s, tu.stall_s)
+        self._stall = StallJudge(tu.stall_s, tu.status_timeout_s, self.delivery, self._silence, self.inflight)
         self._leader_sid: int | None = None  # the session of the leader's last Status
         self._last_update: float | None = None
         self._plan_bps = 0.0  # the feedback rate of the last plan [bit/s]
@@ -216,7 +217,6 @@ class UplinkBudget:
         self.owd.echo(now, float(echo[0]), float(echo[1]), under_ceiling=under)
         if t_sent is not None and math.isfinite(t_sent) and self._last_status > -math.inf:
             self._judge_stall(now, min(float(t_sent), now), None, float(echo[0]))
-            self._stall_heard = now
 
     def on_leader_status(
         self, counters: Mapping[str, int], t_sent: float | None = None, sid: int | None = None
@@ -292,39 +292,18 @@ class UplinkBudget:
 
     @property
     def stalled(self) -> bool:
-        """True while the path is stalled (see the module docstring); False without a recent leader status."""
-        heard = max(self._last_heard, self._stall_heard)
-        return self.delivery.stalled and self._clock() - heard <= self.tuning.status_timeout_s
+        """True while the path is stalled (see the module docstring); False without a recent leader Status or command that judged it."""
+        return self._stall.current(self._clock(), self._last_heard)
 
     def _judge_stall(self, now: float, ts: float, rx: int | None, t_fb: float | None) -> bool:
-        """Feed the delivery rate; say whether the path is stalled, and restart the capacity after a stall.
-
-        Parameters
-        ----------
-        now, ts : float
-            Now, and when the leader sent its word (a Status or a command) [s].
-        rx : int or None
-            What the leader received over its window [bit/s] (a Status's; None: a command's).
-        t_fb : float or None
-            Send time of the newest feedback the leader had then [s] (None: none).
-        """
-        tu, q = self.tuning, self._q
-        floor = q.floor_s or 0.0
-        # the path failed to deliver: something of ours sent after the newest feedback it has,
-        # long enough ago to have arrived (an old feedback with nothing after it: our own pacing)
-        stall = t_fb is not None and ts - t_fb - floor > tu.stall_s and not self._silence.grace(now)
-        stall = stall and self.inflight.undelivered(t_fb or 0.0, ts - floor - tu.stall_s)
-        was = self.delivery.stalled
-        # a word sent before the stall began (a Status that waited behind the gap) does not end it
-        stall = stall or (was and ts < (self.delivery.stall_since or -math.inf))
-        self.delivery.sample(ts, 0.0 if rx is None else float(rx), stall)
-        self.inflight.hold = stall  # a path that does not deliver: one message of ours in it at most
-        if stall and not was:
+        """Judge a stall on a word of the leader (:meth:`StallJudge.judge`); restart the capacity after one."""
+        verdict = self._stall.judge(now, ts, rx, t_fb, self._q.floor_s or 0.0)
+        if verdict.began:
             self.signals["stall"] += 1
             self._undo = None  # a cut that the gap's queue caused is not judged by it
-        if was and not stall:
+        if verdict.ended:
             self._restart(now)
-        return stall
+        return verdict.stalled
 
     def _restart(self, now: float) -> None:
         """After a stall: the capacity from what the path delivered before it, not the collapse."""
@@ -337,8 +316,13 @@ class UplinkBudget:
             self.ceiling_bps = max(self.ceiling_bps, best)
         self._last_signal = -math.inf
 
-    def update(self) -> None:
-        """Judge the delay rule and probe upward while not limited; call it every tick."""
+    def update(self, video_most_bps: float | None = None) -> None:
+        """Judge the delay rule and probe upward while not limited; call it every tick.
+
+        ``video_most_bps``: what video sends at its most [bit/s] (None or 0: not known, or no
+        video); the start takes the capacity once video sends 0.8 of what the start offers
+        it or of that much (:class:`~bipedtele.follower.startphase.StartPhase`).
+        """
         tu, q = self.tuning, self._q
         now = self._clock()
         last, self._last_update = self._last_update, now
@@ -354,7 +338,12 @@ class UplinkBudget:
         elif (
             last is not None and self.start_budget_bps is not None and now - q.at < tu.gap_s and self._start_clear(now)
         ):
-            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, max(0.0, now - last), tx)
+            # video sends what it is offered (read only when the take is due; None: not known)
+            want = min(self.start_budget_bps, video_most_bps or 0.0)
+            dt = max(0.0, now - last)
+            due = self._startphase.clear_s + dt >= tu.start_s
+            tested = not (want and due) or self._log.rate(now - tu.window_s, now, 1) >= 0.8 * want
+            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, dt, tx, tested)
             if taken is not None:
                 self.capacity_bps = taken
         if last is None or not math.isfinite(self.capacity_bps) or self.stalled:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -373,43 +374,15 @@ def test_on_a_lossy_path_a_lost_status_does_not_hold_video() -> None:
     assert all(round(t, 2) in stalled for t in np.arange(13.01, 20.0, 0.05)), stalled[-10:]
 
 
-def test_a_stall_is_judged_from_the_commands_echo_when_the_leaders_status_stops_with_the_uplink() -> None:
-    """In the split layout the leader's Status rides a TCP link whose acknowledgements go up
-    the uplink: in a gap it stops too, while commands (UDP) still come. A gap that began just
-    after a Status went unseen on the LTE row: the follower sent feedback into a 4.4 s gap
-    until the in-flight cap filled (107 kB, 3 s in), the first to arrive after it 1.99 s old.
-    The commands' echo of the newest feedback judges the stall: feedback is held within
-    ``stall_s`` past the path's delay."""
+def _gap_from_3_s(seconds: float, check: Callable[[UplinkBudget, float], None] | None = None) -> UplinkBudget:
+    """Run a budget ``seconds`` at 100 Hz with the uplink gone from 3 s: feedback 40 ms up the
+    path before it, nothing in it; a command every 20 ms echoing the newest feedback the
+    leader took; the leader's Status at 2 Hz, none in the gap (its TCP link stops with the
+    uplink). ``check(budget, now)`` runs after each tick."""
     now = [0.0]
     b = UplinkBudget(lambda: now[0])
     newest = 0.0  # send time of the newest feedback the leader has
-    for k in range(1, 801):  # 8 s at 100 Hz: the gap from 3 s
-        now[0] = 0.01 * k
-        gap = now[0] > 3.0
-        if b.inflight.admit_feedback(now[0]):
-            b.sent(FB, feedback=True)
-            newest = newest if gap else now[0] - 0.04  # 40 ms up the path; nothing in the gap
-        b.on_h2(0.04)
-        if k % 2 == 0:  # a command every 20 ms, its echo the newest feedback the leader took
-            b.on_echo([newest, newest + 0.04], now[0] - 0.005)
-        if k % 50 == 0 and not gap:  # the leader's Status at 2 Hz, none in the gap
-            b.on_leader_status(
-                {"rx_bps": 1_500_000, "fb_age_ms": round(1000 * (now[0] - newest)), "fb_loss_ppm": 0}, now[0]
-            )
-        b.update()
-        if now[0] >= 3.6:  # 0.5 s past the gap and its delay, a command's period more
-            assert b.stalled and not b.inflight.admit_feedback(now[0]), now[0]
-    assert b.signals["stall"] == 1 and b.inflight.bytes <= 60 * FB, b.inflight.bytes  # 0.6 s of feedback at most
-
-
-def test_a_status_sent_before_the_stall_began_does_not_end_it() -> None:
-    """The commands' echo judged the stall; a leader Status sent just before the gap arrives
-    late (it waited behind the gap on its TCP link) with the feedback fresh as it was then:
-    it says nothing of the path now, and the stall holds until a word sent after it began."""
-    now = [0.0]
-    b = UplinkBudget(lambda: now[0])
-    newest = 0.0
-    for k in range(1, 401):  # the gap from 3 s; the commands' echo judges it
+    for k in range(1, round(seconds * 100) + 1):
         now[0] = 0.01 * k
         gap = now[0] > 3.0
         if b.inflight.admit_feedback(now[0]):
@@ -419,8 +392,36 @@ def test_a_status_sent_before_the_stall_began_does_not_end_it() -> None:
         if k % 2 == 0:
             b.on_echo([newest, newest + 0.04], now[0] - 0.005)
         if k % 50 == 0 and not gap:
-            b.on_leader_status({"rx_bps": 1_500_000, "fb_age_ms": 40, "fb_loss_ppm": 0}, now[0])
+            b.on_leader_status(
+                {"rx_bps": 1_500_000, "fb_age_ms": round(1000 * (now[0] - newest)), "fb_loss_ppm": 0}, now[0]
+            )
         b.update()
+        if check is not None:
+            check(b, now[0])
+    return b
+
+
+def test_a_stall_is_judged_from_the_commands_echo_when_the_leaders_status_stops_with_the_uplink() -> None:
+    """In the split layout the leader's Status rides a TCP link whose acknowledgements go up
+    the uplink: in a gap it stops too, while commands (UDP) still come. A gap that began just
+    after a Status went unseen on the LTE row: the follower sent feedback into a 4.4 s gap
+    until the in-flight cap filled (107 kB, 3 s in), the first to arrive after it 1.99 s old.
+    The commands' echo of the newest feedback judges the stall: feedback is held within
+    ``stall_s`` past the path's delay."""
+
+    def held(b: UplinkBudget, now: float) -> None:
+        if now >= 3.6:  # 0.5 s past the gap and its delay, a command's period more
+            assert b.stalled and not b.inflight.admit_feedback(now), now
+
+    b = _gap_from_3_s(8.0, held)
+    assert b.signals["stall"] == 1 and b.inflight.bytes <= 60 * FB, b.inflight.bytes  # 0.6 s of feedback at most
+
+
+def test_a_status_sent_before_the_stall_began_does_not_end_it() -> None:
+    """The commands' echo judged the stall; a leader Status sent just before the gap arrives
+    late (it waited behind the gap on its TCP link) with the feedback fresh as it was then:
+    it says nothing of the path now, and the stall holds until a word sent after it began."""
+    b = _gap_from_3_s(4.0)
     assert b.stalled
     b.on_leader_status({"rx_bps": 1_500_000, "fb_age_ms": 40, "fb_loss_ppm": 0}, 2.99)  # sent before the gap
     assert b.stalled and b.signals["stall"] == 1
