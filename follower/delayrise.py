@@ -81,33 +81,19 @@ class DelayRise:
 class StandingQueue:
     """A delay over its minimum across ``window_s``: a queue standing longer than a shorter window takes in.
 
-    With a span, the delay is the least of every sample of the last ``span_s`` (Copa's
-    standing RTT): a queue stands when no sample within the span came in under it. A link
-    that delivers in slots makes single samples wait up to a slot's gap whatever the queue:
-    on the 3G row the echo's current delay (the least of about three samples) stood 15-25 ms
-    over its 60 s minimum with nothing of ours queued, and the probe it holds stayed off for
-    30 s (the estimate at 215 kbit/s on a trace carrying 520 on average).
-
     Parameters
     ----------
     window_s : float
         Window of the minimum [s] (60 s: the budget's ``base_window_s``).
-    span_s : float
-        The delay taken is the least over this span [s] (0: each sample as given).
     """
 
-    def __init__(self, window_s: float, span_s: float = 0.0) -> None:
+    def __init__(self, window_s: float) -> None:
         self._floor = WindowMin(window_s)
-        self._recent = WindowMin(span_s) if span_s > 0 else None
 
     def add(self, t: float, delay_s: float) -> float:
-        """Take a delay ``delay_s`` [s] at ``t`` [s]; return it (the least over the span) over the window's minimum [s], >= 0."""
+        """Take a delay ``delay_s`` [s] at ``t`` [s]; return it over the window's minimum [s], >= 0."""
         self._floor.add(t, delay_s)
         base = self._floor.value(t)
-        if self._recent is not None:
-            self._recent.add(t, delay_s)
-            least = self._recent.value(t)
-            delay_s = delay_s if least is None else least
         return 0.0 if base is None else max(0.0, delay_s - base)
 
     def floor(self, t: float) -> float | None:
@@ -117,5 +103,3 @@ class StandingQueue:
     def clear(self) -> None:
         """Forget every sample (the path's own delay changed)."""
         self._floor.clear()
-        if self._recent is not None:
-            self._recent.clear()

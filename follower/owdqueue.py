@@ -35,10 +35,9 @@ than the path carried); past it, a crossing of a known rate (a token bucket's) i
 the 3G row the trace's slow rises (a stretch at 240-360 kbit/s for 200-600 ms) had cut
 the estimate 6 times in 90 s, each probed back slowly, where only the steep ones were dips.
 
-The least current delay of the last 0.5 s over its minimum across ``standing_window_s``
-(60 s) is the **standing queue** (``standing_s``): a queue standing longer than the valve's
-10 s window takes in, which holds the budget's probe (Copa's standing RTT: a slot's wait
-of single samples is no standing queue; :class:`~bipedtele.follower.delayrise.StandingQueue`).
+The same current delay over its minimum across ``standing_window_s`` (60 s) is the
+**standing queue** (``standing_s``): a queue standing longer than the valve's 10 s window
+takes in, which holds the budget's probe.
 
 The queue is the least of the last three samples and of every sample of the last
 2 x ``queue_max_s`` (:class:`~bipedtele.follower.delayrise.DelayRise`): a link that delivers
@@ -58,11 +57,6 @@ from __future__ import annotations
 import math
 
 from bipedtele.follower.delayrise import DelayRise, StandingQueue
-
-#: The standing queue is the least echo delay of this span [s]: ten of the 3G trace's
-#: 50 ms slots, within one leader Status period (0.5 s), so a queue of ours that stands
-#: through a Status period still holds the probe.
-_STANDING_SPAN_S = 0.5
 
 __all__ = ["OneWayQueue"]
 
@@ -137,7 +131,7 @@ class OneWayQueue:
         self._last_close = -math.inf
         self._dip = False  # the open rise is a lone dip of the path's
         self._rise = DelayRise(window_s, span_s=2.0 * queue_max_s)
-        self._standing = StandingQueue(standing_window_s, _STANDING_SPAN_S)  # over a 60 s minimum
+        self._standing = StandingQueue(standing_window_s)  # the current delay over a 60 s minimum
         self._last_sent = -math.inf
         self._closed_at: float | None = None
         self._settle_until = math.inf

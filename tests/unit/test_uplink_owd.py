@@ -148,24 +148,6 @@ def test_a_queue_standing_longer_than_the_window_is_the_standing_queue() -> None
     assert q.standing_s == pytest.approx(0.01)
 
 
-def test_a_slotted_links_waits_are_no_standing_queue_and_a_queue_that_stands_is() -> None:
-    """A link that delivers in slots (the 3G trace's, up to 50 ms apart): feedback at 25 Hz,
-    four in five waiting 20 ms for their slot, the fifth not. The current delay (the least of
-    three) reads 20 ms most of the time, and over its 60 s minimum it held the budget's probe
-    for 30 s on the 3G row; the least over the standing queue's 0.5 s span does not. The same
-    20 ms standing through the span is a standing queue."""
-    q = OneWayQueue(queue_max_s=0.03, standing_window_s=60.0)
-    t, seen = 100.0, []
-    for k in range(250):  # 10 s at 25 Hz
-        wait = 0.02 if k % 5 else 0.0
-        q.echo(t, t - 0.05, t - 0.05 + 0.04 + wait + OFFSET_S)
-        seen.append(q.standing_s)
-        t += 0.04
-    assert max(seen[25:]) == pytest.approx(0.0, abs=1e-9), max(seen)
-    _feed(q, t, 0.6, 0.06)  # every sample 20 ms over the minimum for 0.6 s
-    assert q.standing_s == pytest.approx(0.02)
-
-
 def test_the_same_echo_again_is_no_sample_and_an_old_one_closes_nothing() -> None:
     """The queue is the least of the last three samples and of every sample of the last
     2 x queue_max_s (60 ms): a link that delivers in slots (a cellular link's) makes each
