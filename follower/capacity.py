@@ -27,8 +27,9 @@ robot's uplink": each rule, its figures and what it replaced):
   by ``queue_decrease`` a second, not below 0.8 x it.
 - **start** (:class:`~bipedtele.follower.startphase.StartPhase`): until the first signal
   video's budget starts at ``start_bps`` and grows by ``start_growth`` a second while the
-  path is clear; after ``start_s`` the capacity is taken as 1.2 x the most sent (on a lossy
-  path too: a single lost feedback makes a path lossy), unlimited past ``start_max_bps``.
+  path is clear; after ``start_s``, once video sends what the start offers it (twice
+  ``start_s`` at most), the capacity is taken as 1.2 x the most sent (on a lossy path too:
+  a single lost feedback makes a path lossy), unlimited past ``start_max_bps``.
 - **loss**: with the leader's feedback loss at ``lossy_ppm`` or more within ``lossy_hold_s``
   the rate and echo rules do not judge (TCP's video slowed by loss arrives below what was
   sent whatever the path carries): loss alone never throttles.
