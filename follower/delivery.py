@@ -22,6 +22,7 @@ Not thread-safe: the follower's loop thread only.
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 from collections import deque
@@ -340,8 +341,9 @@ class InFlight:
         With ``after`` the send time of the newest feedback the leader has and ``by`` the
         latest send time that should have arrived by now: the path failed to deliver.
         """
-        with self._lock:
-            return next((t for t, _ in self._sent if t > after), math.inf) <= by
+        with self._lock:  # the log is in send order: the first sent after ``after`` by bisection
+            i = bisect.bisect_right(self._sent, after, key=lambda entry: entry[0])
+            return i < len(self._sent) and self._sent[i][0] <= by
 
     @property
     def min_rtt_s(self) -> float | None:
