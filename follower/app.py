@@ -308,12 +308,21 @@ class FollowerApp:
                 self._run_realtime(robot, loop, supervisor, video)
             else:
                 self._run_fast(supervisor, video)
+            vs = video.stats
             LOG.info(
-                "follower stopping: %s, robot faults %d, reconnects %d, camera errors %d",
+                "follower stopping: %s, robot faults %d, reconnects %d, camera errors %d; video frames: "
+                "captured %d, published %d, replaced in the slot %d, held by the uplink %d, over budget %d, "
+                "cut short %d parts",
                 dict(loop.counters),
                 supervisor.faults,
                 supervisor.reconnects,
-                video.stats["errors"],
+                vs["errors"],
+                vs["captured"],
+                vs["published"],
+                vs["dropped"],
+                vs["held"],
+                vs["throttled"],
+                vs["parts_dropped"],
             )
         return 0
 
