@@ -20,7 +20,7 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -308,22 +308,7 @@ class FollowerApp:
                 self._run_realtime(robot, loop, supervisor, video)
             else:
                 self._run_fast(supervisor, video)
-            vs = video.stats
-            LOG.info(
-                "follower stopping: %s, robot faults %d, reconnects %d, camera errors %d; video frames: "
-                "captured %d, published %d, replaced in the slot %d, held by the uplink %d, over budget %d, "
-                "cut short %d parts",
-                dict(loop.counters),
-                supervisor.faults,
-                supervisor.reconnects,
-                vs["errors"],
-                vs["captured"],
-                vs["published"],
-                vs["dropped"],
-                vs["held"],
-                vs["throttled"],
-                vs["parts_dropped"],
-            )
+            _log_stop(loop.counters, supervisor, video.stats)
         return 0
 
     def _over(self, start_t: float) -> bool:
@@ -432,3 +417,22 @@ def add_follower_parser(sub: Any) -> None:
         "Without a guard, a follower that dies or loses the robot's network leaves the NAO walking",
     )
     p.set_defaults(func=_run)
+
+
+def _log_stop(counters: Mapping[str, int], supervisor: RobotSupervisor, vs: Mapping[str, Any]) -> None:
+    """Log the follower's last figures: the loop's counters, the robot's faults and where the video frames went."""
+    LOG.info(
+        "follower stopping: %s, robot faults %d, reconnects %d, camera errors %d; video frames: "
+        "captured %d, published %d, replaced in the slot %d, held by the uplink %d, over budget %d, "
+        "cut short %d parts",
+        dict(counters),
+        supervisor.faults,
+        supervisor.reconnects,
+        vs["errors"],
+        vs["captured"],
+        vs["published"],
+        vs["dropped"],
+        vs["held"],
+        vs["throttled"],
+        vs["parts_dropped"],
+    )
