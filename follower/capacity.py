@@ -339,12 +339,14 @@ class UplinkBudget:
         elif (
             last is not None and self.start_budget_bps is not None and now - q.at < tu.gap_s and self._start_clear(now)
         ):
-            # video sends what it is offered (read only when the take is due; None: not known)
-            want = min(self.start_budget_bps, video_most_bps or 0.0)
-            dt = max(0.0, now - last)
-            due = self._startphase.clear_s + dt >= tu.start_s
-            tested = not (want and due) or self._log.rate(now - tu.window_s, now, 1) >= 0.8 * want
-            self.start_budget_bps, taken = self._startphase.step(tu, self.start_budget_bps, dt, tx, tested)
+            self.start_budget_bps, taken = self._startphase.step(
+                tu,
+                self.start_budget_bps,
+                max(0.0, now - last),
+                tx,
+                video_most_bps or 0.0,
+                lambda: self._log.rate(now - tu.window_s, now, 1),  # what video sends
+            )
             if taken is not None:
                 self.capacity_bps = taken
         if last is None or not math.isfinite(self.capacity_bps) or self.stalled:

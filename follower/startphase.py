@@ -13,6 +13,7 @@ path), after twice ``start_s`` at the latest. See :mod:`bipedtele.follower.capac
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from bipedtele.follower.uplinktuning import UplinkTuning
@@ -36,16 +37,23 @@ class StartPhase:
     peak_bps: float = 0.0
 
     def step(
-        self, tuning: UplinkTuning, budget_bps: float, dt: float, tx: float, tested: bool = True
+        self,
+        tuning: UplinkTuning,
+        budget_bps: float,
+        dt: float,
+        tx: float,
+        video_most_bps: float = 0.0,
+        video_sent: Callable[[], float] | None = None,
     ) -> tuple[float | None, float | None]:
         """Count ``dt`` [s] more of clear path, ``tx`` [bit/s] sent now, from video's start budget ``budget_bps`` [bit/s].
 
-        ``tested``: video sends what the start's budget offers it, or all it wants. Until
-        then the capacity is not taken before twice ``start_s``: on the 5 % loss row video,
-        climbing its levels, sent 270 of the 524 kbit/s offered when the start ended, the
-        capacity taken from that peak left video 344 kbit/s, and it sent 9.5-14 frames/s
-        for 30 s against 17-20 in the loss-free run, whose start had ended 1.5 s later in
-        video's climb.
+        ``video_most_bps`` [bit/s]: what video sends at its most (0: not known, or no video);
+        ``video_sent()``: what video sends now [bit/s], read only when the take is due. Until
+        video sends 0.8 of what the start offers it (or of its most) the capacity is not
+        taken before twice ``start_s``: on the 5 % loss row video, climbing its levels, sent
+        270 of the 524 kbit/s offered when the start ended, the capacity taken from that
+        peak left video 344 kbit/s, and it sent 9.5-14 frames/s for 30 s against 17-20 in
+        the loss-free run, whose start had ended 1.5 s later in video's climb.
 
         Returns
         -------
@@ -54,12 +62,15 @@ class StartPhase:
             [bit/s] (None: none, unlimited past ``start_max_bps`` or still in the start).
         """
         tu = tuning
+        want = min(budget_bps, video_most_bps)  # what video is offered (before this step's growth)
         self.clear_s += dt
         self.peak_bps = max(self.peak_bps, tx)
         if budget_bps < 2.0 * tx + tu.floor_bps:
             budget_bps *= tu.start_growth**dt
         if budget_bps > tu.start_max_bps:
             return None, None
-        if self.clear_s >= tu.start_s and (tested or self.clear_s >= 2.0 * tu.start_s):
-            return None, 1.2 * self.peak_bps + tu.floor_bps
+        if self.clear_s >= tu.start_s:
+            tested = not want or video_sent is None or video_sent() >= 0.8 * want
+            if tested or self.clear_s >= 2.0 * tu.start_s:
+                return None, 1.2 * self.peak_bps + tu.floor_bps
         return budget_bps, None
