@@ -12,7 +12,8 @@ addresses of the real UDP link (a raw socket: the receiving kernel cannot tell t
 the peer's):
 
 - to the follower's UDP port, from the router's address and port: a Zenoh Close (``23 00``);
-- to the router's UDP port, from the follower's address and port: random bytes;
+- to the router's UDP port, from the follower's address and port: 40 bytes of garbage (an
+  unknown message id, then random bytes: ``udp_spoof.py --garbage``);
 - then the router's datagrams to the follower's UDP port are dropped in the robot's host
   (a NAT that rebound the port, a filter): the link is dead at one end, TLS still passes;
 - last, a Zenoh Close to the leader's UDP port, from the router's address.
@@ -135,7 +136,7 @@ def _attack_and_recover(procs: Procs, hosts: Hosts, rec: Path, which: str, logs:
     if which in ("close", "close-leader"):  # to the client's UDP port, as if from the router
         _spoof(procs, hosts.router_ns, f"{hosts.router_ip}:{peer}", f"{ip}:{local}", ["--hex", "2300"])
     elif which == "garbage":  # to the router's UDP port, as if from the follower's control link
-        _spoof(procs, hosts.robot_ns, f"{hosts.robot_ip}:{local}", f"{hosts.router_ip}:{peer}", ["--random", "40"])
+        _spoof(procs, hosts.robot_ns, f"{hosts.robot_ip}:{local}", f"{hosts.router_ip}:{peer}", ["--garbage", "40"])
     else:  # dead: the router's datagrams to that port vanish (a NAT that rebound it), TLS still passes
         r = subprocess.run(
             [

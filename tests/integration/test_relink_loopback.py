@@ -79,7 +79,7 @@ def test_a_forged_close_or_garbage_costs_one_reopen(tmp_path: Path) -> None:
                 if attack == "close":
                     _spoof(theirs, mine, "--hex", "2300")
                 else:
-                    _spoof(mine, theirs, "--random", "40")
+                    _spoof(mine, theirs, "--garbage", "40")
                 assert _until(lambda n=n: relinked.reopens == n, lambda: None, 5.0), (attack, relinked.reopens)
                 assert str(relinked.zid()) != zid
                 assert _until(lambda: relinked.control_now() == "udp", lambda: None, 5.0), relinked.control_now()
