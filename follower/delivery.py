@@ -14,8 +14,9 @@ own:
   older than the path's delay: a blackout, a near-zero stretch of a cellular link), its
   samples are left out and the window's clock stops: after a gap the estimate is the last
   good one, not the collapse;
-- **samples age out over delivering time only**: ``window_s`` (10 s) of time during which
-  the path delivered, so a path whose capacity really fell is believed after that long.
+- **samples age out over delivering time only**: ``window_s`` (the budget's
+  ``delivery_window_s``, 30 s) of time during which the path delivered, so a path whose
+  capacity really fell is believed after that long.
 
 Not thread-safe: the follower's loop thread only.
 """
@@ -39,7 +40,7 @@ class DeliveryRate:
     Parameters
     ----------
     window_s : float
-        How much delivering time [s] a sample is kept (10 s).
+        How much delivering time [s] a sample is kept (the budget keeps 30 s).
 
     Attributes
     ----------

@@ -102,7 +102,10 @@ class UplinkTuning:
         Video waits while the leader's last acknowledgement showed the round trip this much
         [s] above its minimum (the path's queue, one status period late).
     delivery_window_s : float
-        The delivery rate's maximum is kept this long [s] of time the path delivered.
+        The delivery rate's maximum is kept this long [s] of time the path delivered: the
+        echo rule's floor, longer than its cycle (on the 3G row a cut every 10 s or so, each
+        probed back: with 10 s the floor forgot the rate before the last cut, 235 -> 161
+        kbit/s in four cuts).
     owd_queue_s : float
         Video waits while the feedback's one-way delay, echoed by each command, is this
         much [s] above its minimum (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): with
@@ -151,7 +154,7 @@ class UplinkTuning:
     queue_decrease: float = 0.05
     stall_s: float = 0.5
     stall_fb_hz: float = 5.0
-    delivery_window_s: float = 10.0
+    delivery_window_s: float = 30.0
     inflight_gain: float = 2.0
     inflight_min_bytes: float = 4000.0
     probe_s: float = 1.0

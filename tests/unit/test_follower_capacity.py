@@ -315,6 +315,22 @@ def test_an_echo_cut_keeps_what_the_path_delivered_lately() -> None:
     assert b.capacity_bps == pytest.approx(0.9 * 400_000.0, rel=0.02), b.capacity_bps  # not 0.9 x 200 kbit/s
 
 
+def test_an_echo_cut_keeps_what_the_path_delivered_before_the_last_cuts() -> None:
+    """What the path delivered is kept 30 s of delivering (``delivery_window_s``), longer than
+    the echo rule's cycle: on the 3G row a cut came every 10 s or so, each probed back, and
+    with 10 s the floor had forgotten the rate before the last cut (235 -> 194 -> 182 -> 170
+    -> 161 kbit/s in four cuts over 45 s, on a link carrying 340-1,060 kbit/s in every second
+    outside its gap). Here 15 s of sending half what was delivered before: still the floor."""
+    ow, rate = [0.02], [400_000.0]
+    b, t, each = _echoing_budget(400_000.0, rate, ow)
+    _ticks(b, t, 500, each)  # 5 s delivering 400 kbit/s
+    rate[0] = 200_000.0  # then 15 s sending half that (video waiting out the path's queues)
+    _ticks(b, t, 1500, each)
+    _slow_rise(b, t, ow, each)
+    assert b.signals["echo"] == 1, b.signals
+    assert b.capacity_bps == pytest.approx(0.9 * 400_000.0, rel=0.02), b.capacity_bps  # not 0.9 x 200 kbit/s
+
+
 def test_a_lone_slow_rise_under_the_last_cuts_ceiling_is_the_paths_dip() -> None:
     """After an echo cut the estimate is under what the path carried at it: a lone rise
     there, however slow, is the path's (a queue of ours needs more sent than the path
