@@ -105,7 +105,8 @@ class UplinkTuning:
         The delivery rate's maximum is kept this long [s] of time the path delivered: the
         echo rule's floor, longer than its cycle (on the 3G row a cut every 10 s or so, each
         probed back: with 10 s the floor forgot the rate before the last cut, 235 -> 161
-        kbit/s in four cuts).
+        kbit/s in four cuts). The in-flight cap and the restart after a stall read the same
+        maximum.
     owd_queue_s : float
         Video waits while the feedback's one-way delay, echoed by each command, is this
         much [s] above its minimum (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): with

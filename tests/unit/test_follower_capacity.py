@@ -301,7 +301,7 @@ def _echoing_budget(
 
 def test_an_echo_cut_keeps_what_the_path_delivered_lately() -> None:
     """An echo cut takes the capacity to 0.9 x what was sent, not below 0.9 x what the path
-    delivered in its last 10 s of delivering (``DeliveryRate``): video waiting out the
+    delivered in its last 30 s of delivering (``DeliveryRate``): video waiting out the
     path's queues sends less, and on the 3G row cuts to 0.9 x what was sent took the
     estimate 235 -> 136 kbit/s in four cuts on a link carrying 500-650."""
     ow, rate = [0.02], [400_000.0]
