@@ -14,11 +14,15 @@ robot's uplink": each rule, its figures and what it replaced):
   ``delay_hold_s``: a cut to ``drain_ratio`` of what the path carries (sent / (1 + h2's
   slope), and ``rx_bps``), again by ``decrease`` while h2 grows; a first cut after which h2
   does not fall is undone (:class:`~bipedtele.follower.cutundo.PendingCut`); a rise lasting
-  ``relearn_s`` is the path's own (the minimum taken again).
+  ``relearn_s`` is the path's own (the minimum taken again). Its ceiling (what the path
+  carried) slows the probe past it, except on a link that delivers in slots (the echo's own
+  waits at ``slotted_s`` or more: its capacity moves with them).
 - **echo rule**: the echoed feedback's one-way delay ``owd_queue_s`` over its minimum holds
   video (:class:`~bipedtele.follower.owdqueue.OneWayQueue`); a queue that drained once video
   waited was ours: a cut to ``drain_ratio`` of what was carried, not below ``drain_ratio``
-  of what the path delivered lately, with a soft ceiling; a lone **dip** cuts nothing.
+  of what the path delivered lately, with a soft ceiling; a lone **dip** cuts nothing, nor
+  a closing within the path's own waits (a link that delivers in slots: there every lone
+  closing is a dip).
 - **probing**: no signal for ``hold_s`` and h2 clear: up by ``increase_ratio`` a second (at
   least ``increase_bps_per_s``), never over ``probe_gain`` x what is sent, by
   ``ceiling_probe`` only past ``drain_ratio`` of a hard ceiling.
@@ -128,7 +132,10 @@ class UplinkBudget:
             lossy=lambda: self.lossy,  # a Status lost on its way: an acknowledgement late
         )
         self.owd = OneWayQueue(
-            tu.owd_queue_s, steep_slope=2.0 * (tu.probe_gain - 1.0), standing_window_s=tu.base_window_s
+            tu.owd_queue_s,
+            steep_slope=2.0 * (tu.probe_gain - 1.0),
+            standing_window_s=tu.base_window_s,
+            slotted_s=tu.slotted_s,
         )
         self._owd_drained = 0  # the echo rule's queues of ours judged so far
         self._undo: PendingCut | None = None
@@ -466,8 +473,8 @@ class UplinkBudget:
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
             was = (self.capacity_bps, self.start_budget_bps, self.ceiling_bps, self._soft)
             self._undo = PendingCut(*was, now, q.excess_s)
-        if ref > 0:
-            self.ceiling_bps, self._soft = ref, False
+        if ref > 0:  # a known rate, unless the link delivers in slots (its capacity moves with them)
+            self.ceiling_bps, self._soft = ref, self.owd.noise_s(now) >= tu.slotted_s
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, cut))
         self.signals["delay"] += 1
         q.episode = True

@@ -35,6 +35,16 @@ than the path carried); past it, a crossing of a known rate (a token bucket's) i
 the 3G row the trace's slow rises (a stretch at 240-360 kbit/s for 200-600 ms) had cut
 the estimate 6 times in 90 s, each probed back slowly, where only the steep ones were dips.
 
+A link that delivers in slots makes the echo wait whatever is sent: the queue's upper
+quartile over the last 30 s while the valve was open (:meth:`OneWayQueue.noise_s`, the
+**path's own waits**), replayed from the bench's recordings, was 8.3-10.3 ms on the 3G row,
+4.7-6.8 ms on LTE and 0.7-1.0 ms behind the kernel's 600 kbit/s token bucket. A closing whose queue never passed ``queue_max_s`` by more
+than those waits proves nothing (**jitter**, not judged); with the waits at ``slotted_s``
+or more a lone closing is the link's dip however slowly it rose (its slow stretches of 200-600
+ms at 240-360 kbit/s build a queue as slowly as ours). On the 3G row these closings had cut
+the estimate 14 times in 90 s (205-245 kbit/s on a link carrying 340-1,060 in every second
+outside its gap); the token bucket's waits stay under both, and its crossings are cut as before.
+
 The same current delay over its minimum across ``standing_window_s`` (60 s) is the
 **standing queue** (``standing_s``): a queue standing longer than the valve's 10 s window
 takes in, which holds the budget's probe.
@@ -55,10 +65,15 @@ of 12 against 0, and at 300 kbit/s 5 of 12 against 2.)
 from __future__ import annotations
 
 import math
+from collections import deque
 
 from bipedtele.follower.delayrise import DelayRise, StandingQueue
 
-__all__ = ["OneWayQueue"]
+__all__ = ["NOISE_WINDOW_S", "OneWayQueue"]
+
+#: The path's own waits are the queue's upper quartile over this long [s] (over 10 s they
+#: swung 3.9-8.1 ms on the LTE row, 4.7-6.8 over 30 s).
+NOISE_WINDOW_S = 30.0
 
 
 class OneWayQueue:
@@ -81,6 +96,9 @@ class OneWayQueue:
         A steep rise is a dip only with no other closing of the valve this long before it [s].
     standing_window_s : float
         Window of the standing queue's minimum [s].
+    slotted_s : float
+        With the path's own waits (:meth:`noise_s`) at least this [s] when the valve closes,
+        the link delivers in slots: a lone closing is its dip however slowly it rose (inf: never).
 
     Attributes
     ----------
@@ -102,6 +120,9 @@ class OneWayQueue:
         Rises that drained while the valve held no video: not judged.
     dips : int
         Lone steep rises that drained once video waited: the path's dips, not judged.
+    jitter : int
+        Rises that drained once video waited but never passed ``queue_max_s`` by more than
+        the path's own scheduling waits (:attr:`noise_s` when the valve closed): not judged.
     """
 
     def __init__(
@@ -113,6 +134,7 @@ class OneWayQueue:
         steep_slope: float = 0.5,
         lone_s: float = 1.0,
         standing_window_s: float = 60.0,
+        slotted_s: float = math.inf,
     ) -> None:
         given = {
             "queue_max_s": queue_max_s,
@@ -127,6 +149,9 @@ class OneWayQueue:
                 raise ValueError(f"{name} = {v!r}: allowed: a finite number > 0")
         self.queue_max_s, self.settle_s, self.fresh_s = float(queue_max_s), float(settle_s), float(fresh_s)
         self.steep_slope, self.lone_s = float(steep_slope), float(lone_s)
+        if not slotted_s > 0:
+            raise ValueError(f"slotted_s = {slotted_s!r}: allowed: a number > 0 (inf: never)")
+        self.slotted_s = float(slotted_s)
         self._clear = (-math.inf, 0.0)  # the last sample under half queue_max: (its send stamp [s], queue [s])
         self._last_close = -math.inf
         self._dip = False  # the open rise is a lone dip of the path's
@@ -144,6 +169,10 @@ class OneWayQueue:
         self.passed = 0
         self.dips = 0
         self._held_at_close = 0
+        self._open: deque[tuple[float, float]] = deque()  # (t [s], queue [s]) while the valve was open, NOISE_WINDOW_S
+        self._peak = 0.0  # the open closing's highest queue [s]
+        self._noise_at_close = 0.0
+        self.jitter = 0
 
     def echo(self, now: float, t_sent: float, t_recv: float, *, under_ceiling: bool = False) -> None:
         """Take a command's echo at ``now`` [s]: the newest feedback's send stamp [s, ours] and receive time [s, the leader's].
@@ -161,8 +190,13 @@ class OneWayQueue:
         if self.queue_s <= 0.5 * self.queue_max_s:
             self._clear = (t_sent, self.queue_s)
         if self.queue_s <= self.queue_max_s:
+            self._open.append((now, self.queue_s))
+            while self._open[0][0] < now - NOISE_WINDOW_S:
+                self._open.popleft()
             if self._closed_at is not None and self.held > self._held_at_close and self._dip:
                 self.dips += 1  # a lone dip of the path's, video waited it out
+            elif self._closed_at is not None and self.held > self._held_at_close and self._within_noise():
+                self.jitter += 1  # no higher than the path's own waits: proves nothing
             elif self._closed_at is not None and self.held > self._held_at_close:
                 self.drained += 1  # it drained once video waited: a queue of ours
             elif self._closed_at is not None:
@@ -171,12 +205,15 @@ class OneWayQueue:
             return
         if self._closed_at is None:  # video waits from now; a queue of ours shows drained a round trip later
             self._closed_at, self._held_at_close = now, self.held
+            self._noise_at_close, self._peak = self.noise_s(now), self.queue_s
             sent, low = self._clear  # risen faster than steep_slope since the queue was low: the path's
             steep = self.queue_s - low > self.steep_slope * (t_sent - sent)
-            self._dip = (steep or under_ceiling) and now - self._last_close >= self.lone_s
+            slotted = self._noise_at_close >= self.slotted_s  # a link's slow stretch, however slow the rise
+            self._dip = (steep or under_ceiling or slotted) and now - self._last_close >= self.lone_s
             self._last_close = now
             self._settle_until = now + max(0.0, now - t_sent) + self.settle_s
             return
+        self._peak = max(self._peak, self.queue_s)
         if now > self._settle_until:  # it did not drain: the path's own delay rose
             self._rise.rebase(now)
             self._standing.clear()
@@ -184,6 +221,21 @@ class OneWayQueue:
             self.queue_s = 0.0
             self._closed_at = None
             self.rebased += 1
+
+    def noise_s(self, now: float) -> float:
+        """Return the path's own waits at ``now`` [s]: the queue's upper quartile over :data:`NOISE_WINDOW_S` while the valve was open.
+
+        A link that delivers in slots makes the echo wait whatever is sent (the module
+        docstring's figures).
+        """
+        ordered = sorted(q for t, q in self._open if t >= now - NOISE_WINDOW_S)
+        if not ordered:
+            return 0.0
+        return ordered[(3 * (len(ordered) - 1)) // 4]
+
+    def _within_noise(self) -> bool:
+        """Say whether the closing that drained never passed ``queue_max_s`` by more than the path's waits when it closed."""
+        return self._peak <= self.queue_max_s + self._noise_at_close
 
     def _stand(self, now: float) -> None:
         """Take the current delay into the standing queue's minimum at ``now`` [s]."""
@@ -208,4 +260,5 @@ class OneWayQueue:
             "uplink_owd_drained": self.drained,
             "uplink_owd_passed": self.passed,
             "uplink_owd_dips": self.dips,
+            "uplink_owd_jitter": self.jitter,
         }

@@ -111,6 +111,14 @@ class UplinkTuning:
         Video waits while the feedback's one-way delay, echoed by each command, is this
         much [s] above its minimum (:class:`~bipedtele.follower.owdqueue.OneWayQueue`): with
         a video part holding the path at most ``part_s``, the feedback waits under 50 ms.
+    slotted_s : float
+        A link whose own waits (:meth:`~bipedtele.follower.owdqueue.OneWayQueue.noise_s`, the
+        echo's queue's upper quartile over 30 s while video's valve was open) are at least
+        this [s] delivers in slots and its capacity moves with them: a lone closing of the
+        valve is its dip, and a delay cut's ceiling is soft, as an echo cut's. Set between the
+        classes the bench's recordings showed: 3G 8.3-10.3 ms, LTE 4.7-6.8 ms, the kernel's
+        600 kbit/s token bucket 0.7-1.0 ms. On 3G a hard ceiling held the estimate at 175
+        kbit/s for the last 40 s of two runs, probed at 0.5 %/s.
     lossy_ppm : float
         With the leader's feedback loss at or above this [ppm], the rate rule does not
         judge (TCP's video slowed by loss arrives below what was sent whatever the path
@@ -164,6 +172,7 @@ class UplinkTuning:
     lossy_ppm: float = 1000.0
     lossy_hold_s: float = 30.0
     owd_queue_s: float = 0.03
+    slotted_s: float = 0.0025
 
     def __post_init__(self) -> None:
         for f in fields(self):  # ints given (4000) are kept as floats, as the budget computes

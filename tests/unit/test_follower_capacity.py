@@ -778,3 +778,46 @@ def test_on_a_lossy_path_the_standing_queue_reads_h2_not_the_echo() -> None:
     assert lossy.lossy and lossy.owd.standing_s > 0.015  # the echo reads the waits as a standing queue
     assert lossy.standing_s == pytest.approx(0.0, abs=1e-9)
     assert lossy.capacity_bps >= 0.95 * clean.capacity_bps, (lossy.capacity_bps, clean.capacity_bps)
+
+
+def _delay_cut_then_probe(wait_s: float) -> tuple[UplinkBudget, float]:
+    """A budget past the start at 1 Mbit/s whose commands echo a link's slots (200 ms of every
+    300 ``wait_s`` [s] slower), h2 rising 0.2 s/s for 0.75 s (a queue of ours) and draining;
+    return it 10 s after the delay rule's cut, and the capacity the cut left [bit/s]."""
+    t, h2 = [0.0], [0.18]
+    b = UplinkBudget(lambda: t[0])
+    b.start_budget_bps, b.capacity_bps = None, 1_000_000.0
+
+    def each(k: int) -> None:
+        b.on_h2(h2[0])
+        slow = wait_s if t[0] % 0.3 >= 0.1 else 0.0
+        b.on_echo((t[0] - 0.05, t[0] - 0.03 + slow))
+        b.sent(300, feedback=True)
+        b.sent(int((b.video_budget_bps() or 0.0) * 0.01 / 8), video=True)
+        if k % 50 == 0 and t[0] > 1.0:
+            b.on_leader_status({"rx_bps": round(b.tx_bps()), "fb_loss_ppm": 0, "fb_age_ms": 200}, t[0])
+
+    _ticks(b, t, 1500, each)
+    for k in range(75):
+        h2[0] = 0.18 + 0.002 * (k + 1)
+        _ticks(b, t, 1, lambda j, k=k: each(1500 + k))
+    h2[0] = 0.18
+    _ticks(b, t, 100, lambda k: each(1575 + k))
+    assert b.signals["delay"] == 1 and b.signals["undone"] == 0 and b.signals["echo"] == 0, b.signals
+    cut = b.capacity_bps
+    _ticks(b, t, 1000, lambda k: each(1675 + k))
+    return b, cut
+
+
+def test_a_delay_cut_on_a_link_that_delivers_in_slots_leaves_a_soft_ceiling() -> None:
+    """On the 3G row a delay cut's ceiling (the rate sent when the trace's slow second came)
+    held the estimate at 175 kbit/s for the last 40 s of two runs, probed at 0.5 %/s past
+    0.9 x it, on a link carrying 340-1,060 kbit/s in every second outside its gap. Where the
+    echo's own waits (its queue's upper quartile, video's valve open) are slotted_s (2.5 ms) or
+    more, the link delivers in slots and its capacity moves with them: the ceiling is soft and
+    the probe goes on at up to 3 %/s. On a link that delivers smoothly (the kernel's token
+    bucket: 0.7-1.0 ms) the ceiling stays hard."""
+    slotted, cut = _delay_cut_then_probe(0.01)
+    assert slotted.capacity_bps > 1.15 * cut, (cut, slotted.capacity_bps, slotted.ceiling_bps)
+    smooth, cut = _delay_cut_then_probe(0.0)
+    assert smooth.capacity_bps < 1.1 * cut, (cut, smooth.capacity_bps, smooth.ceiling_bps)
