@@ -152,7 +152,7 @@ class UplinkBudget:
         self._last_update: float | None = None
         self._plan_bps = 0.0  # the feedback rate of the last plan [bit/s]
         self._lossy_until = -math.inf  # lossy until then (see lossy_hold_s)
-        self._soft = False  # the ceiling is the echo rule's: the probe past it is not slowed
+        self._soft = False  # the ceiling was set on a slotted link: the probe past it is not slowed
 
     def __getattr__(self, name: str) -> float:
         """Read a tuning parameter as the budget's attribute (``budget.hold_s``)."""
@@ -430,11 +430,15 @@ class UplinkBudget:
         if (ref := self._carried(self._log.rate(now - tu.window_s, now))) <= 0:
             return
         self.signals["echo"] += 1
-        self.ceiling_bps, self._soft = ref, True  # frames and the probe past it not held down
+        self.ceiling_bps, self._soft = ref, self._slotted(now)  # a known rate only on a smooth link
         # not below what the path delivered lately (the 3G row's ratchet: 235 -> 136 kbit/s in 4 cuts)
         known = tu.drain_ratio * (self.delivery.max_bps or 0.0)
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, max(tu.drain_ratio * ref, known)))
         self._last_signal = now
+
+    def _slotted(self, now: float) -> bool:
+        """Say whether the link delivers in slots: the echo's own waits at ``slotted_s`` or more (its capacity moves with them)."""
+        return self.owd.noise_s(now) >= self.tuning.slotted_s
 
     def _carried(self, sent_bps: float) -> float:
         """Return what the path carried [bit/s]: the least of ``sent_bps`` and ``rx_bps`` (either, when one is 0)."""
@@ -473,8 +477,8 @@ class UplinkBudget:
         else:  # the first cut of a rise: undone if the queue does not drain (_check_cut)
             was = (self.capacity_bps, self.start_budget_bps, self.ceiling_bps, self._soft)
             self._undo = PendingCut(*was, now, q.excess_s)
-        if ref > 0:  # a known rate, unless the link delivers in slots (its capacity moves with them)
-            self.ceiling_bps, self._soft = ref, self.owd.noise_s(now) >= tu.slotted_s
+        if ref > 0:
+            self.ceiling_bps, self._soft = ref, self._slotted(now)  # a known rate only on a smooth link
         self.capacity_bps = max(tu.floor_bps, min(self.capacity_bps, cut))
         self.signals["delay"] += 1
         q.episode = True
