@@ -20,9 +20,9 @@ robot's uplink": each rule, its figures and what it replaced):
 - **echo rule**: the echoed feedback's one-way delay ``owd_queue_s`` over its minimum holds
   video (:class:`~bipedtele.follower.owdqueue.OneWayQueue`); a queue that drained once video
   waited was ours: a cut to ``drain_ratio`` of what was carried, not below ``drain_ratio``
-  of what the path delivered lately, its ceiling as the delay rule's; a lone **dip** cuts nothing, nor
-  a closing within the path's own waits (a link that delivers in slots: there every lone
-  closing is a dip).
+  of what the path delivered lately, its ceiling as the delay rule's; a lone **dip** cuts
+  nothing, nor a closing within the path's own waits (a link that delivers in slots: there
+  every lone closing is a dip).
 - **probing**: no signal for ``hold_s`` and h2 clear: up by ``increase_ratio`` a second (at
   least ``increase_bps_per_s``), never over ``probe_gain`` x what is sent, by
   ``ceiling_probe`` only past ``drain_ratio`` of a hard ceiling.

@@ -37,13 +37,14 @@ the estimate 6 times in 90 s, each probed back slowly, where only the steep ones
 
 A link that delivers in slots makes the echo wait whatever is sent: the queue's upper
 quartile over the last 30 s while the valve was open (:meth:`OneWayQueue.noise_s`, the
-**path's own waits**), replayed from the bench's recordings, was 8.3-10.3 ms on the 3G row,
-4.7-6.8 ms on LTE and 0.7-1.0 ms behind the kernel's 600 kbit/s token bucket. A closing whose queue never passed ``queue_max_s`` by more
-than those waits proves nothing (**jitter**, not judged); with the waits at ``slotted_s``
-or more a lone closing is the link's dip however slowly it rose (its slow stretches of 200-600
-ms at 240-360 kbit/s build a queue as slowly as ours). On the 3G row these closings had cut
-the estimate 14 times in 90 s (205-245 kbit/s on a link carrying 340-1,060 in every second
-outside its gap); the token bucket's waits stay under both, and its crossings are cut as before.
+**path's own waits**), replayed from the bench's recordings, was 8.3-10.3 ms on the 3G
+row, 4.7-6.8 ms on LTE and 0.7-1.0 ms behind the kernel's 600 kbit/s token bucket. A
+closing whose queue never passed ``queue_max_s`` by more than those waits proves nothing
+(**jitter**, not judged); with the waits at ``slotted_s`` or more a lone closing is the
+link's dip however slowly it rose (its slow stretches of 200-600 ms at 240-360 kbit/s
+build a queue as slowly as ours). On the 3G row these closings had cut the estimate 14
+times in 90 s (205-245 kbit/s on a link carrying 340-1,060 in every second outside its
+gap); the token bucket's waits stay under both, and its crossings are cut as before.
 
 The same current delay over its minimum across ``standing_window_s`` (60 s) is the
 **standing queue** (``standing_s``): a queue standing longer than the valve's 10 s window
@@ -122,7 +123,7 @@ class OneWayQueue:
         Lone steep rises that drained once video waited: the path's dips, not judged.
     jitter : int
         Rises that drained once video waited but never passed ``queue_max_s`` by more than
-        the path's own scheduling waits (:attr:`noise_s` when the valve closed): not judged.
+        the path's own waits (:meth:`noise_s` when the valve closed): not judged.
     """
 
     def __init__(

@@ -115,10 +115,11 @@ class UplinkTuning:
         A link whose own waits (:meth:`~bipedtele.follower.owdqueue.OneWayQueue.noise_s`, the
         echo's queue's upper quartile over 30 s while video's valve was open) are at least
         this [s] delivers in slots and its capacity moves with them: a lone closing of the
-        valve is its dip, and a delay cut's ceiling is soft, as an echo cut's. Set between the
-        classes the bench's recordings showed: 3G 8.3-10.3 ms, LTE 4.7-6.8 ms, the kernel's
-        600 kbit/s token bucket 0.7-1.0 ms. On 3G a hard ceiling held the estimate at 175
-        kbit/s for the last 40 s of two runs, probed at 0.5 %/s.
+        valve is its dip, and no cut's ceiling slows the probe (on a smooth link both the
+        echo rule's and the delay rule's do). Set between the classes the bench's recordings
+        showed: 3G 8.3-10.3 ms, LTE 4.7-6.8 ms, the kernel's 600 kbit/s token bucket 0.7-1.0
+        ms. On 3G a delay cut's hard ceiling held the estimate at 175 kbit/s for the last
+        40 s of two runs, probed at 0.5 %/s.
     lossy_ppm : float
         With the leader's feedback loss at or above this [ppm], the rate rule does not
         judge (TCP's video slowed by loss arrives below what was sent whatever the path
