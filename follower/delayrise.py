@@ -85,14 +85,27 @@ class StandingQueue:
     ----------
     window_s : float
         Window of the minimum [s] (60 s: the budget's ``base_window_s``).
+    hold_s : float
+        The delay taken is the least of every sample of the last ``hold_s`` [s] (0: the last
+        sample alone): a queue standing that long shows whole, a link's waits for its
+        delivery slots, gone within it, do not.
     """
 
-    def __init__(self, window_s: float) -> None:
+    def __init__(self, window_s: float, hold_s: float = 0.0) -> None:
+        if not (math.isfinite(window_s) and window_s > 0) or not (math.isfinite(hold_s) and 0 <= hold_s < window_s):
+            raise ValueError(
+                f"window_s = {window_s!r}, hold_s = {hold_s!r}: allowed: a finite window > 0, a finite hold >= 0 and under the window"
+            )
         self._floor = WindowMin(window_s)
+        self._hold = WindowMin(hold_s) if hold_s > 0 else None
 
     def add(self, t: float, delay_s: float) -> float:
-        """Take a delay ``delay_s`` [s] at ``t`` [s]; return it over the window's minimum [s], >= 0."""
+        """Take a delay ``delay_s`` [s] at ``t`` [s]; return the least over ``hold_s`` over the window's minimum [s], >= 0."""
         self._floor.add(t, delay_s)
+        if self._hold is not None:
+            self._hold.add(t, delay_s)
+            held = self._hold.front()  # never None after an add (a delay may be <= 0: the clocks' offset)
+            delay_s = delay_s if held is None else held
         base = self._floor.value(t)
         return 0.0 if base is None else max(0.0, delay_s - base)
 
@@ -103,3 +116,5 @@ class StandingQueue:
     def clear(self) -> None:
         """Forget every sample (the path's own delay changed)."""
         self._floor.clear()
+        if self._hold is not None:
+            self._hold.clear()

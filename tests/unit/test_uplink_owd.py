@@ -211,15 +211,43 @@ def test_a_rise_of_the_paths_own_delay_is_rebased_after_a_round_trip() -> None:
 
 def test_a_queue_standing_longer_than_the_window_is_the_standing_queue() -> None:
     """A queue of 20 ms (under the valve's 30 ms) for 15 s: the 10 s minimum takes it in,
-    the 60 s one does not; a rebase (the path's own delay rose) starts both again."""
+    the 60 s one does not; a rebase (the path's own delay rose) starts both again, and a
+    rise after it shows once it has stood for the hold (1 s)."""
     q = OneWayQueue(queue_max_s=0.03, standing_window_s=60.0)
     t = _feed(q, 100.0, 2.0, 0.02)
     t = _feed(q, t, 15.0, 0.04)
     assert q.queue_s == pytest.approx(0.0, abs=1e-9) and q.standing_s == pytest.approx(0.02)
     t = _feed(q, t, 0.5, 0.2)  # a step of the path's own that does not drain
     assert q.rebased == 1 and q.standing_s == pytest.approx(0.0, abs=1e-9)
-    _feed(q, t, 1.0, 0.21)
+    _feed(q, t, 1.5, 0.21)
     assert q.standing_s == pytest.approx(0.01)
+
+
+def _slow_stretches(q: OneWayQueue, t0: float, seconds: float, queue_s: float) -> float:
+    """Echo every 10 ms from ``t0`` [s] for ``seconds`` on a link whose slow stretches (300 ms
+    of every 700, as the 3G trace's 200-600 ms) make each feedback wait 12 ms longer, over a
+    queue of ours ``queue_s`` [s]; return the time after (it ends inside a slow stretch)."""
+    t = t0
+    for k in range(round(seconds / 0.01)):
+        sent = t - 0.05
+        wait = 0.012 if k % 70 >= 40 else 0.0
+        q.echo(t, sent, sent + 0.1 + queue_s + wait + OFFSET_S)
+        t += 0.01
+    return t
+
+
+def test_a_links_slow_stretches_are_no_standing_queue_a_queue_of_ours_is() -> None:
+    """On the 3G row the echo's current delay over its 60 s minimum was over the 15 ms target
+    21 % of the time after the delay cut of its slowest seconds, the slots' waits, and it
+    slowed the budget's probe to half its rate. The standing queue is the current delay's
+    least over 1 s: a link's waits that come and go within it are none; 20 ms of ours under
+    them, standing 3 s, is."""
+    q = OneWayQueue(queue_max_s=0.03, standing_window_s=60.0)
+    t = _slow_stretches(q, 100.0, 20.29, 0.0)
+    assert q.queue_s > 0.01  # the echo waits in a slow stretch
+    assert q.standing_s == pytest.approx(0.0, abs=1e-9)
+    _slow_stretches(q, t, 3.49, 0.02)
+    assert q.standing_s == pytest.approx(0.02)
 
 
 def test_the_same_echo_again_is_no_sample_and_an_old_one_closes_nothing() -> None:
