@@ -26,9 +26,9 @@ robot's uplink": each rule, its figures and what it replaced):
 - **probing**: no signal for ``hold_s`` and h2 clear: up by ``increase_ratio`` a second (at
   least ``increase_bps_per_s``), never over ``probe_gain`` x what is sent, by
   ``ceiling_probe`` only past ``drain_ratio`` of a hard ceiling.
-- **standing queue**: the echo's delay (h2's on a lossy path) over its ``base_window_s``
-  minimum by more than ``queue_target_s``: no probe, and against a hard ceiling a step down
-  by ``queue_decrease`` a second, not below 0.8 x it.
+- **standing queue**: the echo's delay, its least over 1 s (h2's on a lossy path), over its
+  ``base_window_s`` minimum by more than ``queue_target_s``: no probe, and against a hard
+  ceiling a step down by ``queue_decrease`` a second, not below 0.8 x it.
 - **start** (:class:`~bipedtele.follower.startphase.StartPhase`): until the first signal
   video's budget starts at ``start_bps`` and grows by ``start_growth`` a second while the
   path is clear; after ``start_s``, once video sends what the start offers it (twice
@@ -167,7 +167,7 @@ class UplinkBudget:
 
     @property
     def standing_s(self) -> float:
-        """A queue standing longer than the delay rule's window [s]: the echo's one-way delay over its ``base_window_s`` minimum.
+        """A queue standing longer than the delay rule's window [s]: the echo's one-way delay (its least over 1 s) over its ``base_window_s`` minimum.
 
         h2's where no fresh echo comes, or on a lossy path: there feedback behind a lost
         segment waits for its retransmission, and the echo's least of three reads that as a

@@ -80,9 +80,10 @@ class UplinkTuning:
         A cut is undone at most once in this long [s]: a rise that comes back soon after
         an undo, at the rate the undo restored, is a queue of ours.
     base_window_s, queue_target_s, queue_decrease : float
-        The standing-queue rule: with a known ceiling, the capacity is probed only while
-        h2 is within ``queue_target_s`` [s] of its minimum over ``base_window_s`` [s]
-        (the probe slows as h2 nears it), and above it the capacity steps down by
+        The standing-queue rule: the capacity is probed only while the echo's one-way
+        delay (its least over 1 s; h2 where no echo comes or on a lossy path) is within
+        ``queue_target_s`` [s] of its minimum over ``base_window_s`` [s] (the probe slows
+        as it nears it), and above it, against a known ceiling, the capacity steps down by
         ``queue_decrease`` of itself per second [1/s], not below 0.8 x the ceiling.
     stall_s : float
         The path is stalled when the leader's newest feedback is older than h2's minimum

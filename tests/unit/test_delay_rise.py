@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from bipedtele.follower.backlog import WindowMin
-from bipedtele.follower.delayrise import DelayRise
+from bipedtele.follower.delayrise import DelayRise, StandingQueue
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -53,6 +53,19 @@ def test_bad_parameters_are_refused() -> None:
         DelayRise(window_s=0.0)
     with pytest.raises(ValueError, match="span_s"):
         DelayRise(span_s=-0.1)
+    for window_s, hold_s in ((0.0, 0.0), (60.0, -1.0), (1.0, 1.0), (60.0, float("nan"))):
+        with pytest.raises(ValueError, match="hold_s"):
+            StandingQueue(window_s, hold_s)
+
+
+def test_the_standing_queue_is_the_least_over_its_hold_a_delay_at_or_below_zero_included() -> None:
+    """One-way delays carry the clocks' offset, so a least of 0 or below is a delay, not none."""
+    q = StandingQueue(60.0, hold_s=1.0)
+    assert q.add(0.0, -0.05) == 0.0
+    assert q.add(0.5, 0.0) == 0.0  # the least over the last second is still -0.05
+    assert q.add(1.2, 0.02) == pytest.approx(0.05)  # -0.05 has left the hold: 0.0 over -0.05
+    q.clear()
+    assert q.add(2.0, 0.3) == 0.0 and q.floor(2.0) == 0.3
 
 
 def test_window_min_keeps_its_least_over_the_window() -> None:
