@@ -170,9 +170,9 @@ class UplinkBudget:
         """A queue standing longer than the delay rule's window [s]: the echo's one-way delay (its least over 1 s) over its ``base_window_s`` minimum.
 
         h2's where no fresh echo comes, or on a lossy path: there feedback behind a lost
-        segment waits for its retransmission, and the echo's least of three reads that as a
-        queue (on the 5 % loss row the estimate climbed 0.6 %/s, 614 -> 872 kbit/s in 57 s;
-        1.1 %/s on h2 in the run before).
+        segment waits for its retransmission, and the echo reads waits chained longer than
+        its 1 s hold as a queue (on the 5 % loss row, before the hold, the estimate climbed
+        0.6 %/s, 614 -> 872 kbit/s in 57 s; 1.1 %/s on h2 in the run before).
         """
         return self.owd.standing_s if self.owd.fresh(self._clock()) and not self.lossy else self._q.standing_s
 
